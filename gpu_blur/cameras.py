@@ -1,0 +1,240 @@
+"""Cameras as data: colour matrices, white-balance gain distributions and noise levels.
+
+Presets (values and sources in ``gpu_blur/data/rsblur.json``):
+
+* ``a7r3``: Sony A7R3, the RealBlur camera. XYZ -> camera matrix from LibRaw as normalised by
+  the RSBlur authors; WB red ~ U(1.9, 2.4), blue ~ U(1.5, 1.9) (their PyTorch pipeline); noise
+  K = 8.8915e-5, sigma_r = 2.9430e-5 (their RealBlur estimates).
+* ``a7r3-wb-list``: the same camera with (red, blue) gains drawn from the RealBlur training
+  list (6 distinct pairs, weighted by their row counts), as the authors' TF pipeline does.
+* ``rsblur-0001`` ... ``rsblur-0019``: one per RSBlur capture session: the session's XYZ-space
+  colour correction matrix (ccm cell 1) under D65/D50 adaptation and its fixed WB gains; noise
+  K = 1e-4, sigma_r = 9.1504e-4 (RSBlur estimates).
+* ``srgb``: identity colour (camera RGB is linear sRGB), unit gains, RSBlur noise levels.
+
+A custom camera is a TOML or JSON file; see :func:`load_camera` for its keys.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+
+from gpu_blur.constants import rsblur_data
+from gpu_blur.reference.color import camera_to_linear_matrix, checked_inverse
+
+
+@dataclasses.dataclass(frozen=True)
+class WhiteBalance:
+    """How a sample's white-balance gains are drawn (green is always 1).
+
+    Exactly one form is used: ``pairs`` (a weighted list of (red, blue) gains), else
+    ``red_range`` / ``blue_range`` (independent uniforms; equal bounds fix a gain).
+    """
+
+    red_range: tuple[float, float] = (1.0, 1.0)
+    blue_range: tuple[float, float] = (1.0, 1.0)
+    pairs: tuple[tuple[float, float, float], ...] = ()
+
+    def draw(self, u_red: float, u_blue: float) -> tuple[float, float]:
+        """Gains from two uniforms in (0, 1): ``u_red`` picks the pair when ``pairs`` is set."""
+        if self.pairs:
+            weights = np.array([w for _, _, w in self.pairs], dtype=np.float64)
+            edges = np.cumsum(weights) / weights.sum()
+            i = min(int(np.searchsorted(edges, u_red, side="right")), len(self.pairs) - 1)
+            return float(self.pairs[i][0]), float(self.pairs[i][1])
+        (r0, r1), (b0, b1) = self.red_range, self.blue_range
+        return r0 + (r1 - r0) * u_red, b0 + (b1 - b0) * u_blue
+
+
+@dataclasses.dataclass(frozen=True)
+class Camera:
+    """A camera the pipeline simulates.
+
+    Attributes:
+        name: preset name or file name.
+        source: where the numbers come from.
+        camera_to_linear: (3, 3) float64, camera RGB -> linear sRGB (the ISP's Cam2Lin).
+        linear_to_camera: (3, 3) float64, its float64 inverse (Lin2Cam, supplementary Eq. 7/8).
+        white_balance: the per-sample gain distribution.
+        shot_noise_k: Poisson gain K in units of the [0, 1] RAW signal (RSBlur's beta1).
+        read_noise_std: read-noise standard deviation, same units (RSBlur's beta2, a std).
+    """
+
+    name: str
+    source: str
+    camera_to_linear: np.ndarray
+    linear_to_camera: np.ndarray
+    white_balance: WhiteBalance
+    shot_noise_k: float
+    read_noise_std: float
+
+
+def _camera(name, source, cam_to_lin, wb, shot, read) -> Camera:
+    cam_to_lin = np.asarray(cam_to_lin, dtype=np.float64)
+    lin_to_cam = checked_inverse(cam_to_lin, f"camera {name!r} camera_to_linear")
+    for m in (cam_to_lin, lin_to_cam):
+        m.setflags(write=False)
+    if not (shot > 0 and read >= 0):
+        raise ValueError(
+            f"camera {name!r}: shot_noise_k must be > 0 and read_noise_std >= 0, got "
+            f"{shot!r} and {read!r}"
+        )
+    return Camera(name, source, cam_to_lin, lin_to_cam, wb, float(shot), float(read))
+
+
+def _a7r3(name: str, wb: WhiteBalance, wb_source: str) -> Camera:
+    d = rsblur_data()["a7r3"]
+    return _camera(
+        name,
+        f"colour: {d['xyz_to_camera_source']}; WB: {wb_source}; noise: {d['noise_source']}",
+        camera_to_linear_matrix(xyz_to_cam=d["xyz_to_camera"]),
+        wb,
+        d["shot_noise_k"],
+        d["read_noise_std"],
+    )
+
+
+def _rsblur_session(session: str) -> Camera:
+    d = rsblur_data()["rsblur"]
+    s = d["sessions"][session]
+    red, _, blue = s["wb_rgb"]
+    # The session CCM C is in row convention (ref_row = cam_row @ C): T = C.T in column form.
+    cam_to_lin = camera_to_linear_matrix(ccm=np.array(s["ccm_row"]).T, adapt_d50=True)
+    return _camera(
+        f"rsblur-{session}",
+        f"colour and WB: {d['session_source']}; noise: {d['noise_source']}",
+        cam_to_lin,
+        WhiteBalance((red, red), (blue, blue)),
+        d["shot_noise_k"],
+        d["read_noise_std"],
+    )
+
+
+def preset_names() -> list[str]:
+    """Names of the built-in cameras."""
+    sessions = sorted(rsblur_data()["rsblur"]["sessions"])
+    return ["a7r3", "a7r3-wb-list", *[f"rsblur-{s}" for s in sessions], "srgb"]
+
+
+def get_camera(name_or_path: str | Path, base_dir: Path | None = None) -> Camera:
+    """A preset by name, or a camera file (TOML or JSON) by path.
+
+    Args:
+        name_or_path: a name from :func:`preset_names` or a path ending in .toml or .json.
+        base_dir: folder that relative paths are resolved against (the scene's folder).
+    """
+    name = str(name_or_path)
+    data = rsblur_data()
+    if name == "a7r3":
+        return _a7r3(name, WhiteBalance((1.9, 2.4), (1.5, 1.9)),
+                     "RSBlur PyTorch pipeline, dataset_RealisticDeblur.py")
+    if name == "a7r3-wb-list":
+        pairs = tuple((r, b, n) for r, b, n in data["a7r3"]["realblur_wb_pairs"])
+        return _a7r3(name, WhiteBalance(pairs=pairs), data["a7r3"]["realblur_wb_source"])
+    if name.startswith("rsblur-") and name[7:] in data["rsblur"]["sessions"]:
+        return _rsblur_session(name[7:])
+    if name == "srgb":
+        return _camera("srgb", "identity colour; RSBlur noise levels", np.eye(3),
+                       WhiteBalance(), data["rsblur"]["shot_noise_k"],
+                       data["rsblur"]["read_noise_std"])
+    path = Path(name)
+    if path.suffix.lower() in (".toml", ".json"):
+        if base_dir is not None and not path.is_absolute():
+            path = base_dir / path
+        return load_camera(path)
+    raise ValueError(
+        f"unknown camera {name!r}: use one of {', '.join(preset_names())} "
+        "or the path of a .toml/.json camera file"
+    )
+
+
+def load_camera(path: str | Path) -> Camera:
+    """Load a camera file.
+
+    Keys (TOML shown; JSON has the same structure)::
+
+        name = "my-camera"              # optional, defaults to the file name
+        source = "where the numbers come from"
+        [color]                         # exactly one of the three matrices
+        xyz_to_camera = [[...], [...], [...]]   # camera matrix (Eq. 8), column convention
+        ccm_xyz = [[...], [...], [...]]         # XYZ-space correction T (Eq. 3), column conv.
+        adapt_d50 = false                       # with ccm_xyz: wrap T in D65 <-> D50
+        camera_to_linear = [[...], [...], [...]]  # the composed Cam2Lin itself
+        [white_balance]                 # either ranges or pairs
+        red = [1.9, 2.4]
+        blue = [1.5, 1.9]
+        pairs = [[2.66, 1.46, 1380], ...]       # (red, blue, weight)
+        [noise]
+        shot_noise_k = 8.8915e-5
+        read_noise_std = 2.9430e-5
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise ValueError(f"camera file {path}: cannot read it ({e.strerror})") from None
+    try:
+        if path.suffix.lower() == ".json":
+            spec = json.loads(text)
+        else:
+            from gpu_blur.scene import toml_loads
+
+            spec = toml_loads(text)
+    except ValueError as e:
+        raise ValueError(f"camera file {path}: not valid {path.suffix[1:].upper()}: {e}") from None
+
+    def fail(key, value, allowed):
+        raise ValueError(f"camera file {path}: {key} = {value!r} is invalid; expected {allowed}")
+
+    color = spec.get("color", {})
+    given = [k for k in ("xyz_to_camera", "ccm_xyz", "camera_to_linear") if k in color]
+    if len(given) != 1:
+        fail("[color]", sorted(color), "exactly one of xyz_to_camera, ccm_xyz, camera_to_linear")
+    key = given[0]
+    try:
+        matrix = np.array(color[key], dtype=np.float64)
+    except (TypeError, ValueError):
+        matrix = None
+    if matrix is None or matrix.shape != (3, 3):
+        fail(f"color.{key}", color[key], "a 3 x 3 list of numbers")
+    try:
+        if key == "xyz_to_camera":
+            cam_to_lin = camera_to_linear_matrix(xyz_to_cam=matrix)
+        elif key == "ccm_xyz":
+            cam_to_lin = camera_to_linear_matrix(ccm=matrix,
+                                                 adapt_d50=bool(color.get("adapt_d50", False)))
+        else:
+            cam_to_lin = matrix
+    except ValueError as e:
+        raise ValueError(f"camera file {path}: color.{key}: {e}") from None
+
+    wb_spec = spec.get("white_balance", {})
+    if "pairs" in wb_spec:
+        pairs = wb_spec["pairs"]
+        ok = isinstance(pairs, list) and pairs and all(
+            isinstance(p, list) and len(p) == 3 and all(isinstance(v, (int, float)) for v in p)
+            and p[0] > 0 and p[1] > 0 and p[2] > 0 for p in pairs)
+        if not ok:
+            fail("white_balance.pairs", pairs, "a list of [red_gain, blue_gain, weight] > 0")
+        wb = WhiteBalance(pairs=tuple(tuple(float(v) for v in p) for p in pairs))
+    else:
+        ranges = []
+        for channel in ("red", "blue"):
+            r = wb_spec.get(channel, [1.0, 1.0])
+            r = [r, r] if isinstance(r, (int, float)) else r
+            if not (isinstance(r, list) and len(r) == 2 and 0 < r[0] <= r[1]):
+                fail(f"white_balance.{channel}", r, "a gain > 0 or a range [low, high]")
+            ranges.append((float(r[0]), float(r[1])))
+        wb = WhiteBalance(*ranges)
+
+    noise = spec.get("noise", {})
+    try:
+        return _camera(spec.get("name", path.stem), spec.get("source", str(path.name)),
+                       cam_to_lin, wb, noise.get("shot_noise_k", 1e-4),
+                       noise.get("read_noise_std", 9.1504e-4))
+    except ValueError as e:
+        raise ValueError(f"camera file {path}: {e}") from None

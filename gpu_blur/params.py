@@ -1,0 +1,113 @@
+"""Per-sample random parameters, drawn from the counter-based generator and overridable.
+
+Every scalar comes from a fixed index of stream ``PARAMS`` keyed by (seed, sample index), so
+fixing one with ``overrides`` never shifts another, and a sample's draws never depend on which
+worker, tile or backend makes it. Only the parameters of kept stages are drawn and reported.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gpu_blur.cameras import Camera
+from gpu_blur.plan import Plan
+from gpu_blur.reference import blur, rng
+from gpu_blur.reference.noise import draw_noise_levels
+from gpu_blur.reference.bayer import BayerPattern
+from gpu_blur.scene import PATTERNS, Scene
+
+#: Index of each scalar draw in stream PARAMS (a contract: changing one changes every dataset).
+DRAW_INDEX = {
+    "alpha": 0,
+    "pattern": 1,
+    "red_gain": 2,
+    "blue_gain": 3,
+    "shot_noise_k": 4,
+    "read_noise_std": 5,
+    "gaussian_std": 6,
+    "kernel_size": 7,
+    "extent_px": 8,
+}
+#: Array-valued parameters (recorded beside the scalars, overridable too).
+ARRAY_PARAMS = ("kernel", "homographies")
+
+
+def _uniform_range(u: float, lo: float, hi: float) -> float:
+    return lo + (hi - lo) * u
+
+
+def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_index: int,
+                image_shape: tuple[int, int], overrides: dict | None = None) -> dict:
+    """Draw every random value the plan needs for one sample.
+
+    Args:
+        scene: the settings (ranges, levels).
+        plan: the sample's plan; parameters of skipped stages are not drawn.
+        camera: white-balance distribution and noise levels.
+        seed: dataset seed, 0 <= seed < 2**64.
+        sample_index: the sample's index, 0 <= index < 2**32.
+        image_shape: (height, width) of the sample, for the camera path.
+        overrides: values to use instead of drawing (same names as the result).
+
+    Returns:
+        A dict of plain Python scalars and, for ``kernel`` / ``homographies``, float64 arrays.
+    """
+    overrides = dict(overrides or {})
+    known = set(DRAW_INDEX) | set(ARRAY_PARAMS)
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ValueError(f"unknown override {unknown[0]!r}; parameters are {sorted(known)}")
+    u = rng.image_uniforms(seed, sample_index, rng.Stream.PARAMS, len(DRAW_INDEX))
+    draw = {name: float(u[i]) for name, i in DRAW_INDEX.items()}
+    p: dict = {}
+
+    def put(name, value):
+        p[name] = overrides.pop(name) if name in overrides else value
+
+    b = scene.blur
+    if plan.kept("blur") and b.mode == "kernel" and not b.kernel:
+        lo, hi = b.kernel_size
+        sizes = [s for s in range(lo, hi + 1) if s % 2 == 1]
+        put("kernel_size", sizes[min(int(draw["kernel_size"] * len(sizes)), len(sizes) - 1)])
+        ku = rng.image_uniforms(seed, sample_index, rng.Stream.KERNEL, blur.KERNEL_UNIFORMS)
+        put("kernel", blur.random_motion_kernel(ku, int(p["kernel_size"])))
+    if plan.kept("blur") and b.mode == "trajectory":
+        put("extent_px", _uniform_range(draw["extent_px"], *b.extent))
+        su = rng.image_uniforms(seed, sample_index, rng.Stream.TRAJECTORY, blur.SHAKE_UNIFORMS)
+        put("homographies", blur.camera_shake_homographies(
+            su, image_shape[0], image_shape[1], b.steps, float(p["extent_px"]), float(b.roll)))
+    if plan.kept("saturate"):
+        put("alpha", _uniform_range(draw["alpha"], *scene.saturation.alpha))
+    if plan.raw_round_trip:
+        fixed = scene.isp.pattern
+        put("pattern", fixed if fixed != "random"
+            else PATTERNS[min(int(draw["pattern"] * 4), 3)])
+        p["pattern"] = BayerPattern.parse(str(p["pattern"])).value
+        red, blue = camera.white_balance.draw(draw["red_gain"], draw["blue_gain"])
+        put("red_gain", red)
+        put("blue_gain", blue)
+    if plan.kept("poisson_gaussian_noise"):
+        n = scene.noise
+        shot = camera.shot_noise_k if n.shot_noise_k is None else n.shot_noise_k
+        read = camera.read_noise_std if n.read_noise_std is None else n.read_noise_std
+        k, std = draw_noise_levels(draw["shot_noise_k"], draw["read_noise_std"], shot, read,
+                                   n.spread)
+        put("shot_noise_k", k)
+        put("read_noise_std", std)
+    if plan.kept("gaussian_noise"):
+        n = scene.noise
+        put("gaussian_std", n.gaussian_std * (1 + n.spread * (2 * draw["gaussian_std"] - 1)))
+    if overrides:
+        raise ValueError(
+            f"override {sorted(overrides)[0]!r} is not used by this scene's plan; used here: "
+            f"{sorted(p)}")
+    for name in ("alpha", "red_gain", "blue_gain", "shot_noise_k", "read_noise_std",
+                 "gaussian_std", "extent_px"):
+        if name in p:
+            p[name] = float(p[name])
+            if not np.isfinite(p[name]) or p[name] < 0:
+                raise ValueError(f"parameter {name} = {p[name]!r} must be finite and >= 0")
+    for name in ARRAY_PARAMS:
+        if name in p:
+            p[name] = np.asarray(p[name], dtype=np.float64)
+    return p

@@ -1,0 +1,148 @@
+"""``synthesize``: one realistic blurred sample from sharp input, as a scene describes."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from gpu_blur.backends import get_backend
+from gpu_blur.cameras import get_camera
+from gpu_blur.imageio import read_image, to_unit
+from gpu_blur.params import draw_params
+from gpu_blur.plan import Plan, plan
+from gpu_blur.reference import transfer
+from gpu_blur.reference.output import crop_border, quantize
+from gpu_blur.scene import Scene, load_scene
+
+
+@dataclasses.dataclass
+class Synthesis:
+    """One synthesized sample.
+
+    Attributes:
+        blurred: H x W x 3 float32 in [0, 1], the realistic blurred image (on the 8/16-bit grid
+            when the scene quantizes).
+        sharp: H x W x 3 float32 in [0, 1], the reference frame (middle frame of an average,
+            the photo itself otherwise), toned like ``blurred``.
+        mask: H x W x 3 float32 in [0, 1], the blurred saturation mask (before the crop).
+        params: every drawn value (see :data:`gpu_blur.params.DRAW_INDEX`).
+        plan: the stages that ran.
+    """
+
+    blurred: np.ndarray
+    sharp: np.ndarray
+    mask: np.ndarray
+    params: dict
+    plan: Plan
+
+
+def _as_scene(scene) -> Scene:
+    if isinstance(scene, Scene):
+        return scene
+    return load_scene(scene)
+
+
+def _load(item, what: str) -> np.ndarray:
+    if isinstance(item, (str, Path)):
+        return to_unit(read_image(item), str(item))
+    return to_unit(np.asarray(item), what)
+
+
+def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
+               backend: str = "numpy", overrides: Mapping | None = None) -> Synthesis:
+    """Synthesize one realistic blurred image.
+
+    Args:
+        inputs: sharp sRGB input, H x W x 3 RGB arrays (uint8, uint16 or float in [0, 1]) or
+            image paths: a sequence of consecutive frames (blur mode ``average``; the middle
+            one is the sharp reference), one photo (``kernel``, ``trajectory``), or for mode
+            ``none`` a mapping ``{"blurred": ..., "mask": ... (optional), "sharp": ...}``.
+        scene: a :class:`~gpu_blur.scene.Scene`, a path to a scene TOML, or None (defaults).
+        seed: dataset seed (0 <= seed < 2**64).
+        sample_index: index of this sample (0 <= index < 2**32); with ``seed`` it fixes every
+            random draw.
+        backend: ``"numpy"`` (the float64 reference).
+        overrides: drawn parameters to fix instead (e.g. ``{"alpha": 1.0, "pattern": "RGGB"}``).
+
+    Returns:
+        A :class:`Synthesis`. Images whose RAW round trip needs even sizes lose their last
+        row and/or column (the Bayer 2 x 2 cell rule).
+    """
+    scene = _as_scene(scene)
+    runner = get_backend(backend)
+    camera = get_camera(scene.camera.name, scene.base_dir)
+    frames, mask, sharp = _gather(inputs, scene)
+
+    static = plan(scene)
+    h, w = frames[0].shape[:2]
+    if static.raw_round_trip:
+        h, w = h - h % 2, w - w % 2
+        if h < 2 or w < 2:
+            raise ValueError(f"input of {frames[0].shape[:2]} is too small for the Bayer steps "
+                             "(need at least 2 x 2)")
+        frames = [f[:h, :w] for f in frames]
+        sharp = sharp[:h, :w]
+        mask = None if mask is None else mask[:h, :w]
+
+    # Draws follow the static plan; fixed indices mean the per-sample choice below (auto
+    # saturation) never shifts another draw.
+    params = draw_params(scene, static, camera, seed=seed, sample_index=sample_index,
+                         image_shape=(h, w), overrides=overrides)
+    linear, sat_mask = runner.accumulate(static, params, frames, mask)
+    sample_plan = plan(scene, saturated=bool(np.any(sat_mask > 0)))
+    if not sample_plan.kept("saturate"):
+        params.pop("alpha", None)
+    image, saturated = runner.to_raw(sample_plan, params, camera, linear, sat_mask, seed=seed,
+                                     sample_index=sample_index)
+    out = runner.finish(sample_plan, params, camera, image, saturated, seed=seed,
+                        sample_index=sample_index)
+    sharp_out = render_sharp(sample_plan, sharp, runner)
+    crop = scene.output.crop
+    out, sharp_out = crop_border(out, crop), crop_border(sharp_out, crop)
+    if sample_plan.kept("quantize"):
+        out = quantize(out, scene.output.bits)
+        sharp_out = quantize(sharp_out, scene.output.bits)
+    return Synthesis(out.astype(np.float32), sharp_out.astype(np.float32),
+                     sat_mask.astype(np.float32), params, sample_plan)
+
+
+def render_sharp(sample_plan: Plan, sharp: np.ndarray, runner) -> np.ndarray:
+    """The sharp reference in the output's encoding (sRGB, linear, or re-toned)."""
+    if not sample_plan.kept("tone"):
+        return np.clip(transfer.srgb_to_linear(sharp), 0.0, 1.0)
+    return runner.retone(sample_plan, sharp)
+
+
+def _gather(inputs, scene: Scene):
+    """(frames, mask, sharp) as float64 [0, 1] arrays, validated against the blur mode."""
+    mode = scene.blur.mode
+    if mode == "none":
+        if not isinstance(inputs, Mapping) or "blurred" not in inputs:
+            raise ValueError("blur.mode = none takes a mapping {'blurred': image, 'mask': "
+                             "optional mask, 'sharp': optional sharp image}")
+        blurred = _load(inputs["blurred"], "blurred image")
+        mask = None if inputs.get("mask") is None else _load(inputs["mask"], "mask")
+        sharp = blurred if inputs.get("sharp") is None else _load(inputs["sharp"], "sharp")
+        _same_shape([blurred] + [x for x in (mask, sharp) if x is not None],
+                    ["blurred", "mask", "sharp"])
+        return [blurred], mask, sharp
+    if isinstance(inputs, (str, Path, np.ndarray)):
+        inputs = [inputs]
+    if not isinstance(inputs, Sequence) or len(inputs) == 0:
+        raise ValueError(f"blur.mode = {mode} needs a non-empty list of images")
+    if mode != "average" and len(inputs) != 1:
+        raise ValueError(f"blur.mode = {mode} blurs one photo; got {len(inputs)} images")
+    frames = [_load(x, f"frame {i}") for i, x in enumerate(inputs)]
+    _same_shape(frames, [f"frame {i}" for i in range(len(frames))])
+    return frames, None, frames[len(frames) // 2]
+
+
+def _same_shape(images, names):
+    for img, name in zip(images[1:], names[1:]):
+        if img.shape != images[0].shape:
+            raise ValueError(f"{name} is {img.shape[1]} x {img.shape[0]} but {names[0]} is "
+                             f"{images[0].shape[1]} x {images[0].shape[0]}; all inputs of a "
+                             "sample must have the same size")

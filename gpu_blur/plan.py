@@ -1,0 +1,161 @@
+"""Scene -> the ordered stages it calls for, each kept or skipped with its reason.
+
+The stages follow the data flow of RSBlur's synthesis (Rim et al., ECCV 2022, supplementary
+Fig. 7) and fall into three passes, which kernel backends fuse:
+
+1. ``accumulate``: linearize the sRGB input and blur it (average frames, convolve a kernel, or
+   warp along a camera-shake path), with the saturation mask;
+2. ``to_raw``: saturation synthesis, Lin2Cam, mosaic, inverse white balance, Poisson-Gaussian
+   noise, white balance (pointwise);
+3. ``finish``: demosaic (5 x 5 stencil), then pointwise Cam2Lin, tone curve, sRGB Gaussian
+   noise, restore of saturated pixels, final re-toning, crop and quantization.
+
+Only kept stages are run (and, in kernel backends, compiled).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from gpu_blur.scene import Scene
+
+PASSES = ("accumulate", "to_raw", "finish")
+
+
+@dataclasses.dataclass(frozen=True)
+class Stage:
+    """One step of the plan.
+
+    Attributes:
+        name: the stage's name, shared by the reference and every backend.
+        pass_: which of :data:`PASSES` it belongs to.
+        kept: whether it runs.
+        reason: why it is kept or skipped, in words.
+        variant: which flavour runs (e.g. ``"malvar2004"``), or ``""``.
+        options: the settings the stage reads (e.g. ``{"border": "reflect", "clip": False}``).
+    """
+
+    name: str
+    pass_: str
+    kept: bool
+    reason: str
+    variant: str = ""
+    options: dict = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """The ordered stages of a scene."""
+
+    stages: tuple[Stage, ...]
+
+    def kept(self, name: str) -> bool:
+        """Whether stage ``name`` runs."""
+        return self[name].kept
+
+    def variant(self, name: str) -> str:
+        """The variant of stage ``name``."""
+        return self[name].variant
+
+    def __getitem__(self, name: str) -> Stage:
+        for stage in self.stages:
+            if stage.name == name:
+                return stage
+        raise KeyError(f"no stage {name!r}; stages are {[s.name for s in self.stages]}")
+
+    @property
+    def raw_round_trip(self) -> bool:
+        """Whether the image goes through camera RAW and back."""
+        return self.kept("mosaic")
+
+    def __str__(self) -> str:
+        width = max(len(s.name) for s in self.stages)
+        vwidth = max(len(s.variant) for s in self.stages) + 2
+        lines, current = [], None
+        for s in self.stages:
+            if s.pass_ != current:
+                current = s.pass_
+                lines.append(f"{current}:")
+            mark = "run " if s.kept else "skip"
+            variant = f"[{s.variant}]" if s.variant else ""
+            lines.append(f"  {mark} {s.name:<{width}}  {variant:<{vwidth}}  {s.reason}")
+        return "\n".join(lines)
+
+
+def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
+    """The stages ``scene`` calls for.
+
+    Args:
+        scene: validated settings.
+        saturated: whether the sample's input reaches the clip level anywhere (its saturation
+            mask is non-zero); ``None`` when not known yet. Only ``saturation.mode = "auto"``
+            depends on it.
+    """
+    b, n, isp, out = scene.blur, scene.noise, scene.isp, scene.output
+    stages = []
+
+    def add(name, pass_, kept, reason, variant="", **options):
+        stages.append(Stage(name, pass_, bool(kept), reason, variant, options))
+
+    # accumulate
+    add("linearize", "accumulate", True, "sRGB input decoded with the sRGB EOTF")
+    blurring = b.mode != "none"
+    add("blur", "accumulate", blurring,
+        {"average": f"mean of {b.frames} linear frames and their saturation masks",
+         "kernel": "one photo convolved with "
+                   + (f"the kernel {b.kernel}" if b.kernel else "a random motion kernel"),
+         "trajectory": f"one photo warped along a camera-shake path of {b.steps} poses",
+         "none": "blur.mode = none: the input is already blurred"}[b.mode],
+        b.mode if blurring else "")
+
+    # to_raw
+    sat = scene.saturation.mode == "on" or (scene.saturation.mode == "auto" and saturated
+                                            is not False)
+    if scene.saturation.mode == "off":
+        add("saturate", "to_raw", False, "saturation.mode = off")
+    elif scene.saturation.mode == "on":
+        add("saturate", "to_raw", True, "saturation.mode = on")
+    elif saturated is None:
+        add("saturate", "to_raw", True,
+            "saturation.mode = auto: runs for samples with pixels at the clip level")
+    elif saturated:
+        add("saturate", "to_raw", True, "saturation.mode = auto: input reaches the clip level")
+    else:
+        add("saturate", "to_raw", False,
+            "saturation.mode = auto: no input pixel reaches the clip level")
+    raw = n.model == "poisson-gaussian" or isp.round_trip == "always"
+    why_raw = ("Poisson-Gaussian noise acts on the RAW mosaic" if n.model == "poisson-gaussian"
+               else "isp.round_trip = always: demosaic artefacts asked for")
+    why_not = f"noise.model = {n.model}: no RAW round trip"
+    add("linear_to_camera", "to_raw", raw, why_raw if raw else why_not,
+        "clip" if raw and isp.clip_camera else "", clip=isp.clip_camera)
+    add("mosaic", "to_raw", raw, why_raw if raw else why_not, isp.pattern if raw else "")
+    add("inverse_white_balance", "to_raw", raw, why_raw if raw else why_not)
+    pg = n.model == "poisson-gaussian"
+    add("poisson_gaussian_noise", "to_raw", pg,
+        "K * Poisson(x / K) + sigma_r * N(0, 1) on the mosaic" if pg
+        else f"noise.model = {n.model}")
+    add("white_balance", "to_raw", raw, why_raw if raw else why_not)
+
+    # finish
+    add("demosaic", "finish", raw, why_raw if raw else why_not,
+        (isp.demosaic + (", clip" if isp.clip_demosaic else "")) if raw else "",
+        method=isp.demosaic, border=isp.border, clip=isp.clip_demosaic)
+    add("camera_to_linear", "finish", raw, why_raw if raw else why_not)
+    add("tone", "finish", out.crf != "none",
+        "sRGB OETF, then clip to [0, 1]" if out.crf != "none"
+        else "output.crf = none: output stays linear (clipped to [0, 1])")
+    add("gaussian_noise", "finish", n.model == "gaussian",
+        "sRGB Gaussian noise, then clip" if n.model == "gaussian" else f"noise.model = {n.model}")
+    add("restore_saturated", "finish", sat,
+        "channels saturated after synthesis set to exactly 1" if sat else "no saturation stage")
+    retone = out.crf in ("a7r3", "a7r3-lut")
+    add("retone", "finish", retone,
+        f"output and sharp re-toned with the A7R3 {'lookup table' if out.crf == 'a7r3-lut' else 'polynomial'}"
+        if retone else f"output.crf = {out.crf}: no re-toning", out.crf if retone else "",
+        crf=out.crf)
+    add("crop", "finish", out.crop > 0,
+        f"{out.crop} px cut from every side" if out.crop else "output.crop = 0")
+    add("quantize", "finish", out.bits > 0,
+        f"{out.bits}-bit, round half up" if out.bits else "output.bits = 0: float output")
+    return Plan(tuple(stages))

@@ -1,0 +1,37 @@
+"""Output encoding: border crop and quantization."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def crop_border(image, pixels: int) -> np.ndarray:
+    """Cut ``pixels`` from every side (the RSBlur pipelines cut 4 to hide demosaic borders)."""
+    if pixels == 0:
+        return image
+    h, w = image.shape[:2]
+    if 2 * pixels >= min(h, w):
+        raise ValueError(f"cannot crop {pixels} px from every side of a {h} x {w} image")
+    return image[pixels:h - pixels, pixels:w - pixels]
+
+
+def quantize(image, bits: int) -> np.ndarray:
+    """Clip to [0, 1] and round to ``bits`` bits, half up: ``floor(x * (2^bits - 1) + 0.5)``.
+
+    Args:
+        image: float array in [0, 1] (values outside are clipped).
+        bits: 8 or 16.
+
+    Returns:
+        float64 values on the grid ``k / (2^bits - 1)``; ``to_integers`` gives the codes.
+    """
+    return to_integers(image, bits) / float(2**bits - 1)
+
+
+def to_integers(image, bits: int) -> np.ndarray:
+    """The integer codes of :func:`quantize` as uint8 or uint16."""
+    if bits not in (8, 16):
+        raise ValueError(f"bits must be 8 or 16, got {bits!r}")
+    top = 2**bits - 1
+    x = np.clip(np.asarray(image, dtype=np.float64), 0.0, 1.0)
+    return np.floor(x * top + 0.5).astype(np.uint8 if bits == 8 else np.uint16)

@@ -1,0 +1,148 @@
+"""Transfer functions: sRGB EOTF/OETF, pure gamma, and polynomial / lookup-table camera responses.
+
+All functions take and return float64 arrays of any shape (values are per channel).
+
+sRGB constants are those of IEC 61966-2-1 as the RSBlur code uses them (MATLAB ``rgb2lin`` /
+``lin2rgb`` clones in ``Uformer-RSBlur/ISP/utils.py``): odd extension for negative inputs, no
+clipping inside. The A7R3 camera response (a degree-7 polynomial and its 2,551-entry table) is
+camera data and lives in :mod:`gpu_blur.cameras`; these functions take it as an argument.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: sRGB EOTF knee on the encoded value (IEC 61966-2-1).
+SRGB_DECODE_KNEE = 0.04045
+#: sRGB OETF knee on the linear value (IEC 61966-2-1).
+SRGB_ENCODE_KNEE = 0.0031308
+SRGB_SLOPE = 12.92
+SRGB_GAMMA = 2.4
+SRGB_SCALE = 1.055
+SRGB_OFFSET = 0.055
+
+
+def srgb_to_linear(encoded) -> np.ndarray:
+    """sRGB EOTF: y = sign(x) * (|x| / 12.92 if |x| < 0.04045 else ((|x| + 0.055) / 1.055)^2.4).
+
+    Args:
+        encoded: sRGB values, nominally in [0, 1]; any shape.
+
+    Returns:
+        Linear values, float64, same shape. Negative inputs map oddly, nothing is clipped.
+    """
+    x = np.asarray(encoded, dtype=np.float64)
+    a = np.abs(x)
+    curve = np.where(a < SRGB_DECODE_KNEE, SRGB_DECODE_KNEE, a)  # keep pow on its own branch
+    y = np.where(
+        a < SRGB_DECODE_KNEE,
+        a / SRGB_SLOPE,
+        ((curve + SRGB_OFFSET) / SRGB_SCALE) ** SRGB_GAMMA,
+    )
+    return np.copysign(y, x)
+
+
+def linear_to_srgb(linear) -> np.ndarray:
+    """sRGB OETF: y = sign(x) * (12.92 |x| if |x| < 0.0031308 else 1.055 |x|^(1/2.4) - 0.055).
+
+    The branch is selected before the power, so 0 and denormals never reach a log or pow.
+
+    Args:
+        linear: linear values; any shape.
+
+    Returns:
+        sRGB-encoded values, float64, same shape; not clipped.
+    """
+    x = np.asarray(linear, dtype=np.float64)
+    a = np.abs(x)
+    curve = np.where(a < SRGB_ENCODE_KNEE, SRGB_ENCODE_KNEE, a)
+    y = np.where(
+        a < SRGB_ENCODE_KNEE,
+        SRGB_SLOPE * a,
+        SRGB_SCALE * curve ** (1.0 / SRGB_GAMMA) - SRGB_OFFSET,
+    )
+    return np.copysign(y, x)
+
+
+def gamma_to_linear(encoded, gamma: float = 2.2) -> np.ndarray:
+    """Pure power-law decode ``sign(x) |x|^gamma`` (no linear toe)."""
+    x = np.asarray(encoded, dtype=np.float64)
+    return np.copysign(np.abs(x) ** gamma, x)
+
+
+def linear_to_gamma(linear, gamma: float = 2.2) -> np.ndarray:
+    """Pure power-law encode ``sign(x) |x|^(1/gamma)`` (no linear toe)."""
+    x = np.asarray(linear, dtype=np.float64)
+    return np.copysign(np.abs(x) ** (1.0 / gamma), x)
+
+
+def polynomial_crf(linear, coefficients) -> np.ndarray:
+    """Polynomial camera response ``clip(sum_k c_k x^k, 0, 1)``, evaluated by Horner's rule.
+
+    Supplementary Sec. 7, Eq. 6 (Rim et al. fit K = 7 for the Sony A7R3). The A7R3 polynomial is
+    negative below about 0.0011 and exceeds 1 at 1, hence the clip; it is very slightly
+    non-monotone near 0.862.
+
+    Args:
+        linear: linear intensities; any shape.
+        coefficients: c_0 ... c_K in ascending powers.
+
+    Returns:
+        Rendered values in [0, 1], float64, same shape.
+    """
+    x = np.asarray(linear, dtype=np.float64)
+    c = np.asarray(coefficients, dtype=np.float64)
+    y = np.full_like(x, c[-1])
+    for ck in c[-2::-1]:
+        y = y * x + ck
+    return np.clip(y, 0.0, 1.0)
+
+
+def lookup_table_grid(rendered_x255) -> tuple[np.ndarray, np.ndarray]:
+    """The (linear, rendered) nodes of a response table sampled at linear = 0, 1/N, ..., 1.
+
+    Args:
+        rendered_x255: (N + 1,) rendered values times 255 at evenly spaced linear values
+            (the A7R3 table has N + 1 = 2,551 nodes, linear x 255 = 0.0, 0.1, ..., 255.0).
+
+    Returns:
+        ``(linear_nodes, rendered_nodes)``, both in [0, 1].
+    """
+    rendered = np.asarray(rendered_x255, dtype=np.float64) / 255.0
+    if rendered.ndim != 1 or rendered.size < 2 or np.any(np.diff(rendered) <= 0):
+        raise ValueError("a response lookup table must be 1-D, >= 2 nodes, strictly increasing")
+    return np.linspace(0.0, 1.0, rendered.size), rendered
+
+
+def lookup_crf(linear, rendered_x255) -> np.ndarray:
+    """Camera response by piecewise-linear interpolation of a table, clipped to [0, 1]."""
+    nodes, rendered = lookup_table_grid(rendered_x255)
+    x = np.asarray(linear, dtype=np.float64)
+    return np.clip(np.interp(x, nodes, rendered), 0.0, 1.0)
+
+
+def inverse_lookup_crf(encoded, rendered_x255) -> np.ndarray:
+    """Inverse camera response from the same table: monotone because the table is."""
+    nodes, rendered = lookup_table_grid(rendered_x255)
+    x = np.asarray(encoded, dtype=np.float64)
+    return np.clip(np.interp(x, rendered, nodes), 0.0, 1.0)
+
+
+def retone(encoded, crf: str) -> np.ndarray:
+    """Re-tone an sRGB image with the A7R3 response: ``crf(srgb_to_linear(x))``.
+
+    The RSBlur PyTorch pipeline does this to both the synthetic input and its ground truth so
+    that they look like RealBlur-J's camera JPEGs (pipeline note, Sec. 3 step 18).
+
+    Args:
+        encoded: sRGB image in [0, 1]; any shape.
+        crf: ``"a7r3"`` (the polynomial) or ``"a7r3-lut"`` (its lookup table).
+    """
+    from gpu_blur.constants import A7R3_CRF_POLYNOMIAL, A7R3_CRF_TABLE_X255
+
+    linear = srgb_to_linear(encoded)
+    if crf == "a7r3":
+        return polynomial_crf(linear, A7R3_CRF_POLYNOMIAL)
+    if crf == "a7r3-lut":
+        return lookup_crf(linear, A7R3_CRF_TABLE_X255)
+    raise ValueError(f"crf must be 'a7r3' or 'a7r3-lut', got {crf!r}")

@@ -1,0 +1,246 @@
+"""The scene: what is simulated, as validated settings loaded from a TOML file.
+
+Every field has a default, so an empty file is a valid scene (camera-shake blur of one photo
+through the Sony A7R3 model). A bad file gets an error naming the file, the key, the bad value
+and what is allowed. See ``gpu_blur/data/scenes/`` for examples and :data:`FIELDS` for the
+full list (``gpu-blur plan --help`` prints it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from pathlib import Path
+from typing import Any
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+from gpu_blur.constants import GAUSSIAN_SRGB_NOISE_STD
+
+PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
+
+
+@dataclasses.dataclass(frozen=True)
+class Field:
+    """One scene key: its default, what is allowed, and what it means."""
+
+    default: Any
+    help: str
+    choices: tuple = ()
+    kind: type | tuple[type, ...] | None = None
+    minimum: float | None = None
+    pair: bool = False  # a [low, high] range
+
+
+#: section -> key -> Field. The single definition of the scene format.
+FIELDS: dict[str, dict[str, Field]] = {
+    "blur": {
+        "mode": Field("trajectory", "how the blur is made: 'average' consecutive frames, "
+                      "'kernel' (convolve one photo), 'trajectory' (camera shake over one photo), "
+                      "'none' (input is already blurred sRGB)",
+                      choices=("average", "kernel", "trajectory", "none")),
+        "frames": Field(9, "frames averaged per sample in mode 'average' (RSBlur: 9)",
+                        kind=int, minimum=1),
+        "steps": Field(33, "poses along the camera path in mode 'trajectory'", kind=int,
+                       minimum=1),
+        "extent": Field([4.0, 24.0], "range of the shake path's extent at the image centre, "
+                        "pixels (drawn per sample)", kind=(int, float), minimum=0, pair=True),
+        "roll": Field(0.5, "largest camera roll during the exposure, degrees",
+                      kind=(int, float), minimum=0),
+        "kernel": Field("", "mode 'kernel': path of a kernel (.npy or grayscale .png); "
+                        "empty draws a random motion kernel per sample", kind=str),
+        "kernel_size": Field([5, 29], "mode 'kernel', random kernels: range of odd sizes "
+                             "(GoPro_U used 5..29)", kind=int, minimum=1, pair=True),
+    },
+    "saturation": {
+        "mode": Field("auto", "saturation synthesis: 'on', 'off', or 'auto' (only for samples "
+                      "with pixels at the clip level)", choices=("auto", "on", "off")),
+        "alpha": Field([0.25, 1.75], "range of the highlight boost alpha (RSBlur: U(0.25, "
+                       "1.75))", kind=(int, float), minimum=0, pair=True),
+    },
+    "camera": {
+        "name": Field("a7r3", "camera preset (a7r3, a7r3-wb-list, rsblur-0001..0019, srgb) or "
+                      "path of a camera .toml/.json", kind=str),
+    },
+    "noise": {
+        "model": Field("poisson-gaussian", "'poisson-gaussian' on the RAW mosaic, 'gaussian' "
+                       "in sRGB, or 'none'", choices=("poisson-gaussian", "gaussian", "none")),
+        "shot_noise_k": Field(None, "Poisson gain K (RSBlur beta1); default: the camera's",
+                              kind=(int, float), minimum=0),
+        "read_noise_std": Field(None, "read-noise std (RSBlur beta2); default: the camera's",
+                                kind=(int, float), minimum=0),
+        "spread": Field(0.5, "K and the std are drawn in level * (1 +- spread) (RSBlur: 0.5)",
+                        kind=(int, float), minimum=0),
+        "gaussian_std": Field(GAUSSIAN_SRGB_NOISE_STD, "sRGB Gaussian noise std before the "
+                              "+- spread draw (RSBlur TF)", kind=(int, float), minimum=0),
+    },
+    "isp": {
+        "round_trip": Field("auto", "RAW round trip: 'auto' (only with poisson-gaussian noise) "
+                            "or 'always' (demosaic artefacts even without noise)",
+                            choices=("auto", "always")),
+        "demosaic": Field("malvar2004", "demosaicing method", choices=("malvar2004", "bilinear")),
+        "pattern": Field("random", "Bayer pattern, or 'random' per sample",
+                         choices=("random", *PATTERNS)),
+        "border": Field("reflect", "demosaic border: 'reflect' keeps the Bayer phase; 'zero' "
+                        "as the authors' PyTorch code", choices=("reflect", "zero")),
+        "clip_camera": Field(False, "clip camera RGB to [0, 1] before mosaicing (RSBlur TF)",
+                             kind=bool),
+        "clip_demosaic": Field(False, "clip the demosaiced image to [0, 1] (RSBlur TF)",
+                               kind=bool),
+    },
+    "output": {
+        "crf": Field("srgb", "final tone: 'srgb' (the ISP's sRGB curve), 'a7r3' (re-tone with "
+                     "the A7R3 polynomial), 'a7r3-lut' (its lookup table), 'none' (linear)",
+                     choices=("srgb", "a7r3", "a7r3-lut", "none")),
+        "bits": Field(8, "quantize to 8 or 16 bits (round half up), or 0 to keep float",
+                      choices=(0, 8, 16)),
+        "crop": Field(0, "pixels cropped from every side of both outputs (RSBlur: 4)",
+                      kind=int, minimum=0),
+        "precision": Field("float32", "compute precision of kernel backends",
+                           choices=("float32", "float64")),
+    },
+}
+
+
+def _section_class(section: str):
+    fields = [(k, object, dataclasses.field(default=None)) for k in FIELDS[section]]
+    return dataclasses.make_dataclass(section.capitalize(), fields, frozen=True)
+
+
+Blur = _section_class("blur")
+Saturation = _section_class("saturation")
+CameraSettings = _section_class("camera")
+Noise = _section_class("noise")
+Isp = _section_class("isp")
+Output = _section_class("output")
+_SECTIONS = {"blur": Blur, "saturation": Saturation, "camera": CameraSettings, "noise": Noise,
+             "isp": Isp, "output": Output}
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    """Validated scene settings, one frozen dataclass per TOML section (see :data:`FIELDS`)."""
+
+    blur: Any
+    saturation: Any
+    camera: Any
+    noise: Any
+    isp: Any
+    output: Any
+    path: Path | None = None  # the file it came from (relative camera/kernel paths use it)
+
+    @property
+    def base_dir(self) -> Path | None:
+        """Folder that relative paths inside the scene are resolved against."""
+        return self.path.parent if self.path else None
+
+    def to_dict(self) -> dict:
+        """Plain nested dict of every setting (for manifests and ``gpu-blur plan``)."""
+        return {s: dataclasses.asdict(getattr(self, s)) for s in _SECTIONS}
+
+
+class SceneError(ValueError):
+    """A scene file or dict that does not validate."""
+
+
+def toml_loads(text: str) -> dict:
+    """Parse TOML text (stdlib tomllib on 3.11+, tomli before); errors are ValueError."""
+    return tomllib.loads(text)
+
+
+def _check(where: str, key: str, field: Field, value):
+    def fail(allowed: str):
+        raise SceneError(f"{where}: {key} = {value!r} is invalid; allowed: {allowed}")
+
+    if field.choices:
+        if value not in field.choices or isinstance(value, bool) != isinstance(
+                field.choices[0], bool):
+            fail(" | ".join(repr(c) for c in field.choices))
+        return value
+    items = value if field.pair else [value]
+    kinds = field.kind if isinstance(field.kind, tuple) else (field.kind,)
+    what = " or ".join(k.__name__ for k in kinds)
+    if field.pair and not (isinstance(value, list) and len(value) == 2):
+        fail(f"a [low, high] pair of {what}")
+    for v in items:
+        if not isinstance(v, kinds) or (bool not in kinds and isinstance(v, bool)):
+            fail(f"{'a pair of ' if field.pair else ''}{what}")
+        if field.minimum is not None and v < field.minimum:
+            fail(f"{what} >= {field.minimum}")
+    if field.pair and items[0] > items[1]:
+        fail("low <= high")
+    return list(value) if field.pair else value
+
+
+def scene_from_dict(data: dict, where: str = "scene", path: Path | None = None) -> Scene:
+    """Validate a nested dict (as parsed from TOML) into a :class:`Scene`.
+
+    Raises:
+        SceneError: naming ``where``, the key, the bad value and what is allowed.
+    """
+    if not isinstance(data, dict):
+        raise SceneError(f"{where}: expected a table of sections, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(FIELDS))
+    if unknown:
+        raise SceneError(f"{where}: unknown section [{unknown[0]}]; sections are "
+                         f"{', '.join('[' + s + ']' for s in FIELDS)}")
+    sections = {}
+    for section, fields in FIELDS.items():
+        given = data.get(section, {})
+        if not isinstance(given, dict):
+            raise SceneError(f"{where}: {section} must be a [{section}] table, got {given!r}")
+        extra = sorted(set(given) - set(fields))
+        if extra:
+            raise SceneError(f"{where}: unknown key {section}.{extra[0]}; [{section}] keys are "
+                             f"{', '.join(fields)}")
+        values = {}
+        for key, field in fields.items():
+            if key in given:
+                values[key] = _check(where, f"{section}.{key}", field, given[key])
+            else:
+                values[key] = list(field.default) if field.pair else field.default
+        sections[section] = _SECTIONS[section](**values)
+    scene = Scene(**sections, path=path)
+    _check_consistency(scene, where)
+    return scene
+
+
+def _check_consistency(scene: Scene, where: str) -> None:
+    lo, hi = scene.blur.kernel_size
+    if scene.blur.mode == "kernel" and not scene.blur.kernel and lo % 2 == 0 and lo == hi:
+        raise SceneError(f"{where}: blur.kernel_size = {scene.blur.kernel_size!r} holds no odd "
+                         "size; allowed: a range containing an odd size")
+
+
+def load_scene(path: str | Path | None = None) -> Scene:
+    """Load and validate a scene TOML file; ``None`` gives the default scene."""
+    if path is None:
+        return scene_from_dict({})
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise SceneError(f"scene file {path} does not exist") from None
+    except OSError as e:
+        raise SceneError(f"scene file {path}: cannot read it ({e.strerror})") from None
+    try:
+        data = toml_loads(text)
+    except ValueError as e:
+        raise SceneError(f"scene file {path}: not valid TOML: {e}") from None
+    return scene_from_dict(data, where=f"scene file {path}", path=path)
+
+
+def describe_fields() -> str:
+    """Every scene key with its default and meaning, as TOML comments (for help text)."""
+    lines = []
+    for section, fields in FIELDS.items():
+        lines.append(f"[{section}]")
+        for key, f in fields.items():
+            default = "(camera's)" if f.default is None else repr(f.default).replace("'", '"')
+            default = default.replace("True", "true").replace("False", "false")
+            lines.append(f"{key} = {default}  # {f.help}")
+        lines.append("")
+    return "\n".join(lines)
