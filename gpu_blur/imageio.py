@@ -60,3 +60,27 @@ def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
     if not cv2.imwrite(str(tmp), np.ascontiguousarray(data)):
         raise OSError(f"{path}: could not write the image")
     tmp.replace(path)
+
+
+def read_kernel(path: str | Path) -> np.ndarray:
+    """A blur kernel from ``.npy`` (2-D floats) or a grayscale image (PNG, ...), as float64.
+
+    The kernel is not normalized here; the blur stage normalizes it to sum 1.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"blur.kernel = {str(path)!r}: no such file")
+    if path.suffix.lower() == ".npy":
+        try:
+            kernel = np.load(path, allow_pickle=False)
+        except ValueError as e:
+            raise ValueError(f"blur.kernel = {str(path)!r}: not a numpy array file ({e})") from None
+    else:
+        kernel = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if kernel is None:
+            raise ValueError(f"blur.kernel = {str(path)!r}: not a readable image")
+    kernel = np.asarray(kernel, dtype=np.float64)
+    if kernel.ndim != 2:
+        raise ValueError(f"blur.kernel = {str(path)!r}: a kernel is 2-D (one channel), got "
+                         f"shape {kernel.shape}")
+    return kernel

@@ -7,13 +7,16 @@ worker, tile or backend makes it. Only the parameters of kept stages are drawn a
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from gpu_blur.cameras import Camera
+from gpu_blur.imageio import read_kernel
 from gpu_blur.plan import Plan
 from gpu_blur.reference import blur, rng
-from gpu_blur.reference.noise import draw_noise_levels
 from gpu_blur.reference.bayer import BayerPattern
+from gpu_blur.reference.noise import draw_noise_levels
 from gpu_blur.scene import PATTERNS, Scene
 
 #: Index of each scalar draw in stream PARAMS (a contract: changing one changes every dataset).
@@ -65,7 +68,11 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
         p[name] = overrides.pop(name) if name in overrides else value
 
     b = scene.blur
-    if plan.kept("blur") and b.mode == "kernel" and not b.kernel:
+    if plan.kept("blur") and b.mode == "kernel" and b.kernel:
+        path = Path(b.kernel)
+        put("kernel", read_kernel(path if path.is_absolute() or scene.base_dir is None
+                                  else scene.base_dir / path))
+    elif plan.kept("blur") and b.mode == "kernel":
         lo, hi = b.kernel_size
         sizes = [s for s in range(lo, hi + 1) if s % 2 == 1]
         put("kernel_size", sizes[min(int(draw["kernel_size"] * len(sizes)), len(sizes) - 1)])

@@ -141,7 +141,7 @@ def _gather(inputs, scene: Scene):
 
 
 def _same_shape(images, names):
-    for img, name in zip(images[1:], names[1:]):
+    for img, name in zip(images[1:], names[1:], strict=False):
         if img.shape != images[0].shape:
             raise ValueError(f"{name} is {img.shape[1]} x {img.shape[0]} but {names[0]} is "
                              f"{images[0].shape[1]} x {images[0].shape[0]}; all inputs of a "

@@ -150,9 +150,10 @@ def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
     add("restore_saturated", "finish", sat,
         "channels saturated after synthesis set to exactly 1" if sat else "no saturation stage")
     retone = out.crf in ("a7r3", "a7r3-lut")
+    curve = "lookup table" if out.crf == "a7r3-lut" else "polynomial"
     add("retone", "finish", retone,
-        f"output and sharp re-toned with the A7R3 {'lookup table' if out.crf == 'a7r3-lut' else 'polynomial'}"
-        if retone else f"output.crf = {out.crf}: no re-toning", out.crf if retone else "",
+        f"output and sharp re-toned with the A7R3 {curve}" if retone
+        else f"output.crf = {out.crf}: no re-toning", out.crf if retone else "",
         crf=out.crf)
     add("crop", "finish", out.crop > 0,
         f"{out.crop} px cut from every side" if out.crop else "output.crop = 0")

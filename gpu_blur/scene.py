@@ -32,6 +32,7 @@ class Field:
     choices: tuple = ()
     kind: type | tuple[type, ...] | None = None
     minimum: float | None = None
+    maximum: float | None = None
     pair: bool = False  # a [low, high] range
 
 
@@ -73,7 +74,7 @@ FIELDS: dict[str, dict[str, Field]] = {
         "read_noise_std": Field(None, "read-noise std (RSBlur beta2); default: the camera's",
                                 kind=(int, float), minimum=0),
         "spread": Field(0.5, "K and the std are drawn in level * (1 +- spread) (RSBlur: 0.5)",
-                        kind=(int, float), minimum=0),
+                        kind=(int, float), minimum=0, maximum=1),
         "gaussian_std": Field(GAUSSIAN_SRGB_NOISE_STD, "sRGB Gaussian noise std before the "
                               "+- spread draw (RSBlur TF)", kind=(int, float), minimum=0),
     },
@@ -170,6 +171,8 @@ def _check(where: str, key: str, field: Field, value):
             fail(f"{'a pair of ' if field.pair else ''}{what}")
         if field.minimum is not None and v < field.minimum:
             fail(f"{what} >= {field.minimum}")
+        if field.maximum is not None and v > field.maximum:
+            fail(f"{what} <= {field.maximum}")
     if field.pair and items[0] > items[1]:
         fail("low <= high")
     return list(value) if field.pair else value

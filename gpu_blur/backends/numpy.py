@@ -58,6 +58,9 @@ class NumpyBackend:
                sample_index: int) -> tuple[np.ndarray, np.ndarray]:
         """Saturation, Lin2Cam, mosaic, inverse WB, noise, WB.
 
+        ``origin`` is the (row, column) of the image's first pixel in the whole image: it keeps
+        the Bayer phase and the noise draws of a tile those of the whole image.
+
         Returns:
             (image, saturated): the white-balanced noisy H x W RAW mosaic when the plan has
             the RAW round trip, else the H x W x 3 linear image; and ``B_sat``, H x W x 3.
@@ -71,12 +74,13 @@ class NumpyBackend:
             cam = np.clip(cam, 0.0, 1.0)
         pattern = bayer.BayerPattern(params["pattern"])
         gains = (params["red_gain"], params["blue_gain"])
-        raw = bayer.inverse_white_balance(bayer.mosaic(cam, pattern), pattern, *gains)
+        raw = bayer.inverse_white_balance(bayer.mosaic(cam, pattern, origin), pattern, *gains,
+                                          origin=origin)
         if plan.kept("poisson_gaussian_noise"):
             raw = noise.add_poisson_gaussian(
                 raw, params["shot_noise_k"], params["read_noise_std"], seed=seed,
                 sample_index=sample_index, origin=origin)
-        return bayer.white_balance(raw, pattern, *gains), sat
+        return bayer.white_balance(raw, pattern, *gains, origin=origin), sat
 
     def finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
                saturated: np.ndarray, origin: tuple[int, int] = (0, 0), *, seed: int,
@@ -91,7 +95,8 @@ class NumpyBackend:
         if plan.raw_round_trip:
             options = plan["demosaic"].options
             pattern = bayer.BayerPattern(params["pattern"])
-            rgb = DEMOSAIC[options["method"]](image, pattern, border=options["border"])
+            rgb = DEMOSAIC[options["method"]](image, pattern, border=options["border"],
+                                              origin=origin)
             if options["clip"]:
                 rgb = np.clip(rgb, 0.0, 1.0)
             image = apply_matrix(rgb, camera.camera_to_linear)

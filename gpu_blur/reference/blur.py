@@ -81,7 +81,7 @@ KERNEL_WALK_STEPS = 64
 KERNEL_JITTER_MAX = 0.4
 #: Largest centripetal pull, per step, relative to the speed, per unit distance from the start
 #: (distances in units of the walk's total length).
-KERNEL_PULL_MAX = 1.0
+KERNEL_PULL_MAX = 0.5
 #: Largest per-step probability of an abrupt shake (a near reversal of the direction).
 KERNEL_SHAKE_PROBABILITY_MAX = 0.03
 #: Half-width (radians) of the uniform spread of an abrupt shake's turn around pi.
@@ -102,12 +102,12 @@ SHAKE_HARMONICS = 3
 #: Uniforms consumed by :func:`camera_shake_homographies`: a sine and a cosine amplitude per
 #: harmonic for yaw, pitch and roll (in that order), then one for the roll's size.
 SHAKE_UNIFORMS = 3 * 2 * SHAKE_HARMONICS + 1
-#: Largest accepted ``extent_px``, as a fraction of the focal length (rotations of ~14 degrees).
-SHAKE_EXTENT_MAX_FRACTION = 0.25
+#: Largest yaw or pitch (radians) the extent search may use; beyond it ``extent_px`` is refused.
+SHAKE_ANGLE_MAX_RAD = math.radians(60.0)
 #: Largest accepted ``roll_deg``.
 SHAKE_ROLL_MAX_DEG = 30.0
 #: Relative accuracy to which the centre's path extent is matched to ``extent_px``.
-SHAKE_EXTENT_RTOL = 1e-12
+SHAKE_EXTENT_RTOL = 1e-13
 
 
 # ------------------------------------------------------------------------------------------
@@ -138,17 +138,19 @@ def _as_uniforms(uniforms, count: int, name: str) -> np.ndarray:
 
 
 def _reflect101_index(index: np.ndarray, n: int) -> np.ndarray:
-    """Map integer-valued float indices into ``[0, n)`` by mirroring without edge repetition.
+    """Map integer indices into ``[0, n)`` by mirroring without repeating the edge pixel.
 
-    Periodic with period ``2 (n - 1)``, so valid arbitrarily far outside (exact in float64 for
-    ``|index| < 2**53``). A length-1 axis maps everything to 0.
+    Periodic with period ``2 (n - 1)``, so valid arbitrarily far outside. A length-1 axis maps
+    everything to 0. Indices already inside are returned unchanged (as ``intp``).
     """
+    index = index.astype(np.intp, copy=False)
     if n == 1:
         return np.zeros(index.shape, dtype=np.intp)
+    if index.size and index.min() >= 0 and index.max() < n:
+        return index
     period = 2 * (n - 1)
     m = np.mod(index, period)
-    m = np.where(m >= n, period - m, m)
-    return m.astype(np.intp)
+    return np.where(m >= n, period - m, m)
 
 
 def _next_fast_len(n: int) -> int:
@@ -381,14 +383,15 @@ def random_motion_kernel(uniforms, size: int) -> np.ndarray:
        ``v += |v| (sigma g_j - kappa x_{j-1})`` with ``g_j`` a standard complex Gaussian
        (Box-Muller; each part has variance 1). Then ``v`` is rescaled to length ``1 / (N - 1)``
        (constant speed, as in Boracchi & Foi) and ``x_j = x_{j-1} + v``.
-    3. The polyline is sampled at the midpoints of equal time slices, at most
-       ``KERNEL_SAMPLE_SPACING_PX`` pixels apart; constant speed makes equal time equal length.
+    3. The polyline is sampled at the midpoints of equal time slices, about
+       ``KERNEL_SAMPLE_SPACING_PX`` pixels apart or less; constant speed makes equal time
+       equal length.
     4. The samples are scaled so their largest distance from their mean along x or y is
        ``e (size - 1) / 2``, and shifted so their mean lands on the centre pixel
        ``((size - 1) / 2, (size - 1) / 2)``; so the path fits inside the grid.
     5. Each sample splats weight ``1 / n_samples`` bilinearly onto the four pixels around it.
        Bilinear splatting keeps the first moment, so the kernel's centroid is the samples' mean:
-       the centre pixel, to rounding (~1e-13 px), well within the half pixel asked for. This
+       the centre pixel, to rounding (~1e-14 px), well within the half pixel asked for. This
        keeps the blurred image aligned with the sharp one, as RSBlur's GoPro_U
        ``centroid_blurred`` images suggest (pipeline notes section 2B).
 
@@ -552,11 +555,13 @@ def camera_shake_homographies(
 ) -> np.ndarray:
     """Draw a smooth random camera rotation over the exposure, as homographies.
 
-    Camera shake is modelled as a rotation of the camera about its centre (Whyte et al.,
-    CVPR 2010 / IJCV 2012; Koehler et al., ECCV 2012, found recorded hand shake dominated by
-    rotation). A scene point seen at pixel ``p`` in the sharp (reference) image is seen at
-    ``H_t p`` at time ``t``, with ``H_t = K R_t K^-1``, ``K = [[f, 0, cx], [0, f, cy], [0, 0, 1]]``,
-    ``f = max(H, W)`` pixels (a 53-degree field of view across the longer side),
+    Camera shake is modelled as a rotation of the camera about its centre, after Whyte et
+    al., "Non-uniform Deblurring for Shaken Images" (CVPR 2010; IJCV 98, 2012), who argue
+    that rotation dominates translation in hand shake (Koehler et al., ECCV 2012, recorded
+    real 6-D shake trajectories for their benchmark). A scene point seen at pixel ``p`` in
+    the sharp (reference) image is seen at ``H_t p`` at time ``t``, with
+    ``H_t = K R_t K^-1``, ``K = [[f, 0, cx], [0, f, cy], [0, 0, 1]]``, ``f = max(H, W)``
+    pixels (a 53-degree field of view across the longer side), the principal point
     ``(cx, cy) = ((W - 1) / 2, (H - 1) / 2)``, and ``R_t = R_z(roll) R_x(pitch) R_y(yaw)``.
 
     Path model (ours): each angle is a short Fourier series over the exposure
@@ -566,7 +571,10 @@ def camera_shake_homographies(
     frame). The ``steps`` samples sit at the midpoints of equal time slices,
     ``t_s = (s + 1/2) / steps - 1/2``; for odd ``steps`` the middle one, ``s = steps // 2``, is
     exactly ``t = 0`` and exactly the identity (for even ``steps`` no sample is at ``t = 0``).
-    ``steps = 1`` gives the identity alone.
+    ``steps = 1`` gives the identity alone. Each sample is a sharp copy, so a point moving more
+    than about a pixel between samples shows as a row of dots, not a streak: take ``steps`` at
+    least the path's length in pixels (the centre's arc length, which exceeds ``extent_px``
+    when the path bends, and more where roll moves the corners further).
 
     Scaling: roll is scaled so ``max_s |roll(t_s)| = roll_deg * u_last``. Yaw and pitch share
     one factor, found by fixed-point iteration, so the **bounding-box diagonal** of the image
@@ -581,7 +589,9 @@ def camera_shake_homographies(
         height: image height ``H`` in pixels.
         width: image width ``W`` in pixels.
         steps: number of time samples, ``>= 1``.
-        extent_px: the centre's path extent in pixels, ``0 <= extent_px <= max(H, W) / 4``.
+        extent_px: the centre's path extent in pixels, ``>= 0``. Shake is small next to the
+            focal length ``max(H, W)``; larger extents are honoured while yaw and pitch stay
+            within 60 degrees and every frame keeps the image in front of the camera.
         roll_deg: bound on the roll in degrees, ``0 <= roll_deg <= 30``.
 
     Returns:
@@ -589,8 +599,8 @@ def camera_shake_homographies(
         to their position at each time sample; ``H[2, 2]`` is not normalised to 1.
 
     Raises:
-        ValueError: for bad arguments, or a degenerate draw whose yaw and pitch vanish while
-            ``extent_px > 0``.
+        ValueError: for bad arguments, a degenerate draw whose yaw and pitch vanish while
+            ``extent_px > 0``, or an extent too large for the image (see ``extent_px``).
     """
     u = _as_uniforms(uniforms, SHAKE_UNIFORMS, "camera_shake_homographies")
     if min(height, width) < 1:
@@ -598,11 +608,8 @@ def camera_shake_homographies(
     if steps < 1:
         raise ValueError(f"steps must be >= 1; got {steps}")
     f, cx, cy = _intrinsics(height, width)
-    if not 0.0 <= extent_px <= SHAKE_EXTENT_MAX_FRACTION * f:
-        raise ValueError(
-            f"extent_px must be in [0, {SHAKE_EXTENT_MAX_FRACTION * f:g}] for a "
-            f"{height} x {width} image; got {extent_px!r}"
-        )
+    if not (math.isfinite(extent_px) and extent_px >= 0.0):
+        raise ValueError(f"extent_px must be finite and >= 0; got {extent_px!r}")
     if not 0.0 <= roll_deg <= SHAKE_ROLL_MAX_DEG:
         raise ValueError(f"roll_deg must be in [0, {SHAKE_ROLL_MAX_DEG:g}]; got {roll_deg!r}")
 
@@ -628,24 +635,77 @@ def camera_shake_homographies(
     if extent_px == 0.0 or steps == 1:
         return homographies_for(0.0)
 
-    # small-angle probe, then fixed-point iteration on the (nearly linear) extent
     peak = max(np.abs(yaw_shape).max(), np.abs(pitch_shape).max())
     if not peak > 0.0:
         raise ValueError("degenerate draw: yaw and pitch are zero, extent_px cannot be met")
-    scale = 1e-4 / peak
-    measured = _centre_extent(homographies_for(scale), cx, cy)
+    scale = _solve_extent(
+        lambda s: _centre_extent(homographies_for(s), cx, cy),
+        extent_px,
+        scale_max=SHAKE_ANGLE_MAX_RAD / peak,
+        what=f"extent_px={extent_px!r} on a {height} x {width} image (f = {f:g} px)",
+    )
+    hom = homographies_for(scale)
+    _check_in_front(hom, height, width)
+    return hom
+
+
+def _solve_extent(measure, target: float, scale_max: float, what: str) -> float:
+    """Find ``s`` in ``(0, scale_max]`` with ``measure(s) = target`` to ``SHAKE_EXTENT_RTOL``.
+
+    ``measure`` is the centre's path extent for yaw and pitch scaled by ``s``: close to linear
+    for small angles, where a fixed-point step ``s <- s target / measure(s)`` converges in a
+    few steps; if that stops contracting (large angles), bisection on ``[0, scale_max]``
+    takes over (``measure(0) = 0``).
+    """
+    probe = 1e-4 * scale_max / SHAKE_ANGLE_MAX_RAD  # a peak angle of 1e-4 rad
+    measured = measure(probe)
     if not measured > 0.0:
         raise ValueError("degenerate draw: the image centre does not move")
-    scale *= extent_px / measured
-    for _ in range(50):
-        hom = homographies_for(scale)
-        measured = _centre_extent(hom, cx, cy)
-        if abs(measured - extent_px) <= SHAKE_EXTENT_RTOL * extent_px:
+    scale = probe * target / measured
+    error = math.inf
+    for _ in range(30):
+        if scale > scale_max:
             break
-        scale *= extent_px / measured
-    else:  # pragma: no cover - the map is within 1 % of linear for the accepted extents
-        raise RuntimeError("camera shake extent did not converge")
-    return hom
+        measured = measure(scale)
+        new_error = abs(measured - target)
+        if new_error <= SHAKE_EXTENT_RTOL * target:
+            return scale
+        if not new_error < 0.5 * error:
+            break
+        error = new_error
+        scale *= target / measured
+    lo, hi = 0.0, scale_max
+    if measure(hi) < target:
+        raise ValueError(
+            f"{what} needs a yaw or pitch beyond {math.degrees(SHAKE_ANGLE_MAX_RAD):g} degrees"
+        )
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        measured = measure(mid)
+        if abs(measured - target) <= SHAKE_EXTENT_RTOL * target:
+            return mid
+        if measured < target:
+            lo = mid
+        else:
+            hi = mid
+    raise RuntimeError(f"camera shake extent search did not converge for {what}")
+
+
+def _check_in_front(homographies: np.ndarray, height: int, width: int) -> None:
+    """Raise unless every frame's inverse map keeps the whole image in front of the camera.
+
+    The third coordinate of ``H^-1 (x, y, 1)`` is affine in ``(x, y)``, so the four corners
+    decide it for the whole image.
+    """
+    corners = np.array(
+        [[0.0, width - 1.0, 0.0, width - 1.0], [0.0, 0.0, height - 1.0, height - 1.0], [1.0] * 4]
+    )
+    for m in homographies:
+        if not (np.linalg.inv(m)[2] @ corners > 0.0).all():
+            raise ValueError(
+                f"the camera rotation turns part of the {height} x {width} image behind the "
+                "camera; lower extent_px or roll_deg"
+            )
 
 
 def _bilinear_sample(
@@ -660,15 +720,26 @@ def _bilinear_sample(
     y0 = np.floor(py)
     fx = (px - x0)[..., None]
     fy = (py - y0)[..., None]
-    ix0 = _reflect101_index(x0, width)
-    ix1 = _reflect101_index(x0 + 1.0, width)
-    row0 = _reflect101_index(y0, height) * width
-    row1 = _reflect101_index(y0 + 1.0, height) * width
-    top = flat[row0 + ix0]
-    top += fx * (flat[row0 + ix1] - top)
-    bottom = flat[row1 + ix0]
-    bottom += fx * (flat[row1 + ix1] - bottom)
-    top += fy * (bottom - top)
+    xi = x0.astype(np.intp)
+    yi = y0.astype(np.intp)
+    ix0 = _reflect101_index(xi, width)
+    ix1 = _reflect101_index(xi + 1, width)
+    row0 = _reflect101_index(yi, height) * width
+    row1 = _reflect101_index(yi + 1, height) * width
+
+    def lerp_x(row: np.ndarray) -> np.ndarray:
+        left = np.take(flat, row + ix0, axis=0)
+        right = np.take(flat, row + ix1, axis=0)
+        right -= left
+        right *= fx
+        left += right
+        return left
+
+    top = lerp_x(row0)
+    bottom = lerp_x(row1)
+    bottom -= top
+    bottom *= fy
+    top += bottom
     return top
 
 

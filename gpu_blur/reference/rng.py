@@ -64,9 +64,8 @@ __all__ = [
     "uniform_from_bits",
 ]
 
-# Philox4x32 constants (Salmon et al. SC'11, Table/§4; Random123 philox.h PHILOX_M4x32_0/1 and
-# PHILOX_W32_0/1): round multipliers and the Weyl-sequence key increments (golden ratio,
-# sqrt(3) - 1).
+# Philox4x32 constants (Salmon et al. SC'11; Random123's PHILOX_M4x32_0/1 and PHILOX_W32_0/1):
+# the round multipliers and the Weyl-sequence key increments (golden ratio, sqrt(3) - 1).
 PHILOX_M4X32_0 = np.uint64(0xD2511F53)
 PHILOX_M4X32_1 = np.uint64(0xCD9E8D57)
 PHILOX_W32_0 = np.uint64(0x9E3779B9)

@@ -23,7 +23,7 @@ SRGB_OFFSET = 0.055
 
 
 def srgb_to_linear(encoded) -> np.ndarray:
-    """sRGB EOTF: y = sign(x) * (|x| / 12.92 if |x| < 0.04045 else ((|x| + 0.055) / 1.055)^2.4).
+    """SRGB EOTF: y = sign(x) * (|x| / 12.92 if |x| < 0.04045 else ((|x| + 0.055) / 1.055)^2.4).
 
     Args:
         encoded: sRGB values, nominally in [0, 1]; any shape.
@@ -43,9 +43,12 @@ def srgb_to_linear(encoded) -> np.ndarray:
 
 
 def linear_to_srgb(linear) -> np.ndarray:
-    """sRGB OETF: y = sign(x) * (12.92 |x| if |x| < 0.0031308 else 1.055 |x|^(1/2.4) - 0.055).
+    """SRGB OETF: y = sign(x) * (12.92 |x| if |x| < 0.0031308 else 1.055 |x|^(1/2.4) - 0.055).
 
     The branch is selected before the power, so 0 and denormals never reach a log or pow.
+    The standard's knees do not meet exactly: just below 0.0031308 the linear segment gives
+    0.04044994, at it the curve gives 0.04044991, a step down of 3.1e-8 (the only place the
+    function is not monotone; kept to match the definition and the RSBlur code).
 
     Args:
         linear: linear values; any shape.

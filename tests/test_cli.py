@@ -1,0 +1,96 @@
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from gpu_blur.cli import main
+
+
+def write_sequence(folder, n, size=(24, 32), seed=0):
+    folder.mkdir(parents=True)
+    rng = np.random.default_rng(seed)
+    for i in range(n):
+        cv2.imwrite(str(folder / f"{i:06d}.png"), rng.integers(0, 256, (*size, 3), np.uint8))
+
+
+def test_generate_on_the_built_in_photo_writes_pairs_and_a_manifest(tmp_path, capsys):
+    out = tmp_path / "set"
+    assert main(["generate", "--output", str(out), "--limit", "2", "--quiet"]) == 0
+    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    assert [x["index"] for x in lines] == [0, 1]
+    for line in lines:
+        blurred = cv2.imread(str(out / line["blurred"]), cv2.IMREAD_UNCHANGED)
+        sharp = cv2.imread(str(out / line["sharp"]), cv2.IMREAD_UNCHANGED)
+        assert blurred.shape == sharp.shape == (400, 600, 3) and blurred.dtype == np.uint8
+        assert {"alpha", "pattern", "red_gain", "shot_noise_k"} <= set(line["params"])
+        assert line["status"] == "ok" and line["inputs"][0].endswith("coffee.png")
+        with np.load(out / line["arrays"]) as arrays:
+            assert arrays["homographies"].shape[1:] == (3, 3)
+    assert lines[0]["params"] != lines[1]["params"]
+    assert "wrote 2 samples" in capsys.readouterr().out
+
+
+def test_generate_is_reproducible_for_a_seed(tmp_path):
+    for name in ("a", "b"):
+        assert main(["generate", "--output", str(tmp_path / name), "--limit", "1", "--quiet",
+                     "--seed", "5"]) == 0
+    a = (tmp_path / "a" / "blur").iterdir().__next__()
+    b = tmp_path / "b" / "blur" / a.name
+    assert a.read_bytes() == b.read_bytes()
+
+
+def test_generate_reads_gopro_sequences_in_windows_of_frames(tmp_path):
+    write_sequence(tmp_path / "in" / "GOPR0001" / "sharp", 7)
+    write_sequence(tmp_path / "in" / "GOPR0002" / "sharp", 3, seed=1)
+    (tmp_path / "s.toml").write_text('[blur]\nmode = "average"\nframes = 3\n')
+    out = tmp_path / "out"
+    assert main(["generate", "--input", str(tmp_path / "in"), "--output", str(out),
+                 "--scene", str(tmp_path / "s.toml"), "--quiet"]) == 0
+    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    assert [x["name"] for x in lines] == ["GOPR0001/000000", "GOPR0001/000003",
+                                          "GOPR0002/000000"]
+    assert [len(x["inputs"]) for x in lines] == [3, 3, 3]
+
+
+def test_generate_refuses_to_overwrite_an_existing_set(tmp_path, capsys):
+    out = tmp_path / "set"
+    assert main(["generate", "--output", str(out), "--limit", "1", "--quiet"]) == 0
+    assert main(["generate", "--output", str(out), "--limit", "1", "--quiet"]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert main(["generate", "--output", str(out), "--limit", "1", "--quiet",
+                 "--overwrite"]) == 0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--input", "nowhere"], "--input nowhere: no such folder"),
+    (["--scene", "missing.toml"], "scene file missing.toml does not exist"),
+])
+def test_generate_errors_name_the_bad_path(tmp_path, capsys, args, message):
+    assert main(["generate", "--output", str(tmp_path / "o"), *args]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_generate_reports_a_bad_scene_value_with_file_key_and_choices(tmp_path, capsys):
+    scene = tmp_path / "bad.toml"
+    scene.write_text('[noise]\nmodel = "poison"\n')
+    assert main(["generate", "--output", str(tmp_path / "o"), "--scene", str(scene)]) == 2
+    err = capsys.readouterr().err
+    assert str(scene) in err and "noise.model = 'poison'" in err and "'poisson-gaussian'" in err
+
+
+def test_plan_prints_kept_and_skipped_stages_with_reasons(capsys, tmp_path):
+    scene = tmp_path / "s.toml"
+    scene.write_text('[noise]\nmodel = "none"\n')
+    assert main(["plan", str(scene)]) == 0
+    out = capsys.readouterr().out
+    assert "skip mosaic" in out and "noise.model = none: no RAW round trip" in out
+    assert "run  tone" in out
+
+
+def test_scene_and_cameras_commands_list_what_is_available(capsys):
+    assert main(["scene"]) == 0
+    assert "[noise]" in capsys.readouterr().out
+    assert main(["cameras"]) == 0
+    out = capsys.readouterr().out
+    assert "a7r3" in out and "rsblur-0019" in out and "srgb" in out
