@@ -81,8 +81,10 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
     if plan.kept("blur") and b.mode == "trajectory":
         put("extent_px", _uniform_range(draw["extent_px"], *b.extent))
         su = rng.image_uniforms(seed, sample_index, rng.Stream.TRAJECTORY, blur.SHAKE_UNIFORMS)
+        shake = (su, image_shape[0], image_shape[1])
+        steps = b.steps or blur.auto_shake_steps(*shake, float(p["extent_px"]), float(b.roll))
         put("homographies", blur.camera_shake_homographies(
-            su, image_shape[0], image_shape[1], b.steps, float(p["extent_px"]), float(b.roll)))
+            *shake, steps, float(p["extent_px"]), float(b.roll)))
     if plan.kept("saturate"):
         put("alpha", _uniform_range(draw["alpha"], *scene.saturation.alpha))
     if plan.raw_round_trip:

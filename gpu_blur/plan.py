@@ -104,7 +104,8 @@ def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
         {"average": f"mean of {b.frames} linear frames and their saturation masks",
          "kernel": "one photo convolved with "
                    + (f"the kernel {b.kernel}" if b.kernel else "a random motion kernel"),
-         "trajectory": f"one photo warped along a camera-shake path of {b.steps} poses",
+         "trajectory": "one photo warped along a camera-shake path of "
+                       + (f"{b.steps} poses" if b.steps else "one pose per pixel of motion"),
          "none": "blur.mode = none: the input is already blurred"}[b.mode],
         b.mode if blurring else "")
 

@@ -45,8 +45,9 @@ FIELDS: dict[str, dict[str, Field]] = {
                       choices=("average", "kernel", "trajectory", "none")),
         "frames": Field(9, "frames averaged per sample in mode 'average' (RSBlur: 9)",
                         kind=int, minimum=1),
-        "steps": Field(33, "poses along the camera path in mode 'trajectory'", kind=int,
-                       minimum=1),
+        "steps": Field(0, "poses along the camera path in mode 'trajectory'; 0 = auto: about "
+                       "one per pixel of the longest pixel path, so blur is a streak, not copies",
+                       kind=int, minimum=0),
         "extent": Field([4.0, 24.0], "range of the shake path's extent at the image centre, "
                         "pixels (drawn per sample)", kind=(int, float), minimum=0, pair=True),
         "roll": Field(0.5, "largest camera roll during the exposure, degrees",

@@ -55,6 +55,7 @@ __all__ = [
     "SHAKE_HARMONICS",
     "SHAKE_UNIFORMS",
     "FrameAccumulator",
+    "auto_shake_steps",
     "average_frames",
     "camera_shake_homographies",
     "convolve_kernel",
@@ -874,3 +875,32 @@ def shake_halo(homographies, height: int, width: int) -> int:
         dy = np.abs(q[1] / q[2] - pts[1]).max()
         reach = max(reach, dx, dy)
     return math.ceil(reach) + 2
+
+
+#: Dense sampling used to measure a camera path before choosing its number of poses.
+SHAKE_PROBE_STEPS = 129
+#: Fewest and most poses :func:`auto_shake_steps` chooses.
+SHAKE_AUTO_STEPS_RANGE = (9, 1025)
+
+
+def auto_shake_steps(uniforms, height: int, width: int, extent_px: float,
+                     roll_deg: float) -> int:
+    """Number of poses that keeps every pixel's step along the path within about one pixel.
+
+    The path is drawn once with :data:`SHAKE_PROBE_STEPS` poses; the peak speed among the
+    image centre and its four corners, ``v`` pixels per exposure, gives the smallest odd
+    ``n >= v + 1`` within :data:`SHAKE_AUTO_STEPS_RANGE` (odd, so the middle pose is the
+    identity). Fewer poses would show the blur as separate copies instead of a streak.
+    """
+    hom = camera_shake_homographies(uniforms, height, width, SHAKE_PROBE_STEPS, extent_px,
+                                    roll_deg)
+    points = np.array([[(width - 1) / 2, (height - 1) / 2, 1.0], [0, 0, 1.0],
+                       [width - 1, 0, 1.0], [0, height - 1, 1.0], [width - 1, height - 1, 1.0]])
+    p = np.einsum("sij,nj->sni", hom, points)
+    xy = p[..., :2] / p[..., 2:]
+    # peak speed in pixels per exposure: the largest probe step times the number of steps
+    speed = float(np.linalg.norm(np.diff(xy, axis=0), axis=-1).max()) * SHAKE_PROBE_STEPS
+    n = math.ceil(speed) + 1
+    n += 1 - n % 2
+    lo, hi = SHAKE_AUTO_STEPS_RANGE
+    return int(min(max(n, lo), hi))
