@@ -25,6 +25,7 @@ import numpy as np
 
 from gpu_blur.constants import rsblur_data
 from gpu_blur.reference.color import camera_to_linear_matrix, checked_inverse
+from gpu_blur.scene import toml_loads
 
 
 @dataclasses.dataclass(frozen=True)
@@ -181,8 +182,6 @@ def load_camera(path: str | Path) -> Camera:
         if path.suffix.lower() == ".json":
             spec = json.loads(text)
         else:
-            from gpu_blur.scene import toml_loads
-
             spec = toml_loads(text)
     except ValueError as e:
         raise ValueError(f"camera file {path}: not valid {path.suffix[1:].upper()}: {e}") from None

@@ -55,11 +55,13 @@ def _parser() -> argparse.ArgumentParser:
 def _generate(args) -> int:
     from tqdm import tqdm
 
+    from gpu_blur.backends import get_backend
     from gpu_blur.dataset import DatasetWriter, discover
     from gpu_blur.pipeline import synthesize
     from gpu_blur.scene import load_scene
 
     scene = load_scene(args.scene)
+    get_backend(args.backend)  # an unknown backend fails before any work
     per_photo = args.samples_per_photo or (1 if args.input else 4)
     if per_photo < 1 or (args.limit is not None and args.limit < 1):
         raise ValueError("--samples-per-photo and --limit must be >= 1")

@@ -27,7 +27,7 @@ class Synthesis:
             when the scene quantizes).
         sharp: H x W x 3 float32 in [0, 1], the reference frame (middle frame of an average,
             the photo itself otherwise), toned like ``blurred``.
-        mask: H x W x 3 float32 in [0, 1], the blurred saturation mask (before the crop).
+        mask: H x W x 3 float32 in [0, 1], the blurred saturation mask.
         params: every drawn value (see :data:`gpu_blur.params.DRAW_INDEX`).
         plan: the stages that ran.
     """
@@ -101,7 +101,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
                         sample_index=sample_index)
     sharp_out = render_sharp(sample_plan, sharp, runner)
     crop = scene.output.crop
-    out, sharp_out = crop_border(out, crop), crop_border(sharp_out, crop)
+    out, sharp_out, sat_mask = (crop_border(x, crop) for x in (out, sharp_out, sat_mask))
     if sample_plan.kept("quantize"):
         out = quantize(out, scene.output.bits)
         sharp_out = quantize(sharp_out, scene.output.bits)

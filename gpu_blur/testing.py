@@ -30,7 +30,7 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("pipeline_realblur_j", "independent", "float64"): (0.0, 1e-9),
     # WB and colour steps cancel with noise off, on a flat field (issue 2: <= 1e-9).
     ("pipeline_wb_color_cancel", "numpy", "float64"): (0.0, 1e-9),
-    # -- helper rows: demosaic / bayer --
+    # -- Bayer and demosaicing --
     # Against colour-demosaicing 0.2.7 (scipy convolve) on photographs: measured bit-identical
     # (max abs difference 0.0); 1e-12 leaves room for another summation order only.
     ("demosaic_malvar2004", "independent", "float64"): (0.0, 1e-12),
@@ -39,14 +39,14 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("demosaic_flat_field", "numpy", "float64"): (2e-15, 0.0),
     # x / g * g: two roundings, <= 2.2e-16 relative measured.
     ("white_balance_round_trip", "numpy", "float64"): (1e-15, 0.0),
-    # -- helper rows: rng / noise --
+    # -- random numbers and noise --
     # log(k!) against 50-digit decimal values, k = 16 .. 1e12 (the table below 16 is tested for
     # equality): the Stirling branch measured <= 4.9e-16 relative (at k = 16).
     ("log_factorial", "numpy", "float64"): (6e-16, 0.0),
     # Box-Muller through numpy's log/cos/sin against Python's math (libm): measured over 2e5
     # pairs <= 2.2e-16 absolute and <= 3.5e-16 relative.
     ("box_muller", "independent", "float64"): (5e-16, 5e-16),
-    # -- helper rows: blur --
+    # -- blur --
     # FrameAccumulator's plain float64 running sum of 1,000 frames in [0, 1) against np.mean
     # and an exact math.fsum mean: the running sum's bound (n - 1) * 2**-53 = 1.1e-13 relative.
     ("blur_average", "independent", "float64"): (1.2e-13, 0.0),

@@ -233,3 +233,22 @@ def test_synthesis_result_is_float32_in_unit_range(coffee_rgb):
     for image in (result.blurred, result.sharp, result.mask):
         assert image.dtype == np.float32 and image.min() >= 0 and image.max() <= 1
     assert dataclasses.is_dataclass(result)
+
+
+def test_gaussian_noise_model_adds_srgb_noise_of_the_drawn_std():
+    flat = np.full((128, 128, 3), 0.5)
+    scene = scene_with(blur={"mode": "none"}, noise={"model": "gaussian"}, output={"bits": 0})
+    result = gpu_blur.synthesize({"blurred": flat}, scene, seed=4)
+    assert not result.plan.raw_round_trip
+    std = result.params["gaussian_std"]
+    assert 0.5 * 0.011211179037436594 <= std <= 1.5 * 0.011211179037436594
+    residual = result.blurred.astype(np.float64) - 0.5
+    n = residual.size  # the sample std's standard error is std / sqrt(2 n); allow 5 of them
+    assert abs(residual.std() - std) <= 5 * std / np.sqrt(2 * n)
+    assert abs(residual.mean()) <= 5 * std / np.sqrt(n)
+
+
+def test_crop_applies_to_output_sharp_and_mask_alike(coffee_rgb):
+    scene = scene_with(blur={"steps": 3}, output={"crop": 4})
+    result = gpu_blur.synthesize([coffee_rgb[:40, :48]], scene)
+    assert result.blurred.shape == result.sharp.shape == result.mask.shape == (32, 40, 3)
