@@ -23,3 +23,19 @@ def coffee_rgb() -> np.ndarray:
     rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB).astype(np.float64) / 255.0
     rgb.setflags(write=False)
     return rgb
+
+
+@pytest.fixture(scope="session")
+def rocket_rgb() -> np.ndarray:
+    """SpaceX's public-domain DSCOVR launch photo: 427 x 640 x 3 float64 sRGB, R, G, B.
+
+    Cropped to 426 x 640 so the Bayer steps get even sizes. Read-only.
+    """
+    import cv2
+
+    path = Path(__file__).resolve().parent / "data" / "rocket.jpg"
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    assert bgr is not None, f"cannot read {path}"
+    rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)[:426].astype(np.float64) / 255.0
+    rgb.setflags(write=False)
+    return rgb

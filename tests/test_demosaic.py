@@ -46,11 +46,13 @@ COLOUR = {
 # colour-demosaicing pads with scipy's "reflect" (edge sample repeated): compare away from it.
 INTERIOR = (slice(2, -2), slice(2, -2))
 
-# Whole photo; a crop at an odd row and column offset; the transpose (rows become columns).
+# Whole photo; a crop at an odd row and column offset; the transpose (rows become columns);
+# a second photograph (tests/data/rocket.jpg).
 PHOTOS = {
-    "coffee": lambda img: img,
-    "coffee_crop_at_odd_offset": lambda img: img[1:-1, 3:-1],
-    "coffee_transposed": lambda img: img.transpose(1, 0, 2),
+    "coffee": lambda coffee, rocket: coffee,
+    "coffee_crop_at_odd_offset": lambda coffee, rocket: coffee[1:-1, 3:-1],
+    "coffee_transposed": lambda coffee, rocket: coffee.transpose(1, 0, 2),
+    "rocket": lambda coffee, rocket: rocket,
 }
 
 
@@ -69,8 +71,10 @@ def colour_demosaic(method, raw, pattern, monkeypatch=None, scipy_mode=None):
 
 @pytest.mark.parametrize("photo", list(PHOTOS))
 @pytest.mark.parametrize("pattern", PATTERNS)
-def test_malvar2004_matches_colour_demosaicing_on_photos_interior(photo, pattern, coffee_rgb):
-    raw = mosaic(PHOTOS[photo](coffee_rgb), pattern)
+def test_malvar2004_matches_colour_demosaicing_on_photos_interior(
+    photo, pattern, coffee_rgb, rocket_rgb
+):
+    raw = mosaic(PHOTOS[photo](coffee_rgb, rocket_rgb), pattern)
     ours = demosaic_malvar2004(raw, pattern)
     theirs = colour_demosaic("malvar2004", raw, pattern)
     assert_close(ours[INTERIOR], theirs[INTERIOR], "demosaic_malvar2004", "independent")
@@ -78,8 +82,10 @@ def test_malvar2004_matches_colour_demosaicing_on_photos_interior(photo, pattern
 
 @pytest.mark.parametrize("photo", list(PHOTOS))
 @pytest.mark.parametrize("pattern", PATTERNS)
-def test_bilinear_matches_colour_demosaicing_on_photos_interior(photo, pattern, coffee_rgb):
-    raw = mosaic(PHOTOS[photo](coffee_rgb), pattern)
+def test_bilinear_matches_colour_demosaicing_on_photos_interior(
+    photo, pattern, coffee_rgb, rocket_rgb
+):
+    raw = mosaic(PHOTOS[photo](coffee_rgb, rocket_rgb), pattern)
     ours = demosaic_bilinear(raw, pattern)
     theirs = colour_demosaic("bilinear", raw, pattern)
     assert_close(ours[INTERIOR], theirs[INTERIOR], "demosaic_bilinear", "independent")
