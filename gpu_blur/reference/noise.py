@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from gpu_blur.reference.rng import Stream, pixel_normals, poisson
+from gpu_blur.reference.rng import Stream, pixel_normals, poisson, require_finite
 
 __all__ = [
     "SRGB_GAUSSIAN_BASE_STD",
@@ -115,13 +115,7 @@ def add_poisson_gaussian(
         positive=False,
         meaning="the read-noise standard deviation in units of the [0, 1] signal",
     )
-    bad = ~np.isfinite(raw)
-    if bad.any():
-        first = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise ValueError(
-            f"raw: {int(bad.sum())} of {raw.size} values are NaN or infinite "
-            f"(e.g. {raw[first]!r} at index {first}); the Poisson rate x / K must be finite"
-        )
+    require_finite(raw, "raw", hint="; the Poisson rate x / K must be finite")
     y, x = _global_coordinates(raw.shape, origin)
     rate = np.maximum(raw, 0.0) / k
     counts = poisson(rate, seed, sample_index, y, x, stream=Stream.SHOT_NOISE)

@@ -526,6 +526,19 @@ def _poisson_ptrs(rate, seed, sample_index, stream, y, x) -> np.ndarray:
     return out
 
 
+def require_finite(values, what: str, noun: str = "values", hint: str = "") -> np.ndarray:
+    """``values`` as float64, or a ValueError naming ``what``, how many are NaN/inf and one."""
+    values = np.asarray(values, dtype=np.float64)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        first = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(
+            f"{what}: {int(bad.sum())} of {values.size} {noun} are NaN or infinite "
+            f"(e.g. {values[first]!r} at index {first}){hint}"
+        )
+    return values
+
+
 def poisson(
     rate, seed: int, sample_index: int, y, x, stream: Stream = Stream.SHOT_NOISE
 ) -> np.ndarray:
@@ -581,14 +594,7 @@ def poisson(
     key_from_seed(seed)
     _check_sample_index(sample_index)
     stream = _check_stream(stream)
-    rate = np.asarray(rate, dtype=np.float64)
-    bad = ~np.isfinite(rate)
-    if bad.any():
-        first = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise ValueError(
-            f"poisson: {int(bad.sum())} of {rate.size} rates are NaN or infinite "
-            f"(e.g. {rate[first]!r} at index {first})"
-        )
+    rate = require_finite(rate, "poisson", "rates")
     yy = np.broadcast_to(_check_coordinate(y, "y"), rate.shape).reshape(-1)
     xx = np.broadcast_to(_check_coordinate(x, "x"), rate.shape).reshape(-1)
     flat = np.maximum(rate.reshape(-1), 0.0)
