@@ -14,8 +14,10 @@ from gpu_blur.imageio import read_image, to_unit
 from gpu_blur.params import draw_params
 from gpu_blur.plan import Plan, plan
 from gpu_blur.reference import transfer
+from gpu_blur.reference.demosaic import halo as demosaic_halo
 from gpu_blur.reference.output import crop_border, quantize
 from gpu_blur.scene import Scene, load_scene
+from gpu_blur.tiling import tiles
 
 
 @dataclasses.dataclass
@@ -52,7 +54,8 @@ def _load(item, what: str) -> np.ndarray:
 
 
 def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
-               backend: str = "numpy", overrides: Mapping | None = None) -> Synthesis:
+               backend: str = "numpy", overrides: Mapping | None = None,
+               tile: tuple[int, int] | None = None) -> Synthesis:
     """Synthesize one realistic blurred image.
 
     Args:
@@ -64,15 +67,18 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         seed: dataset seed (0 <= seed < 2**64).
         sample_index: index of this sample (0 <= index < 2**32); with ``seed`` it fixes every
             random draw.
-        backend: ``"numpy"`` (the float64 reference).
+        backend: ``"numpy"`` (the float64 reference), ``"opencl"`` (first usable device) or
+            ``"opencl:<platform>:<device>"`` (see ``gpu-blur devices``).
         overrides: drawn parameters to fix instead (e.g. ``{"alpha": 1.0, "pattern": "RGGB"}``).
+        tile: run the image in tiles of at most (rows, columns) pixels, each with its halo;
+            the result does not depend on it.
 
     Returns:
         A :class:`Synthesis`. Images whose RAW round trip needs even sizes lose their last
         row and/or column (the Bayer 2 x 2 cell rule).
     """
     scene = _as_scene(scene)
-    runner = get_backend(backend)
+    runner = get_backend(backend, scene.output.precision)
     camera = get_camera(scene.camera.name, scene.base_dir)
     frames, mask, sharp = _gather(inputs, scene)
 
@@ -91,22 +97,35 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
     # saturation) never shifts another draw.
     params = draw_params(scene, static, camera, seed=seed, sample_index=sample_index,
                          image_shape=(h, w), overrides=overrides)
-    linear, sat_mask = runner.accumulate(static, params, frames, mask)
-    sample_plan = plan(scene, saturated=bool(np.any(sat_mask > 0)))
+    sample_plan = plan(scene, saturated=_reaches_clip_level(frames, mask))
     if not sample_plan.kept("saturate"):
         params.pop("alpha", None)
-    image, saturated = runner.to_raw(sample_plan, params, camera, linear, sat_mask, seed=seed,
-                                     sample_index=sample_index)
-    out = runner.finish(sample_plan, params, camera, image, saturated, seed=seed,
-                        sample_index=sample_index)
+
+    out = np.empty((h, w, 3), dtype=np.float64)
+    sat_mask = np.empty((h, w, 3), dtype=np.float64)
+    halo = demosaic_halo(sample_plan["demosaic"].options["method"]) if static.raw_round_trip else 0
+    for region in tiles(h, w, tile):
+        view = region.expand(halo)
+        linear, view_mask = runner.accumulate(sample_plan, params, frames, mask, view)
+        image, saturated = runner.to_raw(sample_plan, params, camera, linear, view_mask,
+                                         view.origin, seed=seed, sample_index=sample_index)
+        region.of(out)[...] = runner.finish(sample_plan, params, camera, image, saturated, view,
+                                            region, seed=seed, sample_index=sample_index)
+        region.of(sat_mask)[...] = view_mask[region.within(view)]
     sharp_out = render_sharp(sample_plan, sharp, runner)
+    if sample_plan.kept("quantize"):
+        sharp_out = quantize(sharp_out, scene.output.bits)
     crop = scene.output.crop
     out, sharp_out, sat_mask = (crop_border(x, crop) for x in (out, sharp_out, sat_mask))
-    if sample_plan.kept("quantize"):
-        out = quantize(out, scene.output.bits)
-        sharp_out = quantize(sharp_out, scene.output.bits)
     return Synthesis(out.astype(np.float32), sharp_out.astype(np.float32),
                      sat_mask.astype(np.float32), params, sample_plan)
+
+
+def _reaches_clip_level(frames, mask) -> bool:
+    """Whether any input pixel reaches the clip level (auto saturation runs only then)."""
+    if mask is not None:
+        return bool(np.any(np.asarray(mask) > 0))
+    return any(bool(np.any(f >= 1.0)) for f in frames)
 
 
 def render_sharp(sample_plan: Plan, sharp: np.ndarray, runner) -> np.ndarray:

@@ -159,5 +159,6 @@ def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
     add("crop", "finish", out.crop > 0,
         f"{out.crop} px cut from every side" if out.crop else "output.crop = 0")
     add("quantize", "finish", out.bits > 0,
-        f"{out.bits}-bit, round half up" if out.bits else "output.bits = 0: float output")
+        f"{out.bits}-bit, round half up" if out.bits else "output.bits = 0: float output",
+        bits=out.bits)
     return Plan(tuple(stages))

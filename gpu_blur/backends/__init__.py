@@ -1,20 +1,33 @@
-"""Backends: how the plan runs (numpy reference now; OpenCL and Warp kernels next).
+"""Backends: how a plan runs. One small protocol, three implementations.
 
-A backend carries out the plan's three passes under the stages' names: ``accumulate`` (blur in
-linear light, with the saturation mask), ``to_raw`` (saturation to noisy white-balanced RAW)
-and ``finish`` (demosaic to the final image).
+A backend carries out the plan's three passes under the stages' names, on the whole image or
+on a region (a tile with its halo), and returns host arrays:
+
+* ``accumulate(plan, params, frames, mask, region) -> (linear, mask)``: linearize and blur,
+  frames read one at a time (never all in device memory at once);
+* ``to_raw(plan, params, camera, linear, mask, origin, *, seed, sample_index)
+  -> (image, saturated)``: saturation to the noisy white-balanced RAW mosaic;
+* ``finish(plan, params, camera, image, saturated, view, out, *, seed, sample_index)
+  -> rgb``: demosaic to the final (quantized) image over the ``out`` region;
+* ``retone(plan, image)``: the output tone curve, also applied to the sharp reference.
+
+Names: ``numpy`` (float64 reference), ``opencl`` (first usable OpenCL device, GPUs first),
+``opencl:<platform>:<device>``.
 """
 
 from __future__ import annotations
 
 from gpu_blur.backends.numpy import NumpyBackend
 
-BACKENDS = {"numpy": NumpyBackend}
 
-
-def get_backend(name: str):
-    """A backend instance by name (``numpy``)."""
+def get_backend(name: str, precision: str = "float32"):
+    """A backend instance by name; ``precision`` is the kernels' compute type."""
     base = name.split(":", 1)[0]
-    if base not in BACKENDS:
-        raise ValueError(f"unknown backend {name!r}; available: {', '.join(BACKENDS)}")
-    return BACKENDS[base]()
+    if base == "numpy":
+        return NumpyBackend()
+    if base == "opencl":
+        from gpu_blur.backends.opencl import OpenCLBackend
+
+        return OpenCLBackend(name, precision)
+    raise ValueError(f"unknown backend {name!r}; available: numpy, opencl, "
+                     "opencl:<platform>:<device> (see gpu-blur devices)")

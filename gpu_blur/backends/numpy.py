@@ -1,8 +1,13 @@
-"""The numpy backend: runs a plan with the float64 reference stages, whole image at a time."""
+"""The numpy backend: runs a plan with the float64 reference stages.
+
+It follows the backend protocol (:mod:`gpu_blur.backends`): the accumulate pass always works
+on the whole image and returns the asked region (the reference is the truth, not a memory
+saver); the other passes work on the region they are given.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -10,7 +15,9 @@ from gpu_blur.cameras import Camera
 from gpu_blur.plan import Plan
 from gpu_blur.reference import bayer, blur, demosaic, noise, transfer
 from gpu_blur.reference.color import apply_matrix
+from gpu_blur.reference.output import quantize
 from gpu_blur.reference.saturation import restore_saturated, synthesize_saturation
+from gpu_blur.tiling import Region
 
 DEMOSAIC = {"malvar2004": demosaic.demosaic_malvar2004, "bilinear": demosaic.demosaic_bilinear}
 
@@ -19,39 +26,38 @@ class NumpyBackend:
     """float64 reference execution of a plan (the truth kernel backends are checked against)."""
 
     name = "numpy"
+    device = "numpy float64 (host CPU)"
 
-    def accumulate(self, plan: Plan, params: dict, frames: Iterable[np.ndarray],
-                   mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Linearize and blur.
+    def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
+                   mask: np.ndarray | None, region: Region) -> tuple[np.ndarray, np.ndarray]:
+        """Linearize and blur; return (linear, saturation mask) over ``region``.
 
         Args:
             plan: the sample's plan.
             params: its drawn parameters (``kernel``, ``homographies``).
-            frames: sRGB frames in [0, 1], H x W x 3, consumed one at a time (mode average), or
-                one photo (kernel, trajectory), or the blurred image (none).
+            frames: full-size sRGB frames in [0, 1], H x W x 3, read one at a time (mode
+                average), or one photo (kernel, trajectory), or the blurred image (none).
             mask: blur mode none only: the saturation mask that came with the image.
-
-        Returns:
-            (linear blurred image, saturation mask), H x W x 3 float64 each.
+            region: the part of the image to return.
         """
         mode = plan.variant("blur") or "none"
-        frames = iter(frames)
-        first = transfer.srgb_to_linear(next(frames))
         if mode == "average":
-            acc = blur.FrameAccumulator(*first.shape[:2])
-            acc.add(first)
+            acc = blur.FrameAccumulator(*frames[0].shape[:2])
             for frame in frames:
                 acc.add(transfer.srgb_to_linear(frame))
-            return acc.result()
-        if mode == "kernel":
-            kernel = params["kernel"]
-            return (blur.convolve_kernel(first, kernel),
-                    blur.convolve_kernel(blur.saturation_indicator(first), kernel))
-        if mode == "trajectory":
-            return blur.shake_blur(first, params["homographies"])
-        if mask is None:
-            mask = np.zeros_like(first)
-        return first, np.asarray(mask, dtype=np.float64)
+            linear, sat_mask = acc.result()
+        else:
+            first = transfer.srgb_to_linear(frames[0])
+            if mode == "kernel":
+                kernel = params["kernel"]
+                linear, sat_mask = (blur.convolve_kernel(first, kernel),
+                                    blur.convolve_kernel(blur.saturation_indicator(first), kernel))
+            elif mode == "trajectory":
+                linear, sat_mask = blur.shake_blur(first, params["homographies"])
+            else:
+                linear = first
+                sat_mask = np.zeros_like(first) if mask is None else np.asarray(mask, np.float64)
+        return region.of(linear), region.of(sat_mask)
 
     def to_raw(self, plan: Plan, params: dict, camera: Camera, linear: np.ndarray,
                mask: np.ndarray, origin: tuple[int, int] = (0, 0), *, seed: int,
@@ -66,7 +72,7 @@ class NumpyBackend:
             the RAW round trip, else the H x W x 3 linear image; and ``B_sat``, H x W x 3.
         """
         sat = (synthesize_saturation(linear, mask, params["alpha"]) if plan.kept("saturate")
-               else linear)
+               else np.asarray(linear, dtype=np.float64))
         if not plan.raw_round_trip:
             return sat, sat
         cam = apply_matrix(sat, camera.linear_to_camera)
@@ -83,33 +89,40 @@ class NumpyBackend:
         return bayer.white_balance(raw, pattern, *gains, origin=origin), sat
 
     def finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
-               saturated: np.ndarray, origin: tuple[int, int] = (0, 0), *, seed: int,
+               saturated: np.ndarray, view: Region, out: Region, *, seed: int,
                sample_index: int) -> np.ndarray:
-        """Demosaic, Cam2Lin, tone, sRGB noise, saturated restore, re-tone.
+        """Demosaic, Cam2Lin, tone, sRGB noise, saturated restore, re-tone, quantize.
 
-        ``image`` and ``saturated`` are what :meth:`to_raw` returned.
+        ``image`` and ``saturated`` are what :meth:`to_raw` returned for ``view``; the result
+        covers ``out``, which lies within ``view`` at least the demosaic halo away from every
+        edge of ``view`` that is not an edge of the full image.
 
         Returns:
-            H x W x 3 float64 in [0, 1] (crop and quantization are left to the caller).
+            ``out.h x out.w x 3`` float64 in [0, 1] (on the 8/16-bit grid when quantized).
         """
         if plan.raw_round_trip:
             options = plan["demosaic"].options
             pattern = bayer.BayerPattern(params["pattern"])
             rgb = DEMOSAIC[options["method"]](image, pattern, border=options["border"],
-                                              origin=origin)
+                                              origin=view.origin)
             if options["clip"]:
                 rgb = np.clip(rgb, 0.0, 1.0)
             image = apply_matrix(rgb, camera.camera_to_linear)
+        inner = out.within(view)
+        image, saturated = image[inner], saturated[inner]
         if plan.kept("tone"):
             image = transfer.linear_to_srgb(image)
         image = np.clip(image, 0.0, 1.0)
         if plan.kept("gaussian_noise"):
             image = np.clip(noise.add_gaussian_srgb(
                 image, params["gaussian_std"], seed=seed, sample_index=sample_index,
-                origin=origin), 0.0, 1.0)
+                origin=out.origin), 0.0, 1.0)
         if plan.kept("restore_saturated"):
             image = restore_saturated(image, saturated)
-        return self.retone(plan, image)
+        image = self.retone(plan, image)
+        if plan.kept("quantize"):
+            image = quantize(image, plan["quantize"].options["bits"])
+        return image
 
     def retone(self, plan: Plan, image: np.ndarray) -> np.ndarray:
         """The final re-toning with the A7R3 response, when the plan keeps it."""
