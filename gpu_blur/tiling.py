@@ -39,7 +39,7 @@ class Region:
         return self.h, self.w
 
     def expand(self, halo: int) -> Region:
-        """This region grown by ``halo`` pixels on every side, clipped to the full image."""
+        """The region grown by ``halo`` pixels on every side, clipped to the full image."""
         y0, x0 = max(self.y0 - halo, 0), max(self.x0 - halo, 0)
         y1 = min(self.y0 + self.h + halo, self.full_h)
         x1 = min(self.x0 + self.w + halo, self.full_w)
@@ -55,14 +55,16 @@ class Region:
                 slice(self.x0 - outer.x0, self.x0 - outer.x0 + self.w))
 
     def of(self, full):
-        """This region's view of an array covering the full image."""
+        """The region's view of an array covering the full image."""
         return full[self.y0:self.y0 + self.h, self.x0:self.x0 + self.w]
 
 
 def tiles(height: int, width: int, tile: tuple[int, int] | None) -> Iterator[Region]:
-    """Row-major tiles of at most ``tile = (th, tw)`` pixels covering the image (or the image
-    itself when ``tile`` is None). Tiles may start at odd offsets: every stage works in global
-    coordinates, so the Bayer phase and the random draws do not depend on them."""
+    """Row-major tiles of at most ``tile = (th, tw)`` pixels covering the image.
+
+    ``tile = None`` gives the image itself. Tiles may start at odd offsets: every stage works in
+    global coordinates, so the Bayer phase and the random draws do not depend on them.
+    """
     if tile is None:
         yield Region.whole(height, width)
         return
