@@ -105,7 +105,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
     sat_mask = np.empty((h, w, 3), dtype=np.float64)
     halo = demosaic_halo(sample_plan["demosaic"].options["method"]) if static.raw_round_trip else 0
     for region in tiles(h, w, tile):
-        view = region.expand(halo)
+        view = region.expand(halo).aligned(2 if static.raw_round_trip else 1)
         linear, view_mask = runner.accumulate(sample_plan, params, frames, mask, view)
         image, saturated = runner.to_raw(sample_plan, params, camera, linear, view_mask,
                                          view.origin, seed=seed, sample_index=sample_index)

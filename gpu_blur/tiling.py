@@ -45,6 +45,17 @@ class Region:
         x1 = min(self.x0 + self.w + halo, self.full_w)
         return Region(y0, x0, y1 - y0, x1 - x0, self.full_h, self.full_w)
 
+    def aligned(self, step: int) -> Region:
+        """The smallest region holding this one with edges on multiples of ``step``.
+
+        Edges stop at the full image's edges. Views for the Bayer steps use ``step = 2``, so
+        they start and end on a 2 x 2 cell.
+        """
+        y0, x0 = self.y0 - self.y0 % step, self.x0 - self.x0 % step
+        y1 = min(-(-(self.y0 + self.h) // step) * step, self.full_h)
+        x1 = min(-(-(self.x0 + self.w) // step) * step, self.full_w)
+        return Region(y0, x0, y1 - y0, x1 - x0, self.full_h, self.full_w)
+
     def within(self, outer: Region) -> tuple[slice, slice]:
         """Slices that cut this region out of an array covering ``outer``."""
         if not (outer.y0 <= self.y0 and outer.x0 <= self.x0

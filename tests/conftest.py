@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+import os
 from pathlib import Path
 
 import numpy as np
@@ -39,3 +41,51 @@ def rocket_rgb() -> np.ndarray:
     rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)[:426].astype(np.float64) / 255.0
     rgb.setflags(write=False)
     return rgb
+
+
+# -- backends: one test body runs on every backend present -----------------------------------
+
+def _backend_specs() -> list[str]:
+    """numpy, plus every usable OpenCL device in float32 and (with fp64) float64.
+
+    Narrow with GPU_BLUR_BACKENDS, e.g. ``GPU_BLUR_BACKENDS=numpy,opencl:0:0``.
+    """
+    specs = ["numpy"]
+    try:
+        from gpu_blur.backends.opencl import opencl_devices
+    except ImportError:
+        devices = []
+    else:
+        devices = [d for d in opencl_devices() if d.usable]
+    for d in devices:
+        specs.append(f"{d.spec}/float32")
+        if d.fp64:
+            specs.append(f"{d.spec}/float64")
+    wanted = os.environ.get("GPU_BLUR_BACKENDS")
+    if wanted:
+        names = wanted.split(",")
+        specs = [s for s in specs if s.split("/")[0] in names or s in names]
+    return specs
+
+
+BACKEND_SPECS = _backend_specs()
+KERNEL_BACKEND_SPECS = [s for s in BACKEND_SPECS if s != "numpy"]
+
+
+@functools.cache
+def make_backend(spec: str):
+    """A backend for 'numpy' or 'opencl:P:D/<precision>' (one per session)."""
+    from gpu_blur.backends import get_backend
+
+    name, _, precision = spec.partition("/")
+    return get_backend(name, precision or "float64")
+
+
+def spec_dtype(spec: str) -> str:
+    """The tolerance table's dtype column for a backend spec."""
+    return spec.partition("/")[2] or "float64"
+
+
+def spec_backend(spec: str) -> str:
+    """The tolerance table's backend column for a backend spec."""
+    return spec.split(":")[0].split("/")[0]

@@ -127,7 +127,11 @@ __kernel void gb_test_philox4x32(__global const uint *ctr, __global const uint *
 
 @pytest.fixture(scope="module")
 def opencl_philox():
-    """pyopencl, a queue and the test kernel, on the first device that can build it."""
+    """pyopencl, a context, a queue and the test kernel, on the first device that can build it.
+
+    The context is held explicitly: Intel's CPU runtime invalidates a context whose Python
+    object is gone even while a queue still refers to it.
+    """
     cl = pytest.importorskip("pyopencl")
     try:
         platforms = cl.get_platforms()
@@ -146,7 +150,7 @@ def opencl_philox():
         except cl.RuntimeError as err:
             failures.append(f"{device.platform.name} / {device.name}: {err}")
             continue
-        return cl, cl.CommandQueue(context), cl.Kernel(program, "gb_test_philox4x32")
+        return cl, context, cl.CommandQueue(context), cl.Kernel(program, "gb_test_philox4x32")
     if all("unknown target CPU" in f for f in failures):
         # PoCL 3.0 (LLVM 14) cannot generate code for CPUs newer than its LLVM, e.g. AMD
         # family 1Ah; the platform is there but no device can compile anything.
@@ -163,12 +167,12 @@ def opencl_philox():
 
 
 def run_opencl_philox(opencl_philox, counters: np.ndarray, keys: np.ndarray, rounds: int):
-    cl, queue, kernel = opencl_philox
+    cl, context, queue, kernel = opencl_philox
     mf = cl.mem_flags
-    ctr_buf = cl.Buffer(queue.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=counters)
-    key_buf = cl.Buffer(queue.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=keys)
+    ctr_buf = cl.Buffer(context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=counters)
+    key_buf = cl.Buffer(context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=keys)
     out = np.empty_like(counters)
-    out_buf = cl.Buffer(queue.context, mf.WRITE_ONLY, out.nbytes)
+    out_buf = cl.Buffer(context, mf.WRITE_ONLY, out.nbytes)
     kernel(queue, (counters.shape[0],), None, ctr_buf, key_buf, np.uint32(rounds), out_buf)
     cl.enqueue_copy(queue, out, out_buf)
     queue.finish()

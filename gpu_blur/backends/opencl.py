@@ -1,0 +1,383 @@
+"""The OpenCL backend: the plan's three passes as fused kernels (``kernels/opencl/*.cl``).
+
+Only the stages a plan keeps are compiled in (``-DGB_STAGE_<NAME>``); programs are built once
+per (device, source, defines). ``float32`` by default; ``float64`` builds need cl_khr_fp64.
+Random draws use Random123's Philox through pyopencl's bundled header and match
+:mod:`gpu_blur.reference.rng` bit for bit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import os
+import sys
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from gpu_blur.cameras import Camera
+from gpu_blur.plan import Plan
+from gpu_blur.reference import blur
+from gpu_blur.reference.bayer import BayerPattern
+from gpu_blur.reference.rng import key_from_seed
+from gpu_blur.tiling import Region
+
+NO_PLATFORM_HELP = (
+    "no OpenCL platform found. For a CPU device: pip install pocl-binary-distribution (PoCL), "
+    "or pip install intel-opencl-rt intel-cmplr-lib-rt (Intel's CPU runtime, which gpu_blur "
+    "registers by itself); for a GPU, install its vendor's driver (NVIDIA: the CUDA driver "
+    "ships OpenCL)"
+)
+
+
+class OpenCLError(RuntimeError):
+    """An OpenCL device that cannot be used, or a kernel that does not build."""
+
+
+def kernel_dir() -> Path:
+    """Folder of the OpenCL sources.
+
+    ``gpu_blur/kernels/opencl`` in an installed wheel, else the source tree's ``kernels/opencl``.
+    """
+    here = Path(__file__).resolve().parent.parent
+    for candidate in (here / "kernels" / "opencl", here.parent / "kernels" / "opencl"):
+        if (candidate / "include" / "gb_common.h").is_file():
+            return candidate
+    raise OpenCLError(f"OpenCL kernel sources not found near {here}; reinstall gpu_blur")
+
+
+def register_cpu_runtimes() -> None:
+    """Let pyopencl's ICD loader see a CPU runtime installed from PyPI.
+
+    Intel's runtime (``intel-opencl-rt``) installs ``<prefix>/lib/libintelocl.so`` but no
+    usable vendor file. When ``OCL_ICD_VENDORS`` is not set and that library exists, write a
+    vendor folder naming it (plus the system's ``/etc/OpenCL/vendors``) and point the loader
+    at it. Must run before the process first asks for platforms; importing this module does.
+    """
+    if os.environ.get("OCL_ICD_VENDORS"):
+        return
+    lib = Path(sys.prefix) / "lib" / "libintelocl.so"
+    if not lib.is_file():
+        return
+    folder = Path(tempfile.gettempdir()) / f"gpu_blur-icd-{os.getuid()}-{abs(hash(sys.prefix))}"
+    folder.mkdir(exist_ok=True)
+    entries = {"gpu_blur-intel-cpu.icd": f"{lib}\n"}
+    system = Path("/etc/OpenCL/vendors")
+    if system.is_dir():
+        entries.update({p.name: p.read_text() for p in system.glob("*.icd")})
+    for name, text in entries.items():
+        path = folder / name
+        if not path.is_file() or path.read_text() != text:
+            tmp = folder / f".{name}.{os.getpid()}"
+            tmp.write_text(text)
+            tmp.replace(path)
+    os.environ["OCL_ICD_VENDORS"] = str(folder)
+
+
+register_cpu_runtimes()
+import pyopencl as cl  # noqa: E402  (after the vendor folder is set)
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceInfo:
+    """One OpenCL device as ``gpu-blur devices`` lists it."""
+
+    spec: str
+    platform: str
+    name: str
+    kind: str
+    fp64: bool
+    memory_bytes: int
+    usable: bool
+    problem: str
+
+
+def _kind(device) -> str:
+    if device.type & cl.device_type.GPU:
+        return "GPU"
+    if device.type & cl.device_type.CPU:
+        return "CPU"
+    return "other"
+
+
+@functools.cache
+def _build_problem(platform_index: int, device_index: int) -> str:
+    """'' when the device builds a trivial kernel, else the first line of why not."""
+    device = cl.get_platforms()[platform_index].get_devices()[device_index]
+    try:
+        ctx = cl.Context([device])
+        cl.Program(ctx, "__kernel void gb_probe(__global float *a) { a[0] = 1.0f; }").build()
+    except (cl.Error, RuntimeError) as e:
+        lines = [x for x in str(e).splitlines() if "error" in x.lower()] or [str(e)]
+        return lines[0].strip()
+    return ""
+
+
+def opencl_devices() -> list[DeviceInfo]:
+    """Every OpenCL device, whether it can build kernels here, fp64 support and memory."""
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error:
+        return []
+    found = []
+    for p, platform in enumerate(platforms):
+        for d, device in enumerate(platform.get_devices()):
+            problem = _build_problem(p, d)
+            found.append(DeviceInfo(
+                f"opencl:{p}:{d}", platform.name.strip(), device.name.strip(), _kind(device),
+                "cl_khr_fp64" in device.extensions, int(device.global_mem_size), not problem,
+                problem))
+    return found
+
+
+def _select(spec: str):
+    """The cl.Device a backend name asks for (``opencl`` = first usable, GPUs first)."""
+    devices = opencl_devices()
+    if not devices:
+        raise OpenCLError(NO_PLATFORM_HELP)
+    if spec == "opencl":
+        usable = [d for d in devices if d.usable]
+        if not usable:
+            why = "; ".join(f"{d.spec} ({d.name}): {d.problem}" for d in devices)
+            raise OpenCLError(f"no OpenCL device can build kernels here: {why}. "
+                              + NO_PLATFORM_HELP.replace("no OpenCL platform found. ", ""))
+        chosen = sorted(usable, key=lambda d: d.kind != "GPU")[0]
+    else:
+        chosen = next((d for d in devices if d.spec == spec), None)
+        if chosen is None:
+            raise OpenCLError(f"no OpenCL device {spec!r}; present: "
+                              + ", ".join(f"{d.spec} ({d.name})" for d in devices))
+        if not chosen.usable:
+            raise OpenCLError(f"{spec} ({chosen.name}) cannot build kernels: {chosen.problem}")
+    _, p, d = chosen.spec.split(":")
+    return cl.get_platforms()[int(p)].get_devices()[int(d)], chosen
+
+
+def pass_defines(plan: Plan, pass_: str) -> dict[str, str]:
+    """The build-time defines of one pass: its kept stages and their options."""
+    defines = {f"GB_STAGE_{s.name.upper()}": "1" for s in plan.stages
+               if s.kept and s.pass_ == pass_}
+    if pass_ == "to_raw" and plan.kept("linear_to_camera"):
+        if plan["linear_to_camera"].options["clip"]:
+            defines["GB_CLIP_CAMERA"] = "1"
+    if pass_ == "finish":
+        if plan.kept("demosaic"):
+            options = plan["demosaic"].options
+            if options["method"] == "bilinear":
+                defines["GB_DEMOSAIC_BILINEAR"] = "1"
+            if options["clip"]:
+                defines["GB_CLIP_DEMOSAIC"] = "1"
+            defines["GB_ZERO_BORDER"] = "1" if options["border"] == "zero" else "0"
+        if plan.kept("retone") and plan["retone"].options["crf"] == "a7r3-lut":
+            defines["GB_RETONE_LOOKUP"] = "1"
+        if plan.kept("quantize"):
+            defines["GB_QUANTIZE_BITS"] = str(plan["quantize"].options["bits"])
+    return defines
+
+
+class OpenCLBackend:
+    """Runs a plan as OpenCL kernels on one device (see :mod:`gpu_blur.backends`)."""
+
+    name = "opencl"
+
+    def __init__(self, spec: str = "opencl", precision: str = "float32"):
+        self.cl_device, self.info = _select(spec)
+        if precision not in ("float32", "float64"):
+            raise ValueError(f"precision must be float32 or float64, got {precision!r}")
+        if precision == "float64" and not self.info.fp64:
+            raise OpenCLError(f"{self.info.spec} ({self.info.name}) has no fp64 "
+                              "(cl_khr_fp64); use output.precision = 'float32'")
+        self.precision = precision
+        self.real = np.float64 if precision == "float64" else np.float32
+        self.device = f"{self.info.spec} {self.info.name} ({self.info.platform}), {precision}"
+        self.ctx = cl.Context([self.cl_device])
+        self.queue = cl.CommandQueue(self.ctx)
+        self._programs: dict = {}
+        self._kernel_cache: dict = {}
+
+    # -- building ----------------------------------------------------------------------------
+    def program(self, source: str, defines: dict[str, str]):
+        """The built program of ``kernels/opencl/<source>`` with these defines (cached)."""
+        defines = dict(defines)
+        if self.precision == "float64":
+            defines["GB_FP64"] = "1"
+        if self.info.fp64:
+            defines["GB_HAS_FP64"] = "1"
+        key = (source, tuple(sorted(defines.items())))
+        if key not in self._programs:
+            folder = kernel_dir()
+            pyopencl_headers = Path(cl.__file__).parent / "cl"
+            options = ["-I", str(folder / "include"), "-I", str(pyopencl_headers)]
+            options += [f"-D{k}={v}" for k, v in sorted(defines.items())]
+            text = (folder / source).read_text()
+            try:
+                self._programs[key] = cl.Program(self.ctx, text).build(options=options)
+            except cl.RuntimeError as e:
+                raise OpenCLError(
+                    f"building kernels/opencl/{source} for {self.device} failed.\n"
+                    f"defines: {' '.join(options[4:]) or '(none)'}\ncompiler log:\n{e}"
+                ) from None
+        return self._programs[key]
+
+    def kernels(self, source: str, defines: dict[str, str]) -> _Kernels:
+        """The kernels of a built program, by name (each cl.Kernel retrieved once)."""
+        return _Kernels(self.program(source, defines), self._kernel_cache)
+
+    # -- buffers -----------------------------------------------------------------------------
+    def _upload(self, array) -> cl.Buffer:
+        data = np.ascontiguousarray(array, dtype=self.real)
+        return cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                         hostbuf=data)
+
+    def _constant(self, array, dtype=None) -> cl.Buffer:
+        data = np.ascontiguousarray(np.ravel(array), dtype=dtype or self.real)
+        return cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                         hostbuf=data)
+
+    def _zeros(self, count: int, dtype=None) -> cl.Buffer:
+        nbytes = max(count, 1) * np.dtype(dtype or self.real).itemsize
+        buf = cl.Buffer(self.ctx, cl.mem_flags.READ_WRITE, nbytes)
+        cl.enqueue_fill_buffer(self.queue, buf, np.zeros(1, dtype or self.real), 0, nbytes)
+        return buf
+
+    def _download(self, buf: cl.Buffer, shape) -> np.ndarray:
+        out = np.empty(shape, dtype=self.real)
+        cl.enqueue_copy(self.queue, out, buf)
+        return out.astype(np.float64)
+
+    @staticmethod
+    def _grid(w: int, h: int) -> tuple[int, int]:
+        return (int(w), int(h))
+
+    # -- pass 1: accumulate ------------------------------------------------------------------
+    def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
+                   mask: np.ndarray | None, region: Region) -> tuple[np.ndarray, np.ndarray]:
+        """Linearize and blur on the device; return (linear, mask) over ``region``."""
+        prg = self.kernels("accumulate.cl", pass_defines(plan, "accumulate"))
+        mode = plan.variant("blur") or "none"
+        n = region.h * region.w * 3
+        shape = (region.h, region.w, 3)
+        if mode == "average":
+            total, saturated = self._zeros(n), self._zeros(n, np.uint32)
+            for frame in frames:  # one frame on the device at a time
+                prg.gb_blur_average_add(self.queue, (n,), None, self._upload(region.of(frame)),
+                                        total, saturated)
+            linear, sat_mask = self._zeros(n), self._zeros(n)
+            prg.gb_blur_average_finish(self.queue, (n,), None, total, saturated,
+                                       np.uint32(len(frames)), linear, sat_mask)
+            return self._download(linear, shape), self._download(sat_mask, shape)
+        if mode == "none":
+            linear, indicator = self._zeros(n), self._zeros(n)
+            prg.gb_linearize(self.queue, (n,), None, self._upload(region.of(frames[0])),
+                             linear, indicator)
+            sat_mask = np.zeros(shape) if mask is None else region.of(mask).astype(np.float64)
+            return self._download(linear, shape), sat_mask
+        if mode == "kernel":
+            kernel = blur.normalize_kernel(params["kernel"])
+            view = region.expand(max(kernel.shape) // 2)
+        else:
+            hom = params["homographies"]
+            view = region.expand(blur.shake_halo(hom, region.full_h, region.full_w))
+        vn = view.h * view.w * 3
+        src, indicator = self._zeros(vn), self._zeros(vn)
+        prg.gb_linearize(self.queue, (vn,), None, self._upload(view.of(frames[0])), src,
+                         indicator)
+        geometry = (np.int64(view.x0), np.int64(view.y0), np.int64(view.w),
+                    np.int64(region.full_w), np.int64(region.full_h))
+        out_geometry = (np.int64(region.x0), np.int64(region.y0), np.int64(region.w),
+                        np.int64(region.h))
+        linear, sat_mask = self._zeros(n), self._zeros(n)
+        grid = self._grid(region.w, region.h)
+        if mode == "kernel":
+            k = self._constant(kernel)
+            kh, kw = (np.int32(s) for s in kernel.shape)
+            prg.gb_blur_kernel(self.queue, grid, None, src, *geometry, k, kh, kw, linear,
+                               *out_geometry)
+            prg.gb_blur_kernel(self.queue, grid, None, indicator, *geometry, k, kh, kw,
+                               sat_mask, *out_geometry)
+            return self._download(linear, shape), self._download(sat_mask, shape)
+        total, total_ind = self._zeros(n), self._zeros(n)
+        pos = np.float64 if self.info.fp64 else np.float32
+        for h in hom:  # one pose at a time
+            hinv = self._constant(np.linalg.inv(h), pos)
+            prg.gb_blur_trajectory_add(self.queue, grid, None, src, indicator, *geometry, hinv,
+                                       total, total_ind, *out_geometry)
+        prg.gb_blur_trajectory_finish(self.queue, (n,), None, total, total_ind,
+                                      np.uint32(len(hom)), linear, sat_mask)
+        return self._download(linear, shape), self._download(sat_mask, shape)
+
+    # -- pass 2: to_raw ----------------------------------------------------------------------
+    def to_raw(self, plan: Plan, params: dict, camera: Camera, linear: np.ndarray,
+               mask: np.ndarray, origin: tuple[int, int] = (0, 0), *, seed: int,
+               sample_index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Saturation to noisy RAW on the device (see NumpyBackend.to_raw)."""
+        prg = self.kernels("to_raw.cl", pass_defines(plan, "to_raw"))
+        h, w = linear.shape[:2]
+        saturated, raw = self._zeros(h * w * 3), self._zeros(h * w)
+        key = key_from_seed(seed)
+        r = self.real
+        prg.gb_to_raw(
+            self.queue, self._grid(w, h), None, self._upload(linear), self._upload(mask),
+            np.int64(origin[1]), np.int64(origin[0]), np.int64(w), np.int64(h),
+            r(params.get("alpha", 0.0)), self._constant(camera.linear_to_camera),
+            np.int32(_cfa(params)), r(params.get("red_gain", 1.0)),
+            r(params.get("blue_gain", 1.0)), r(params.get("shot_noise_k", 1.0)),
+            r(params.get("read_noise_std", 0.0)), np.uint32(key[0]), np.uint32(key[1]),
+            np.uint32(sample_index), saturated, raw)
+        sat = self._download(saturated, (h, w, 3))
+        if not plan.raw_round_trip:
+            return sat, sat
+        return self._download(raw, (h, w)), sat
+
+    # -- pass 3: finish ----------------------------------------------------------------------
+    def finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
+               saturated: np.ndarray, view: Region, out: Region, *, seed: int,
+               sample_index: int) -> np.ndarray:
+        """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
+        from gpu_blur.constants import A7R3_CRF_POLYNOMIAL, A7R3_CRF_TABLE_X255
+
+        prg = self.kernels("finish.cl", pass_defines(plan, "finish"))
+        table = A7R3_CRF_TABLE_X255 / 255.0
+        raw = image if plan.raw_round_trip else np.zeros(1)
+        result = self._zeros(out.h * out.w * 3)
+        key = key_from_seed(seed)
+        prg.gb_finish(
+            self.queue, self._grid(out.w, out.h), None, self._upload(raw),
+            self._upload(saturated), np.int64(view.x0), np.int64(view.y0), np.int64(view.w),
+            np.int64(view.full_w), np.int64(view.full_h), np.int64(out.x0), np.int64(out.y0),
+            np.int64(out.w), np.int64(out.h), np.int32(_cfa(params)),
+            self._constant(camera.camera_to_linear), self.real(params.get("gaussian_std", 0.0)),
+            np.uint32(key[0]), np.uint32(key[1]), np.uint32(sample_index),
+            self._constant(A7R3_CRF_POLYNOMIAL), np.int32(A7R3_CRF_POLYNOMIAL.size),
+            self._upload(table), np.int32(table.size), result)
+        return self._download(result, (out.h, out.w, 3))
+
+    def retone(self, plan: Plan, image: np.ndarray) -> np.ndarray:
+        """The output tone curve for the sharp reference (host side, float64)."""
+        from gpu_blur.backends.numpy import NumpyBackend
+
+        return NumpyBackend().retone(plan, image)
+
+
+class _Kernels:
+    """Attribute access to a program's kernels, each cl.Kernel made once and reused."""
+
+    def __init__(self, program, cache: dict):
+        self._program, self._cache = program, cache
+
+    def __getattr__(self, name: str):
+        key = (id(self._program), name)
+        if key not in self._cache:
+            self._cache[key] = cl.Kernel(self._program, name)
+        return self._cache[key]
+
+
+def _cfa(params: dict) -> int:
+    """The pattern's channels at the cell offsets, 2 bits each (gb_cfa_channel)."""
+    if "pattern" not in params:
+        return 0
+    channels = BayerPattern(params["pattern"]).channels
+    return sum(c << (2 * i) for i, c in enumerate(channels))

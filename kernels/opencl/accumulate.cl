@@ -1,0 +1,118 @@
+/* accumulate.cl: pass 1 of the plan, stages "linearize" and "blur".
+ *
+ * Images are interleaved RGB (3 reals per pixel), row-major. Sums stay on the device while the
+ * host streams frames (mode average) or poses (mode trajectory) through them one at a time.
+ * Every kernel addresses pixels by global coordinates (see gb_common.h): a tile's output
+ * equals the whole image's at the same pixels.
+ */
+#include "gb_common.h"
+#include "gb_pixel.h"
+
+/* linearize: sRGB -> linear (EOTF), and the saturation indicator [linear >= 1]. */
+__kernel void gb_linearize(__global const real *srgb, __global real *linear,
+                           __global real *indicator)
+{
+    size_t i = get_global_id(0);
+    real v = gb_srgb_to_linear(srgb[i]);
+    linear[i] = v;
+    indicator[i] = v >= GB_REAL(1.0) ? GB_REAL(1.0) : GB_REAL(0.0);
+}
+
+/* blur, variant average: add one sRGB frame (linearized on the fly) and count its saturated
+ * channels. The frame covers the same region as the sums. */
+__kernel void gb_blur_average_add(__global const real *srgb, __global real *sum,
+                                  __global uint *saturated)
+{
+    size_t i = get_global_id(0);
+    real v = gb_srgb_to_linear(srgb[i]);
+    sum[i] += v;
+    saturated[i] += v >= GB_REAL(1.0) ? 1u : 0u;
+}
+
+/* blur, variant average: the mean of the frames and the fraction of saturated frames. */
+__kernel void gb_blur_average_finish(__global const real *sum, __global const uint *saturated,
+                                     uint count, __global real *linear, __global real *mask)
+{
+    size_t i = get_global_id(0);
+    linear[i] = sum[i] / (real)count;
+    mask[i] = (real)saturated[i] / (real)count;
+}
+
+/* blur, variant kernel: out = src convolved with k (true convolution, k normalized by the host),
+ * reflect-101 at the full image's edges. src is a view (first pixel (sx0, sy0), width sw) that
+ * holds the output region plus the kernel's radius; dst covers the output region. */
+__kernel void gb_blur_kernel(__global const real *src, long sx0, long sy0, long sw,
+                             long full_w, long full_h, __constant real *k, int kh, int kw,
+                             __global real *dst, long dx0, long dy0, long dw, long dh)
+{
+    long x = get_global_id(0), y = get_global_id(1);
+    if (x >= dw || y >= dh) return;
+    long gx = dx0 + x, gy = dy0 + y;
+    int ry = kh / 2, rx = kw / 2;
+    real acc0 = 0, acc1 = 0, acc2 = 0;
+    for (int i = 0; i < kh; ++i) {
+        long sy = gb_reflect101(gy + ry - i, full_h);
+        for (int j = 0; j < kw; ++j) {
+            real w = k[i * kw + j];
+            long sx = gb_reflect101(gx + rx - j, full_w);
+            long o = 3 * gb_offset(sx, sy, sx0, sy0, sw);
+            acc0 += w * src[o];
+            acc1 += w * src[o + 1];
+            acc2 += w * src[o + 2];
+        }
+    }
+    long o = 3 * (y * dw + x);
+    dst[o] = acc0;
+    dst[o + 1] = acc1;
+    dst[o + 2] = acc2;
+}
+
+#ifdef GB_HAS_FP64
+typedef double gb_pos;
+#else
+typedef float gb_pos;
+#endif
+
+/* blur, variant trajectory: add the linear image and its indicator warped by one pose.
+ * Output pixel (gx, gy) samples src bilinearly at H^-1 (gx, gy, 1) (hinv row-major), with
+ * reflect-101 neighbours, as gpu_blur.reference.blur.warp_homography. Positions are computed
+ * in double where the device has it. src and ind are views holding every pixel the region's
+ * inverse mapping reads. */
+__kernel void gb_blur_trajectory_add(__global const real *src, __global const real *ind,
+                                     long sx0, long sy0, long sw, long full_w, long full_h,
+                                     __constant gb_pos *hinv, __global real *sum,
+                                     __global real *sum_ind, long dx0, long dy0, long dw,
+                                     long dh)
+{
+    long x = get_global_id(0), y = get_global_id(1);
+    if (x >= dw || y >= dh) return;
+    gb_pos gx = (gb_pos)(dx0 + x), gy = (gb_pos)(dy0 + y);
+    gb_pos den = hinv[6] * gx + hinv[7] * gy + hinv[8];
+    gb_pos px = (hinv[0] * gx + hinv[1] * gy + hinv[2]) / den;
+    gb_pos py = (hinv[3] * gx + hinv[4] * gy + hinv[5]) / den;
+    gb_pos fx0 = floor(px), fy0 = floor(py);
+    real fx = (real)(px - fx0), fy = (real)(py - fy0);
+    long xi = (long)fx0, yi = (long)fy0;
+    long c0 = gb_reflect101(xi, full_w), c1 = gb_reflect101(xi + 1, full_w);
+    long r0 = gb_reflect101(yi, full_h), r1 = gb_reflect101(yi + 1, full_h);
+    long o00 = 3 * gb_offset(c0, r0, sx0, sy0, sw), o01 = 3 * gb_offset(c1, r0, sx0, sy0, sw);
+    long o10 = 3 * gb_offset(c0, r1, sx0, sy0, sw), o11 = 3 * gb_offset(c1, r1, sx0, sy0, sw);
+    long o = 3 * (y * dw + x);
+    for (int c = 0; c < 3; ++c) {
+        real top = src[o00 + c] + (src[o01 + c] - src[o00 + c]) * fx;
+        real bottom = src[o10 + c] + (src[o11 + c] - src[o10 + c]) * fx;
+        sum[o + c] += top + (bottom - top) * fy;
+        real itop = ind[o00 + c] + (ind[o01 + c] - ind[o00 + c]) * fx;
+        real ibottom = ind[o10 + c] + (ind[o11 + c] - ind[o10 + c]) * fx;
+        sum_ind[o + c] += itop + (ibottom - itop) * fy;
+    }
+}
+
+/* blur, variant trajectory: the means over the poses. */
+__kernel void gb_blur_trajectory_finish(__global const real *sum, __global const real *sum_ind,
+                                        uint count, __global real *linear, __global real *mask)
+{
+    size_t i = get_global_id(0);
+    linear[i] = sum[i] / (real)count;
+    mask[i] = sum_ind[i] / (real)count;
+}

@@ -1,0 +1,67 @@
+/* finish.cl: pass 3 of the plan: "demosaic" (5 x 5 stencil), then pointwise
+ * "camera_to_linear", "tone", "gaussian_noise", "restore_saturated", "retone", "quantize"
+ * (each compiled in only when the plan keeps it). Reads the RAW mosaic and B_sat from a view
+ * (first pixel (vx0, vy0), width vw) that holds the output region plus the demosaic halo, and
+ * writes the output region (first pixel (ox0, oy0), size ow x oh), 3 reals per pixel.
+ */
+#include "gb_common.h"
+#include "gb_pixel.h"
+#include "gb_random.h"
+#include "gb_demosaic.h"
+
+#define GB_STREAM_SRGB_NOISE 6u
+
+__kernel void gb_finish(__global const real *raw, __global const real *saturated, long vx0,
+                        long vy0, long vw, long full_w, long full_h, long ox0, long oy0,
+                        long ow, long oh, int cfa, __constant real *cam_to_lin,
+                        real gaussian_std, uint key_lo, uint key_hi, uint sample_index,
+                        __constant real *crf_polynomial, int crf_polynomial_n,
+                        __global const real *crf_table, int crf_table_n, __global real *out)
+{
+    long x = get_global_id(0), y = get_global_id(1);
+    if (x >= ow || y >= oh) return;
+    long gx = ox0 + x, gy = oy0 + y;
+    long v = 3 * gb_offset(gx, gy, vx0, vy0, vw);
+    real rgb[3];
+#ifdef GB_STAGE_DEMOSAIC
+    real cam[3];
+#ifdef GB_DEMOSAIC_BILINEAR
+    gb_demosaic_bilinear(raw, vx0, vy0, vw, full_w, full_h, gx, gy, cfa, GB_ZERO_BORDER, cam);
+#else
+    gb_demosaic_malvar2004(raw, vx0, vy0, vw, full_w, full_h, gx, gy, cfa, GB_ZERO_BORDER, cam);
+#endif
+#ifdef GB_CLIP_DEMOSAIC
+    for (int c = 0; c < 3; ++c) cam[c] = clamp(cam[c], GB_REAL(0.0), GB_REAL(1.0));
+#endif
+    gb_apply_matrix(cam_to_lin, cam, rgb); /* camera_to_linear */
+#else
+    for (int c = 0; c < 3; ++c) rgb[c] = saturated[v + c];
+#endif
+    uint2 key = (uint2)(key_lo, key_hi);
+    for (int c = 0; c < 3; ++c) {
+        real p = rgb[c];
+#ifdef GB_STAGE_TONE
+        p = gb_linear_to_srgb(p);
+#endif
+        p = clamp(p, GB_REAL(0.0), GB_REAL(1.0));
+#ifdef GB_STAGE_GAUSSIAN_NOISE
+        p += gaussian_std * gb_pixel_normal(key, sample_index, GB_STREAM_SRGB_NOISE, (uint)gx,
+                                            (uint)gy, (uint)c);
+        p = clamp(p, GB_REAL(0.0), GB_REAL(1.0));
+#endif
+#ifdef GB_STAGE_RESTORE_SATURATED
+        if (saturated[v + c] >= GB_REAL(1.0)) p = GB_REAL(1.0);
+#endif
+#ifdef GB_STAGE_RETONE
+#ifdef GB_RETONE_LOOKUP
+        p = gb_lookup_crf(gb_srgb_to_linear(p), crf_table, crf_table_n);
+#else
+        p = gb_polynomial_crf(gb_srgb_to_linear(p), crf_polynomial, crf_polynomial_n);
+#endif
+#endif
+#ifdef GB_STAGE_QUANTIZE
+        p = gb_quantize(p, GB_QUANTIZE_BITS);
+#endif
+        out[3 * (y * ow + x) + c] = p;
+    }
+}

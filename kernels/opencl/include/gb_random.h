@@ -1,0 +1,210 @@
+/* gb_random.h: counter-based random draws for the kernels, the device side of
+ * gpu_blur/reference/rng.py.
+ *
+ * Provides Philox4x32-10 (gb_philox, from pyopencl's bundled Random123 philox.cl), the per-pixel
+ * words (gb_pixel_bits), uniforms (gb_uniform), Box-Muller normals (gb_box_muller,
+ * gb_pixel_normal), log(k!) (gb_log_factorial) and the Poisson sampler (gb_poisson).
+ *
+ * The contract is rng.py's module docstring, repeated here operation for operation:
+ *   key      (seed & 0xFFFFFFFF, seed >> 32), passed as a uint2
+ *   counter  (x, y, sample_index, (stream << 24) | round), x and y the pixel's GLOBAL column
+ *            and row, round in [0, 2^24) numbering blocks of four words of one pixel
+ *   uniform  ((bits >> 9) + 0.5) * 2^-23: exact in float and in double
+ *   normals  4 per round: (cos, sin) of Box-Muller on words (0, 1), then on words (2, 3)
+ *   Poisson  stream SHOT_NOISE; inversion on word 0 of round 0 below rate 10, PTRS at 10 and
+ *            above, attempt 2r on words (0, 1) and attempt 2r + 1 on words (2, 3) of round r
+ *
+ * Precision rule. Where the device has fp64 (GB_HAS_FP64, or GB_FP64) the Poisson sampler,
+ * log(k!) and Box-Muller compute in double even in a float build, and round once to `real` at
+ * the end: float PTRS arithmetic flips floor() on ~0.1 % of pixels at rates ~1e4 (0.35 %
+ * measured at 1e4, 15 % at 1e7), and float Box-Muller misses the 1e-6 target for normals
+ * (measured 1.5e-6 with cos((2 pi)_f u2); ulp(4) is already 4.8e-7). Without fp64 the same
+ * code runs in float (type gb_wide) and agrees with the reference less closely: Poisson counts
+ * are then right in distribution, not pixel for pixel, at rates >= 10. The measured agreement
+ * is in gpu_blur/testing.py (section "OpenCL random").
+ *
+ * Floating-point contraction is switched off inside the functions below (the reference rounds
+ * every product and sum); do not build with -cl-mad-enable, -cl-unsafe-math-optimizations or
+ * -cl-fast-relaxed-math.
+ *
+ * The build passes -I <pyopencl package>/cl so that Random123's header is found.
+ */
+#ifndef GB_RANDOM_H
+#define GB_RANDOM_H
+
+#include "gb_common.h"
+#include <pyopencl-random123/philox.cl>
+
+/* The wide type of the samplers: double where the device has it, float otherwise. */
+#if defined(GB_HAS_FP64) || defined(GB_FP64)
+#define GB_RANDOM_WIDE_IS_DOUBLE 1
+typedef double gb_wide;
+#define GB_WIDE(x) (x)
+#else
+/* No cl_khr_fp64: float throughout. Poisson counts then differ from the float64 reference on
+ * a small fraction of pixels (mostly PTRS floor() boundaries at large rates). */
+typedef float gb_wide;
+#define GB_WIDE(x) (x##f)
+#endif
+
+/* Stream numbers (rng.Stream). */
+#define GB_STREAM_PARAMS 1u
+#define GB_STREAM_TRAJECTORY 2u
+#define GB_STREAM_KERNEL 3u
+#define GB_STREAM_SHOT_NOISE 4u
+#define GB_STREAM_READ_NOISE 5u
+#define GB_STREAM_SRGB_NOISE 6u
+
+/* rng.POISSON_INVERSION_MAX_K, and the round limit 2^24. */
+#define GB_POISSON_INVERSION_MAX_K 64
+#define GB_ROUND_LIMIT 16777216u
+
+/* Philox4x32-10 block function: four 32-bit words of counter under a two-word key. */
+static inline uint4 gb_philox(uint4 counter, uint2 key)
+{
+    philox4x32_ctr_t c = {{counter.x, counter.y, counter.z, counter.w}};
+    philox4x32_key_t k = {{key.x, key.y}};
+    philox4x32_ctr_t r = philox4x32_R(10, c, k);
+    return (uint4)(r.v[0], r.v[1], r.v[2], r.v[3]);
+}
+
+/* The four words of pixel (x, y), round `round` (< 2^24), stream `stream` (< 256). */
+static inline uint4 gb_pixel_bits(uint2 key, uint sample_index, uint stream, uint x, uint y,
+                                  uint round)
+{
+    return gb_philox((uint4)(x, y, sample_index, (stream << 24) | round), key);
+}
+
+/* A word as a uniform in (0, 1): an odd multiple of 2^-24, exact in float and double. */
+static inline real gb_uniform(uint bits)
+{
+    return ((real)(bits >> 9) + GB_REAL(0.5)) * GB_REAL(0x1p-23);
+}
+
+/* Box-Muller: r = sqrt(-2 log u1), t = (2 pi) u2; (r cos t, r sin t), in gb_wide. */
+static inline void gb_box_muller(real u1, real u2, real *z_cos, real *z_sin)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    const gb_wide radius = sqrt(GB_WIDE(-2.0) * log((gb_wide)u1));
+#ifdef GB_RANDOM_WIDE_IS_DOUBLE
+    /* 2 * pi rounded to double, as numpy's 2.0 * math.pi. */
+    const gb_wide angle = 6.283185307179586 * (gb_wide)u2;
+    *z_cos = (real)(radius * cos(angle));
+    *z_sin = (real)(radius * sin(angle));
+#else
+    /* In float, (2 pi)_f * u2 misplaces the angle by up to 4.1e-7 rad (times |z| <= 5.8);
+     * 2 * u2 is exact, so cospi / sinpi see the reference's angle. */
+    const float half_turns = 2.0f * u2;
+    *z_cos = (real)(radius * cospi(half_turns));
+    *z_sin = (real)(radius * sinpi(half_turns));
+#endif
+}
+
+/* Normal number `index` of pixel (x, y): round index / 4; within it, normals 0, 1 are
+ * Box-Muller (cos, sin) of words (0, 1) and normals 2, 3 of words (2, 3). */
+static inline real gb_pixel_normal(uint2 key, uint sample_index, uint stream, uint x, uint y,
+                                   uint index)
+{
+    const uint4 bits = gb_pixel_bits(key, sample_index, stream, x, y, index >> 2);
+    const uint j = index & 3u;
+    const uint w1 = j < 2u ? bits.x : bits.z;
+    const uint w2 = j < 2u ? bits.y : bits.w;
+    real z_cos, z_sin;
+    gb_box_muller(gb_uniform(w1), gb_uniform(w2), &z_cos, &z_sin);
+    return (j & 1u) ? z_sin : z_cos;
+}
+
+/* log(k!) for k = 0..15, the float64 literals of rng.LOG_FACTORIAL_TABLE. */
+__constant gb_wide gb_log_factorial_table[16] = {
+    GB_WIDE(0.0),
+    GB_WIDE(0.0),
+    GB_WIDE(0.6931471805599453),
+    GB_WIDE(1.791759469228055),
+    GB_WIDE(3.1780538303479458),
+    GB_WIDE(4.787491742782046),
+    GB_WIDE(6.579251212010101),
+    GB_WIDE(8.525161361065415),
+    GB_WIDE(10.60460290274525),
+    GB_WIDE(12.801827480081469),
+    GB_WIDE(15.104412573075516),
+    GB_WIDE(17.502307845873887),
+    GB_WIDE(19.987214495661885),
+    GB_WIDE(22.552163853123425),
+    GB_WIDE(25.19122118273868),
+    GB_WIDE(27.89927138384089),
+};
+
+/* log(k!) for integer-valued k >= 0 (rng.log_factorial): the table below 16, else Stirling
+ *   r = 1/k;  s = r (1/12 - r^2 (1/360 - r^2 (1/1260 - r^2 / 1680)))
+ *   log k! = (k + 0.5) log k - k + 0.5 log(2 pi) + s */
+static inline gb_wide gb_log_factorial(gb_wide k)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    if (k < GB_WIDE(16.0)) return gb_log_factorial_table[(int)k];
+    const gb_wide r = GB_WIDE(1.0) / k;
+    const gb_wide r2 = r * r;
+    const gb_wide series =
+        r * (GB_WIDE(1.0) / GB_WIDE(12.0) -
+             r2 * (GB_WIDE(1.0) / GB_WIDE(360.0) -
+                   r2 * (GB_WIDE(1.0) / GB_WIDE(1260.0) - r2 / GB_WIDE(1680.0))));
+    return (k + GB_WIDE(0.5)) * log(k) - k + GB_WIDE(0.9189385332046728) + series;
+}
+
+/* One Poisson count at pixel (x, y) of stream SHOT_NOISE (rng.poisson), as a real.
+ * The rate is clamped at 0 (negative rates give 0). The reference refuses non-finite rates; here
+ * NaN gives NaN and +inf gives +inf, so that the PTRS loop never runs on them. In a float build
+ * counts above 2^24 round to the nearest float. */
+static inline real gb_poisson(real rate_in, uint2 key, uint sample_index, uint x, uint y)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    const gb_wide rate_raw = (gb_wide)rate_in;
+    if (isnan(rate_raw)) return rate_in;
+    const gb_wide rate = rate_raw > GB_WIDE(0.0) ? rate_raw : GB_WIDE(0.0);
+    if (isinf(rate)) return (real)INFINITY;
+
+    if (rate < GB_WIDE(10.0)) { /* rng.POISSON_PTRS_MIN_RATE */
+        /* Inversion by sequential search on word 0 of round 0. */
+        const uint4 bits = gb_pixel_bits(key, sample_index, GB_STREAM_SHOT_NOISE, x, y, 0u);
+        const gb_wide u = (gb_wide)gb_uniform(bits.x);
+        gb_wide k = GB_WIDE(0.0);
+        gb_wide p = exp(-rate);
+        gb_wide cdf = p;
+        int step = 0;
+        while (u > cdf && step < GB_POISSON_INVERSION_MAX_K) {
+            step += 1;
+            k = (gb_wide)step;
+            p = p * (rate / k);
+            cdf = cdf + p;
+        }
+        return (real)k;
+    }
+
+    /* PTRS (Hoermann 1993), mu = rate. */
+    const gb_wide mu = rate;
+    const gb_wide log_mu = log(mu);
+    const gb_wide b = GB_WIDE(0.931) + GB_WIDE(2.53) * sqrt(mu);
+    const gb_wide a = GB_WIDE(-0.059) + GB_WIDE(0.02483) * b;
+    const gb_wide inv_alpha = GB_WIDE(1.1239) + GB_WIDE(1.1328) / (b - GB_WIDE(3.4));
+    const gb_wide v_r = GB_WIDE(0.9277) - GB_WIDE(3.6224) / (b - GB_WIDE(2.0));
+    for (uint round = 0u; round < GB_ROUND_LIMIT; ++round) {
+        const uint4 bits = gb_pixel_bits(key, sample_index, GB_STREAM_SHOT_NOISE, x, y, round);
+        for (int attempt = 0; attempt < 2; ++attempt) {
+            const uint word_u = attempt == 0 ? bits.x : bits.z;
+            const uint word_v = attempt == 0 ? bits.y : bits.w;
+            const gb_wide big_u = (gb_wide)gb_uniform(word_u) - GB_WIDE(0.5);
+            const gb_wide v = (gb_wide)gb_uniform(word_v);
+            const gb_wide us = GB_WIDE(0.5) - fabs(big_u);
+            /* k stays floating: a rejected candidate can lie far outside the int range. */
+            const gb_wide k =
+                floor((GB_WIDE(2.0) * a / us + b) * big_u + mu + GB_WIDE(0.43));
+            if (us >= GB_WIDE(0.07) && v <= v_r) return (real)k;
+            if (k < GB_WIDE(0.0) || (us < GB_WIDE(0.013) && v > us)) continue;
+            const gb_wide lhs = log(v * inv_alpha / (a / (us * us) + b));
+            const gb_wide rhs = -mu + k * log_mu - gb_log_factorial(k);
+            if (lhs <= rhs) return (real)k;
+        }
+    }
+    return (real)NAN; /* unreachable: each attempt accepts with probability > 0.9 */
+}
+
+#endif

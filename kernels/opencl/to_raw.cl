@@ -1,0 +1,50 @@
+/* to_raw.cl: pass 2 of the plan, pointwise from the linear blurred image to noisy RAW:
+ * stages "saturate", "linear_to_camera", "mosaic", "inverse_white_balance",
+ * "poisson_gaussian_noise", "white_balance" (each compiled in only when the plan keeps it,
+ * GB_STAGE_<NAME>). Writes B_sat (3 reals per pixel) and, with the RAW round trip, the
+ * white-balanced mosaic (1 real per pixel). All buffers cover the same region of the image,
+ * whose first pixel is global (x0, y0).
+ */
+#include "gb_common.h"
+#include "gb_random.h"
+
+#define GB_STREAM_READ_NOISE 5u
+
+__kernel void gb_to_raw(__global const real *linear, __global const real *mask, long x0,
+                        long y0, long w, long h, real alpha, __constant real *lin_to_cam,
+                        int cfa, real red_gain, real blue_gain, real shot_noise_k,
+                        real read_noise_std, uint key_lo, uint key_hi, uint sample_index,
+                        __global real *saturated, __global real *raw)
+{
+    long x = get_global_id(0), y = get_global_id(1);
+    if (x >= w || y >= h) return;
+    long i = y * w + x;
+    real v[3];
+    for (int c = 0; c < 3; ++c) {
+        v[c] = linear[3 * i + c];
+#ifdef GB_STAGE_SATURATE
+        v[c] = clamp(v[c] + alpha * mask[3 * i + c], GB_REAL(0.0), GB_REAL(1.0));
+#endif
+        saturated[3 * i + c] = v[c];
+    }
+#ifdef GB_STAGE_MOSAIC
+    long gx = x0 + x, gy = y0 + y;
+    int ch = gb_cfa_channel(cfa, gx, gy);
+    /* linear_to_camera, only the channel the mosaic keeps */
+    real s = lin_to_cam[3 * ch] * v[0] + lin_to_cam[3 * ch + 1] * v[1]
+             + lin_to_cam[3 * ch + 2] * v[2];
+#ifdef GB_CLIP_CAMERA
+    s = clamp(s, GB_REAL(0.0), GB_REAL(1.0));
+#endif
+    real gain = ch == 0 ? red_gain : (ch == 2 ? blue_gain : GB_REAL(1.0));
+    s = s / gain; /* inverse_white_balance */
+#ifdef GB_STAGE_POISSON_GAUSSIAN_NOISE
+    uint2 key = (uint2)(key_lo, key_hi);
+    real rate = fmax(s, GB_REAL(0.0)) / shot_noise_k;
+    real counts = gb_poisson(rate, key, sample_index, (uint)gx, (uint)gy);
+    real z = gb_pixel_normal(key, sample_index, GB_STREAM_READ_NOISE, (uint)gx, (uint)gy, 0u);
+    s = shot_noise_k * counts + read_noise_std * z;
+#endif
+    raw[i] = s * gain; /* white_balance */
+#endif
+}

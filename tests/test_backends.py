@@ -1,0 +1,190 @@
+"""One test body per pass and stage, run on every backend against the float64 reference."""
+
+import numpy as np
+import pytest
+from conftest import BACKEND_SPECS, KERNEL_BACKEND_SPECS, make_backend, spec_backend, spec_dtype
+
+import gpu_blur
+from gpu_blur.backends.numpy import NumpyBackend
+from gpu_blur.cameras import get_camera
+from gpu_blur.params import draw_params
+from gpu_blur.plan import plan
+from gpu_blur.scene import scene_from_dict
+from gpu_blur.testing import assert_close, tolerance
+from gpu_blur.tiling import Region
+
+REFERENCE = NumpyBackend()
+SEED, SAMPLE = 11, 7
+
+
+def sample(scene_dict, shape, saturated=True, camera="a7r3", overrides=None):
+    scene = scene_from_dict(scene_dict)
+    p = plan(scene, saturated=saturated)
+    cam = get_camera(camera)
+    params = draw_params(scene, plan(scene), cam, seed=SEED, sample_index=SAMPLE,
+                         image_shape=shape, overrides=overrides)
+    return scene, p, cam, params
+
+
+@pytest.fixture(scope="module")
+def photo(coffee_rgb):
+    """A 96 x 128 crop of the coffee photo around the spoon's clipped highlights."""
+    return np.ascontiguousarray(coffee_rgb[220:316, 300:428])
+
+
+def check(stage, spec, actual, expected):
+    assert_close(actual, expected, stage, spec_backend(spec), spec_dtype(spec))
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+@pytest.mark.parametrize("mode", ["average", "kernel", "trajectory", "none"])
+def test_accumulate_pass_matches_the_reference(spec, mode, photo):
+    h, w = photo.shape[:2]
+    _, p, _, params = sample({"blur": {"mode": mode, "frames": 3}}, (h, w))
+    frames = [photo, np.roll(photo, 3, axis=1), np.roll(photo, -2, axis=0)]
+    frames = frames if mode == "average" else frames[:1]
+    mask = np.linspace(0, 1, h * w * 3).reshape(h, w, 3) if mode == "none" else None
+    region = Region.whole(h, w)
+    linear, sat = make_backend(spec).accumulate(p, params, frames, mask, region)
+    ref_linear, ref_sat = REFERENCE.accumulate(p, params, frames, mask, region)
+    check("accumulate", spec, linear, ref_linear)
+    check("accumulate", spec, sat, ref_sat)
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+@pytest.mark.parametrize("camera", ["a7r3", "rsblur-0005"])
+@pytest.mark.parametrize("clip", [False, True])
+def test_to_raw_pass_without_noise_matches_the_reference(spec, camera, clip, photo):
+    h, w = photo.shape[:2]
+    _, p, cam, params = sample({"noise": {"model": "none"},
+                                "isp": {"round_trip": "always", "clip_camera": clip},
+                                "saturation": {"mode": "on"}}, (h, w), camera=camera)
+    mask = (photo >= 0.99).astype(np.float64)
+    raw, sat = make_backend(spec).to_raw(p, params, cam, photo ** 2.2, mask, (3, 5),
+                                         seed=SEED, sample_index=SAMPLE)
+    ref_raw, ref_sat = REFERENCE.to_raw(p, params, cam, photo ** 2.2, mask, (3, 5), seed=SEED,
+                                        sample_index=SAMPLE)
+    check("to_raw", spec, raw, ref_raw)
+    check("saturate", spec, sat, ref_sat)
+    assert np.array_equal(sat >= 1.0, ref_sat >= 1.0)  # the restore decision agrees
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+def test_to_raw_pass_noise_agrees_with_the_reference_on_almost_every_pixel(spec, photo):
+    h, w = photo.shape[:2]
+    _, p, cam, params = sample({}, (h, w))
+    linear = np.ascontiguousarray(photo ** 2.2)
+    mask = np.zeros_like(photo)
+    raw, _ = make_backend(spec).to_raw(p, params, cam, linear, mask, seed=SEED,
+                                       sample_index=SAMPLE)
+    ref_raw, _ = REFERENCE.to_raw(p, params, cam, linear, mask, seed=SEED, sample_index=SAMPLE)
+    rtol, atol = tolerance("to_raw", spec_backend(spec), spec_dtype(spec))
+    bad = np.abs(raw - ref_raw) > atol + rtol * np.abs(ref_raw)
+    _, allowed = tolerance("to_raw_noisy_outliers", spec_backend(spec), spec_dtype(spec))
+    assert bad.mean() <= allowed, f"{bad.mean():.2e} of pixels disagree"
+
+
+FINISH_CASES = [
+    {"isp": {"demosaic": "malvar2004", "border": "reflect"}},
+    {"isp": {"demosaic": "malvar2004", "border": "zero", "clip_demosaic": True}},
+    {"isp": {"demosaic": "bilinear"}, "output": {"crf": "a7r3"}},
+    {"output": {"crf": "a7r3-lut"}},
+    {"output": {"crf": "none"}},
+    {"noise": {"model": "gaussian"}},
+    {"output": {"bits": 8}},
+    {"output": {"bits": 16, "crf": "a7r3-lut"}},
+]
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+@pytest.mark.parametrize("case", range(len(FINISH_CASES)))
+def test_finish_pass_matches_the_reference(spec, case, photo):
+    h, w = photo.shape[:2]
+    settings = {"saturation": {"mode": "on"}, "noise": {"model": "none"},
+                "isp": {"round_trip": "always"}, "output": {"bits": 0}}
+    for section, values in FINISH_CASES[case].items():
+        settings.setdefault(section, {}).update(values)
+    _, p, cam, params = sample(settings, (h, w))
+    # the same inputs for both: the reference's own to_raw output
+    linear = np.ascontiguousarray(photo ** 2.2)
+    mask = (photo >= 0.99).astype(np.float64)
+    image, sat = REFERENCE.to_raw(p, params, cam, linear, mask, seed=SEED, sample_index=SAMPLE)
+    view = Region.whole(h, w)
+    out = Region(5, 6, h - 9, w - 13, h, w)  # an inner region at odd offsets
+    got = make_backend(spec).finish(p, params, cam, image, sat, view, out, seed=SEED,
+                                    sample_index=SAMPLE)
+    ref = REFERENCE.finish(p, params, cam, image, sat, view, out, seed=SEED,
+                           sample_index=SAMPLE)
+    if p.kept("quantize"):
+        # float32 rounding can move a value across a rounding boundary: one code at most, and
+        # on few values
+        top = 2 ** p["quantize"].options["bits"] - 1
+        codes = np.abs(np.rint(got * top) - np.rint(ref * top))
+        _, allowed = tolerance("quantize_code_changes", spec_backend(spec), spec_dtype(spec))
+        assert codes.max() <= 1 and (codes > 0).mean() <= allowed, (codes > 0).mean()
+    else:
+        polynomial = p.kept("retone") and p["retone"].options["crf"] == "a7r3"
+        check("finish_crf_polynomial" if polynomial else "finish", spec, got, ref)
+
+
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+@pytest.mark.parametrize("which", ["coffee", "rocket"])
+def test_whole_pipeline_without_noise_is_within_2e_4_of_the_reference(spec, which, coffee_rgb,
+                                                                        rocket_rgb):
+    photo = {"coffee": coffee_rgb[150:310, 250:450], "rocket": rocket_rgb[100:260, 200:400]}
+    scene = scene_from_dict({"blur": {"mode": "trajectory"}, "saturation": {"mode": "on"},
+                             "noise": {"model": "none"}, "isp": {"round_trip": "always"},
+                             "output": {"bits": 0,
+                                        "precision": spec_dtype(spec)}})
+    got = gpu_blur.synthesize([photo[which]], scene, seed=SEED, sample_index=SAMPLE,
+                              backend=spec.split("/")[0])
+    ref = gpu_blur.synthesize([photo[which]], scene, seed=SEED, sample_index=SAMPLE)
+    check("pipeline", spec, got.blurred, ref.blurred)
+
+
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+def test_whole_pipeline_with_noise_is_within_2e_4_on_all_but_1e_5_of_pixels(spec, coffee_rgb):
+    scene = scene_from_dict({"blur": {"mode": "trajectory"},
+                             "output": {"bits": 0, "precision": spec_dtype(spec)}})
+    photo = coffee_rgb[100:356, 200:456]
+    got = gpu_blur.synthesize([photo], scene, seed=SEED, sample_index=SAMPLE,
+                              backend=spec.split("/")[0]).blurred
+    ref = gpu_blur.synthesize([photo], scene, seed=SEED, sample_index=SAMPLE).blurred
+    rtol, atol = tolerance("pipeline_noisy", spec_backend(spec), spec_dtype(spec))
+    bad = np.abs(got.astype(np.float64) - ref) > atol + rtol * np.abs(ref)
+    _, allowed = tolerance("pipeline_noisy_outliers", spec_backend(spec), spec_dtype(spec))
+    assert bad.mean() <= allowed, f"{bad.mean():.2e} of values outside the tolerance"
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+@pytest.mark.parametrize("tile", [(7, 9), (16, 16), (33, 50)])
+def test_tiled_equals_untiled(spec, tile, coffee_rgb):
+    # the crop holds the spoon's saturated highlights, so tiles cut through them
+    photo = coffee_rgb[230:310, 320:420]
+    scene = scene_from_dict({"blur": {"mode": "trajectory"},
+                             "output": {"bits": 0, "precision": spec_dtype(spec)}})
+    backend = spec.split("/")[0]
+    whole = gpu_blur.synthesize([photo], scene, seed=SEED, sample_index=SAMPLE, backend=backend)
+    tiled = gpu_blur.synthesize([photo], scene, seed=SEED, sample_index=SAMPLE, backend=backend,
+                                tile=tile)
+    assert whole.plan.kept("restore_saturated")
+    # every pass computes each pixel from global coordinates: bit for bit, on every backend
+    assert np.array_equal(tiled.blurred, whole.blurred)
+    assert np.array_equal(tiled.mask, whole.mask)
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+@pytest.mark.parametrize("level", [0.0, 0.01, 0.2, 0.6])
+def test_device_noise_has_the_model_mean_and_variance(spec, level):
+    h = w = 256
+    _, p, cam, params = sample({"saturation": {"mode": "off"}}, (h, w), camera="srgb",
+                               saturated=False, overrides={"shot_noise_k": 1e-4,
+                                                           "read_noise_std": 9e-4})
+    flat = np.full((h, w, 3), level)
+    raw, _ = make_backend(spec).to_raw(p, params, cam, flat, np.zeros_like(flat), seed=SEED,
+                                       sample_index=SAMPLE)
+    n = raw.size
+    variance = 1e-4 * level + 9e-4 ** 2
+    # 5 standard errors of the sample mean and of the sample variance (normal approximation)
+    assert abs(raw.mean() - level) <= 5 * np.sqrt(variance / n)
+    assert abs(raw.var() - variance) <= 5 * variance * np.sqrt(2 / n)
