@@ -37,7 +37,12 @@ def _parser() -> argparse.ArgumentParser:
                    "`gpu-blur scene`)")
     g.add_argument("--seed", type=int, default=0, help="dataset seed; with a sample's index it "
                    "fixes all of that sample's random draws (default 0)")
-    g.add_argument("--backend", default="numpy", help="numpy (float64 reference)")
+    g.add_argument("--backend", default="numpy", help="numpy (float64 reference), opencl "
+                   "(first usable device, GPUs first) or opencl:<platform>:<device>; see "
+                   "`gpu-blur devices`")
+    g.add_argument("--tile", type=int, nargs=2, metavar=("ROWS", "COLS"),
+                   help="run each image in tiles of at most ROWS x COLS (bounds device memory; "
+                   "the output does not change)")
     g.add_argument("--samples-per-photo", type=int, default=None, metavar="K",
                    help="samples drawn from each photo (default 1; 4 for the built-in photo)")
     g.add_argument("--limit", type=int, default=None, metavar="N", help="make at most N samples")
@@ -47,6 +52,7 @@ def _parser() -> argparse.ArgumentParser:
     pl = sub.add_parser("plan", help="print the stages a scene runs, kept or skipped, with why")
     pl.add_argument("scene", type=Path, nargs="?", help="scene TOML (default: built-in)")
 
+    sub.add_parser("devices", help="list every backend and device, with fp64 support and memory")
     sub.add_parser("scene", help="print every scene key with its default and meaning")
     sub.add_parser("cameras", help="list the built-in cameras")
     return p
@@ -61,7 +67,7 @@ def _generate(args) -> int:
     from gpu_blur.scene import load_scene
 
     scene = load_scene(args.scene)
-    get_backend(args.backend)  # an unknown backend fails before any work
+    backend = get_backend(args.backend, scene.output.precision)  # fails before any work
     per_photo = args.samples_per_photo or (1 if args.input else 4)
     if per_photo < 1 or (args.limit is not None and args.limit < 1):
         raise ValueError("--samples-per-photo and --limit must be >= 1")
@@ -69,6 +75,7 @@ def _generate(args) -> int:
     specs = specs[:args.limit] if args.limit else specs
     writer = DatasetWriter(args.output, scene.output.bits, args.overwrite)
     run = {"gpu_blur": __version__, "seed": args.seed, "backend": args.backend,
+           "device": backend.device,
            "input": str(args.input) if args.input else "built-in: coffee.png",
            "scene_file": str(args.scene) if args.scene else None, "scene": scene.to_dict()}
     (args.output / "run.json").write_text(json.dumps(run, indent=1) + "\n")
@@ -77,17 +84,36 @@ def _generate(args) -> int:
         for spec in tqdm(specs, desc="samples", unit="sample", disable=args.quiet):
             try:
                 result = synthesize(list(spec.inputs), scene, seed=args.seed,
-                                    sample_index=spec.index, backend=args.backend)
+                                    sample_index=spec.index, backend=backend,
+                                    tile=tuple(args.tile) if args.tile else None)
             except ValueError as e:
                 raise ValueError(f"sample {spec.index} ({spec.name}): {e}") from None
             writer.write(spec, result, {"seed": args.seed, "backend": args.backend,
-                                        "status": "ok"})
+                                        "device": backend.device, "status": "ok"})
     finally:
         writer.close()
     took = time.perf_counter() - start
     print(f"wrote {len(specs)} samples to {args.output} in {took:.1f} s "
           f"({len(specs) / took:.2f} samples/s); manifest: {writer.manifest_path}")
     return 0
+
+
+def _devices() -> None:
+    from gpu_blur.backends.numpy import NumpyBackend
+
+    print(f"{'numpy':<16} {NumpyBackend.device}")
+    try:
+        from gpu_blur.backends.opencl import NO_PLATFORM_HELP, opencl_devices
+    except ImportError:
+        print("opencl           not installed (pip install 'gpu_blur[opencl]')")
+        return
+    devices = opencl_devices()
+    if not devices:
+        print(f"opencl           {NO_PLATFORM_HELP}")
+    for d in devices:
+        state = "ready" if d.usable else f"cannot build kernels: {d.problem}"
+        print(f"{d.spec:<16} {d.kind} {d.name} ({d.platform}); fp64 {'yes' if d.fp64 else 'no'}"
+              f"; {d.memory_bytes / 2**30:.1f} GiB; {state}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -101,6 +127,8 @@ def main(argv: list[str] | None = None) -> int:
             from gpu_blur.scene import load_scene
 
             print(plan(load_scene(args.scene)))
+        elif args.command == "devices":
+            _devices()
         elif args.command == "scene":
             from gpu_blur.scene import describe_fields
 
@@ -111,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
             for name in preset_names():
                 print(f"{name:<14} {get_camera(name).source}")
         return 0
-    except (ValueError, OSError) as e:
+    except (ValueError, OSError, RuntimeError) as e:
         print(f"gpu-blur: error: {e}", file=sys.stderr)
         return 2
 

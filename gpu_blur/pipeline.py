@@ -68,7 +68,8 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         sample_index: index of this sample (0 <= index < 2**32); with ``seed`` it fixes every
             random draw.
         backend: ``"numpy"`` (the float64 reference), ``"opencl"`` (first usable device) or
-            ``"opencl:<platform>:<device>"`` (see ``gpu-blur devices``).
+            ``"opencl:<platform>:<device>"`` (see ``gpu-blur devices``), or a backend object
+            from :func:`gpu_blur.backends.get_backend`.
         overrides: drawn parameters to fix instead (e.g. ``{"alpha": 1.0, "pattern": "RGGB"}``).
         tile: run the image in tiles of at most (rows, columns) pixels, each with its halo;
             the result does not depend on it.
@@ -78,7 +79,8 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         row and/or column (the Bayer 2 x 2 cell rule).
     """
     scene = _as_scene(scene)
-    runner = get_backend(backend, scene.output.precision)
+    runner = (get_backend(backend, scene.output.precision) if isinstance(backend, str)
+              else backend)
     camera = get_camera(scene.camera.name, scene.base_dir)
     frames, mask, sharp = _gather(inputs, scene)
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import os
 from pathlib import Path
 
@@ -72,7 +71,6 @@ BACKEND_SPECS = _backend_specs()
 KERNEL_BACKEND_SPECS = [s for s in BACKEND_SPECS if s != "numpy"]
 
 
-@functools.cache
 def make_backend(spec: str):
     """A backend for 'numpy' or 'opencl:P:D/<precision>' (one per session)."""
     from gpu_blur.backends import get_backend

@@ -17,11 +17,18 @@ Names: ``numpy`` (float64 reference), ``opencl`` (first usable OpenCL device, GP
 
 from __future__ import annotations
 
+import functools
+
 from gpu_blur.backends.numpy import NumpyBackend
 
 
+@functools.cache
 def get_backend(name: str, precision: str = "float32"):
-    """A backend instance by name; ``precision`` is the kernels' compute type."""
+    """A backend by name; ``precision`` is the kernels' compute type.
+
+    One instance per (name, precision) and process, so devices are opened and kernels built
+    once however many samples run.
+    """
     base = name.split(":", 1)[0]
     if base == "numpy":
         return NumpyBackend()

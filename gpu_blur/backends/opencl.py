@@ -13,6 +13,7 @@ import functools
 import os
 import sys
 import tempfile
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -109,7 +110,9 @@ def _build_problem(platform_index: int, device_index: int) -> str:
     device = cl.get_platforms()[platform_index].get_devices()[device_index]
     try:
         ctx = cl.Context([device])
-        cl.Program(ctx, "__kernel void gb_probe(__global float *a) { a[0] = 1.0f; }").build()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", cl.CompilerWarning)
+            cl.Program(ctx, "__kernel void gb_probe(__global float *a) { a[0] = 1.0f; }").build()
     except (cl.Error, RuntimeError) as e:
         lines = [x for x in str(e).splitlines() if "error" in x.lower()] or [str(e)]
         return lines[0].strip()
@@ -214,7 +217,9 @@ class OpenCLBackend:
             options += [f"-D{k}={v}" for k, v in sorted(defines.items())]
             text = (folder / source).read_text()
             try:
-                self._programs[key] = cl.Program(self.ctx, text).build(options=options)
+                with warnings.catch_warnings():  # a banner or warnings; failures raise below
+                    warnings.simplefilter("ignore", cl.CompilerWarning)
+                    self._programs[key] = cl.Program(self.ctx, text).build(options=options)
             except cl.RuntimeError as e:
                 raise OpenCLError(
                     f"building kernels/opencl/{source} for {self.device} failed.\n"
