@@ -35,10 +35,11 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # (tests/test_opencl_pixel.py). Inputs are rounded to the build's type and the reference is
     # fed the same values; float32 builds also round the constants the host passes. Measured on
     # Intel's CPU OpenCL runtime (FP contraction on: the compiler may fuse a * b + c).
-    # sRGB: float32 pow and the rounded 0.055 / 1.055, up to 5.9 float ulps (measured 3.6e-7
-    # relative); denormal results round to float32's denormal grid (< 1e-45).
-    ("srgb_to_linear", "opencl", "float32"): (4e-7, 1e-45),
-    ("linear_to_srgb", "opencl", "float32"): (2e-7, 1e-45),  # measured 1.7e-7 relative
+    # sRGB: float32 pow and the rounded 0.055 / 1.055: measured 3.6e-7 / 1.7e-7 relative on
+    # Intel's CPU runtime and up to 2.4e-7 on an NVIDIA H200 (OpenCL allows pow 16 ulps);
+    # denormal results round to float32's denormal grid (< 1e-45).
+    ("srgb_to_linear", "opencl", "float32"): (6e-7, 1e-45),
+    ("linear_to_srgb", "opencl", "float32"): (6e-7, 1e-45),
     # float64: the device's pow (measured 2.2e-16 and 5.7e-16 relative).
     ("srgb_to_linear", "opencl", "float64"): (3e-16, 0.0),
     ("linear_to_srgb", "opencl", "float64"): (7e-16, 0.0),
