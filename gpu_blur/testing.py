@@ -6,6 +6,8 @@ A tolerance is a claim about a stage on a backend at a precision: ``(stage, back
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 #: (stage, backend, dtype) -> (rtol, atol). "independent" rows compare the reference with an
@@ -204,3 +206,18 @@ def assert_close(
             f"tolerance (rtol={rtol:g}, atol={atol:g}); worst at {idx}: "
             f"{actual[idx]!r} vs {expected[idx]!r} (max abs error {np.nanmax(err):.3g})"
         )
+
+
+def z_mean(sample: np.ndarray, mean: float, var: float) -> float:
+    """Standard score of a sample mean against a known mean and variance."""
+    if var == 0.0:
+        return 0.0 if np.all(sample == mean) else math.inf
+    return (sample.mean() - mean) / math.sqrt(var / sample.size)
+
+
+def z_var(sample: np.ndarray, var: float, mu4: float) -> float:
+    """Standard score of a sample variance; its standard error is sqrt((mu4 - var^2) / n)."""
+    spread = mu4 - var * var
+    if spread <= 0.0:
+        return 0.0 if sample.var() == var else math.inf
+    return (sample.var(ddof=1) - var) / math.sqrt(spread / sample.size)

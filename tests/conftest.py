@@ -87,3 +87,23 @@ def spec_dtype(spec: str) -> str:
 def spec_backend(spec: str) -> str:
     """The tolerance table's backend column for a backend spec."""
     return spec.split(":")[0].split("/")[0]
+
+
+@pytest.fixture(scope="session")
+def opencl_queue():
+    """(pyopencl, context, queue) on the device ``backend="opencl"`` would use.
+
+    Skips only when no OpenCL device can build kernels here (the message says why). The
+    context is returned and must be kept: Intel's CPU runtime invalidates a context whose
+    Python object is gone even while a queue refers to it.
+    """
+    try:
+        from gpu_blur.backends.opencl import OpenCLError, cl, select_device
+    except ImportError:
+        pytest.skip("pyopencl is not installed")
+    try:
+        device, _ = select_device("opencl")
+    except OpenCLError as e:
+        pytest.skip(str(e))
+    context = cl.Context([device])
+    return cl, context, cl.CommandQueue(context)

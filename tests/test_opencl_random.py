@@ -9,7 +9,6 @@ throughout, what a device without cl_khr_fp64 runs). Measured numbers go to the 
 from __future__ import annotations
 
 import functools
-import math
 import warnings
 from pathlib import Path
 
@@ -18,7 +17,7 @@ import pytest
 
 from gpu_blur.reference import rng
 from gpu_blur.reference.rng import Stream
-from gpu_blur.testing import assert_close, tolerance
+from gpu_blur.testing import assert_close, tolerance, z_mean, z_var
 
 cl = pytest.importorskip("pyopencl")
 
@@ -100,47 +99,10 @@ BUILDS = {
 # --------------------------------------------------------------------------------------------
 
 
-def find_opencl_device():
-    """The first OpenCL device that builds a trivial program, or ``(None, reasons)``.
-
-    Stand-in for the package's device selection. Intel's CPU runtime on the development machine
-    is found only with ``OCL_ICD_VENDORS=/tmp/ocl_vendors`` in the environment before Python
-    starts (PoCL 3.0 there cannot generate code for the CPU).
-    """
-    try:
-        platforms = cl.get_platforms()
-    except cl.Error as err:
-        return None, [f"no OpenCL platform ({err})"]
-    reasons = []
-    for platform in platforms:
-        for device in platform.get_devices():
-            try:
-                context = cl.Context([device])
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", cl.CompilerWarning)
-                    cl.Program(context, "__kernel void t(__global int *a) { a[0] = 1; }").build(
-                        cache_dir=False
-                    )
-            except cl.Error as err:
-                first = str(err).strip().splitlines()
-                reasons.append(f"{platform.name} / {device.name}: {first[0] if first else err}")
-                continue
-            return device, reasons
-    return None, reasons or ["no OpenCL device found"]
-
-
 @pytest.fixture(scope="module")
-def opencl_context():
-    device, reasons = find_opencl_device()
-    if device is None:
-        pytest.skip(
-            "no OpenCL device can build a program ("
-            + "; ".join(reasons)
-            + "). On the development machine set OCL_ICD_VENDORS=/tmp/ocl_vendors (Intel's CPU "
-            "runtime) before starting Python."
-        )
-    context = cl.Context([device])
-    return context, cl.CommandQueue(context)
+def opencl_context(opencl_queue):
+    _, context, queue = opencl_queue
+    return context, queue
 
 
 class Program:
@@ -401,19 +363,6 @@ def test_poisson_edge_rates(program):
     assert np.array_equal(counts[[0, 1, 2, 5, 6]], np.zeros(5))
     assert not np.signbit(counts[[0, 1, 2, 5, 6]]).any()
     assert np.isnan(counts[3]) and counts[4] == np.inf
-
-
-def z_mean(sample: np.ndarray, mean: float, var: float) -> float:
-    if var == 0.0:
-        return 0.0 if np.all(sample == mean) else math.inf
-    return (sample.mean() - mean) / math.sqrt(var / sample.size)
-
-
-def z_var(sample: np.ndarray, var: float, mu4: float) -> float:
-    spread = mu4 - var * var
-    if spread <= 0.0:
-        return 0.0 if sample.var() == var else math.inf
-    return (sample.var(ddof=1) - var) / math.sqrt(spread / sample.size)
 
 
 @pytest.mark.parametrize("rate", [0.5, 3.0, 9.99, 10.0, 30.0, 1e4, 1e7])

