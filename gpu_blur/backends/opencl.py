@@ -381,8 +381,10 @@ class _Kernels:
 
 
 def cfa_bits(pattern: str | None) -> int:
-    """The pattern's channels at the cell offsets (0,0), (0,1), (1,0), (1,1), 2 bits each, as
-    gb_cfa_channel reads them; 0 without a pattern (no RAW round trip).
+    """The pattern's channels packed as gb_cfa_channel reads them.
+
+    Channels at the cell offsets (0,0), (0,1), (1,0), (1,1), 2 bits each; 0 without a pattern
+    (no RAW round trip).
     """
     if pattern is None:
         return 0
