@@ -38,8 +38,8 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--seed", type=int, default=0, help="dataset seed; with a sample's index it "
                    "fixes all of that sample's random draws (default 0)")
     g.add_argument("--backend", default="numpy", help="numpy (float64 reference), opencl "
-                   "(first usable device, GPUs first) or opencl:<platform>:<device>; see "
-                   "`gpu-blur devices`")
+                   "(first usable device, GPUs first), opencl:<platform>:<device>, warp (CUDA "
+                   "if present, else CPU), warp:cpu or warp:cuda:<n>; see `gpu-blur devices`")
     g.add_argument("--tile", type=int, nargs=2, metavar=("ROWS", "COLS"),
                    help="run each image in tiles of at most ROWS x COLS (bounds device memory; "
                    "the output does not change)")
@@ -106,14 +106,23 @@ def _devices() -> None:
         from gpu_blur.backends.opencl import NO_PLATFORM_HELP, opencl_devices
     except ImportError:
         print("opencl           not installed (pip install 'gpu_blur[opencl]')")
-        return
-    devices = opencl_devices()
-    if not devices:
-        print(f"opencl           {NO_PLATFORM_HELP}")
+        devices = []
+    else:
+        devices = opencl_devices()
+        if not devices:
+            print(f"opencl           {NO_PLATFORM_HELP}")
     for d in devices:
         state = "ready" if d.usable else f"cannot build kernels: {d.problem}"
         print(f"{d.spec:<16} {d.kind} {d.name} ({d.platform}); fp64 {'yes' if d.fp64 else 'no'}"
               f"; {d.memory_bytes / 2**30:.1f} GiB; {state}")
+    try:
+        from gpu_blur.backends.warp import warp_devices
+    except ImportError:
+        print("warp             not installed (pip install 'gpu_blur[warp]')")
+        return
+    for d in warp_devices():
+        memory = f"; {d['memory_bytes'] / 2**30:.1f} GiB" if d["memory_bytes"] else ""
+        print(f"{d['spec']:<16} {d['kind']} {d['name']} (NVIDIA Warp); fp64 yes{memory}; ready")
 
 
 def main(argv: list[str] | None = None) -> int:

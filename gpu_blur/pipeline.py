@@ -55,7 +55,7 @@ def _load(item, what: str) -> np.ndarray:
 
 def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
                backend: str = "numpy", overrides: Mapping | None = None,
-               tile: tuple[int, int] | None = None) -> Synthesis:
+               tile: tuple[int, int] | None = None, on_device: bool = False) -> Synthesis:
     """Synthesize one realistic blurred image.
 
     Args:
@@ -73,6 +73,9 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         overrides: drawn parameters to fix instead (e.g. ``{"alpha": 1.0, "pattern": "RGGB"}``).
         tile: run the image in tiles of at most (rows, columns) pixels, each with its halo;
             the result does not depend on it.
+        on_device: leave ``.blurred`` on the backend's device as an ``h x w x 3`` array
+            (Warp backends: a ``wp.array`` that ``torch.from_dlpack`` takes without a copy).
+            Needs whole-image runs (no ``tile``) and ``output.crop = 0``.
 
     Returns:
         A :class:`Synthesis`. Images whose RAW round trip needs even sizes lose their last
@@ -103,6 +106,11 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
     if not sample_plan.kept("saturate"):
         params.pop("alpha", None)
 
+    if on_device and (tile is not None or scene.output.crop
+                      or not hasattr(runner, "finish_on_device")):
+        raise ValueError("on_device=True needs a backend that keeps results on a device "
+                         "(warp), no tile and output.crop = 0")
+    finish = runner.finish_on_device if on_device else runner.finish
     out = np.empty((h, w, 3), dtype=np.float64)
     sat_mask = np.empty((h, w, 3), dtype=np.float64)
     halo = demosaic_halo(sample_plan["demosaic"].options["method"]) if static.raw_round_trip else 0
@@ -111,16 +119,21 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         linear, view_mask = runner.accumulate(sample_plan, params, frames, mask, view)
         image, saturated = runner.to_raw(sample_plan, params, camera, linear, view_mask,
                                          view.origin, seed=seed, sample_index=sample_index)
-        region.of(out)[...] = runner.finish(sample_plan, params, camera, image, saturated, view,
-                                            region, seed=seed, sample_index=sample_index)
+        result = finish(sample_plan, params, camera, image, saturated, view, region,
+                        seed=seed, sample_index=sample_index)
+        if on_device:
+            out = result  # one region: the whole image
+        else:
+            region.of(out)[...] = result
         region.of(sat_mask)[...] = view_mask[region.within(view)]
     sharp_out = render_sharp(sample_plan, sharp, runner)
     if sample_plan.kept("quantize"):
         sharp_out = quantize(sharp_out, scene.output.bits)
     crop = scene.output.crop
-    out, sharp_out, sat_mask = (crop_border(x, crop) for x in (out, sharp_out, sat_mask))
-    return Synthesis(out.astype(np.float32), sharp_out.astype(np.float32),
-                     sat_mask.astype(np.float32), params, sample_plan)
+    sharp_out, sat_mask = crop_border(sharp_out, crop), crop_border(sat_mask, crop)
+    out = out if on_device else crop_border(out, crop).astype(np.float32)
+    return Synthesis(out, sharp_out.astype(np.float32), sat_mask.astype(np.float32), params,
+                     sample_plan)
 
 
 def _reaches_clip_level(frames, mask) -> bool:

@@ -66,6 +66,37 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("demosaic_malvar2004", "opencl", "float64"): (0.0, 5e-16),
     ("demosaic_bilinear", "opencl", "float32"): (0.0, 8e-8),
     ("demosaic_bilinear", "opencl", "float64"): (0.0, 0.0),
+    # -- Warp pixel stages --
+    # gpu_blur/warp_kernels/pixel.py against the reference (tests/test_warp_pixel.py), Warp's
+    # default fuse_fp=True. Inputs are rounded to the instance's type and the reference is fed
+    # the same values; float32 instances also round the constants the host passes. Measured on
+    # Warp's "cpu" device (clang, no contraction across Warp's statements) and on CUDA (NVIDIA
+    # H200, which fuses a * b + c): each row covers the larger, both given as CPU / CUDA.
+    # sRGB float32: float pow and the rounded 0.055 / 1.055, relative 3.6e-7 / 3.6e-7 (decode)
+    # and 2.0e-7 / 1.7e-7 (encode); denormal results round to float32's grid (< 1e-45).
+    ("srgb_to_linear", "warp", "float32"): (4e-7, 1e-45),
+    ("linear_to_srgb", "warp", "float32"): (2.5e-7, 1e-45),
+    # sRGB float64: libm / CUDA pow, relative 2.2e-16 / 2.2e-16 and 5.4e-16 / 5.8e-16.
+    ("srgb_to_linear", "warp", "float64"): (3e-16, 0.0),
+    ("linear_to_srgb", "warp", "float64"): (7e-16, 0.0),
+    # A7R3 polynomial (degree 7, coefficients up to 368 that cancel): absolute 2.4e-5 / 2.2e-5
+    # in float32 (8.1e-6 of it from rounding the coefficients), 0 / 4.1e-14 in float64.
+    ("crf_polynomial", "warp", "float32"): (0.0, 2.5e-5),
+    ("crf_polynomial", "warp", "float64"): (0.0, 5e-14),
+    # A7R3 lookup table (2,551 nodes): absolute 7.4e-8 / 7.4e-8 (float32), 0 / 1.1e-16 (float64).
+    ("crf_lookup", "warp", "float32"): (0.0, 8e-8),
+    ("crf_lookup", "warp", "float64"): (0.0, 1.2e-16),
+    # A7R3 3 x 3 matrices (float64 ones for the reference) on linear pixels in [-0.1, 1.2]:
+    # absolute 2.5e-7 / 1.9e-7 (float32, matrix rounding included), 4.4e-16 / 4.4e-16 (float64).
+    ("apply_matrix", "warp", "float32"): (0.0, 3e-7),
+    ("apply_matrix", "warp", "float64"): (0.0, 5e-16),
+    # Demosaicing linear RAW <= 1: Malvar absolute 2.2e-7 / 2.2e-7 (float32) and 0 / 4.4e-16
+    # (float64); bilinear 7.5e-8 / 7.5e-8 (float32) and 0 / 0 in float64, where its weights make
+    # every product exact and the sums run in the reference's order.
+    ("demosaic_malvar2004", "warp", "float32"): (0.0, 2.5e-7),
+    ("demosaic_malvar2004", "warp", "float64"): (0.0, 5e-16),
+    ("demosaic_bilinear", "warp", "float32"): (0.0, 8e-8),
+    ("demosaic_bilinear", "warp", "float64"): (0.0, 0.0),
     # -- Bayer and demosaicing --
     # Against colour-demosaicing 0.2.7 (scipy convolve) on photographs: measured bit-identical
     # (max abs difference 0.0); 1e-12 leaves room for another summation order only.
@@ -106,6 +137,21 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # float32 without fp64, inversion rates (< 10) only (measured 1e-5 at rate 3); float PTRS
     # differs on 0.35 % of pixels at 1e4 and 15 % at 1e7, so it is checked statistically.
     ("poisson_agreement", "opencl", "float32-nofp64"): (0.0, 1e-4),
+    # -- Warp random --
+    # gpu_blur/warp_kernels/random.py against rng (tests/test_warp_random.py), on Warp's "cpu"
+    # device (x86-64) and on CUDA (an NVIDIA H200); the samplers are float64 whatever the
+    # caller's type, and the test module is built with fuse_fp=False. Words and uniforms are
+    # compared bit for bit (no row).
+    # Normals: the reference's operations through Warp's libm (measured 4.4e-16 on the CPU,
+    # 8.9e-16 on the H200, over 2e5 pixels x 6 normals and 5e4 pairs).
+    ("normal", "warp", "float64"): (0.0, 1e-12),
+    # log(k!), k = 0 .. 1e12: the table exactly, Stirling through Warp's log (measured 0.0 on
+    # both; 1.5e-16 relative on the H200 with fuse_fp=True).
+    ("log_factorial", "warp", "float64"): (1e-15, 0.0),
+    # Poisson counts: the FRACTION OF PIXELS whose count differs from rng.poisson, as atol
+    # against 0 (issue: identical on >= 99.999 %). Measured 0 of 1.2e6 + 8.2e5 pixels on both
+    # devices, with fuse_fp=False and (H200) fuse_fp=True.
+    ("poisson_agreement", "warp", "float64"): (0.0, 1e-5),
     # -- backends against the reference (tests/test_backends.py) --
     # numpy is the reference: it must agree with itself exactly, tiled or not.
     **{(stage, "numpy", "float64"): (0.0, 0.0) for stage in (
@@ -114,38 +160,45 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("to_raw_noisy_outliers", "numpy", "float64"): (0.0, 0.0),
     ("pipeline_noisy", "numpy", "float64"): (0.0, 0.0),
     ("pipeline_noisy_outliers", "numpy", "float64"): (0.0, 0.0),
-    # OpenCL against the reference on Intel's CPU runtime (tests/test_backends.py), measured:
-    # float32: float rounding of pow/exp in the sRGB curves and of 3 x 3 sums, ~4 float ulps.
-    ("accumulate", "opencl", "float32"): (0.0, 1e-6),  # measured 4.6e-7
-    ("saturate", "opencl", "float32"): (0.0, 1e-7),  # 3.0e-8
-    ("to_raw", "opencl", "float32"): (0.0, 5e-7),  # 1.2e-7 (noise draws identical)
-    ("finish", "opencl", "float32"): (0.0, 1e-6),  # 4.2e-7
-    # float32 Horner of the A7R3 polynomial cancels (coefficients up to 368): pipeline note
-    # section 8 bounds it at 3e-5.
-    ("finish_crf_polynomial", "opencl", "float32"): (0.0, 3e-5),  # 1.85e-5
-    # A value within float32 rounding of a code boundary may round to the next code: at most
-    # one code, on this fraction of values (measured 3.3e-5 at 8 bits, 1.1e-3 at 16 bits).
-    ("quantize_code_changes", "opencl", "float32"): (0.0, 2e-3),
-    # whole pipeline, real photographs, noise off (issue target 2e-4): measured 1.6e-6.
-    ("pipeline", "opencl", "float32"): (0.0, 1e-5),
-    # With noise, the float32 linear image differs from float64 by ~5e-7 relative, so a
-    # Poisson rate near 1e4 moves by ~5e-3 and its count flips on a few bright pixels; the
-    # flip (K = 9e-5 in RAW) spreads over the demosaic stencil. Issue target 1e-5; measured
-    # 4.6e-5 to 2.3e-4 of values over 3 samples (max 0.016). float64 builds meet 1e-5.
-    ("to_raw_noisy_outliers", "opencl", "float32"): (0.0, 1e-5),  # same inputs: 0 measured
-    ("pipeline_noisy", "opencl", "float32"): (0.0, 2e-4),  # the issue's bound per value
-    ("pipeline_noisy_outliers", "opencl", "float32"): (0.0, 3e-4),
-    # float64: the reference's operations in another order.
-    ("accumulate", "opencl", "float64"): (0.0, 1e-14),  # 9.7e-16 (direct sum vs FFT)
-    ("saturate", "opencl", "float64"): (0.0, 1e-15),  # 0
-    ("to_raw", "opencl", "float64"): (0.0, 1e-14),  # 2.2e-16
-    ("finish", "opencl", "float64"): (0.0, 1e-14),  # 6.7e-16
-    ("finish_crf_polynomial", "opencl", "float64"): (0.0, 1e-12),  # 4.4e-14
-    ("quantize_code_changes", "opencl", "float64"): (0.0, 0.0),
-    ("pipeline", "opencl", "float64"): (0.0, 1e-12),  # 0 (after the float32 result cast)
-    ("to_raw_noisy_outliers", "opencl", "float64"): (0.0, 1e-5),
-    ("pipeline_noisy", "opencl", "float64"): (0.0, 1e-12),
-    ("pipeline_noisy_outliers", "opencl", "float64"): (0.0, 1e-5),
+    # Kernel backends against the reference: one claim for OpenCL and Warp, measured on
+    # Intel's CPU OpenCL runtime, Warp's CPU device and an NVIDIA H200 (the larger value).
+    **{(stage, backend, dtype): tol for backend in ("opencl", "warp")
+       for (stage, dtype), tol in {
+        # float32: float rounding of pow/exp in the sRGB curves and of 3 x 3 sums.
+        ("accumulate", "float32"): (0.0, 1e-6),  # measured 4.6e-7
+        ("saturate", "float32"): (0.0, 1e-7),  # 3.0e-8
+        ("to_raw", "float32"): (0.0, 5e-7),  # 1.4e-7 (noise draws identical)
+        ("finish", "float32"): (0.0, 1e-6),  # 4.4e-7
+        # float32 Horner of the A7R3 polynomial cancels (coefficients up to 368): pipeline
+        # note section 8 bounds it at 3e-5.
+        ("finish_crf_polynomial", "float32"): (0.0, 3e-5),  # 2.65e-5 (Warp), 1.85e-5 (OpenCL)
+        # A value within float32 rounding of a code boundary may round to the next code: at
+        # most one code, on this fraction of values (3.3e-5 at 8 bits, 1.1e-3 at 16 bits).
+        ("quantize_code_changes", "float32"): (0.0, 2e-3),
+        # whole pipeline, real photographs, noise off (issue target 2e-4): measured 1.6e-6.
+        ("pipeline", "float32"): (0.0, 1e-5),
+        # With noise, the float32 linear image differs from float64 by ~5e-7 relative, so a
+        # Poisson rate near 1e4 moves by ~5e-3 and its count flips on a few bright pixels; the
+        # flip (K = 9e-5 in RAW) spreads over the demosaic stencil. Issue target 1e-5; measured
+        # 4.6e-5 to 2.3e-4 of values over 3 samples (max 0.016). float64 builds meet 1e-5.
+        ("to_raw_noisy_outliers", "float32"): (0.0, 1e-5),  # same inputs: 0 measured
+        ("pipeline_noisy", "float32"): (0.0, 2e-4),  # the issue's bound per value
+        ("pipeline_noisy_outliers", "float32"): (0.0, 3e-4),
+        # float64: the reference's operations in another order.
+        ("accumulate", "float64"): (0.0, 1e-14),  # 9.7e-16 (direct sum vs FFT)
+        ("saturate", "float64"): (0.0, 1e-15),  # 0
+        ("to_raw", "float64"): (0.0, 1e-14),  # 2.2e-16
+        ("finish", "float64"): (0.0, 1e-14),  # 6.7e-16
+        ("finish_crf_polynomial", "float64"): (0.0, 1e-12),  # 4.4e-14
+        ("quantize_code_changes", "float64"): (0.0, 0.0),
+        ("pipeline", "float64"): (0.0, 1e-12),  # 0 (after the float32 result cast)
+        ("to_raw_noisy_outliers", "float64"): (0.0, 1e-5),
+        ("pipeline_noisy", "float64"): (0.0, 1e-12),
+        ("pipeline_noisy_outliers", "float64"): (0.0, 1e-5),
+    }.items()},
+    # OpenCL against Warp: each within the "pipeline" row of the reference, so within twice it.
+    ("cross_backend", "kernels", "float32"): (0.0, 2e-5),
+    ("cross_backend", "kernels", "float64"): (0.0, 2e-12),
     # -- blur --
     # FrameAccumulator's plain float64 running sum of 1,000 frames in [0, 1) against np.mean
     # and an exact math.fsum mean: the running sum's bound (n - 1) * 2**-53 = 1.1e-13 relative.

@@ -45,9 +45,9 @@ def rocket_rgb() -> np.ndarray:
 # -- backends: one test body runs on every backend present -----------------------------------
 
 def _backend_specs() -> list[str]:
-    """numpy, plus every usable OpenCL device in float32 and (with fp64) float64.
+    """numpy, every usable OpenCL device in float32 and (with fp64) float64, every Warp device.
 
-    Narrow with GPU_BLUR_BACKENDS, e.g. ``GPU_BLUR_BACKENDS=numpy,opencl:0:0``.
+    Narrow with GPU_BLUR_BACKENDS, e.g. ``GPU_BLUR_BACKENDS=numpy,opencl:0:0,warp:cpu``.
     """
     specs = ["numpy"]
     try:
@@ -60,6 +60,13 @@ def _backend_specs() -> list[str]:
         specs.append(f"{d.spec}/float32")
         if d.fp64:
             specs.append(f"{d.spec}/float64")
+    try:
+        from gpu_blur.backends.warp import warp_devices
+    except ImportError:
+        pass
+    else:
+        for d in warp_devices():
+            specs += [f"{d['spec']}/float32", f"{d['spec']}/float64"]
     wanted = os.environ.get("GPU_BLUR_BACKENDS")
     if wanted:
         names = wanted.split(",")

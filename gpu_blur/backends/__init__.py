@@ -12,7 +12,8 @@ on a region (a tile with its halo), and returns host arrays:
 * ``retone(plan, image)``: the output tone curve, also applied to the sharp reference.
 
 Names: ``numpy`` (float64 reference), ``opencl`` (first usable OpenCL device, GPUs first),
-``opencl:<platform>:<device>``.
+``opencl:<platform>:<device>``, ``warp`` (CUDA if present, else the CPU), ``warp:cpu``,
+``warp:cuda:<n>``.
 """
 
 from __future__ import annotations
@@ -20,6 +21,19 @@ from __future__ import annotations
 import functools
 
 from gpu_blur.backends.numpy import NumpyBackend
+from gpu_blur.reference.bayer import BayerPattern
+
+
+def cfa_bits(pattern: str | None) -> int:
+    """The pattern's channels packed as gb_cfa_channel reads them.
+
+    Channels at the cell offsets (0,0), (0,1), (1,0), (1,1), 2 bits each; 0 without a pattern
+    (no RAW round trip).
+    """
+    if pattern is None:
+        return 0
+    return sum(c << (2 * i) for i, c in enumerate(BayerPattern(pattern).channels))
+
 
 
 @functools.cache
@@ -36,5 +50,10 @@ def get_backend(name: str, precision: str = "float32"):
         from gpu_blur.backends.opencl import OpenCLBackend
 
         return OpenCLBackend(name, precision)
+    if base == "warp":
+        from gpu_blur.backends.warp import WarpBackend
+
+        return WarpBackend(name, precision)
     raise ValueError(f"unknown backend {name!r}; available: numpy, opencl, "
-                     "opencl:<platform>:<device> (see gpu-blur devices)")
+                     "opencl:<platform>:<device>, warp, warp:cpu, warp:cuda:<n> (see gpu-blur "
+                     "devices)")

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from gpu_blur.backends import cfa_bits
 from gpu_blur.cameras import Camera
 from gpu_blur.plan import Plan
 from gpu_blur.reference import blur
-from gpu_blur.reference.bayer import BayerPattern
 from gpu_blur.reference.rng import key_from_seed
 from gpu_blur.tiling import Region
 
@@ -204,28 +204,36 @@ class OpenCLBackend:
     # -- building ----------------------------------------------------------------------------
     def program(self, source: str, defines: dict[str, str]):
         """The built program of ``kernels/opencl/<source>`` with these defines (cached)."""
-        defines = dict(defines)
+        key = (source, tuple(sorted(defines.items())))
+        if key not in self._programs:
+            text = (kernel_dir() / source).read_text()
+            self._programs[key] = self.program_from_source(text, defines,
+                                                           f"kernels/opencl/{source}")
+        return self._programs[key]
+
+    def program_from_source(self, text: str, defines: dict[str, str] | None = None,
+                            name: str = "OpenCL source"):
+        """Build OpenCL C text against the kernels' include folder, with the precision defines.
+
+        Raises:
+            OpenCLError: with the compiler log and the defines when the build fails.
+        """
+        defines = dict(defines or {})
         if self.precision == "float64":
             defines["GB_FP64"] = "1"
         if self.info.fp64:
             defines["GB_HAS_FP64"] = "1"
-        key = (source, tuple(sorted(defines.items())))
-        if key not in self._programs:
-            folder = kernel_dir()
-            pyopencl_headers = Path(cl.__file__).parent / "cl"
-            options = ["-I", str(folder / "include"), "-I", str(pyopencl_headers)]
-            options += [f"-D{k}={v}" for k, v in sorted(defines.items())]
-            text = (folder / source).read_text()
-            try:
-                with warnings.catch_warnings():  # a banner or warnings; failures raise below
-                    warnings.simplefilter("ignore", cl.CompilerWarning)
-                    self._programs[key] = cl.Program(self.ctx, text).build(options=options)
-            except cl.RuntimeError as e:
-                raise OpenCLError(
-                    f"building kernels/opencl/{source} for {self.device} failed.\n"
-                    f"defines: {' '.join(options[4:]) or '(none)'}\ncompiler log:\n{e}"
-                ) from None
-        return self._programs[key]
+        flags = [f"-D{k}={v}" for k, v in sorted(defines.items())]
+        options = ["-I", str(kernel_dir() / "include"), "-I",
+                   str(Path(cl.__file__).parent / "cl"), *flags]
+        try:
+            with warnings.catch_warnings():  # a banner or warnings; failures raise below
+                warnings.simplefilter("ignore", cl.CompilerWarning)
+                return cl.Program(self.ctx, text).build(options=options)
+        except cl.RuntimeError as e:
+            raise OpenCLError(f"building {name} for {self.device} failed.\n"
+                              f"defines: {' '.join(flags) or '(none)'}\ncompiler log:\n{e}"
+                              ) from None
 
     def kernels(self, source: str, defines: dict[str, str]) -> _Kernels:
         """The kernels of a built program, by name (each cl.Kernel retrieved once)."""
@@ -378,14 +386,3 @@ class _Kernels:
         if key not in self._cache:
             self._cache[key] = cl.Kernel(self._program, name)
         return self._cache[key]
-
-
-def cfa_bits(pattern: str | None) -> int:
-    """The pattern's channels packed as gb_cfa_channel reads them.
-
-    Channels at the cell offsets (0,0), (0,1), (1,0), (1,1), 2 bits each; 0 without a pattern
-    (no RAW round trip).
-    """
-    if pattern is None:
-        return 0
-    return sum(c << (2 * i) for i, c in enumerate(BayerPattern(pattern).channels))

@@ -1,0 +1,198 @@
+"""The Warp backend: the plan's three passes as NVIDIA Warp kernels (gpu_blur/warp_kernels/).
+
+Devices: ``warp`` (the first CUDA device if there is one, else the CPU), ``warp:cpu``,
+``warp:cuda:N``. Only the stages a plan keeps are generated (``wp.static`` flags); float32 by
+default, float64 on request. Random draws repeat :mod:`gpu_blur.reference.rng` bit for bit.
+On CUDA, :meth:`WarpBackend.finish_on_device` leaves the result on the GPU as a ``wp.array``
+that ``torch.from_dlpack`` takes without a copy.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import warp as wp
+
+from gpu_blur.backends import cfa_bits
+from gpu_blur.cameras import Camera
+from gpu_blur.plan import Plan
+from gpu_blur.reference import blur
+from gpu_blur.reference.rng import key_from_seed
+from gpu_blur.tiling import Region
+
+wp.config.quiet = True
+
+
+def warp_devices() -> list[dict]:
+    """Warp's devices as ``gpu-blur devices`` lists them."""
+    wp.init()
+    found = []
+    for d in wp.get_devices():
+        memory = int(getattr(d, "total_memory", 0) or 0)
+        found.append({"spec": f"warp:{d.alias}", "name": d.name, "kind": "GPU" if d.is_cuda
+                      else "CPU", "fp64": True, "memory_bytes": memory})
+    return found
+
+
+def _device(spec: str) -> str:
+    wp.init()
+    if spec == "warp":
+        return "cuda:0" if wp.is_cuda_available() else "cpu"
+    alias = spec.split(":", 1)[1]
+    known = [d.alias for d in wp.get_devices()]
+    if alias not in known:
+        raise ValueError(f"no Warp device {spec!r}; present: "
+                         + ", ".join(f"warp:{a}" for a in known))
+    return alias
+
+
+class WarpBackend:
+    """Runs a plan as Warp kernels on one device (see :mod:`gpu_blur.backends`)."""
+
+    name = "warp"
+
+    def __init__(self, spec: str = "warp", precision: str = "float32"):
+        if precision not in ("float32", "float64"):
+            raise ValueError(f"precision must be float32 or float64, got {precision!r}")
+        self.wp_device = _device(spec)
+        self.precision = precision
+        self.real = wp.float64 if precision == "float64" else wp.float32
+        self.np_real = np.float64 if precision == "float64" else np.float32
+        name = wp.get_device(self.wp_device).name
+        self.device = f"warp:{self.wp_device} {name}, {precision}"
+
+    # -- buffers -----------------------------------------------------------------------------
+    def _array(self, values, dtype=None) -> wp.array:
+        data = np.ascontiguousarray(np.ravel(values), dtype=dtype or self.np_real)
+        return wp.array(data, device=self.wp_device)
+
+    def _zeros(self, count: int, dtype=None) -> wp.array:
+        return wp.zeros(max(count, 1), dtype=dtype or self.real, device=self.wp_device)
+
+    def _launch(self, kernel, dim, *args) -> None:
+        wp.launch(kernel, dim=dim, inputs=list(args), device=self.wp_device)
+
+    @staticmethod
+    def _host(array: wp.array, shape) -> np.ndarray:
+        return array.numpy()[:int(np.prod(shape))].reshape(shape).astype(np.float64)
+
+    # -- pass 1: accumulate ------------------------------------------------------------------
+    def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
+                   mask: np.ndarray | None, region: Region) -> tuple[np.ndarray, np.ndarray]:
+        """Linearize and blur on the device; return (linear, mask) over ``region``."""
+        from gpu_blur.warp_kernels.passes import accumulate_kernels
+
+        k = accumulate_kernels(self.real)
+        mode = plan.variant("blur") or "none"
+        n = region.h * region.w * 3
+        shape = (region.h, region.w, 3)
+        if mode == "average":
+            total, saturated = self._zeros(n), self._zeros(n, wp.uint32)
+            for frame in frames:  # one frame on the device at a time
+                self._launch(k["blur_average_add"], n, self._array(region.of(frame)), total,
+                             saturated)
+            linear, sat_mask = self._zeros(n), self._zeros(n)
+            self._launch(k["blur_average_finish"], n, total, saturated, len(frames), linear,
+                         sat_mask)
+            return self._host(linear, shape), self._host(sat_mask, shape)
+        if mode == "none":
+            linear, indicator = self._zeros(n), self._zeros(n)
+            self._launch(k["linearize"], n, self._array(region.of(frames[0])), linear, indicator)
+            sat_mask = np.zeros(shape) if mask is None else region.of(mask).astype(np.float64)
+            return self._host(linear, shape), sat_mask
+        if mode == "kernel":
+            kernel = blur.normalize_kernel(params["kernel"])
+            view = region.expand(max(kernel.shape) // 2)
+        else:
+            hom = params["homographies"]
+            view = region.expand(blur.shake_halo(hom, region.full_h, region.full_w))
+        vn = view.h * view.w * 3
+        src, indicator = self._zeros(vn), self._zeros(vn)
+        self._launch(k["linearize"], vn, self._array(view.of(frames[0])), src, indicator)
+        geometry = (view.x0, view.y0, view.w, region.full_w, region.full_h)
+        linear, sat_mask = self._zeros(n), self._zeros(n)
+        grid = (region.h, region.w)
+        if mode == "kernel":
+            kw = self._array(kernel)
+            kh, kwid = kernel.shape
+            for image, out in ((src, linear), (indicator, sat_mask)):
+                self._launch(k["blur_kernel"], grid, image, *geometry, kw, kh, kwid, out,
+                             region.x0, region.y0, region.w)
+            return self._host(linear, shape), self._host(sat_mask, shape)
+        total, total_ind = self._zeros(n), self._zeros(n)
+        for h in hom:  # one pose at a time
+            self._launch(k["blur_trajectory_add"], grid, src, indicator, *geometry,
+                         self._array(np.linalg.inv(h), np.float64), total, total_ind,
+                         region.x0, region.y0, region.w)
+        self._launch(k["blur_trajectory_finish"], n, total, total_ind, len(hom), linear,
+                     sat_mask)
+        return self._host(linear, shape), self._host(sat_mask, shape)
+
+    # -- pass 2: to_raw ----------------------------------------------------------------------
+    def to_raw(self, plan: Plan, params: dict, camera: Camera, linear: np.ndarray,
+               mask: np.ndarray, origin: tuple[int, int] = (0, 0), *, seed: int,
+               sample_index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Saturation to noisy RAW on the device (see NumpyBackend.to_raw)."""
+        from gpu_blur.warp_kernels.passes import to_raw_kernel
+
+        kernel = to_raw_kernel(
+            self.real, plan.kept("saturate"), plan.kept("mosaic"),
+            plan.kept("linear_to_camera") and plan["linear_to_camera"].options["clip"],
+            plan.kept("poisson_gaussian_noise"))
+        h, w = linear.shape[:2]
+        saturated, raw = self._zeros(h * w * 3), self._zeros(h * w)
+        key = key_from_seed(seed)
+        r = self.np_real
+        self._launch(
+            kernel, (h, w), self._array(linear), self._array(mask), origin[1], origin[0], w,
+            r(params.get("alpha", 0.0)), self._array(camera.linear_to_camera),
+            cfa_bits(params.get("pattern")), r(params.get("red_gain", 1.0)),
+            r(params.get("blue_gain", 1.0)), r(params.get("shot_noise_k", 1.0)),
+            r(params.get("read_noise_std", 0.0)), wp.uint32(int(key[0])),
+            wp.uint32(int(key[1])), wp.uint32(sample_index), saturated, raw)
+        sat = self._host(saturated, (h, w, 3))
+        if not plan.raw_round_trip:
+            return sat, sat
+        return self._host(raw, (h, w)), sat
+
+    # -- pass 3: finish ----------------------------------------------------------------------
+    def finish_on_device(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
+                         saturated: np.ndarray, view: Region, out: Region, *, seed: int,
+                         sample_index: int) -> wp.array:
+        """:meth:`finish`, leaving the ``out.h x out.w x 3`` result on the device."""
+        from gpu_blur.constants import A7R3_CRF_POLYNOMIAL, A7R3_CRF_TABLE_X255
+        from gpu_blur.warp_kernels.passes import finish_kernel
+
+        demosaic = plan["demosaic"].options if plan.raw_round_trip else None
+        kernel = finish_kernel(
+            self.real, demosaic["method"] if demosaic else "",
+            bool(demosaic and demosaic["border"] == "zero"), bool(demosaic and demosaic["clip"]),
+            plan.kept("tone"), plan.kept("gaussian_noise"), plan.kept("restore_saturated"),
+            plan["retone"].options["crf"] if plan.kept("retone") else "",
+            plan["quantize"].options["bits"] if plan.kept("quantize") else 0)
+        result = self._zeros(out.h * out.w * 3)
+        key = key_from_seed(seed)
+        raw = image if plan.raw_round_trip else np.zeros(1)
+        self._launch(
+            kernel, (out.h, out.w), self._array(raw), self._array(saturated), view.x0, view.y0,
+            view.w, view.full_w, view.full_h, out.x0, out.y0, out.w,
+            cfa_bits(params.get("pattern")), self._array(camera.camera_to_linear),
+            self.np_real(params.get("gaussian_std", 0.0)), wp.uint32(int(key[0])),
+            wp.uint32(int(key[1])), wp.uint32(sample_index), self._array(A7R3_CRF_POLYNOMIAL),
+            self._array(A7R3_CRF_TABLE_X255 / 255.0), result)
+        return result.reshape((out.h, out.w, 3))
+
+    def finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
+               saturated: np.ndarray, view: Region, out: Region, *, seed: int,
+               sample_index: int) -> np.ndarray:
+        """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
+        result = self.finish_on_device(plan, params, camera, image, saturated, view, out,
+                                       seed=seed, sample_index=sample_index)
+        return result.numpy().astype(np.float64)
+
+    def retone(self, plan: Plan, image: np.ndarray) -> np.ndarray:
+        """The output tone curve for the sharp reference (host side, float64)."""
+        from gpu_blur.backends.numpy import NumpyBackend
+
+        return NumpyBackend().retone(plan, image)

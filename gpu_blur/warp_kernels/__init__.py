@@ -1,0 +1,1 @@
+"""NVIDIA Warp device functions and kernels of the Warp backend."""

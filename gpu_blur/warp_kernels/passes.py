@@ -1,0 +1,247 @@
+"""The plan's three passes as Warp kernels, one factory per pass.
+
+Each factory builds kernels for one compute type (``wp.float32`` or ``wp.float64``) and one
+set of kept stages: the flags are Python constants captured by the kernel and tested with
+``wp.static``, so a stage the plan skips is not in the generated code (Warp's counterpart of
+the OpenCL ``-DGB_STAGE_<NAME>`` defines). Factories are cached, so each variant is generated
+and compiled once per process (and Warp caches the binaries on disk).
+
+Buffers are flat arrays: RGB images hold 3 values per pixel, row-major; the RAW mosaic 1.
+Kernels address pixels by global coordinates, like kernels/opencl/, so a tile with its halo
+gives the values of a whole-image launch. Geometry is Warp ``int`` (int32): up to 2^31 values
+per buffer.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import warp as wp
+
+from gpu_blur.warp_kernels import pixel, random
+
+
+@functools.cache
+def accumulate_kernels(real) -> dict:
+    """Pass 1, stages "linearize" and "blur" (average, kernel, trajectory), for ``real``."""
+
+    @wp.kernel(module="unique")
+    def linearize(srgb: wp.array(dtype=real), linear: wp.array(dtype=real),
+                  indicator: wp.array(dtype=real)):
+        i = wp.tid()
+        v = pixel.srgb_to_linear(srgb[i])
+        linear[i] = v
+        indicator[i] = real(0.0)
+        if v >= real(1.0):
+            indicator[i] = real(1.0)
+
+    @wp.kernel(module="unique")
+    def blur_average_add(srgb: wp.array(dtype=real), total: wp.array(dtype=real),
+                         saturated: wp.array(dtype=wp.uint32)):
+        i = wp.tid()
+        v = pixel.srgb_to_linear(srgb[i])
+        total[i] = total[i] + v
+        if v >= real(1.0):
+            saturated[i] = saturated[i] + wp.uint32(1)
+
+    @wp.kernel(module="unique")
+    def blur_average_finish(total: wp.array(dtype=real), saturated: wp.array(dtype=wp.uint32),
+                            count: int, linear: wp.array(dtype=real),
+                            mask: wp.array(dtype=real)):
+        i = wp.tid()
+        linear[i] = total[i] / real(count)
+        mask[i] = real(saturated[i]) / real(count)
+
+    @wp.kernel(module="unique")
+    def blur_kernel(src: wp.array(dtype=real), sx0: int, sy0: int, sw: int, full_w: int,
+                    full_h: int, k: wp.array(dtype=real), kh: int, kw: int,
+                    dst: wp.array(dtype=real), dx0: int, dy0: int, dw: int):
+        y, x = wp.tid()
+        gx = dx0 + x
+        gy = dy0 + y
+        ry = kh // 2
+        rx = kw // 2
+        acc0 = real(0.0)
+        acc1 = real(0.0)
+        acc2 = real(0.0)
+        for i in range(kh):
+            sy = pixel.reflect101(gy + ry - i, full_h)
+            for j in range(kw):
+                wt = k[i * kw + j]
+                sx = pixel.reflect101(gx + rx - j, full_w)
+                o = 3 * ((sy - sy0) * sw + (sx - sx0))
+                acc0 = acc0 + wt * src[o]
+                acc1 = acc1 + wt * src[o + 1]
+                acc2 = acc2 + wt * src[o + 2]
+        o = 3 * (y * dw + x)
+        dst[o] = acc0
+        dst[o + 1] = acc1
+        dst[o + 2] = acc2
+
+    @wp.kernel(module="unique")
+    def blur_trajectory_add(src: wp.array(dtype=real), ind: wp.array(dtype=real), sx0: int,
+                            sy0: int, sw: int, full_w: int, full_h: int,
+                            hinv: wp.array(dtype=wp.float64), total: wp.array(dtype=real),
+                            total_ind: wp.array(dtype=real), dx0: int, dy0: int, dw: int):
+        # bilinear sample at H^-1 (gx, gy, 1), positions in float64, reflect-101 neighbours
+        y, x = wp.tid()
+        gx = wp.float64(dx0 + x)
+        gy = wp.float64(dy0 + y)
+        den = hinv[6] * gx + hinv[7] * gy + hinv[8]
+        px = (hinv[0] * gx + hinv[1] * gy + hinv[2]) / den
+        py = (hinv[3] * gx + hinv[4] * gy + hinv[5]) / den
+        fx0 = wp.floor(px)
+        fy0 = wp.floor(py)
+        fx = real(px - fx0)
+        fy = real(py - fy0)
+        xi = int(fx0)
+        yi = int(fy0)
+        c0 = pixel.reflect101(xi, full_w) - sx0
+        c1 = pixel.reflect101(xi + 1, full_w) - sx0
+        r0 = (pixel.reflect101(yi, full_h) - sy0) * sw
+        r1 = (pixel.reflect101(yi + 1, full_h) - sy0) * sw
+        o = 3 * (y * dw + x)
+        for c in range(3):
+            a = src[3 * (r0 + c0) + c]
+            b = src[3 * (r0 + c1) + c]
+            top = a + (b - a) * fx
+            a = src[3 * (r1 + c0) + c]
+            b = src[3 * (r1 + c1) + c]
+            bottom = a + (b - a) * fx
+            total[o + c] = total[o + c] + (top + (bottom - top) * fy)
+            a = ind[3 * (r0 + c0) + c]
+            b = ind[3 * (r0 + c1) + c]
+            top = a + (b - a) * fx
+            a = ind[3 * (r1 + c0) + c]
+            b = ind[3 * (r1 + c1) + c]
+            bottom = a + (b - a) * fx
+            total_ind[o + c] = total_ind[o + c] + (top + (bottom - top) * fy)
+
+    @wp.kernel(module="unique")
+    def blur_trajectory_finish(total: wp.array(dtype=real), total_ind: wp.array(dtype=real),
+                               count: int, linear: wp.array(dtype=real),
+                               mask: wp.array(dtype=real)):
+        i = wp.tid()
+        linear[i] = total[i] / real(count)
+        mask[i] = total_ind[i] / real(count)
+
+    return {
+        "linearize": linearize, "blur_average_add": blur_average_add,
+        "blur_average_finish": blur_average_finish, "blur_kernel": blur_kernel,
+        "blur_trajectory_add": blur_trajectory_add,
+        "blur_trajectory_finish": blur_trajectory_finish,
+    }
+
+
+@functools.cache
+def to_raw_kernel(real, saturate: bool, mosaic: bool, clip_camera: bool, noise: bool):
+    """Pass 2, with the kept stages as flags.
+
+    Stages: saturate, linear_to_camera, mosaic, inverse_white_balance, poisson_gaussian_noise,
+    white_balance.
+    """
+
+    @wp.kernel(module="unique")
+    def to_raw(linear: wp.array(dtype=real), mask: wp.array(dtype=real), x0: int, y0: int,
+               w: int, alpha: real, lin_to_cam: wp.array(dtype=real), cfa: int,
+               red_gain: real, blue_gain: real, shot_noise_k: real, read_noise_std: real,
+               key0: wp.uint32, key1: wp.uint32, sample_index: wp.uint32,
+               saturated: wp.array(dtype=real), raw: wp.array(dtype=real)):
+        y, x = wp.tid()
+        i = y * w + x
+        v0 = linear[3 * i]
+        v1 = linear[3 * i + 1]
+        v2 = linear[3 * i + 2]
+        if wp.static(saturate):
+            v0 = wp.clamp(v0 + alpha * mask[3 * i], real(0.0), real(1.0))
+            v1 = wp.clamp(v1 + alpha * mask[3 * i + 1], real(0.0), real(1.0))
+            v2 = wp.clamp(v2 + alpha * mask[3 * i + 2], real(0.0), real(1.0))
+        saturated[3 * i] = v0
+        saturated[3 * i + 1] = v1
+        saturated[3 * i + 2] = v2
+        if wp.static(mosaic):
+            gx = x0 + x
+            gy = y0 + y
+            ch = pixel.cfa_channel(cfa, gx, gy)
+            # linear_to_camera, only the channel the mosaic keeps
+            s = (lin_to_cam[3 * ch] * v0 + lin_to_cam[3 * ch + 1] * v1
+                 + lin_to_cam[3 * ch + 2] * v2)
+            if wp.static(clip_camera):
+                s = wp.clamp(s, real(0.0), real(1.0))
+            gain = real(1.0)
+            if ch == 0:
+                gain = red_gain
+            if ch == 2:
+                gain = blue_gain
+            s = s / gain  # inverse_white_balance
+            if wp.static(noise):
+                rate = wp.max(s, real(0.0)) / shot_noise_k
+                counts = random.poisson(wp.float64(rate), key0, key1, sample_index,
+                                        wp.uint32(gx), wp.uint32(gy))
+                z = random.pixel_normal(key0, key1, sample_index, wp.uint32(random.READ_NOISE),
+                                        wp.uint32(gx), wp.uint32(gy), wp.uint32(0))
+                s = shot_noise_k * real(counts) + read_noise_std * real(z)
+            raw[i] = s * gain  # white_balance
+
+    return to_raw
+
+
+@functools.cache
+def finish_kernel(real, demosaic: str, zero_border: bool, clip_demosaic: bool, tone: bool,
+                  gaussian_noise: bool, restore: bool, retone: str, bits: int):
+    """Pass 3, with the kept stages as flags.
+
+    Stages: demosaic ("" when there is no RAW round trip), camera_to_linear, tone,
+    gaussian_noise, restore_saturated, retone ("" / "a7r3" / "a7r3-lut"), quantize (bits 0:
+    none).
+    """
+    vec3 = wp.types.vector(length=3, dtype=real)
+    border = 1 if zero_border else 0
+
+    @wp.kernel(module="unique")
+    def finish(raw: wp.array(dtype=real), saturated: wp.array(dtype=real), vx0: int, vy0: int,
+               vw: int, full_w: int, full_h: int, ox0: int, oy0: int, ow: int, cfa: int,
+               cam_to_lin: wp.array(dtype=real), gaussian_std: real, key0: wp.uint32,
+               key1: wp.uint32, sample_index: wp.uint32, crf_polynomial: wp.array(dtype=real),
+               crf_table: wp.array(dtype=real), out: wp.array(dtype=real)):
+        y, x = wp.tid()
+        gx = ox0 + x
+        gy = oy0 + y
+        v = 3 * ((gy - vy0) * vw + (gx - vx0))
+        rgb = vec3(saturated[v], saturated[v + 1], saturated[v + 2])
+        if wp.static(demosaic != ""):
+            if wp.static(demosaic == "bilinear"):
+                cam = pixel.demosaic_bilinear(raw, vx0, vy0, vw, full_w, full_h, gx, gy, cfa,
+                                              border)
+            else:
+                cam = pixel.demosaic_malvar2004(raw, vx0, vy0, vw, full_w, full_h, gx, gy,
+                                                cfa, border)
+            if wp.static(clip_demosaic):
+                cam = vec3(pixel.clip01(cam[0]), pixel.clip01(cam[1]), pixel.clip01(cam[2]))
+            rgb = vec3(  # camera_to_linear
+                cam_to_lin[0] * cam[0] + cam_to_lin[1] * cam[1] + cam_to_lin[2] * cam[2],
+                cam_to_lin[3] * cam[0] + cam_to_lin[4] * cam[1] + cam_to_lin[5] * cam[2],
+                cam_to_lin[6] * cam[0] + cam_to_lin[7] * cam[1] + cam_to_lin[8] * cam[2])
+        o = 3 * (y * ow + x)
+        for c in range(3):
+            p = rgb[c]
+            if wp.static(tone):
+                p = pixel.linear_to_srgb(p)
+            p = pixel.clip01(p)
+            if wp.static(gaussian_noise):
+                z = random.pixel_normal(key0, key1, sample_index, wp.uint32(random.SRGB_NOISE),
+                                        wp.uint32(gx), wp.uint32(gy), wp.uint32(c))
+                p = pixel.clip01(p + gaussian_std * real(z))
+            if wp.static(restore):
+                if saturated[v + c] >= real(1.0):
+                    p = real(1.0)
+            if wp.static(retone == "a7r3"):
+                p = pixel.polynomial_crf(pixel.srgb_to_linear(p), crf_polynomial,
+                                         crf_polynomial.shape[0])
+            if wp.static(retone == "a7r3-lut"):
+                p = pixel.lookup_crf(pixel.srgb_to_linear(p), crf_table, crf_table.shape[0])
+            if wp.static(bits > 0):
+                p = pixel.quantize(p, bits)
+            out[o + c] = p
+
+    return finish
