@@ -21,7 +21,7 @@ from gpu_blur.reference import blur
 from gpu_blur.reference.rng import key_from_seed
 from gpu_blur.tiling import Region
 
-wp.config.quiet = True
+wp.config.log_level = wp.LOG_WARNING  # no banner or per-module load lines
 
 
 def warp_devices() -> list[dict]:

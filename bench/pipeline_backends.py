@@ -1,7 +1,8 @@
-"""Full-pipeline time per megapixel: 9 frames of 1920 x 1200, on numpy and every OpenCL device.
+"""Full-pipeline time per megapixel: 9 frames of 1920 x 1200 on numpy, every OpenCL device and
+every Warp device.
 
-Run from the repository root: ``python bench/opencl_pipeline.py [OUT.json]`` (default
-``bench/results/opencl_pipeline_<host>.json``). Frames start in host memory (float64 in [0, 1]);
+Run from the repository root: ``python bench/pipeline_backends.py [OUT.json]`` (default
+``bench/results/pipeline_backends_<host>.json``). Frames start in host memory (float64 in [0, 1]);
 the time covers ``gpu_blur.synthesize`` end to end: uploads, the three passes, downloads.
 Medians of 5 runs after one warm-up (the warm-up builds the kernels); every pass ends with a
 blocking read, so the device is synchronized before the clock stops.
@@ -49,6 +50,7 @@ def time_backend(backend: str, precision: str, frames, scene) -> dict:
 
 def main() -> None:
     from gpu_blur.backends.opencl import opencl_devices
+    from gpu_blur.backends.warp import warp_devices
 
     g = np.random.default_rng(0)
     base = g.uniform(0, 1, (H, W, 3))
@@ -65,6 +67,9 @@ def main() -> None:
             if d.usable and (precision == "float32" or d.fp64):
                 row = time_backend(d.spec, precision, frames, scene)
                 rows.append(row | {"device": f"{d.kind} {d.name} ({d.platform})"})
+        for d in warp_devices():
+            row = time_backend(d["spec"], precision, frames, scene)
+            rows.append(row | {"device": f"{d['kind']} {d['name']} (Warp)"})
     report = {
         "what": "gpu_blur.synthesize end to end, 9 frames of 1920 x 1200 in host memory, scene "
                 "average + saturation + A7R3 RAW round trip with Poisson-Gaussian noise + "
@@ -73,11 +78,12 @@ def main() -> None:
         "gpu_blur": gpu_blur.__version__, "results": rows,
     }
     out = Path(sys.argv[1]) if len(sys.argv) > 1 else (
-        Path(__file__).parent / "results" / f"opencl_pipeline_{platform.node()}.json")
+        Path(__file__).parent / "results" / f"pipeline_backends_{platform.node()}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(report, indent=1) + "\n")
     for r in rows:
-        print(f"{r['device'][:60]:<60} {r['precision']:<8} {r['median_s'] * 1e3:9.1f} ms  "
+        print(f"{r['backend']:<12} {r['device'][:48]:<48} {r['precision']:<8} "
+              f"{r['median_s'] * 1e3:9.1f} ms  "
               f"{r['s_per_megapixel'] * 1e3:8.2f} ms/MP")
 
 

@@ -1,0 +1,64 @@
+"""The Warp backend's devices, on-device results and command-line use."""
+
+import numpy as np
+import pytest
+
+wp = pytest.importorskip("warp")
+import gpu_blur  # noqa: E402
+from gpu_blur.backends.warp import WarpBackend, warp_devices  # noqa: E402
+from gpu_blur.cli import main  # noqa: E402
+from gpu_blur.scene import scene_from_dict  # noqa: E402
+
+SCENE = {"blur": {"mode": "trajectory"}, "output": {"bits": 0}}
+
+
+def test_warp_names_cpu_and_cuda_devices():
+    specs = [d["spec"] for d in warp_devices()]
+    assert "warp:cpu" in specs
+    default = WarpBackend("warp")
+    assert default.wp_device == ("cuda:0" if wp.is_cuda_available() else "cpu")
+    with pytest.raises(ValueError, match="no Warp device 'warp:cuda:99'; present: warp:cpu"):
+        WarpBackend("warp:cuda:99")
+
+
+@pytest.mark.parametrize("device", [d["spec"] for d in warp_devices()])
+def test_on_device_result_equals_the_host_result(device, coffee_rgb):
+    photo = coffee_rgb[100:164, 200:296]
+    scene = scene_from_dict(SCENE)
+    host = gpu_blur.synthesize([photo], scene, seed=2, backend=device)
+    kept = gpu_blur.synthesize([photo], scene, seed=2, backend=device, on_device=True)
+    assert isinstance(kept.blurred, wp.array) and kept.blurred.shape == (64, 96, 3)
+    assert str(kept.blurred.device) == device.split(":", 1)[1]
+    assert np.array_equal(kept.blurred.numpy(), host.blurred)
+
+
+@pytest.mark.parametrize("device", [d["spec"] for d in warp_devices()])
+def test_torch_takes_the_on_device_result_without_a_copy(device, coffee_rgb):
+    torch = pytest.importorskip("torch")
+    result = gpu_blur.synthesize([coffee_rgb[:64, :96]], scene_from_dict(SCENE), seed=2,
+                                 backend=device, on_device=True)
+    tensor = torch.from_dlpack(result.blurred)
+    assert tensor.data_ptr() == result.blurred.ptr  # the same memory: no copy
+    assert tensor.device.type == ("cuda" if "cuda" in device else "cpu")
+    assert tuple(tensor.shape) == (64, 96, 3)
+
+
+def test_on_device_is_refused_where_it_cannot_hold(coffee_rgb):
+    photo = coffee_rgb[:32, :32]
+    with pytest.raises(ValueError, match="on_device=True needs"):
+        gpu_blur.synthesize([photo], scene_from_dict(SCENE), on_device=True)  # numpy
+    with pytest.raises(ValueError, match="on_device=True needs"):
+        gpu_blur.synthesize([photo], scene_from_dict(SCENE), backend="warp:cpu", tile=(16, 16),
+                            on_device=True)
+
+
+def test_generate_with_the_warp_backend_writes_a_set(tmp_path):
+    out = tmp_path / "set"
+    assert main(["generate", "--output", str(out), "--backend", "warp:cpu", "--limit", "1",
+                 "--quiet"]) == 0
+    assert '"device": "warp:cpu' in (out / "manifest.jsonl").read_text()
+
+
+def test_devices_command_lists_warp(capsys):
+    assert main(["devices"]) == 0
+    assert "warp:cpu" in capsys.readouterr().out
