@@ -288,12 +288,7 @@ class OpenCLBackend:
                              linear, indicator)
             sat_mask = np.zeros(shape) if mask is None else region.of(mask).astype(np.float64)
             return self._download(linear, shape), sat_mask
-        if mode == "kernel":
-            kernel = blur.normalize_kernel(params["kernel"])
-            view = region.expand(max(kernel.shape) // 2)
-        else:
-            hom = params["homographies"]
-            view = region.expand(blur.shake_halo(hom, region.full_h, region.full_w))
+        view = region.expand(blur.blur_halo(mode, params, region.full_h, region.full_w))
         vn = view.h * view.w * 3
         src, indicator = self._zeros(vn), self._zeros(vn)
         prg.gb_linearize(self.queue, (vn,), None, self._upload(view.of(frames[0])), src,
@@ -305,6 +300,7 @@ class OpenCLBackend:
         linear, sat_mask = self._zeros(n), self._zeros(n)
         grid = self._grid(region.w, region.h)
         if mode == "kernel":
+            kernel = blur.normalize_kernel(params["kernel"])
             k = self._constant(kernel)
             kh, kw = (np.int32(s) for s in kernel.shape)
             prg.gb_blur_kernel(self.queue, grid, None, src, *geometry, k, kh, kw, linear,
@@ -314,6 +310,7 @@ class OpenCLBackend:
             return self._download(linear, shape), self._download(sat_mask, shape)
         total, total_ind = self._zeros(n), self._zeros(n)
         pos = np.float64 if self.info.fp64 else np.float32
+        hom = params["homographies"]
         for h in hom:  # one pose at a time
             hinv = self._constant(np.linalg.inv(h), pos)
             prg.gb_blur_trajectory_add(self.queue, grid, None, src, indicator, *geometry, hinv,

@@ -101,12 +101,7 @@ class WarpBackend:
             self._launch(k["linearize"], n, self._array(region.of(frames[0])), linear, indicator)
             sat_mask = np.zeros(shape) if mask is None else region.of(mask).astype(np.float64)
             return self._host(linear, shape), sat_mask
-        if mode == "kernel":
-            kernel = blur.normalize_kernel(params["kernel"])
-            view = region.expand(max(kernel.shape) // 2)
-        else:
-            hom = params["homographies"]
-            view = region.expand(blur.shake_halo(hom, region.full_h, region.full_w))
+        view = region.expand(blur.blur_halo(mode, params, region.full_h, region.full_w))
         vn = view.h * view.w * 3
         src, indicator = self._zeros(vn), self._zeros(vn)
         self._launch(k["linearize"], vn, self._array(view.of(frames[0])), src, indicator)
@@ -114,6 +109,7 @@ class WarpBackend:
         linear, sat_mask = self._zeros(n), self._zeros(n)
         grid = (region.h, region.w)
         if mode == "kernel":
+            kernel = blur.normalize_kernel(params["kernel"])
             kw = self._array(kernel)
             kh, kwid = kernel.shape
             for image, out in ((src, linear), (indicator, sat_mask)):
@@ -121,6 +117,7 @@ class WarpBackend:
                              region.x0, region.y0, region.w)
             return self._host(linear, shape), self._host(sat_mask, shape)
         total, total_ind = self._zeros(n), self._zeros(n)
+        hom = params["homographies"]
         for h in hom:  # one pose at a time
             self._launch(k["blur_trajectory_add"], grid, src, indicator, *geometry,
                          self._array(np.linalg.inv(h), np.float64), total, total_ind,

@@ -56,6 +56,7 @@ __all__ = [
     "SHAKE_UNIFORMS",
     "FrameAccumulator",
     "auto_shake_steps",
+    "blur_halo",
     "average_frames",
     "camera_shake_homographies",
     "convolve_kernel",
@@ -904,3 +905,20 @@ def auto_shake_steps(uniforms, height: int, width: int, extent_px: float,
     n += 1 - n % 2
     lo, hi = SHAKE_AUTO_STEPS_RANGE
     return int(min(max(n, lo), hi))
+
+
+def blur_halo(mode: str, params: dict, height: int, width: int) -> int:
+    """Pixels of context the blur stage reads around an output region.
+
+    Args:
+        mode: the blur variant: ``"average"`` and ``"none"`` are pointwise, ``"kernel"`` needs
+            the kernel's radius, ``"trajectory"`` the camera path's largest displacement.
+        params: the sample's parameters (``kernel`` or ``homographies``).
+        height: full image height.
+        width: full image width.
+    """
+    if mode == "kernel":
+        return kernel_halo(normalize_kernel(params["kernel"]))
+    if mode == "trajectory":
+        return shake_halo(params["homographies"], height, width)
+    return 0
