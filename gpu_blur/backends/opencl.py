@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import os
 import sys
 import tempfile
@@ -63,7 +64,8 @@ def register_cpu_runtimes() -> None:
     lib = Path(sys.prefix) / "lib" / "libintelocl.so"
     if not lib.is_file():
         return
-    folder = Path(tempfile.gettempdir()) / f"gpu_blur-icd-{os.getuid()}-{abs(hash(sys.prefix))}"
+    prefix_id = hashlib.sha256(sys.prefix.encode()).hexdigest()[:12]  # stable across processes
+    folder = Path(tempfile.gettempdir()) / f"gpu_blur-icd-{os.getuid()}-{prefix_id}"
     folder.mkdir(exist_ok=True)
     entries = {"gpu_blur-intel-cpu.icd": f"{lib}\n"}
     system = Path("/etc/OpenCL/vendors")
