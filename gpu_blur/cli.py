@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import argparse
-import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -15,7 +15,18 @@ EPILOG = """examples:
   gpu-blur generate --input GOPRO/train --output out/ --scene average.toml
   gpu-blur plan realblur_j.toml                        # which stages a scene runs, and why
   gpu-blur scene                                       # every scene key with its default
+
+exit status of generate: 0 all samples made; 1 some samples failed (each is in the manifest
+with "status": "failed" and why; fix them and rerun with --resume); 2 nothing could start
+(bad option, scene, input folder or output folder)
 """
+
+#: Test hook, not an option: with ``GPU_BLUR_TEST_SLEEP_AFTER=<n>`` in the environment,
+#: ``generate`` sleeps for an hour right after sample ``n``'s manifest line is written, so a
+#: test can kill it at a known point (tests/test_resume.py).
+TEST_SLEEP_AFTER = "GPU_BLUR_TEST_SLEEP_AFTER"
+#: Failed samples listed one by one in the summary (all are in the manifest).
+SHOW_FAILED = 20
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -46,7 +57,13 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--samples-per-photo", type=int, default=None, metavar="K",
                    help="samples drawn from each photo (default 1; 4 for the built-in photo)")
     g.add_argument("--limit", type=int, default=None, metavar="N", help="make at most N samples")
-    g.add_argument("--overwrite", action="store_true", help="replace an existing set in --output")
+    again = g.add_mutually_exclusive_group()
+    again.add_argument("--overwrite", action="store_true",
+                       help="replace an existing set in --output")
+    again.add_argument("--resume", action="store_true",
+                       help="finish the set in --output that a run with the same settings "
+                       "started (killed, or with failed samples): keeps finished samples "
+                       "untouched, makes the missing ones and retries the failed ones")
     g.add_argument("--quiet", action="store_true", help="no progress bar")
 
     pl = sub.add_parser("plan", help="print the stages a scene runs, kept or skipped, with why")
@@ -56,6 +73,29 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("scene", help="print every scene key with its default and meaning")
     sub.add_parser("cameras", help="list the built-in cameras")
     return p
+
+
+def _check_setup(args, scene) -> None:
+    """Fail before any sample for what every sample would fail on (exit status 2)."""
+    from gpu_blur.imageio import read_kernel
+    from gpu_blur.pipeline import scene_camera
+
+    if not 0 <= args.seed < 2**64:
+        raise ValueError(f"--seed {args.seed}: must lie in [0, 2**64)")
+    if args.tile and min(args.tile) < 1:
+        raise ValueError(f"--tile {args.tile[0]} {args.tile[1]}: rows and columns must be >= 1")
+    if (args.samples_per_photo is not None and args.samples_per_photo < 1) or (
+            args.limit is not None and args.limit < 1):
+        raise ValueError("--samples-per-photo and --limit must be >= 1")
+    scene_camera(scene)  # an unknown camera name or a bad camera file
+    if scene.blur.mode == "kernel" and scene.blur.kernel:
+        path = Path(scene.blur.kernel)
+        if not path.is_absolute() and scene.base_dir is not None:
+            path = scene.base_dir / path
+        try:
+            read_kernel(path)
+        except ValueError as e:
+            raise ValueError(f"scene file {scene.path}: {e}" if scene.path else str(e)) from None
 
 
 def _generate(args) -> int:
@@ -68,34 +108,67 @@ def _generate(args) -> int:
 
     scene = load_scene(args.scene)
     backend = get_backend(args.backend, scene.output.precision)  # fails before any work
+    _check_setup(args, scene)
     per_photo = args.samples_per_photo or (1 if args.input else 4)
-    if per_photo < 1 or (args.limit is not None and args.limit < 1):
-        raise ValueError("--samples-per-photo and --limit must be >= 1")
     specs = discover(args.input, scene.blur.mode, scene.blur.frames, per_photo)
     specs = specs[:args.limit] if args.limit else specs
-    writer = DatasetWriter(args.output, scene.output.bits, args.overwrite)
     run = {"gpu_blur": __version__, "seed": args.seed, "backend": args.backend,
            "device": backend.device,
            "input": str(args.input) if args.input else "built-in: coffee.png",
+           "samples_per_photo": per_photo,
            "scene_file": str(args.scene) if args.scene else None, "scene": scene.to_dict()}
-    (args.output / "run.json").write_text(json.dumps(run, indent=1) + "\n")
+    writer = DatasetWriter(args.output, scene.output.bits, run, overwrite=args.overwrite,
+                           resume=args.resume, specs=specs)
+    todo = [s for s in specs if s.index not in writer.done]
+    if args.resume:
+        print(f"resuming {args.output}: {len(writer.done)} of {len(specs)} samples done, "
+              f"{len(todo)} to make ({writer.retry} failed before, to retry; {writer.torn} "
+              "torn manifest line(s) ignored)")
+    record = {"seed": args.seed, "backend": args.backend, "device": backend.device}
+    sleep_after = os.environ.get(TEST_SLEEP_AFTER)
+    failed, made = [], 0
     start = time.perf_counter()
     try:
-        for spec in tqdm(specs, desc="samples", unit="sample", disable=args.quiet):
+        for spec in tqdm(todo, desc="samples", unit="sample", disable=args.quiet):
             try:
+                if spec.problem:
+                    raise ValueError(spec.problem)
                 result = synthesize(list(spec.inputs), scene, seed=args.seed,
                                     sample_index=spec.index, backend=backend,
                                     tile=tuple(args.tile) if args.tile else None)
-            except ValueError as e:
-                raise ValueError(f"sample {spec.index} ({spec.name}): {e}") from None
-            writer.write(spec, result, {"seed": args.seed, "backend": args.backend,
-                                        "device": backend.device, "status": "ok"})
+            except (ValueError, OSError) as e:  # this sample's input: record it, go on
+                failed.append(writer.fail(spec, str(e), record))
+            else:
+                try:
+                    writer.write(spec, result, record)
+                except OSError as e:
+                    raise OSError(f"sample {spec.index} ({spec.name}): {e}; the samples "
+                                  "finished so far are kept: fix the output folder and run the "
+                                  "same command with --resume") from None
+                made += 1
+            if sleep_after is not None and str(spec.index) == sleep_after.strip():
+                time.sleep(3600)
+    except KeyboardInterrupt:
+        print(f"gpu-blur: interrupted after {made} new samples; run the same command with "
+              "--resume to finish the set", file=sys.stderr)
+        return 130
     finally:
         writer.close()
     took = time.perf_counter() - start
-    print(f"wrote {len(specs)} samples to {args.output} in {took:.1f} s "
-          f"({len(specs) / took:.2f} samples/s); manifest: {writer.manifest_path}")
-    return 0
+    done = f", {len(writer.done)} were done before" if writer.done else ""
+    print(f"wrote {made} samples to {args.output} in {took:.1f} s ({made / max(took, 1e-9):.2f} "
+          f"samples/s){done}; manifest: {writer.manifest_path}")
+    if not failed:
+        return 0
+    print(f"gpu-blur: {len(failed)} of {len(todo)} samples failed; each is in the manifest with "
+          '"status": "failed" and its "error":', file=sys.stderr)
+    for line in failed[:SHOW_FAILED]:
+        print(f"  sample {line['index']} ({line['name']}): {line['error']}", file=sys.stderr)
+    if len(failed) > SHOW_FAILED:
+        print(f"  ... and {len(failed) - SHOW_FAILED} more", file=sys.stderr)
+    print("fix those inputs and run the same command with --resume to make only them",
+          file=sys.stderr)
+    return 1
 
 
 def _devices() -> None:

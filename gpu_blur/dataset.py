@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import zipfile
 from importlib import resources
 from pathlib import Path
 
@@ -13,15 +14,26 @@ from gpu_blur.imageio import write_image
 from gpu_blur.params import ARRAY_PARAMS
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+MANIFEST = "manifest.jsonl"
+RUN = "run.json"
+#: run.json keys a resumed run must share with the set it finishes, with the option that sets
+#: each (everything that decides a sample's inputs, draws or pixels; not --tile or --limit).
+RESUME_KEYS = {"seed": "--seed", "scene": "--scene", "backend": "--backend",
+               "input": "--input", "samples_per_photo": "--samples-per-photo"}
 
 
 @dataclasses.dataclass(frozen=True)
 class SampleSpec:
-    """One sample to make: its index (which, with the seed, fixes its draws) and its inputs."""
+    """One sample to make: its index (which, with the seed, fixes its draws) and its inputs.
+
+    ``problem`` says why the sample cannot be made (a sequence shorter than ``blur.frames``);
+    such a sample keeps its index, so fixing its input later moves no other sample's draws.
+    """
 
     index: int
     name: str
     inputs: tuple[Path, ...]
+    problem: str | None = None
 
 
 def default_photo() -> Path:
@@ -63,8 +75,11 @@ def discover(root: Path | None, mode: str, frames_per_sample: int,
         frames_per_sample: frames per window (mode ``average``).
         samples_per_photo: samples made from each photo (each with its own draws).
 
+    A sequence with fewer than ``frames_per_sample`` frames gives one sample with its
+    ``problem`` set (reported as failed), unless no sequence is long enough.
+
     Raises:
-        ValueError: naming the folder when it is missing or yields no sample.
+        ValueError: naming the folder when it is missing, not a folder, or yields no sample.
     """
     if mode == "none":
         raise ValueError("gpu-blur generate makes blur from sharp input; blur.mode = none "
@@ -76,23 +91,38 @@ def discover(root: Path | None, mode: str, frames_per_sample: int,
                              "--input with <seq>/sharp/*.png sequences")
         photos = [("coffee", default_photo())]
     else:
-        if not root.is_dir():
+        if not root.exists():
             raise ValueError(f"--input {root}: no such folder")
+        if not root.is_dir():
+            raise ValueError(f"--input {root}: is a file, not a folder; pass the folder that "
+                             "holds the images")
+        if not any(root.iterdir()):
+            raise ValueError(f"--input {root}: the folder is empty")
         if mode == "average":
             specs = []
             for name, frames in find_sequences(root):
+                if len(frames) < frames_per_sample:
+                    specs.append(SampleSpec(
+                        len(specs), f"{name}/{frames[0].stem}", tuple(frames),
+                        f"sequence {name} has {len(frames)} frame(s) in {frames[0].parent}, "
+                        f"fewer than blur.frames = {frames_per_sample}; add frames, lower "
+                        "blur.frames in the scene, or remove the sequence"))
                 for start in range(0, len(frames) - frames_per_sample + 1, frames_per_sample):
                     window = tuple(frames[start:start + frames_per_sample])
                     specs.append(SampleSpec(len(specs), f"{name}/{window[0].stem}", window))
-            if not specs:
+            if all(s.problem for s in specs):
+                short = "".join(f"; {s.name.rsplit('/', 1)[0]} has {len(s.inputs)}"
+                                for s in specs[:5])
                 raise ValueError(
                     f"--input {root}: no <seq>/sharp/ folder with at least {frames_per_sample} "
-                    "images (blur.frames); for single photos use blur.mode = trajectory or kernel")
+                    f"images (blur.frames){short}; lower blur.frames, or for single photos use "
+                    "blur.mode = trajectory or kernel")
             return specs
         photos = [(p.relative_to(root).with_suffix("").as_posix(), p)
                   for p in sorted(root.rglob("*")) if p.suffix.lower() in IMAGE_SUFFIXES]
         if not photos:
-            raise ValueError(f"--input {root}: no images ({', '.join(IMAGE_SUFFIXES)}) found")
+            raise ValueError(f"--input {root}: no images ({', '.join(IMAGE_SUFFIXES)}) found "
+                             "in it or its subfolders")
     specs = []
     for name, path in photos:
         for k in range(samples_per_photo):
@@ -107,25 +137,184 @@ def _jsonable(value):
     return value
 
 
+def _plain(value):
+    """``value`` as it reads back from JSON (tuples become lists, numpy scalars numbers)."""
+    return json.loads(json.dumps(value, default=_jsonable))
+
+
+def _write_text(path: Path, text: str) -> None:
+    """Write a text file that appears complete or not at all."""
+    tmp = path.with_name(f".{path.name}.part")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def save_arrays(path: Path, arrays: dict) -> None:
+    """``np.savez`` with fixed zip timestamps, so equal arrays give equal bytes.
+
+    The file appears complete or not at all (written to a temporary name, then renamed).
+    """
+    tmp = path.with_name(f".{path.stem}.part.npz")
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as z:
+        for name, value in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            with z.open(info, "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asarray(value), allow_pickle=False)
+    tmp.replace(path)
+
+
+def _scene_difference(old, new) -> str:
+    """The first scene key whose value differs, as ``section.key = old (this run: new)``."""
+    old, new = old if isinstance(old, dict) else {}, new if isinstance(new, dict) else {}
+    for section in sorted(set(old) | set(new)):
+        a, b = old.get(section) or {}, new.get(section) or {}
+        for key in sorted(set(a) | set(b)):
+            if a.get(key) != b.get(key):
+                return f"{section}.{key} = {a.get(key)!r} (this run: {b.get(key)!r})"
+    return "the scene"  # pragma: no cover (called only when the scenes differ)
+
+
 class DatasetWriter:
-    """Writes ``blur/`` and ``sharp/`` PNGs, array parameters and ``manifest.jsonl``.
+    """Writes ``blur/`` and ``sharp/`` PNGs, array parameters, ``manifest.jsonl`` and ``run.json``.
 
     Each sample's files are written completely (temporary name, then rename) before its
-    manifest line is appended and flushed, so the manifest only lists finished samples.
+    manifest line is appended and flushed, so the manifest only lists finished samples, and
+    a run killed at any point leaves no half-written file under a final name.
+
+    Three ways to open a folder: a new set (refused if the folder holds a manifest already),
+    ``overwrite`` (start the set again), or ``resume``: finish the set a previous run started.
+    Resuming checks that ``run`` has the same settings as the folder's ``run.json``
+    (:data:`RESUME_KEYS`) and that each finished sample's index still names the same inputs,
+    keeps the finished samples (``done``; their files are not touched), drops manifest lines
+    of failed samples (to be tried again) and a last line torn by a kill, and removes
+    temporary files left by a killed run.
+
+    Raises:
+        ValueError: an existing set without ``overwrite``/``resume``, or a resume whose
+            settings or inputs differ, naming what differs and the way out.
+        OSError: naming the folder when it cannot be created or written.
     """
 
-    def __init__(self, out: Path, bits: int, overwrite: bool = False):
+    def __init__(self, out: Path, bits: int, run: dict | None = None, *,
+                 overwrite: bool = False, resume: bool = False,
+                 specs: list[SampleSpec] | None = None):
+        if overwrite and resume:
+            raise ValueError("--overwrite and --resume exclude each other: --resume finishes "
+                             "an interrupted set, --overwrite starts it again")
         self.out, self.bits = out, bits
-        self.manifest_path = out / "manifest.jsonl"
-        if self.manifest_path.exists() and self.manifest_path.stat().st_size and not overwrite:
-            raise ValueError(f"{self.manifest_path} already exists; choose another --output or "
-                             "pass --overwrite to replace the set")
-        for sub in ("blur", "sharp"):
-            (out / sub).mkdir(parents=True, exist_ok=True)
-        self.manifest = open(self.manifest_path, "w")
+        self.manifest_path = out / MANIFEST
+        self.done: dict[int, dict] = {}
+        self.retry = 0  # failed samples whose lines were dropped, to be tried again
+        self.torn = 0  # manifest lines that were not whole JSON (cut by a kill)
+        exists = self.manifest_path.is_file() and self.manifest_path.stat().st_size > 0
+        if exists and not (overwrite or resume):
+            raise ValueError(f"{self.manifest_path} already exists; choose another --output, "
+                             "pass --resume to finish that set (retrying failed samples), or "
+                             "--overwrite to replace it")
+        kept = None
+        if resume and (exists or (out / RUN).exists()):
+            self._check_run(run or {})
+            kept = self._read_manifest()
+            self._check_inputs(specs or [])
+        self._make_folders()
+        for sub in ("blur", "sharp", "params"):
+            for part in (out / sub).glob(".*.part*") if (out / sub).is_dir() else ():
+                part.unlink()  # left by a killed run; no final file is ever a .part
+        for name in (MANIFEST, RUN):
+            (out / f".{name}.part").unlink(missing_ok=True)
+        if kept is not None:
+            _write_text(self.manifest_path, "".join(kept))
+        elif run is not None:
+            _write_text(out / RUN, json.dumps(run, indent=1) + "\n")
+        self.manifest = open(self.manifest_path, "a" if kept is not None else "w")
+
+    @property
+    def resumed(self) -> bool:
+        """Whether finished samples were found (and are kept)."""
+        return bool(self.done)
+
+    def _make_folders(self) -> None:
+        try:
+            for sub in ("blur", "sharp"):
+                (self.out / sub).mkdir(parents=True, exist_ok=True)
+            for folder in (self.out, self.out / "blur", self.out / "sharp"):
+                probe = folder / ".gpu_blur_write_test.part"
+                probe.write_bytes(b"")
+                probe.unlink()
+        except OSError as e:
+            reason = e.strerror or str(e)
+            raise OSError(f"--output {self.out}: cannot create or write the folder ({reason}"
+                          f"{': ' + str(e.filename) if e.filename else ''}); choose another "
+                          "--output, or make it a writable folder") from None
+
+    def _check_run(self, run: dict) -> None:
+        path = self.out / RUN
+        try:
+            old = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ValueError(f"--resume: {path} is missing, so the settings the set in "
+                             f"{self.out} was made with are unknown; start it again with "
+                             "--overwrite, or use another --output") from None
+        except (OSError, ValueError) as e:
+            raise ValueError(f"--resume: cannot read {path} ({e}); start the set again with "
+                             "--overwrite, or use another --output") from None
+        if not isinstance(old, dict):
+            old = {}
+        for key, option in RESUME_KEYS.items():
+            was, now = _plain(old.get(key)), _plain(run.get(key))
+            if was != now:
+                what = (f"scene key {_scene_difference(was, now)}" if key == "scene"
+                        else f"{key} = {was!r} (this run: {now!r})")
+                raise ValueError(
+                    f"--resume: the set in {self.out} was made with another {option}: {what}; "
+                    f"resume with the settings in {path}, or start a new set with --overwrite "
+                    "or another --output")
+
+    def _read_manifest(self) -> list[str]:
+        """The manifest lines to keep (finished samples whose files exist), filling ``done``."""
+        if not self.manifest_path.is_file():
+            return []
+        kept = []
+        for text in self.manifest_path.read_text(errors="replace").splitlines(keepends=True):
+            try:
+                line = json.loads(text)
+            except ValueError:
+                self.torn += 1  # cut by a kill: that sample is made again
+                continue
+            if not isinstance(line, dict) or not isinstance(line.get("index"), int):
+                self.torn += 1
+                continue
+            if line.get("status") != "ok":
+                self.retry += 1
+                continue
+            files = [line.get(k) for k in ("blurred", "sharp", "arrays") if k in line]
+            if line["index"] in self.done or not all(
+                    isinstance(f, str) and (self.out / f).is_file() for f in files):
+                continue  # a repeat, or its files are gone: made again
+            self.done[line["index"]] = line
+            kept.append(text if text.endswith("\n") else text + "\n")
+        return kept
+
+    def _check_inputs(self, specs: list[SampleSpec]) -> None:
+        for spec in specs:
+            line = self.done.get(spec.index)
+            if line is None:
+                continue
+            inputs = [str(p) for p in spec.inputs]
+            if line.get("name") != spec.name or line.get("inputs") != inputs:
+                raise ValueError(
+                    f"--resume: sample {spec.index} of {self.manifest_path} is "
+                    f"{line.get('name')!r} (first input {(line.get('inputs') or ['?'])[0]}) but "
+                    f"the input now gives {spec.name!r} (first input {inputs[0]}) at that "
+                    "index: the input folder changed since the set was started; restore it, "
+                    "or start a new set with --overwrite or another --output")
+
+    def _append(self, line: dict) -> None:
+        self.manifest.write(json.dumps(line) + "\n")
+        self.manifest.flush()
 
     def write(self, spec: SampleSpec, result, record: dict) -> dict:
-        """Write one sample and its manifest line; returns the line as a dict."""
+        """Write one sample, then its manifest line (``status`` "ok"); returns the line."""
         ext = ".png" if self.bits else ".tiff"
         stem = spec.name.replace("/", "_")
         blurred = Path("blur") / f"{spec.index:06d}_{stem}{ext}"
@@ -140,18 +329,23 @@ class DatasetWriter:
             "blurred": blurred.as_posix(),
             "sharp": sharp.as_posix(),
             **record,
+            "status": "ok",
             "params": {k: _jsonable(v) for k, v in result.params.items() if k not in arrays},
             "stages": [s.name for s in result.plan.stages if s.kept],
         }
         if arrays:
             (self.out / "params").mkdir(exist_ok=True)
             rel = Path("params") / f"{spec.index:06d}_{stem}.npz"
-            tmp = self.out / "params" / f".{spec.index:06d}.part.npz"
-            np.savez(tmp, **arrays)
-            tmp.replace(self.out / rel)
+            save_arrays(self.out / rel, arrays)
             line["arrays"] = rel.as_posix()
-        self.manifest.write(json.dumps(line) + "\n")
-        self.manifest.flush()
+        self._append(line)
+        return line
+
+    def fail(self, spec: SampleSpec, reason: str, record: dict) -> dict:
+        """Record a sample that could not be made (``status`` "failed", ``error``)."""
+        line = {"index": spec.index, "name": spec.name, "inputs": [str(p) for p in spec.inputs],
+                **record, "status": "failed", "error": reason}
+        self._append(line)
         return line
 
     def close(self) -> None:

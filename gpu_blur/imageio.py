@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import cv2
@@ -9,41 +10,149 @@ import numpy as np
 
 from gpu_blur.reference.output import to_integers
 
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_WAY_OUT = "re-export or re-copy the file, or remove it from the input"
+
+
+def _truncation(data: bytes) -> str | None:
+    """Why a PNG or JPEG file's bytes end early, or None when they look complete.
+
+    libpng refuses a truncated PNG by itself, but libjpeg decodes a truncated JPEG with its
+    missing part grey and only a warning, so both are checked here from their structure: a
+    PNG must reach its IEND chunk, a JPEG must have an end-of-image marker after its last
+    start-of-scan (inside scan data 0xFF is always stuffed, so 0xFFD9 is only ever the marker;
+    data after it, such as a second image, is allowed).
+    """
+    if data.startswith(_PNG_SIGNATURE):
+        pos = len(_PNG_SIGNATURE)
+        while pos + 8 <= len(data):
+            length, kind = struct.unpack(">I4s", data[pos:pos + 8])
+            pos += 12 + length
+            if pos > len(data):
+                break
+            if kind == b"IEND":
+                return None
+        return "truncated PNG (the file ends before its IEND chunk)"
+    if data.startswith(b"\xff\xd8"):
+        scan = data.rfind(b"\xff\xda")
+        if scan < 0 or data.find(b"\xff\xd9", scan) < 0:
+            return "truncated JPEG (no end-of-image marker after the image data)"
+    return None
+
 
 def read_image(path: str | Path) -> np.ndarray:
-    """Read an 8- or 16-bit RGB image (PNG, JPEG, ...) as H x W x 3 in RGB order.
+    """Read an image file as H x W x 3 in RGB order, keeping its codes.
+
+    8-bit files give uint8 (later / 255), 16-bit files uint16 (later / 65535), float TIFFs
+    float32 (which must lie in [0, 1]). What is accepted besides RGB:
+
+    * grayscale (one channel) is expanded to R = G = B, as image viewers and most loaders
+      show it; a deblurring set may hold a few such photos.
+    * an alpha channel (RGBA, gray + alpha) is dropped when every pixel is fully opaque. Any
+      pixel that is not is refused: the colour behind it is undefined, and gpu_blur does not
+      guess a background. Flatten such images onto a background first.
 
     Raises:
-        ValueError: naming the file when it is missing, unreadable, or not 3-channel colour.
+        ValueError: naming the file and the way out when it is missing, empty, truncated,
+            corrupt, not an image, or has transparent pixels.
     """
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{path}: no such file")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read it ({e.strerror}); check its permissions") from None
+    if not data:
+        raise ValueError(f"{path}: the file is empty (0 bytes); {_WAY_OUT}")
+    problem = _truncation(data)
+    if problem:
+        raise ValueError(f"{path}: {problem}; {_WAY_OUT}")
+    try:
+        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        image = None
     if image is None:
-        raise ValueError(f"{path}: not a readable image (corrupt, truncated or unknown format)")
-    if image.ndim != 3 or image.shape[2] != 3:
-        channels = 1 if image.ndim == 2 else image.shape[2]
-        raise ValueError(f"{path}: has {channels} channel(s); gpu_blur needs RGB images "
-                         "(convert grayscale or RGBA to RGB first)")
+        raise ValueError(f"{path}: not a readable image (corrupt, truncated or a format OpenCV "
+                         f"does not read); {_WAY_OUT}")
+    if image.ndim == 2:
+        image = image[:, :, None]
+    channels = image.shape[2]
+    if channels in (2, 4):
+        alpha = image[:, :, -1]
+        opaque = np.iinfo(alpha.dtype).max if alpha.dtype.kind in "ui" else 1.0
+        clear = int(np.count_nonzero(alpha != opaque))
+        if clear:
+            row, col = np.unravel_index(int(np.argmax(alpha != opaque)), alpha.shape)
+            raise ValueError(
+                f"{path}: {clear} of {alpha.size} pixels are not fully opaque (alpha < "
+                f"{opaque}, first at row {row}, column {col}); gpu_blur does not guess the "
+                "colour behind them: flatten the image onto a background first (e.g. "
+                "ImageMagick: convert in.png -background white -alpha remove -alpha off out.png)")
+        image = image[:, :, :-1]
+        channels -= 1
+    if channels == 1:
+        return np.repeat(image, 3, axis=2)
+    if channels != 3:
+        raise ValueError(f"{path}: has {channels} channels; gpu_blur reads grayscale, RGB and "
+                         "opaque RGBA images: convert it to RGB first")
     return np.ascontiguousarray(image[:, :, ::-1])
 
 
+def _where(mask: np.ndarray) -> str:
+    """'row r, column c, channel k' of the first True entry of an H x W x 3 mask."""
+    row, col, ch = np.unravel_index(int(np.argmax(mask)), mask.shape)
+    return f"row {row}, column {col}, channel {ch}"
+
+
 def to_unit(image: np.ndarray, what: str = "image") -> np.ndarray:
-    """uint8 / uint16 codes or floats in [0, 1] -> float64 in [0, 1], H x W x 3."""
+    """uint8 / uint16 codes or floats in [0, 1] -> float64 in [0, 1], H x W x 3.
+
+    Raises:
+        ValueError: naming ``what``, with how many bad values there are, where the first is,
+            and the way out, for a wrong shape or dtype, NaN or infinity, or floats outside
+            [0, 1].
+    """
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[2] != 3:
-        raise ValueError(f"{what}: expected an H x W x 3 RGB array, got shape {image.shape}")
+        hint = (": for a grayscale image repeat it, np.repeat(x[..., None], 3, axis=2)"
+                if image.ndim == 2 else "")
+        raise ValueError(f"{what}: expected an H x W x 3 RGB array, got shape {image.shape}"
+                         f"{hint}")
+    if image.size == 0:
+        raise ValueError(f"{what}: the image is empty (shape {image.shape})")
     if image.dtype == np.uint8:
         return image / 255.0
     if image.dtype == np.uint16:
         return image / 65535.0
     if np.issubdtype(image.dtype, np.floating):
         x = image.astype(np.float64)
-        if not np.all(np.isfinite(x)) or x.min() < 0 or x.max() > 1:
-            raise ValueError(f"{what}: float images must be finite and within [0, 1]")
+        finite = np.isfinite(x)
+        if not finite.all():
+            nan = int(np.count_nonzero(np.isnan(x)))
+            inf = x.size - int(np.count_nonzero(finite)) - nan
+            raise ValueError(
+                f"{what}: {nan} NaN and {inf} infinite value(s), the first at "
+                f"{_where(~finite)}; float images must be finite sRGB values in [0, 1]: fix "
+                "what produced them, or replace them (np.nan_to_num(x, nan=0.0, posinf=1.0, "
+                "neginf=0.0))")
+        if x.min() < 0:
+            low = x < 0
+            raise ValueError(
+                f"{what}: {np.count_nonzero(low)} negative value(s), the lowest "
+                f"{x.min():.6g}, the first at {_where(low)}; float images must be sRGB values "
+                "in [0, 1] (not mean-subtracted or normalized data): clip rounding errors "
+                "with np.clip(x, 0, 1)")
+        if x.max() > 1:
+            high = x > 1
+            raise ValueError(
+                f"{what}: {np.count_nonzero(high)} value(s) above 1, the highest "
+                f"{x.max():.6g}, the first at {_where(high)}; float images must be sRGB values "
+                "in [0, 1]: pass 0..255 data as uint8 (or divide it by 255), clip small "
+                "overshoots with np.clip(x, 0, 1)")
         return x
-    raise ValueError(f"{what}: unsupported dtype {image.dtype}; use uint8, uint16 or float")
+    raise ValueError(f"{what}: unsupported dtype {image.dtype}; use uint8, uint16 or float in "
+                     "[0, 1] (e.g. x.astype(np.uint8) for 0..255 integers)")
 
 
 def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
@@ -65,22 +174,57 @@ def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
 def read_kernel(path: str | Path) -> np.ndarray:
     """A blur kernel from ``.npy`` (2-D floats) or a grayscale image (PNG, ...), as float64.
 
-    The kernel is not normalized here; the blur stage normalizes it to sum 1.
+    The kernel is checked (odd sides, finite, non-negative, positive sum) but not normalized
+    here; the blur stage normalizes it to sum 1.
+
+    Raises:
+        ValueError: naming the file (as ``blur.kernel = ...``) and what is wrong with it.
     """
     path = Path(path)
+    where = f"blur.kernel = {str(path)!r}"
     if not path.is_file():
-        raise ValueError(f"blur.kernel = {str(path)!r}: no such file")
+        raise ValueError(f"{where}: no such file (a relative path is taken from the scene "
+                         "file's folder)")
     if path.suffix.lower() == ".npy":
         try:
             kernel = np.load(path, allow_pickle=False)
-        except ValueError as e:
-            raise ValueError(f"blur.kernel = {str(path)!r}: not a numpy array file ({e})") from None
+        except (ValueError, OSError, EOFError) as e:
+            raise ValueError(f"{where}: not a numpy array file ({e}); save the kernel with "
+                             "np.save") from None
     else:
         kernel = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if kernel is None:
-            raise ValueError(f"blur.kernel = {str(path)!r}: not a readable image")
-    kernel = np.asarray(kernel, dtype=np.float64)
-    if kernel.ndim != 2:
-        raise ValueError(f"blur.kernel = {str(path)!r}: a kernel is 2-D (one channel), got "
-                         f"shape {kernel.shape}")
+            raise ValueError(f"{where}: not a readable image (corrupt, truncated or a format "
+                             "OpenCV does not read)")
+    try:
+        kernel = np.asarray(kernel, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where}: holds {kernel.dtype} data, not numbers") from None
+    check_kernel(kernel, where)
     return kernel
+
+
+def check_kernel(kernel: np.ndarray, where: str) -> None:
+    """Refuse what :func:`gpu_blur.reference.blur.normalize_kernel` cannot normalize.
+
+    Raises:
+        ValueError: starting with ``where``, saying what is wrong and the way out.
+    """
+    if kernel.ndim != 2:
+        raise ValueError(f"{where}: a kernel is 2-D (one channel), got shape {kernel.shape}")
+    if kernel.shape[0] % 2 == 0 or kernel.shape[1] % 2 == 0:
+        raise ValueError(f"{where}: is {kernel.shape[0]} x {kernel.shape[1]}; a kernel needs odd "
+                         "sides (its centre is the origin): pad it with a row or column of "
+                         "zeros where the blur should not move")
+    bad = int(np.count_nonzero(~np.isfinite(kernel)))
+    if bad:
+        raise ValueError(f"{where}: holds {bad} NaN or infinite weight(s); kernel weights must "
+                         "be finite")
+    negative = int(np.count_nonzero(kernel < 0))
+    if negative:
+        raise ValueError(f"{where}: holds {negative} negative weight(s), the lowest "
+                         f"{float(kernel.min()):.6g}; a blur kernel is non-negative: clip them "
+                         "to 0 (np.clip(k, 0, None)) or fix what made it")
+    if not kernel.sum() > 0:
+        raise ValueError(f"{where}: its weights sum to {float(kernel.sum()):.6g}; a blur kernel "
+                         "needs some positive weight (it is scaled to sum 1)")

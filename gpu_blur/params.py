@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from gpu_blur.cameras import Camera
-from gpu_blur.imageio import read_kernel
+from gpu_blur.imageio import check_kernel, read_kernel
 from gpu_blur.plan import Plan
 from gpu_blur.reference import blur, rng
 from gpu_blur.reference.bayer import BayerPattern
@@ -91,7 +91,11 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
         fixed = scene.isp.pattern
         put("pattern", fixed if fixed != "random"
             else PATTERNS[min(int(draw["pattern"] * 4), 3)])
-        p["pattern"] = BayerPattern.parse(str(p["pattern"])).value
+        try:
+            p["pattern"] = BayerPattern.parse(str(p["pattern"])).value
+        except ValueError:
+            raise ValueError(f"overrides['pattern'] = {p['pattern']!r} is not a Bayer pattern; "
+                             f"allowed: {' | '.join(PATTERNS)} (any case)") from None
         red, blue = camera.white_balance.draw(draw["red_gain"], draw["blue_gain"])
         put("red_gain", red)
         put("blue_gain", blue)
@@ -118,5 +122,15 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
                 raise ValueError(f"parameter {name} = {p[name]!r} must be finite and >= 0")
     for name in ARRAY_PARAMS:
         if name in p:
-            p[name] = np.asarray(p[name], dtype=np.float64)
+            try:
+                p[name] = np.asarray(p[name], dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"parameter {name} must be an array of numbers") from None
+    if "kernel" in p:  # drawn kernels and blur.kernel files are checked already
+        check_kernel(p["kernel"], "overrides['kernel']")
+    if "homographies" in p:
+        h = p["homographies"]
+        if h.ndim != 3 or h.shape[1:] != (3, 3) or len(h) == 0 or not np.isfinite(h).all():
+            raise ValueError(f"overrides['homographies'] must be a finite n x 3 x 3 array "
+                             f"(n >= 1) of camera poses; got shape {h.shape}")
     return p

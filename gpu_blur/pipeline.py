@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from gpu_blur.backends import get_backend
-from gpu_blur.cameras import get_camera
+from gpu_blur.cameras import Camera, get_camera
 from gpu_blur.imageio import read_image, to_unit
 from gpu_blur.params import draw_params
 from gpu_blur.plan import Plan, plan
@@ -53,6 +53,24 @@ def _load(item, what: str) -> np.ndarray:
     return to_unit(np.asarray(item), what)
 
 
+def _name(item, what: str) -> str:
+    """How messages name an input: its file, else its role (``frame 2``)."""
+    return str(item) if isinstance(item, (str, Path)) else what
+
+
+def scene_camera(scene: Scene) -> Camera:
+    """The scene's camera (a preset or a camera file next to the scene).
+
+    Raises:
+        ValueError: naming the scene's ``camera.name`` and the cameras there are.
+    """
+    try:
+        return get_camera(scene.camera.name, scene.base_dir)
+    except ValueError as e:
+        where = f"scene file {scene.path}" if scene.path else "scene"
+        raise ValueError(f"{where}: camera.name = {scene.camera.name!r}: {e}") from None
+
+
 def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
                backend: str = "numpy", overrides: Mapping | None = None,
                tile: tuple[int, int] | None = None, on_device: bool = False) -> Synthesis:
@@ -84,7 +102,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
     scene = _as_scene(scene)
     runner = (get_backend(backend, scene.output.precision) if isinstance(backend, str)
               else backend)
-    camera = get_camera(scene.camera.name, scene.base_dir)
+    camera = scene_camera(scene)
     frames, mask, sharp = _gather(inputs, scene)
 
     static = plan(scene)
@@ -160,8 +178,10 @@ def _gather(inputs, scene: Scene):
         blurred = _load(inputs["blurred"], "blurred image")
         mask = None if inputs.get("mask") is None else _load(inputs["mask"], "mask")
         sharp = blurred if inputs.get("sharp") is None else _load(inputs["sharp"], "sharp")
-        _same_shape([blurred] + [x for x in (mask, sharp) if x is not None],
-                    ["blurred", "mask", "sharp"])
+        given = [(blurred, _name(inputs["blurred"], "blurred"))]
+        given += [(x, _name(inputs[k], k)) for x, k in ((mask, "mask"), (sharp, "sharp"))
+                  if inputs.get(k) is not None]
+        _same_shape([x for x, _ in given], [n for _, n in given])
         return [blurred], mask, sharp
     if isinstance(inputs, (str, Path, np.ndarray)):
         inputs = [inputs]
@@ -170,13 +190,14 @@ def _gather(inputs, scene: Scene):
     if mode != "average" and len(inputs) != 1:
         raise ValueError(f"blur.mode = {mode} blurs one photo; got {len(inputs)} images")
     frames = [_load(x, f"frame {i}") for i, x in enumerate(inputs)]
-    _same_shape(frames, [f"frame {i}" for i in range(len(frames))])
+    _same_shape(frames, [_name(x, f"frame {i}") for i, x in enumerate(inputs)])
     return frames, None, frames[len(frames) // 2]
 
 
 def _same_shape(images, names):
-    for img, name in zip(images[1:], names[1:], strict=False):
+    for img, name in zip(images[1:], names[1:], strict=True):
         if img.shape != images[0].shape:
-            raise ValueError(f"{name} is {img.shape[1]} x {img.shape[0]} but {names[0]} is "
-                             f"{images[0].shape[1]} x {images[0].shape[0]}; all inputs of a "
-                             "sample must have the same size")
+            raise ValueError(f"{name} is {img.shape[1]} x {img.shape[0]} (width x height) but "
+                             f"{names[0]} is {images[0].shape[1]} x {images[0].shape[0]}; all "
+                             "inputs of a sample must have the same size: crop or resize the "
+                             "odd one, or leave it out")

@@ -1,0 +1,374 @@
+"""Bad input gets a clear error that names the file or value and the way out (issue 5).
+
+Small images and the numpy backend throughout: what is checked is the refusal, not the maths.
+"""
+
+import json
+import os
+
+import cv2
+import numpy as np
+import pytest
+
+import gpu_blur
+from gpu_blur.cli import main
+from gpu_blur.imageio import read_image
+from gpu_blur.scene import SceneError, load_scene, scene_from_dict
+
+
+def make_scene(**sections):
+    """The default scene with 3 camera poses (fast on small images), plus ``sections``."""
+    data = {"blur": {"steps": 3}}
+    for section, values in sections.items():
+        data.setdefault(section, {}).update(values)
+    return scene_from_dict(data)
+
+
+def random_rgb(seed=0, shape=(24, 32), dtype=np.uint8):
+    top = np.iinfo(dtype).max
+    return np.random.default_rng(seed).integers(0, top + 1, (*shape, 3), dtype=dtype)
+
+
+def save(path, image):
+    """Write an RGB(A) or grayscale array with OpenCV (which wants BGR order)."""
+    if image.ndim == 3:
+        image = image[:, :, [2, 1, 0, 3][:image.shape[2]]]
+    assert cv2.imwrite(str(path), image)
+    return path
+
+
+def write_photos(folder, n, shape=(24, 32), first_seed=0):
+    folder.mkdir(parents=True, exist_ok=True)
+    return [save(folder / f"p{i}.png", random_rgb(first_seed + i, shape)) for i in range(n)]
+
+
+def manifest(out):
+    return [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+
+
+# ---- image files ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("keep", [0.5, -12, 30], ids=["half", "no-IEND", "header-only"])
+def test_a_truncated_png_is_refused_naming_the_file(tmp_path, keep):
+    path = save(tmp_path / "cut.png", random_rgb())
+    data = path.read_bytes()
+    path.write_bytes(data[:int(len(data) * keep) if isinstance(keep, float) else keep])
+    with pytest.raises(ValueError) as e:
+        read_image(path)
+    assert str(path) in str(e.value) and "truncated PNG" in str(e.value)
+    assert "re-export or re-copy the file" in str(e.value)
+
+
+def test_a_corrupt_png_is_refused_naming_the_file(tmp_path):
+    path = save(tmp_path / "bad.png", random_rgb())
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # inside the compressed pixels: libpng's checksum fails
+    path.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="not a readable image") as e:
+        gpu_blur.synthesize([path], make_scene())
+    assert str(path) in str(e.value)
+
+
+def test_a_truncated_jpeg_is_refused_though_opencv_would_decode_it_grey(tmp_path):
+    path = save(tmp_path / "cut.jpg", random_rgb())
+    data = path.read_bytes()
+    assert cv2.imread(str(path)) is not None
+    path.write_bytes(data[:len(data) // 2])
+    with pytest.raises(ValueError, match="truncated JPEG") as e:
+        read_image(path)
+    assert str(path) in str(e.value)
+    path.write_bytes(data + b"trailing bytes after the end-of-image marker are allowed")
+    assert read_image(path).shape == (24, 32, 3)
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"", "the file is empty"),
+    (b"this is not an image", "not a readable image"),
+])
+def test_empty_files_and_non_images_are_refused(tmp_path, content, message):
+    path = tmp_path / "x.png"
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match=message) as e:
+        read_image(path)
+    assert str(path) in str(e.value)
+    with pytest.raises(ValueError, match=f"{tmp_path / 'none.png'}: no such file"):
+        read_image(tmp_path / "none.png")
+
+
+def test_grayscale_is_expanded_to_three_equal_channels(tmp_path):
+    gray = random_rgb()[:, :, 0]
+    image = read_image(save(tmp_path / "gray.png", gray))
+    assert image.shape == (24, 32, 3) and all(np.array_equal(image[..., c], gray)
+                                              for c in range(3))
+    from_file = gpu_blur.synthesize([tmp_path / "gray.png"], make_scene(), seed=1)
+    from_array = gpu_blur.synthesize([np.repeat(gray[..., None], 3, axis=2)], make_scene(),
+                                     seed=1)
+    assert np.array_equal(from_file.blurred, from_array.blurred)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_an_opaque_alpha_channel_is_dropped(tmp_path, dtype):
+    rgb = random_rgb(dtype=dtype)
+    rgba = np.dstack([rgb, np.full(rgb.shape[:2], np.iinfo(dtype).max, dtype)])
+    image = read_image(save(tmp_path / "rgba.png", rgba))
+    assert image.dtype == dtype and np.array_equal(image, rgb)
+
+
+def test_transparent_pixels_are_refused_with_count_place_and_way_out(tmp_path):
+    rgba = np.dstack([random_rgb(), np.full((24, 32), 255, np.uint8)])
+    rgba[5, 7, 3] = 0
+    rgba[9, 1, 3] = 128
+    path = save(tmp_path / "cutout.png", rgba)
+    with pytest.raises(ValueError) as e:
+        gpu_blur.synthesize([path], make_scene())
+    message = str(e.value)
+    assert str(path) in message and "2 of 768 pixels are not fully opaque" in message
+    assert "first at row 5, column 7" in message and "flatten" in message
+
+
+def test_16_bit_pngs_are_read_as_16_bit_codes(tmp_path):
+    codes = random_rgb(3, dtype=np.uint16)
+    path = save(tmp_path / "deep.png", codes)
+    image = read_image(path)
+    assert image.dtype == np.uint16 and np.array_equal(image, codes)
+    scene = make_scene(output={"bits": 16})
+    from_file = gpu_blur.synthesize([path], scene, seed=2)
+    from_float = gpu_blur.synthesize([codes / 65535.0], scene, seed=2)
+    np.testing.assert_allclose(from_file.blurred, from_float.blurred, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(from_file.sharp, from_float.sharp, rtol=0, atol=1e-6)
+    # an 8-bit image and its 16-bit copy (code * 257) are the same values
+    eight = random_rgb(4)
+    a = gpu_blur.synthesize([save(tmp_path / "8.png", eight)], scene, seed=2)
+    b = gpu_blur.synthesize([save(tmp_path / "16.png", eight.astype(np.uint16) * 257)], scene,
+                            seed=2)
+    np.testing.assert_allclose(a.blurred, b.blurred, rtol=0, atol=1e-6)
+
+
+def test_frames_of_different_sizes_name_both_files(tmp_path):
+    frames = write_photos(tmp_path, 3)
+    save(frames[1], random_rgb(9, shape=(24, 30)))
+    with pytest.raises(ValueError) as e:
+        gpu_blur.synthesize(frames, make_scene(blur={"mode": "average", "frames": 3}))
+    message = str(e.value)
+    assert f"{frames[1]} is 30 x 24 (width x height) but {frames[0]} is 32 x 24" in message
+    assert "same size" in message
+
+
+# ---- arrays --------------------------------------------------------------------------------
+
+def test_nan_and_inf_in_a_float_array_are_counted_and_located():
+    image = np.full((8, 8, 3), 0.5)
+    image[1, 2, 0] = image[6, 6, 2] = np.nan
+    image[3, 4, 1] = np.inf
+    with pytest.raises(ValueError) as e:
+        gpu_blur.synthesize([image], make_scene())
+    message = str(e.value)
+    assert message.startswith("frame 0: 2 NaN and 1 infinite value(s), the first at row 1, "
+                              "column 2, channel 0")
+    assert "np.nan_to_num" in message
+
+
+def test_negative_and_too_large_floats_are_counted_and_located():
+    image = np.full((8, 8, 3), 0.5)
+    image[2, 3, 1], image[4, 0, 0], image[7, 7, 2] = -0.25, -1e-9, -0.1
+    with pytest.raises(ValueError) as e:
+        gpu_blur.synthesize([image], make_scene())
+    assert ("3 negative value(s), the lowest -0.25, the first at row 2, column 3, channel 1"
+            in str(e.value)) and "np.clip(x, 0, 1)" in str(e.value)
+    with pytest.raises(ValueError, match=r"blurred image: 192 value\(s\) above 1, the high") as e:
+        gpu_blur.synthesize({"blurred": np.full((8, 8, 3), 200.0)},
+                            make_scene(blur={"mode": "none"}))
+    assert "uint8" in str(e.value)
+
+
+@pytest.mark.parametrize("image, message", [
+    (np.zeros((8, 8)), "got shape (8, 8): for a grayscale image repeat it"),
+    (np.zeros((8, 8, 3), np.int64), "unsupported dtype int64"),
+    (np.zeros((0, 8, 3)), "the image is empty"),
+])
+def test_arrays_of_the_wrong_shape_or_type_say_what_is_expected(image, message):
+    with pytest.raises(ValueError, match="frame 0") as e:
+        gpu_blur.synthesize([image], make_scene())
+    assert message in str(e.value)
+
+
+# ---- scene, kernel, camera, Bayer pattern ----------------------------------------------------
+
+@pytest.mark.parametrize("data, message", [  # what tests/test_scene.py does not cover
+    ({"noise": {"spread": 1.5}}, "noise.spread = 1.5 is invalid; allowed: int or float <= 1"),
+    ({"blur": 3}, "blur must be a [blur] table"),
+    ({"blur": {"mode": "kernel", "kernel_size": [4, 4]}}, "holds no odd size"),
+    ({"isp": {"pattern": "RGBG"}}, "isp.pattern = 'RGBG' is invalid; allowed: 'random' | "
+                                   "'RGGB'"),
+])
+def test_more_bad_scene_values_are_named_with_what_is_allowed(data, message):
+    with pytest.raises(SceneError) as e:
+        scene_from_dict(data, "my.toml")
+    assert str(e.value).startswith("my.toml: ") and message in str(e.value)
+
+
+def test_generate_stops_at_an_unknown_scene_key_naming_the_file(tmp_path, capsys):
+    scene = tmp_path / "typo.toml"
+    scene.write_text("[blur]\nstep = 3\n")
+    assert main(["generate", "--output", str(tmp_path / "o"), "--scene", str(scene)]) == 2
+    err = capsys.readouterr().err
+    assert f"scene file {scene}: unknown key blur.step" in err and "steps" in err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("kernel, message", [
+    (np.zeros((5, 5)), "its weights sum to 0; a blur kernel needs some positive weight"),
+    (np.array([[0, 1, 0], [0, 2, 0], [0, -1, 0]], float),
+     "holds 1 negative weight(s), the lowest -1; a blur kernel is non-negative: clip them"),
+    (np.full((3, 3), np.nan), "holds 9 NaN or infinite weight(s)"),
+    (np.ones((4, 4)), "is 4 x 4; a kernel needs odd sides"),
+], ids=["zero-sum", "negative", "nan", "even"])
+def test_a_bad_kernel_file_is_named(tmp_path, capsys, kernel, message):
+    np.save(tmp_path / "k.npy", kernel)
+    scene_file = tmp_path / "s.toml"
+    scene_file.write_text('[blur]\nmode = "kernel"\nkernel = "k.npy"\n')
+    with pytest.raises(ValueError) as e:
+        gpu_blur.synthesize([random_rgb()], load_scene(scene_file))
+    assert f"blur.kernel = '{tmp_path / 'k.npy'}'" in str(e.value) and message in str(e.value)
+    # the command fails before making any sample (every sample would fail alike)
+    photos = tmp_path / "in"
+    write_photos(photos, 2)
+    out = tmp_path / "out"
+    assert main(["generate", "--input", str(photos), "--output", str(out), "--scene",
+                 str(scene_file), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"scene file {scene_file}: blur.kernel" in err and message in err
+    assert not out.exists()
+
+
+def test_a_bad_kernel_override_is_named():
+    scene = make_scene(blur={"mode": "kernel"}, noise={"model": "none"})
+    with pytest.raises(ValueError, match=r"overrides\['kernel'\]: holds 9 negative weight"):
+        gpu_blur.synthesize([random_rgb()], scene, overrides={"kernel": -np.ones((3, 3))})
+
+
+def test_an_unknown_camera_lists_the_cameras_there_are(tmp_path, capsys):
+    with pytest.raises(ValueError) as e:
+        gpu_blur.synthesize([random_rgb()], make_scene(camera={"name": "nikon"}))
+    assert "camera.name = 'nikon': unknown camera 'nikon'" in str(e.value)
+    assert "a7r3" in str(e.value) and ".toml/.json camera file" in str(e.value)
+    scene_file = tmp_path / "s.toml"
+    scene_file.write_text('[camera]\nname = "mine.toml"\n')
+    assert main(["generate", "--output", str(tmp_path / "out"), "--scene", str(scene_file),
+                 "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"scene file {scene_file}: camera.name = 'mine.toml'" in err
+    assert f"camera file {tmp_path / 'mine.toml'}: cannot read it" in err
+
+
+def test_an_unknown_bayer_pattern_override_lists_the_patterns():
+    with pytest.raises(ValueError) as e:
+        gpu_blur.synthesize([random_rgb()], make_scene(), overrides={"pattern": "RGBG"})
+    assert "overrides['pattern'] = 'RGBG' is not a Bayer pattern; allowed: RGGB | BGGR" in str(
+        e.value)
+    lower = gpu_blur.synthesize([random_rgb()], make_scene(), overrides={"pattern": "bggr"})
+    assert lower.params["pattern"] == "BGGR"
+
+
+# ---- the command: setup errors stop it, bad samples do not ------------------------------------
+
+def test_an_output_folder_that_cannot_be_created_stops_the_command(tmp_path, capsys):
+    write_photos(tmp_path / "in", 1)
+    (tmp_path / "file").write_text("a file, not a folder")
+    out = tmp_path / "file" / "sub"  # fails for every user, root included
+    assert main(["generate", "--input", str(tmp_path / "in"), "--output", str(out),
+                 "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"--output {out}: cannot create or write the folder" in err and "writable" in err
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0,
+                    reason="root writes into read-only folders (the test above covers root)")
+def test_a_read_only_output_folder_stops_the_command(tmp_path, capsys):
+    write_photos(tmp_path / "in", 1)
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        assert main(["generate", "--input", str(tmp_path / "in"), "--output", str(locked),
+                     "--quiet"]) == 2
+    finally:
+        locked.chmod(0o700)
+    assert f"--output {locked}: cannot create or write the folder" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda p: p.mkdir(), "the folder is empty"),
+    (lambda p: None, "no such folder"),
+    (lambda p: p.write_text("x"), "is a file, not a folder"),
+    (lambda p: (p / "notes").mkdir(parents=True), "no images (.png"),
+])
+def test_an_input_without_images_stops_the_command(tmp_path, capsys, make, message):
+    make(tmp_path / "in")
+    assert main(["generate", "--input", str(tmp_path / "in"), "--output",
+                 str(tmp_path / "out"), "--quiet"]) == 2
+    assert f"--input {tmp_path / 'in'}: {message}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--seed", "-1"], "--seed -1: must lie in [0, 2**64)"),
+    (["--tile", "0", "64"], "--tile 0 64: rows and columns must be >= 1"),
+])
+def test_bad_options_stop_the_command_before_any_sample(tmp_path, capsys, args, message):
+    write_photos(tmp_path / "in", 1)
+    assert main(["generate", "--input", str(tmp_path / "in"), "--output",
+                 str(tmp_path / "out"), "--quiet", *args]) == 2
+    assert message in capsys.readouterr().err and not (tmp_path / "out").exists()
+
+
+def test_bad_photos_are_listed_as_failed_and_the_good_ones_are_made(tmp_path, capsys):
+    photos = write_photos(tmp_path / "in", 4)
+    photos[1].write_bytes(photos[1].read_bytes()[:100])
+    save(photos[2], np.dstack([random_rgb(), np.zeros((24, 32), np.uint8)]))
+    scene = tmp_path / "s.toml"
+    scene.write_text("[blur]\nsteps = 3\n")
+    out = tmp_path / "out"
+    assert main(["generate", "--input", str(tmp_path / "in"), "--output", str(out),
+                 "--scene", str(scene), "--quiet"]) == 1
+    lines = manifest(out)
+    assert [(x["index"], x["name"], x["status"]) for x in lines] == [
+        (0, "p0", "ok"), (1, "p1", "failed"), (2, "p2", "failed"), (3, "p3", "ok")]
+    assert lines[1]["inputs"] == [str(photos[1])] and "truncated PNG" in lines[1]["error"]
+    assert "not fully opaque" in lines[2]["error"] and "blurred" not in lines[2]
+    assert sorted(p.name for p in (out / "blur").iterdir()) == ["000000_p0.png",
+                                                                "000003_p3.png"]
+    captured = capsys.readouterr()
+    assert "wrote 2 samples" in captured.out
+    assert "2 of 4 samples failed" in captured.err and "--resume" in captured.err
+    assert f"sample 1 (p1): {photos[1]}: truncated PNG" in captured.err
+
+
+def test_bad_sequences_are_listed_as_failed_and_the_good_ones_are_made(tmp_path, capsys):
+    root = tmp_path / "in"
+    write_photos(root / "A" / "sharp", 6)
+    odd = write_photos(root / "B" / "sharp", 3, first_seed=10)
+    save(odd[2], random_rgb(shape=(24, 30)))
+    write_photos(root / "C" / "sharp", 2, first_seed=20)  # fewer than blur.frames
+    write_photos(root / "D" / "sharp", 3, first_seed=30)
+    scene = tmp_path / "s.toml"
+    scene.write_text('[blur]\nmode = "average"\nframes = 3\n')
+    out = tmp_path / "out"
+    assert main(["generate", "--input", str(root), "--output", str(out), "--scene",
+                 str(scene), "--quiet"]) == 1
+    lines = manifest(out)
+    assert [(x["name"], x["status"]) for x in lines] == [
+        ("A/p0", "ok"), ("A/p3", "ok"), ("B/p0", "failed"), ("C/p0", "failed"), ("D/p0", "ok")]
+    assert f"{odd[2]} is 30 x 24 (width x height)" in lines[2]["error"]
+    assert lines[3]["error"].startswith("sequence C has 2 frame(s) in ")
+    assert "fewer than blur.frames = 3" in lines[3]["error"] and len(lines[3]["inputs"]) == 2
+    assert "2 of 5 samples failed" in capsys.readouterr().err
+
+
+def test_only_too_short_sequences_stop_the_command(tmp_path, capsys):
+    write_photos(tmp_path / "in" / "A" / "sharp", 2)
+    scene = tmp_path / "s.toml"
+    scene.write_text('[blur]\nmode = "average"\nframes = 3\n')
+    assert main(["generate", "--input", str(tmp_path / "in"), "--output",
+                 str(tmp_path / "out"), "--scene", str(scene), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "no <seq>/sharp/ folder with at least 3 images (blur.frames); A has 2" in err

@@ -1,0 +1,196 @@
+"""A killed or partly failed ``gpu-blur generate`` resumes to exactly the set an uninterrupted
+run makes, without touching finished samples (issue 5)."""
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from gpu_blur.cli import TEST_SLEEP_AFTER, main
+from gpu_blur.dataset import DatasetWriter
+
+SETS = ("blur", "sharp", "params")
+
+
+@pytest.fixture
+def photos(tmp_path):
+    """Two small photos and a fast scene: 8 samples with --samples-per-photo 4."""
+    folder = tmp_path / "in"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for name in ("a", "b"):
+        cv2.imwrite(str(folder / f"{name}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    scene = tmp_path / "s.toml"
+    scene.write_text("[blur]\nsteps = 3\n")  # the full default chain, 3 camera poses
+    return folder, scene
+
+
+def args(photos, out, *extra):
+    folder, scene = photos
+    return ["generate", "--input", str(folder), "--output", str(out), "--scene", str(scene),
+            "--samples-per-photo", "4", "--quiet", *extra]
+
+
+def manifest_lines(out):
+    """Every manifest line parsed (a torn line fails here), sorted by index."""
+    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    return sorted(lines, key=lambda x: x["index"])
+
+
+def files(out):
+    return {p.relative_to(out).as_posix(): p.read_bytes()
+            for sub in SETS for p in sorted((out / sub).iterdir())}
+
+
+def stamps(out, lines):
+    """(mtime in ns, inode) of each file of the given manifest lines: a rewrite changes both."""
+    paths = [out / x[k] for x in lines for k in ("blurred", "sharp", "arrays")]
+    return {p: (p.stat().st_mtime_ns, p.stat().st_ino) for p in paths}
+
+
+def complete_lines(path):
+    text = path.read_text() if path.exists() else ""
+    return text.count("\n")
+
+
+def test_a_killed_run_resumes_to_the_set_an_uninterrupted_run_makes(tmp_path, photos):
+    reference = tmp_path / "reference"
+    assert main(args(photos, reference)) == 0
+    expected = manifest_lines(reference)
+    assert len(expected) == 8
+
+    out = tmp_path / "out"
+    log = (tmp_path / "killed.log").open("w")
+    env = {**os.environ, TEST_SLEEP_AFTER: "2"}  # it sleeps once sample 2 is recorded
+    run = subprocess.Popen([sys.executable, "-m", "gpu_blur.cli", *args(photos, out)],
+                           env=env, stdout=log, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 60
+        while complete_lines(out / "manifest.jsonl") < 3:
+            assert run.poll() is None, (tmp_path / "killed.log").read_text()
+            assert time.monotonic() < deadline, "the run never reached sample 2"
+            time.sleep(0.05)
+        assert run.poll() is None  # asleep after sample 2: killed mid-way
+    finally:
+        run.kill()  # SIGKILL
+        run.wait()
+        log.close()
+    done = manifest_lines(out)
+    assert [x["index"] for x in done] == [0, 1, 2] and done == expected[:3]
+    before = stamps(out, done)
+
+    # what a kill at a worse moment leaves: a torn last line, a temporary file, and the next
+    # sample's image written (complete or not) without its manifest line
+    with (out / "manifest.jsonl").open("a") as f:
+        f.write(json.dumps(expected[3])[:60])
+    (out / "blur" / f".{os.path.basename(expected[3]['blurred'])}.part.png").write_bytes(b"x")
+    (out / "params" / ".000003.part.npz").write_bytes(b"x")  # as earlier versions named it
+    (out / expected[3]["blurred"]).write_bytes(b"\x89PNG half an image")
+
+    assert main(args(photos, out, "--resume")) == 0
+    assert stamps(out, done) == before  # finished samples untouched
+    assert manifest_lines(out) == expected
+    assert files(out) == files(reference)  # byte for byte, and no stray temporary file
+
+
+def test_resume_retries_failed_samples_and_keeps_the_rest(tmp_path, photos, capsys):
+    folder, _ = photos
+    good = (folder / "b.png").read_bytes()
+    (folder / "b.png").write_bytes(good[:50])
+    out = tmp_path / "out"
+    assert main(args(photos, out)) == 1
+    first = manifest_lines(out)
+    assert [x["status"] for x in first] == ["ok"] * 4 + ["failed"] * 4
+    assert "truncated PNG" in first[4]["error"]
+    assert main(args(photos, out, "--resume")) == 1  # still broken: tried again, still listed
+    assert manifest_lines(out) == first
+    before = stamps(out, first[:4])
+    capsys.readouterr()
+
+    (folder / "b.png").write_bytes(good)
+    assert main(args(photos, out, "--resume")) == 0
+    assert "4 of 8 samples done, 4 to make (4 failed before" in capsys.readouterr().out
+    assert stamps(out, first[:4]) == before
+    reference = tmp_path / "reference"
+    assert main(args(photos, reference)) == 0
+    assert manifest_lines(out) == manifest_lines(reference)
+    assert files(out) == files(reference)
+
+
+def test_resuming_a_finished_set_changes_nothing_and_an_empty_folder_starts_one(tmp_path,
+                                                                              photos):
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--resume", "--limit", "2")) == 0  # nothing there yet
+    lines = manifest_lines(out)
+    before, text = stamps(out, lines), (out / "manifest.jsonl").read_text()
+    assert main(args(photos, out, "--resume", "--limit", "2")) == 0
+    assert stamps(out, lines) == before and (out / "manifest.jsonl").read_text() == text
+    assert main(args(photos, out, "--resume", "--limit", "3")) == 0  # a larger limit adds
+    assert [x["index"] for x in manifest_lines(out)] == [0, 1, 2]
+
+
+@pytest.mark.parametrize("change, message", [
+    (["--seed", "7"], "another --seed: seed = 0 (this run: 7)"),
+    (["--samples-per-photo", "2"], "another --samples-per-photo: samples_per_photo = 4 "
+                                   "(this run: 2)"),
+    ("scene", "another --scene: scene key noise.model = 'poisson-gaussian' (this run: 'none')"),
+    ("input", "another --input: input = "),
+])
+def test_resume_refuses_a_run_with_other_settings(tmp_path, photos, capsys, change, message):
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--limit", "1")) == 0
+    text = (out / "manifest.jsonl").read_text()
+    folder, scene = photos
+    if change == "scene":
+        scene.write_text('[blur]\nsteps = 3\n[noise]\nmodel = "none"\n')
+        change = []
+    elif change == "input":
+        other = tmp_path / "other"
+        other.mkdir()
+        (other / "a.png").write_bytes((folder / "a.png").read_bytes())
+        change, photos = [], (other, scene)
+    capsys.readouterr()
+    assert main(args(photos, out, "--limit", "1", "--resume", *change)) == 2
+    err = capsys.readouterr().err
+    assert message in err and f"resume with the settings in {out / 'run.json'}" in err
+    assert (out / "manifest.jsonl").read_text() == text
+
+
+def test_resume_refuses_another_backend(tmp_path):
+    run = {"seed": 0, "scene": {}, "backend": "numpy", "input": "in", "samples_per_photo": 1}
+    DatasetWriter(tmp_path, 8, run).close()
+    with pytest.raises(ValueError, match="another --backend: backend = 'numpy' "
+                                         r"\(this run: 'opencl'\)"):
+        DatasetWriter(tmp_path, 8, {**run, "backend": "opencl"}, resume=True)
+
+
+def test_resume_refuses_when_the_input_folder_changed_under_the_indices(tmp_path, photos,
+                                                                        capsys):
+    out = tmp_path / "out"
+    assert main(args(photos, out)) == 0
+    folder, _ = photos
+    (folder / "a.png").rename(folder / "c.png")  # b's samples now come first
+    failed_before = (out / "manifest.jsonl").read_text()
+    assert main(args(photos, out, "--resume")) == 2
+    err = capsys.readouterr().err
+    assert "sample 0 of" in err and "is 'a_0'" in err and "now gives 'b_0'" in err
+    assert "the input folder changed" in err
+    assert (out / "manifest.jsonl").read_text() == failed_before
+
+
+def test_an_existing_set_needs_resume_or_overwrite(tmp_path, photos, capsys):
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--limit", "1")) == 0
+    assert main(args(photos, out, "--limit", "1")) == 2
+    err = capsys.readouterr().err
+    assert "--resume to finish that set" in err and "--overwrite to replace it" in err
+    (out / "run.json").unlink()
+    assert main(args(photos, out, "--limit", "1", "--resume")) == 2
+    assert "run.json is missing" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # argparse: not allowed together
+        main(args(photos, out, "--resume", "--overwrite"))
