@@ -276,13 +276,17 @@ class OpenCLBackend:
         n = region.h * region.w * 3
         shape = (region.h, region.w, 3)
         if mode == "average":
-            total, saturated = self._zeros(n), self._zeros(n, np.uint32)
+            # a compensated sum (the sum and its rounding errors) and the saturation counts
+            total, compensation = self._zeros(n), self._zeros(n)
+            saturated = self._zeros(n, np.uint32)
+            count = 0
             for frame in frames:  # one frame on the device at a time
                 prg.gb_blur_average_add(self.queue, (n,), None, self._upload(region.of(frame)),
-                                        total, saturated)
+                                        total, compensation, saturated)
+                count += 1
             linear, sat_mask = self._zeros(n), self._zeros(n)
-            prg.gb_blur_average_finish(self.queue, (n,), None, total, saturated,
-                                       np.uint32(len(frames)), linear, sat_mask)
+            prg.gb_blur_average_finish(self.queue, (n,), None, total, compensation, saturated,
+                                       np.uint32(count), linear, sat_mask)
             return self._download(linear, shape), self._download(sat_mask, shape)
         if mode == "none":
             linear, indicator = self._zeros(n), self._zeros(n)
@@ -310,15 +314,16 @@ class OpenCLBackend:
             prg.gb_blur_kernel(self.queue, grid, None, indicator, *geometry, k, kh, kw,
                                sat_mask, *out_geometry)
             return self._download(linear, shape), self._download(sat_mask, shape)
-        total, total_ind = self._zeros(n), self._zeros(n)
+        # compensated sums of the image and of its indicator: (sum, compensation) each
+        sums = [self._zeros(n) for _ in range(4)]
         pos = np.float64 if self.info.fp64 else np.float32
         hom = params["homographies"]
         for h in hom:  # one pose at a time
             hinv = self._constant(np.linalg.inv(h), pos)
             prg.gb_blur_trajectory_add(self.queue, grid, None, src, indicator, *geometry, hinv,
-                                       total, total_ind, *out_geometry)
-        prg.gb_blur_trajectory_finish(self.queue, (n,), None, total, total_ind,
-                                      np.uint32(len(hom)), linear, sat_mask)
+                                       *sums, *out_geometry)
+        prg.gb_blur_trajectory_finish(self.queue, (n,), None, *sums, np.uint32(len(hom)),
+                                      linear, sat_mask)
         return self._download(linear, shape), self._download(sat_mask, shape)
 
     # -- pass 2: to_raw ----------------------------------------------------------------------

@@ -23,6 +23,10 @@ from gpu_blur.tiling import Region
 
 wp.config.log_level = wp.LOG_WARNING  # no banner or per-module load lines
 
+#: Warp arrays have int32 shapes, and the kernels index with Warp ``int``: one buffer holds at
+#: most this many values (an RGB region ~715 M pixels). OpenCL kernels index with 64 bits.
+MAX_BUFFER_VALUES = 2**31 - 1
+
 
 def warp_devices() -> list[dict]:
     """Warp's devices as ``gpu-blur devices`` lists them."""
@@ -63,11 +67,23 @@ class WarpBackend:
         self.device = f"warp:{self.wp_device} {name}, {precision}"
 
     # -- buffers -----------------------------------------------------------------------------
+    @staticmethod
+    def _check_size(count: int) -> None:
+        """Refuse, before any allocation, a buffer larger than Warp's int32 indices reach."""
+        if count > MAX_BUFFER_VALUES:
+            raise ValueError(
+                f"a Warp buffer of {count:,} values: Warp indexes arrays with 32-bit integers "
+                f"(at most {MAX_BUFFER_VALUES:,} values, about 715 M RGB pixels); run the "
+                "image in tiles (synthesize(..., tile=(4096, 4096)), gpu-blur generate --tile "
+                "4096 4096) or on an OpenCL backend")
+
     def _array(self, values, dtype=None) -> wp.array:
+        self._check_size(int(np.size(values)))
         data = np.ascontiguousarray(np.ravel(values), dtype=dtype or self.np_real)
         return wp.array(data, device=self.wp_device)
 
     def _zeros(self, count: int, dtype=None) -> wp.array:
+        self._check_size(count)
         return wp.zeros(max(count, 1), dtype=dtype or self.real, device=self.wp_device)
 
     def _launch(self, kernel, dim, *args) -> None:
@@ -88,13 +104,17 @@ class WarpBackend:
         n = region.h * region.w * 3
         shape = (region.h, region.w, 3)
         if mode == "average":
-            total, saturated = self._zeros(n), self._zeros(n, wp.uint32)
+            # a compensated sum (the sum and its rounding errors) and the saturation counts
+            total, compensation = self._zeros(n), self._zeros(n)
+            saturated = self._zeros(n, wp.uint32)
+            count = 0
             for frame in frames:  # one frame on the device at a time
                 self._launch(k["blur_average_add"], n, self._array(region.of(frame)), total,
-                             saturated)
+                             compensation, saturated)
+                count += 1
             linear, sat_mask = self._zeros(n), self._zeros(n)
-            self._launch(k["blur_average_finish"], n, total, saturated, len(frames), linear,
-                         sat_mask)
+            self._launch(k["blur_average_finish"], n, total, compensation, saturated, count,
+                         linear, sat_mask)
             return self._host(linear, shape), self._host(sat_mask, shape)
         if mode == "none":
             linear, indicator = self._zeros(n), self._zeros(n)
@@ -116,14 +136,14 @@ class WarpBackend:
                 self._launch(k["blur_kernel"], grid, image, *geometry, kw, kh, kwid, out,
                              region.x0, region.y0, region.w)
             return self._host(linear, shape), self._host(sat_mask, shape)
-        total, total_ind = self._zeros(n), self._zeros(n)
+        # compensated sums of the image and of its indicator: (sum, compensation) each
+        sums = [self._zeros(n) for _ in range(4)]
         hom = params["homographies"]
         for h in hom:  # one pose at a time
             self._launch(k["blur_trajectory_add"], grid, src, indicator, *geometry,
-                         self._array(np.linalg.inv(h), np.float64), total, total_ind,
-                         region.x0, region.y0, region.w)
-        self._launch(k["blur_trajectory_finish"], n, total, total_ind, len(hom), linear,
-                     sat_mask)
+                         self._array(np.linalg.inv(h), np.float64), *sums, region.x0,
+                         region.y0, region.w)
+        self._launch(k["blur_trajectory_finish"], n, *sums, len(hom), linear, sat_mask)
         return self._host(linear, shape), self._host(sat_mask, shape)
 
     # -- pass 2: to_raw ----------------------------------------------------------------------

