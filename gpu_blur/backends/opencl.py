@@ -228,6 +228,10 @@ class OpenCLBackend:
         flags = [f"-D{k}={v}" for k, v in sorted(defines.items())]
         options = ["-I", str(kernel_dir() / "include"), "-I",
                    str(Path(cl.__file__).parent / "cl"), *flags]
+        if self.cl_device.single_fp_config & cl.device_fp_config.CORRECTLY_ROUNDED_DIVIDE_SQRT:
+            # float division and sqrt rounded as in numpy (OpenCL otherwise allows 2.5 / 3 ulp,
+            # which NVIDIA's OpenCL uses): mean counts k / n then match the reference exactly
+            options.append("-cl-fp32-correctly-rounded-divide-sqrt")
         try:
             with warnings.catch_warnings():  # a banner or warnings; failures raise below
                 warnings.simplefilter("ignore", cl.CompilerWarning)
