@@ -103,7 +103,7 @@ def _generate(args) -> int:
 
     from gpu_blur.backends import get_backend
     from gpu_blur.dataset import DatasetWriter, discover
-    from gpu_blur.pipeline import synthesize
+    from gpu_blur.generate import Job, run_serial
     from gpu_blur.scene import load_scene
 
     scene = load_scene(args.scene)
@@ -129,15 +129,12 @@ def _generate(args) -> int:
     failed, made = [], 0
     start = time.perf_counter()
     try:
-        for spec in tqdm(todo, desc="samples", unit="sample", disable=args.quiet):
-            try:
-                if spec.problem:
-                    raise ValueError(spec.problem)
-                result = synthesize(list(spec.inputs), scene, seed=args.seed,
-                                    sample_index=spec.index, backend=backend,
-                                    tile=tuple(args.tile) if args.tile else None)
-            except (ValueError, OSError) as e:  # this sample's input: record it, go on
-                failed.append(writer.fail(spec, str(e), record))
+        job = Job(scene, args.seed, args.backend, tuple(args.tile) if args.tile else None)
+        samples = run_serial(job, todo)
+        for spec, result, error in tqdm(samples, total=len(todo), desc="samples",
+                                        unit="sample", disable=args.quiet):
+            if error is not None:  # this sample's input: record it, go on
+                failed.append(writer.fail(spec, error, record))
             else:
                 try:
                     writer.write(spec, result, record)
