@@ -51,11 +51,40 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--backend", default="numpy", help="numpy (float64 reference), opencl "
                    "(first usable device, GPUs first), opencl:<platform>:<device>, warp (CUDA "
                    "if present, else CPU), warp:cpu or warp:cuda:<n>; see `gpu-blur devices`")
+    spread = g.add_mutually_exclusive_group()
+    spread.add_argument("--devices", metavar="LIST", help="one worker process per device of "
+                        "this host: 'all' (every usable device of --backend: OpenCL GPUs, "
+                        "else OpenCL devices; Warp's CUDA devices, else its CPU; numpy: one "
+                        "per CPU core) or a comma list of --backend's devices, repeatable "
+                        "(opencl:0:0,opencl:0:1; numpy,numpy); same files as one process")
+    spread.add_argument("--ray", metavar="ADDRESS", help="tasks on a Ray cluster: 'auto' (the "
+                        "running cluster: RAY_ADDRESS or `ray start`'s, else a new local one) "
+                        "or an address for ray.init (host:6379, ray://host:10001); inputs and "
+                        "gpu_blur at the same paths on every node; pip install 'gpu_blur[ray]'")
+    g.add_argument("--gpus-per-task", type=float, metavar="G", help="with --ray: GPUs each "
+                   "task asks for (default 1 when --backend runs on an NVIDIA GPU, else 0)")
+    g.add_argument("--retries", type=int, metavar="N", help="with --ray: times a failed task "
+                   "(lost worker or node) is run again before the run stops (default 3)")
+    g.add_argument("--ray-batch", type=int, metavar="K", help="with --ray: samples per task "
+                   "(default 1; 32 on GPUs, where each task starts a fresh process)")
     g.add_argument("--tile", type=int, nargs=2, metavar=("ROWS", "COLS"),
                    help="run each image in tiles of at most ROWS x COLS (bounds device memory; "
                    "the output does not change)")
+    g.add_argument("--max-device-memory", metavar="BYTES", help="device memory one tile's "
+                   "passes may hold (e.g. 512M, 2G; K/M/G binary): images that need more run "
+                   "in the largest tiles that fit, halos included (--tile wins); the output "
+                   "does not change")
+    g.add_argument("--verify", type=float, default=0.0, metavar="FRACTION",
+                   help="recompute this fraction of tiles (0 to 1, chosen from seed and sample "
+                   "index) with the numpy reference and compare under the tolerance table; a "
+                   "mismatch fails that sample (default 0: off)")
+    g.add_argument("--strict", action="store_true", help="with --verify: stop the run at the "
+                   "first spot-check mismatch (exit status 2)")
     g.add_argument("--samples-per-photo", type=int, default=None, metavar="K",
                    help="samples drawn from each photo (default 1; 4 for the built-in photo)")
+    g.add_argument("--samples-per-sequence", type=int, default=None, metavar="K",
+                   help="blur.mode = average: K windows per sequence, spread evenly from first "
+                   "to last (overlapping when needed; default: every non-overlapping window)")
     g.add_argument("--limit", type=int, default=None, metavar="N", help="make at most N samples")
     again = g.add_mutually_exclusive_group()
     again.add_argument("--overwrite", action="store_true",
@@ -87,6 +116,20 @@ def _check_setup(args, scene) -> None:
     if (args.samples_per_photo is not None and args.samples_per_photo < 1) or (
             args.limit is not None and args.limit < 1):
         raise ValueError("--samples-per-photo and --limit must be >= 1")
+    if args.samples_per_sequence is not None and args.samples_per_sequence < 1:
+        raise ValueError(f"--samples-per-sequence {args.samples_per_sequence}: must be >= 1")
+    if not 0.0 <= args.verify <= 1.0:
+        raise ValueError(f"--verify {args.verify}: the fraction of tiles to check, 0 to 1")
+    if args.strict and not args.verify:
+        raise ValueError("--strict stops the run at the first spot-check mismatch; give "
+                         "--verify FRACTION too")
+    if args.max_device_memory is not None:
+        from gpu_blur.plan import plan
+        from gpu_blur.scheduler import check_budget
+
+        numpy = args.backend.split(":")[0] == "numpy"
+        check_budget(args.max_device_memory, plan(scene),
+                     "float64" if numpy else scene.output.precision)
     scene_camera(scene)  # an unknown camera name or a bad camera file
     if scene.blur.mode == "kernel" and scene.blur.kernel:
         path = Path(scene.blur.kernel)
@@ -103,19 +146,24 @@ def _generate(args) -> int:
 
     from gpu_blur.backends import get_backend
     from gpu_blur.dataset import DatasetWriter, discover
-    from gpu_blur.generate import Job, run_serial
+    from gpu_blur.distributed import pick_executor
+    from gpu_blur.generate import Job
     from gpu_blur.scene import load_scene
+    from gpu_blur.scheduler import SPOT_CHECK_FAILED, Schedule
+    from gpu_blur.timings import RunTotals, current, timer
 
     scene = load_scene(args.scene)
     backend = get_backend(args.backend, scene.output.precision)  # fails before any work
     _check_setup(args, scene)
+    executor = pick_executor(args, scene.output.precision)  # serial, --devices or --ray
     per_photo = args.samples_per_photo or (1 if args.input else 4)
-    specs = discover(args.input, scene.blur.mode, scene.blur.frames, per_photo)
+    specs = discover(args.input, scene.blur.mode, scene.blur.frames, per_photo,
+                     args.samples_per_sequence)
     specs = specs[:args.limit] if args.limit else specs
     run = {"gpu_blur": __version__, "seed": args.seed, "backend": args.backend,
            "device": backend.device,
            "input": str(args.input) if args.input else "built-in: coffee.png",
-           "samples_per_photo": per_photo,
+           "samples_per_photo": per_photo, "samples_per_sequence": args.samples_per_sequence,
            "scene_file": str(args.scene) if args.scene else None, "scene": scene.to_dict()}
     writer = DatasetWriter(args.output, scene.output.bits, run, overwrite=args.overwrite,
                            resume=args.resume, specs=specs)
@@ -127,17 +175,28 @@ def _generate(args) -> int:
     record = {"seed": args.seed, "backend": args.backend, "device": backend.device}
     sleep_after = os.environ.get(TEST_SLEEP_AFTER)
     failed, made = [], 0
+    totals, writing = RunTotals(), current().seconds["writing"]
     start = time.perf_counter()
     try:
-        job = Job(scene, args.seed, args.backend, tuple(args.tile) if args.tile else None)
-        samples = run_serial(job, todo)
+        # the Schedule rides in Job.tile (tile, memory budget, spot checks; see pipeline)
+        schedule = Schedule(tuple(args.tile) if args.tile else None, args.max_device_memory,
+                            args.verify)
+        job = Job(scene, args.seed, args.backend, schedule)
+        samples = executor(job, todo)
         for spec, result, error in tqdm(samples, total=len(todo), desc="samples",
                                         unit="sample", disable=args.quiet):
             if error is not None:  # this sample's input: record it, go on
                 failed.append(writer.fail(spec, error, record))
+                if args.strict and error.startswith(SPOT_CHECK_FAILED):
+                    print(f"gpu-blur: error: --strict: sample {spec.index} ({spec.name}): "
+                          f"{error}; the run stopped (samples made so far are kept; --resume "
+                          "goes on)", file=sys.stderr)
+                    return 2
             else:
+                totals.add(result.timings)
                 try:
-                    writer.write(spec, result, record)
+                    with timer("writing"):
+                        writer.write(spec, result, record)
                 except OSError as e:
                     raise OSError(f"sample {spec.index} ({spec.name}): {e}; the samples "
                                   "finished so far are kept: fix the output folder and run the "
@@ -153,8 +212,10 @@ def _generate(args) -> int:
         writer.close()
     took = time.perf_counter() - start
     done = f", {len(writer.done)} were done before" if writer.done else ""
-    print(f"wrote {made} samples to {args.output} in {took:.1f} s ({made / max(took, 1e-9):.2f} "
-          f"samples/s){done}; manifest: {writer.manifest_path}")
+    print(f"wrote {made} samples ({len(failed)} failed) to {args.output} in {took:.1f} s "
+          f"({made / max(took, 1e-9):.2f} samples/s){done}; manifest: {writer.manifest_path}")
+    totals.add({"writing": current().seconds["writing"] - writing})
+    print("\n".join(totals.summary(took)))
     if not failed:
         return 0
     print(f"gpu-blur: {len(failed)} of {len(todo)} samples failed; each is in the manifest with "

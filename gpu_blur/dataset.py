@@ -19,7 +19,8 @@ RUN = "run.json"
 #: run.json keys a resumed run must share with the set it finishes, with the option that sets
 #: each (everything that decides a sample's inputs, draws or pixels; not --tile or --limit).
 RESUME_KEYS = {"seed": "--seed", "scene": "--scene", "backend": "--backend",
-               "input": "--input", "samples_per_photo": "--samples-per-photo"}
+               "input": "--input", "samples_per_photo": "--samples-per-photo",
+               "samples_per_sequence": "--samples-per-sequence"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,32 +49,79 @@ def _images(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
 
 
+def _sequence_name(folder: Path, root: Path) -> str:
+    """A sequence's name: its folder relative to ``root``, or ``root``'s name when it is root."""
+    return root.name if folder == root else folder.relative_to(root).as_posix()
+
+
+def _is_rsblur_sample(folder: Path) -> bool:
+    """Whether ``folder`` is an RSBlur-style ``<session>/<id>/`` folder: both names digits."""
+    return folder.name.isdigit() and folder.parent.name.isdigit()
+
+
 def find_sequences(root: Path) -> list[tuple[str, list[Path]]]:
-    """GoPro-style sequences: every ``.../<seq>/sharp/`` folder under ``root``, sorted.
+    """Frame sequences under ``root``, GoPro-style and RSBlur-style, sorted by name.
+
+    * GoPro-style: every ``.../<seq>/sharp/`` folder; its images are the sequence
+      (``GOPRO_Large/train/GOPR0372_07_00/sharp/000047.png``); named ``<seq>``.
+    * RSBlur-style: every ``.../<session>/<id>/`` folder whose two names are digits (RSBlur's
+      ``0001/000001``) and that holds images itself: those images are the sequence, the
+      sharp frames of one real blurred image (RSBlur_sharps gives 9 per image). Its
+      subfolders (``avg65_img/``, ``avg65_mask_100/``, ``gt/``, ``real_blur/``) are not
+      frames and are never read; named ``<session>/<id>``. ``root`` itself counts when it
+      is such a folder.
 
     Returns:
         (sequence name relative to root, its frames sorted by file name) pairs.
     """
-    seqs = []
+    seqs = {}  # the frames' folder (which orders the sequences) -> (name, frames)
+    named = set()
     for sharp in sorted(root.rglob("sharp")):
         if sharp.is_dir():
             frames = _images(sharp)
             if frames:
-                seqs.append((sharp.parent.relative_to(root).as_posix() or root.name, frames))
-    return seqs
+                named.add(sharp.parent)
+                seqs[sharp] = _sequence_name(sharp.parent, root), frames
+    for folder in [root, *sorted(root.rglob("*"))]:
+        if folder not in named and folder.is_dir() and _is_rsblur_sample(folder):
+            frames = _images(folder)
+            if frames:
+                seqs[folder] = _sequence_name(folder, root), frames
+    return [seqs[k] for k in sorted(seqs)]
+
+
+def _windows(count: int, size: int, per_sequence: int | None) -> list[int]:
+    """First frames of a sequence's windows (see :func:`discover`)."""
+    if per_sequence is None:
+        return list(range(0, count - size + 1, size))
+    last = count - size
+    if per_sequence == 1:
+        return [0]
+    return [round(j * last / (per_sequence - 1)) for j in range(per_sequence)]
 
 
 def discover(root: Path | None, mode: str, frames_per_sample: int,
-             samples_per_photo: int = 1) -> list[SampleSpec]:
+             samples_per_photo: int = 1,
+             samples_per_sequence: int | None = None) -> list[SampleSpec]:
     """The samples a folder yields for a blur mode.
 
     Args:
         root: input folder, or None for the built-in photo.
-        mode: ``average`` takes consecutive, non-overlapping windows of ``frames_per_sample``
-            frames from every ``<seq>/sharp/`` folder; ``kernel`` and ``trajectory`` take every
-            image under ``root`` (recursively) as a photo.
+        mode: ``average`` takes windows of ``frames_per_sample`` consecutive frames from every
+            sequence :func:`find_sequences` finds: GoPro-style ``<seq>/sharp/*.png`` and
+            RSBlur-style ``<session>/<id>/*.png`` (digit names, the sharp frames of one real
+            blurred image directly in the folder; ``avg*/``, ``gt/``, ``real_blur/`` and other
+            subfolders ignored). ``kernel`` and ``trajectory`` take every image under ``root``
+            (recursively) as a photo.
         frames_per_sample: frames per window (mode ``average``).
         samples_per_photo: samples made from each photo (each with its own draws).
+        samples_per_sequence: mode ``average``: None (default) takes every consecutive,
+            non-overlapping window (``n // frames`` per sequence of ``n`` frames); ``K`` takes
+            exactly ``K`` windows per sequence, their first frames spread evenly from the first
+            window to the last (``round(j (n - frames) / (K - 1))``, ``j = 0 .. K - 1``; ``K = 1``
+            the first window): strided when ``K <= n // frames``, overlapping beyond, and the
+            same window again (with its own draws) when ``K > n - frames + 1``. Windows are
+            named by their first frame, plus ``_<j>`` for a repeat.
 
     A sequence with fewer than ``frames_per_sample`` frames gives one sample with its
     ``problem`` set (reported as failed), unless no sequence is long enough.
@@ -99,6 +147,8 @@ def discover(root: Path | None, mode: str, frames_per_sample: int,
         if not any(root.iterdir()):
             raise ValueError(f"--input {root}: the folder is empty")
         if mode == "average":
+            if samples_per_sequence is not None and samples_per_sequence < 1:
+                raise ValueError(f"--samples-per-sequence {samples_per_sequence}: must be >= 1")
             specs = []
             for name, frames in find_sequences(root):
                 if len(frames) < frames_per_sample:
@@ -107,16 +157,23 @@ def discover(root: Path | None, mode: str, frames_per_sample: int,
                         f"sequence {name} has {len(frames)} frame(s) in {frames[0].parent}, "
                         f"fewer than blur.frames = {frames_per_sample}; add frames, lower "
                         "blur.frames in the scene, or remove the sequence"))
-                for start in range(0, len(frames) - frames_per_sample + 1, frames_per_sample):
+                    continue
+                seen = set()
+                for j, start in enumerate(_windows(len(frames), frames_per_sample,
+                                                   samples_per_sequence)):
                     window = tuple(frames[start:start + frames_per_sample])
-                    specs.append(SampleSpec(len(specs), f"{name}/{window[0].stem}", window))
+                    repeat = f"_{j}" if start in seen else ""
+                    seen.add(start)
+                    specs.append(SampleSpec(len(specs), f"{name}/{window[0].stem}{repeat}",
+                                            window))
             if all(s.problem for s in specs):
                 short = "".join(f"; {s.name.rsplit('/', 1)[0]} has {len(s.inputs)}"
                                 for s in specs[:5])
                 raise ValueError(
                     f"--input {root}: no <seq>/sharp/ folder with at least {frames_per_sample} "
-                    f"images (blur.frames){short}; lower blur.frames, or for single photos use "
-                    "blur.mode = trajectory or kernel")
+                    f"images (blur.frames){short} (nor an RSBlur-style <session>/<id>/ folder "
+                    "of frames); lower blur.frames, or for single photos use blur.mode = "
+                    "trajectory or kernel")
             return specs
         photos = [(p.relative_to(root).with_suffix("").as_posix(), p)
                   for p in sorted(root.rglob("*")) if p.suffix.lower() in IMAGE_SUFFIXES]

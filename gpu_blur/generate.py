@@ -14,6 +14,7 @@ from collections.abc import Iterable, Iterator
 from gpu_blur.dataset import SampleSpec
 from gpu_blur.pipeline import Synthesis, synthesize
 from gpu_blur.scene import Scene
+from gpu_blur.scheduler import Schedule
 
 
 @dataclasses.dataclass(frozen=True)
@@ -23,7 +24,7 @@ class Job:
     scene: Scene
     seed: int
     backend: str
-    tile: tuple[int, int] | None = None
+    schedule: Schedule | None = None  # tiles, memory budget, spot checks
 
 
 def make_sample(job: Job, spec: SampleSpec) -> tuple[SampleSpec, Synthesis | None, str | None]:
@@ -32,7 +33,7 @@ def make_sample(job: Job, spec: SampleSpec) -> tuple[SampleSpec, Synthesis | Non
         if spec.problem:
             raise ValueError(spec.problem)
         result = synthesize(list(spec.inputs), job.scene, seed=job.seed,
-                            sample_index=spec.index, backend=job.backend, tile=job.tile)
+                            sample_index=spec.index, backend=job.backend, tile=job.schedule)
     except (ValueError, OSError) as e:  # this sample's input: reported, the run goes on
         return spec, None, str(e)
     return spec, result, None

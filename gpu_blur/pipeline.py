@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -14,10 +15,10 @@ from gpu_blur.imageio import read_image, to_unit
 from gpu_blur.params import draw_params
 from gpu_blur.plan import Plan, plan
 from gpu_blur.reference import transfer
-from gpu_blur.reference.demosaic import halo as demosaic_halo
 from gpu_blur.reference.output import crop_border, quantize
 from gpu_blur.scene import Scene, load_scene
-from gpu_blur.tiling import tiles
+from gpu_blur.scheduler import Schedule, run
+from gpu_blur.timings import current, since, timer
 
 
 @dataclasses.dataclass
@@ -32,6 +33,10 @@ class Synthesis:
         mask: H x W x 3 float32 in [0, 1], the blurred saturation mask.
         params: every drawn value (see :data:`gpu_blur.params.DRAW_INDEX`).
         plan: the stages that ran.
+        timings: seconds this call spent per :mod:`gpu_blur.timings` category (reading,
+            copies, kernels, checks; writing is 0 here), plus ``other`` and ``total``.
+        tiles: how many tiles the image ran in.
+        spot_checks: how many of them were checked against the numpy reference.
     """
 
     blurred: np.ndarray
@@ -39,6 +44,9 @@ class Synthesis:
     mask: np.ndarray
     params: dict
     plan: Plan
+    timings: dict = dataclasses.field(default_factory=dict)
+    tiles: int = 1
+    spot_checks: int = 0
 
 
 def _as_scene(scene) -> Scene:
@@ -73,7 +81,8 @@ def scene_camera(scene: Scene) -> Camera:
 
 def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
                backend: str = "numpy", overrides: Mapping | None = None,
-               tile: tuple[int, int] | None = None, on_device: bool = False) -> Synthesis:
+               tile: tuple[int, int] | Schedule | None = None, on_device: bool = False,
+               max_device_memory: int | str | None = None, verify: float = 0.0) -> Synthesis:
     """Synthesize one realistic blurred image.
 
     Args:
@@ -90,20 +99,42 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
             from :func:`gpu_blur.backends.get_backend`.
         overrides: drawn parameters to fix instead (e.g. ``{"alpha": 1.0, "pattern": "RGGB"}``).
         tile: run the image in tiles of at most (rows, columns) pixels, each with its halo;
-            the result does not depend on it.
+            the result does not depend on it. Wins over ``max_device_memory``. A
+            :class:`~gpu_blur.scheduler.Schedule` gives tile, budget and ``verify`` at once
+            (for job descriptions that carry one value).
         on_device: leave ``.blurred`` on the backend's device as an ``h x w x 3`` array
             (Warp backends: a ``wp.array`` that ``torch.from_dlpack`` takes without a copy).
-            Needs whole-image runs (no ``tile``) and ``output.crop = 0``.
+            Needs whole-image runs (no ``tile``, a budget the image fits), no ``verify`` and
+            ``output.crop = 0``.
+        max_device_memory: device memory the passes of one tile may hold, in bytes or as
+            ``"512M"``, ``"2G"``: the image runs in the largest tiles that fit (the formula is
+            in :mod:`gpu_blur.scheduler`); the result does not depend on it.
+        verify: fraction of tiles (0 to 1) recomputed with the numpy reference and compared
+            pass by pass under the tolerance table (:mod:`gpu_blur.scheduler`).
 
     Returns:
         A :class:`Synthesis`. Images whose RAW round trip needs even sizes lose their last
         row and/or column (the Bayer 2 x 2 cell rule).
+
+    Raises:
+        gpu_blur.scheduler.SpotCheckError: a spot-checked tile disagreed with the reference
+            (a ``ValueError``), naming the sample, the tile and the error.
+        ValueError: bad input or settings, naming the file or value.
     """
+    start, before = time.perf_counter(), current().snapshot()
+    if isinstance(tile, Schedule):
+        if max_device_memory is not None or verify:
+            raise ValueError("give max_device_memory and verify in the Schedule passed as "
+                             "tile, or as arguments, not both")
+        schedule = tile
+    else:
+        schedule = Schedule(tile, max_device_memory, verify)
     scene = _as_scene(scene)
     runner = (get_backend(backend, scene.output.precision) if isinstance(backend, str)
               else backend)
     camera = scene_camera(scene)
-    frames, mask, sharp = _gather(inputs, scene)
+    with timer("reading"):
+        frames, mask, sharp = _gather(inputs, scene)
 
     static = plan(scene)
     h, w = frames[0].shape[:2]
@@ -124,34 +155,22 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
     if not sample_plan.kept("saturate"):
         params.pop("alpha", None)
 
-    if on_device and (tile is not None or scene.output.crop
+    if on_device and (schedule.tile is not None or schedule.verify or scene.output.crop
                       or not hasattr(runner, "finish_on_device")):
         raise ValueError("on_device=True needs a backend that keeps results on a device "
-                         "(warp), no tile and output.crop = 0")
-    finish = runner.finish_on_device if on_device else runner.finish
-    out = np.empty((h, w, 3), dtype=np.float64)
-    sat_mask = np.empty((h, w, 3), dtype=np.float64)
-    halo = demosaic_halo(sample_plan["demosaic"].options["method"]) if static.raw_round_trip else 0
-    for region in tiles(h, w, tile):
-        view = region.expand(halo).aligned(2 if static.raw_round_trip else 1)
-        linear, view_mask = runner.accumulate(sample_plan, params, frames, mask, view)
-        image, saturated = runner.to_raw(sample_plan, params, camera, linear, view_mask,
-                                         view.origin, seed=seed, sample_index=sample_index)
-        result = finish(sample_plan, params, camera, image, saturated, view, region,
-                        seed=seed, sample_index=sample_index)
-        if on_device:
-            out = result  # one region: the whole image
-        else:
-            region.of(out)[...] = result
-        region.of(sat_mask)[...] = view_mask[region.within(view)]
+                         "(warp), no tile, no verify and output.crop = 0")
+    # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
+    tiled = run(runner, sample_plan, params, camera, frames, mask, schedule, seed=seed,
+                sample_index=sample_index, on_device=on_device)
     sharp_out = render_sharp(sample_plan, sharp, runner)
     if sample_plan.kept("quantize"):
         sharp_out = quantize(sharp_out, scene.output.bits)
     crop = scene.output.crop
-    sharp_out, sat_mask = crop_border(sharp_out, crop), crop_border(sat_mask, crop)
-    out = out if on_device else crop_border(out, crop).astype(np.float32)
+    sharp_out, sat_mask = crop_border(sharp_out, crop), crop_border(tiled.mask, crop)
+    out = tiled.blurred if on_device else crop_border(tiled.blurred, crop).astype(np.float32)
     return Synthesis(out, sharp_out.astype(np.float32), sat_mask.astype(np.float32), params,
-                     sample_plan)
+                     sample_plan, since(before, time.perf_counter() - start), tiled.tiles,
+                     tiled.checked)
 
 
 def _reaches_clip_level(frames, mask) -> bool:

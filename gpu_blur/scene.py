@@ -107,17 +107,20 @@ FIELDS: dict[str, dict[str, Field]] = {
 }
 
 
-def _section_class(section: str):
+def _section_class(section: str, name: str):
+    """A frozen dataclass for one section, named ``name`` in this module (so it pickles)."""
     fields = [(k, object, dataclasses.field(default=None)) for k in FIELDS[section]]
-    return dataclasses.make_dataclass(section.capitalize(), fields, frozen=True)
+    cls = dataclasses.make_dataclass(name, fields, frozen=True)
+    cls.__module__ = __name__  # make_dataclass leaves "types": pickle could not find it
+    return cls
 
 
-Blur = _section_class("blur")
-Saturation = _section_class("saturation")
-CameraSettings = _section_class("camera")
-Noise = _section_class("noise")
-Isp = _section_class("isp")
-Output = _section_class("output")
+Blur = _section_class("blur", "Blur")
+Saturation = _section_class("saturation", "Saturation")
+CameraSettings = _section_class("camera", "CameraSettings")
+Noise = _section_class("noise", "Noise")
+Isp = _section_class("isp", "Isp")
+Output = _section_class("output", "Output")
 _SECTIONS = {"blur": Blur, "saturation": Saturation, "camera": CameraSettings, "noise": Noise,
              "isp": Isp, "output": Output}
 

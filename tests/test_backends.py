@@ -10,6 +10,7 @@ from gpu_blur.cameras import get_camera
 from gpu_blur.params import draw_params
 from gpu_blur.plan import plan
 from gpu_blur.scene import scene_from_dict
+from gpu_blur.scheduler import Footprint
 from gpu_blur.testing import assert_close, tolerance
 from gpu_blur.tiling import Region
 
@@ -169,6 +170,26 @@ def test_tiled_equals_untiled(spec, tile, coffee_rgb):
                                 tile=tile)
     assert whole.plan.kept("restore_saturated")
     # every pass computes each pixel from global coordinates: bit for bit, on every backend
+    assert np.array_equal(tiled.blurred, whole.blurred)
+    assert np.array_equal(tiled.mask, whole.mask)
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+def test_memory_budget_tiled_and_streamed_equals_untiled(spec, coffee_rgb):
+    # blur.mode average streams the frames; the budget fits some tiles but not the image
+    photo = coffee_rgb[230:310, 320:420]
+    frames = [photo, np.roll(photo, 2, axis=1), np.roll(photo, -3, axis=0)]
+    scene = scene_from_dict({"blur": {"mode": "average", "frames": 3},
+                             "output": {"bits": 0, "precision": spec_dtype(spec)}})
+    backend = spec.split("/")[0]
+    whole = gpu_blur.synthesize(frames, scene, seed=SEED, sample_index=SAMPLE, backend=backend)
+    footprint = Footprint.of(whole.plan, whole.params, *whole.blurred.shape[:2],
+                             make_backend(spec).precision)
+    budget = footprint.tile_bytes(40, 40)  # a quarter of the image or so
+    assert budget < footprint.tile_bytes(*whole.blurred.shape[:2])
+    tiled = gpu_blur.synthesize(frames, scene, seed=SEED, sample_index=SAMPLE, backend=backend,
+                                max_device_memory=budget)
+    assert whole.tiles == 1 and tiled.tiles >= 4
     assert np.array_equal(tiled.blurred, whole.blurred)
     assert np.array_equal(tiled.mask, whole.mask)
 

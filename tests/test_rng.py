@@ -175,6 +175,7 @@ def test_stream_values_are_the_documented_contract():
         "SHOT_NOISE": 4,
         "READ_NOISE": 5,
         "SRGB_NOISE": 6,
+        "SPOT_CHECK": 7,
     }
 
 

@@ -18,6 +18,7 @@ from gpu_blur.reference.color import apply_matrix
 from gpu_blur.reference.output import quantize
 from gpu_blur.reference.saturation import restore_saturated, synthesize_saturation
 from gpu_blur.tiling import Region
+from gpu_blur.timings import timer
 
 DEMOSAIC = {"malvar2004": demosaic.demosaic_malvar2004, "bilinear": demosaic.demosaic_bilinear}
 
@@ -26,8 +27,10 @@ class NumpyBackend:
     """float64 reference execution of a plan (the truth kernel backends are checked against)."""
 
     name = "numpy"
+    precision = "float64"
     device = "numpy float64 (host CPU)"
 
+    # The passes, timed as the backend's compute ("kernels", gpu_blur.timings).
     def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
                    mask: np.ndarray | None, region: Region) -> tuple[np.ndarray, np.ndarray]:
         """Linearize and blur; return (linear, saturation mask) over ``region``.
@@ -40,6 +43,44 @@ class NumpyBackend:
             mask: blur mode none only: the saturation mask that came with the image.
             region: the part of the image to return.
         """
+        with timer("kernels"):
+            return self._accumulate(plan, params, frames, mask, region)
+
+    def to_raw(self, plan: Plan, params: dict, camera: Camera, linear: np.ndarray,
+               mask: np.ndarray, origin: tuple[int, int] = (0, 0), *, seed: int,
+               sample_index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Saturation, Lin2Cam, mosaic, inverse WB, noise, WB.
+
+        ``origin`` is the (row, column) of the image's first pixel in the whole image: it keeps
+        the Bayer phase and the noise draws of a tile those of the whole image.
+
+        Returns:
+            (image, saturated): the white-balanced noisy H x W RAW mosaic when the plan has
+            the RAW round trip, else the H x W x 3 linear image; and ``B_sat``, H x W x 3.
+        """
+        with timer("kernels"):
+            return self._to_raw(plan, params, camera, linear, mask, origin, seed=seed,
+                                sample_index=sample_index)
+
+    def finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
+               saturated: np.ndarray, view: Region, out: Region, *, seed: int,
+               sample_index: int) -> np.ndarray:
+        """Demosaic, Cam2Lin, tone, sRGB noise, saturated restore, re-tone, quantize.
+
+        ``image`` and ``saturated`` are what :meth:`to_raw` returned for ``view``; the result
+        covers ``out``, which lies within ``view`` at least the demosaic halo away from every
+        edge of ``view`` that is not an edge of the full image.
+
+        Returns:
+            ``out.h x out.w x 3`` float64 in [0, 1] (on the 8/16-bit grid when quantized).
+        """
+        with timer("kernels"):
+            return self._finish(plan, params, camera, image, saturated, view, out, seed=seed,
+                                sample_index=sample_index)
+
+    def _accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
+                    mask: np.ndarray | None, region: Region) -> tuple[np.ndarray, np.ndarray]:
+        """The accumulate pass, untimed."""
         mode = plan.variant("blur") or "none"
         if mode == "average":
             acc = blur.FrameAccumulator(*frames[0].shape[:2])
@@ -59,18 +100,10 @@ class NumpyBackend:
                 sat_mask = np.zeros_like(first) if mask is None else np.asarray(mask, np.float64)
         return region.of(linear), region.of(sat_mask)
 
-    def to_raw(self, plan: Plan, params: dict, camera: Camera, linear: np.ndarray,
-               mask: np.ndarray, origin: tuple[int, int] = (0, 0), *, seed: int,
-               sample_index: int) -> tuple[np.ndarray, np.ndarray]:
-        """Saturation, Lin2Cam, mosaic, inverse WB, noise, WB.
-
-        ``origin`` is the (row, column) of the image's first pixel in the whole image: it keeps
-        the Bayer phase and the noise draws of a tile those of the whole image.
-
-        Returns:
-            (image, saturated): the white-balanced noisy H x W RAW mosaic when the plan has
-            the RAW round trip, else the H x W x 3 linear image; and ``B_sat``, H x W x 3.
-        """
+    def _to_raw(self, plan: Plan, params: dict, camera: Camera, linear: np.ndarray,
+                mask: np.ndarray, origin: tuple[int, int] = (0, 0), *, seed: int,
+                sample_index: int) -> tuple[np.ndarray, np.ndarray]:
+        """The to_raw pass, untimed."""
         sat = (synthesize_saturation(linear, mask, params["alpha"]) if plan.kept("saturate")
                else np.asarray(linear, dtype=np.float64))
         if not plan.raw_round_trip:
@@ -88,18 +121,10 @@ class NumpyBackend:
                 sample_index=sample_index, origin=origin)
         return bayer.white_balance(raw, pattern, *gains, origin=origin), sat
 
-    def finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
-               saturated: np.ndarray, view: Region, out: Region, *, seed: int,
-               sample_index: int) -> np.ndarray:
-        """Demosaic, Cam2Lin, tone, sRGB noise, saturated restore, re-tone, quantize.
-
-        ``image`` and ``saturated`` are what :meth:`to_raw` returned for ``view``; the result
-        covers ``out``, which lies within ``view`` at least the demosaic halo away from every
-        edge of ``view`` that is not an edge of the full image.
-
-        Returns:
-            ``out.h x out.w x 3`` float64 in [0, 1] (on the 8/16-bit grid when quantized).
-        """
+    def _finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
+                saturated: np.ndarray, view: Region, out: Region, *, seed: int,
+                sample_index: int) -> np.ndarray:
+        """The finish pass, untimed."""
         if plan.raw_round_trip:
             options = plan["demosaic"].options
             pattern = bayer.BayerPattern(params["pattern"])

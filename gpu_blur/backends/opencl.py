@@ -20,12 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.backends import cfa_bits
+from gpu_blur.backends import cfa_bits, planted_fault
 from gpu_blur.cameras import Camera
 from gpu_blur.plan import Plan
 from gpu_blur.reference import blur
 from gpu_blur.reference.rng import key_from_seed
 from gpu_blur.tiling import Region
+from gpu_blur.timings import timer
 
 NO_PLATFORM_HELP = (
     "no OpenCL platform found. For a CPU device: pip install pocl-binary-distribution (PoCL), "
@@ -245,16 +246,18 @@ class OpenCLBackend:
         """The kernels of a built program, by name (each cl.Kernel retrieved once)."""
         return _Kernels(self.program(source, defines), self._kernel_cache)
 
-    # -- buffers -----------------------------------------------------------------------------
+    # -- buffers (uploads and downloads are timed as "copies", gpu_blur.timings) --------------
     def _upload(self, array) -> cl.Buffer:
-        data = np.ascontiguousarray(array, dtype=self.real)
-        return cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                         hostbuf=data)
+        with timer("copies"):
+            data = np.ascontiguousarray(array, dtype=self.real)
+            return cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                             hostbuf=data)
 
     def _constant(self, array, dtype=None) -> cl.Buffer:
-        data = np.ascontiguousarray(np.ravel(array), dtype=dtype or self.real)
-        return cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                         hostbuf=data)
+        with timer("copies"):
+            data = np.ascontiguousarray(np.ravel(array), dtype=dtype or self.real)
+            return cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                             hostbuf=data)
 
     def _zeros(self, count: int, dtype=None) -> cl.Buffer:
         nbytes = max(count, 1) * np.dtype(dtype or self.real).itemsize
@@ -263,9 +266,14 @@ class OpenCLBackend:
         return buf
 
     def _download(self, buf: cl.Buffer, shape) -> np.ndarray:
-        out = np.empty(shape, dtype=self.real)
-        cl.enqueue_copy(self.queue, out, buf)
-        return out.astype(np.float64)
+        with timer("copies"):
+            out = np.empty(shape, dtype=self.real)
+            cl.enqueue_copy(self.queue, out, buf)
+            return out.astype(np.float64)
+
+    def _kernels(self, sync: bool = True):
+        """Time launches as "kernels"; ``sync`` waits for them (``queue.finish()``) at the end."""
+        return timer("kernels", self.queue.finish if sync else None)
 
     @staticmethod
     def _grid(w: int, h: int) -> tuple[int, int]:
@@ -284,25 +292,34 @@ class OpenCLBackend:
             total, compensation = self._zeros(n), self._zeros(n)
             saturated = self._zeros(n, np.uint32)
             count = 0
-            for frame in frames:  # one frame on the device at a time
-                prg.gb_blur_average_add(self.queue, (n,), None, self._upload(region.of(frame)),
-                                        total, compensation, saturated)
+            for frame in frames:  # one frame uploading while the previous one is summed
+                source = self._upload(region.of(frame))
+                with self._kernels(sync=False):
+                    prg.gb_blur_average_add(self.queue, (n,), None, source, total,
+                                            compensation, saturated)
+                del source
                 count += 1
             linear, sat_mask = self._zeros(n), self._zeros(n)
-            prg.gb_blur_average_finish(self.queue, (n,), None, total, compensation, saturated,
-                                       np.uint32(count), linear, sat_mask)
-            return self._download(linear, shape), self._download(sat_mask, shape)
+            with self._kernels():
+                prg.gb_blur_average_finish(self.queue, (n,), None, total, compensation,
+                                           saturated, np.uint32(count), linear, sat_mask)
+            return self._linear_out(linear, sat_mask, shape, region)
         if mode == "none":
             linear, indicator = self._zeros(n), self._zeros(n)
-            prg.gb_linearize(self.queue, (n,), None, self._upload(region.of(frames[0])),
-                             linear, indicator)
+            source = self._upload(region.of(frames[0]))
+            with self._kernels():
+                prg.gb_linearize(self.queue, (n,), None, source, linear, indicator)
+            del source
             sat_mask = np.zeros(shape) if mask is None else region.of(mask).astype(np.float64)
-            return self._download(linear, shape), sat_mask
+            linear = planted_fault("accumulate", self._download(linear, shape), region.origin)
+            return linear, sat_mask
         view = region.expand(blur.blur_halo(mode, params, region.full_h, region.full_w))
         vn = view.h * view.w * 3
         src, indicator = self._zeros(vn), self._zeros(vn)
-        prg.gb_linearize(self.queue, (vn,), None, self._upload(view.of(frames[0])), src,
-                         indicator)
+        source = self._upload(view.of(frames[0]))
+        with self._kernels(sync=False):
+            prg.gb_linearize(self.queue, (vn,), None, source, src, indicator)
+        del source
         geometry = (np.int64(view.x0), np.int64(view.y0), np.int64(view.w),
                     np.int64(region.full_w), np.int64(region.full_h))
         out_geometry = (np.int64(region.x0), np.int64(region.y0), np.int64(region.w),
@@ -313,22 +330,29 @@ class OpenCLBackend:
             kernel = blur.normalize_kernel(params["kernel"])
             k = self._constant(kernel)
             kh, kw = (np.int32(s) for s in kernel.shape)
-            prg.gb_blur_kernel(self.queue, grid, None, src, *geometry, k, kh, kw, linear,
-                               *out_geometry)
-            prg.gb_blur_kernel(self.queue, grid, None, indicator, *geometry, k, kh, kw,
-                               sat_mask, *out_geometry)
-            return self._download(linear, shape), self._download(sat_mask, shape)
+            with self._kernels():
+                prg.gb_blur_kernel(self.queue, grid, None, src, *geometry, k, kh, kw, linear,
+                                   *out_geometry)
+                prg.gb_blur_kernel(self.queue, grid, None, indicator, *geometry, k, kh, kw,
+                                   sat_mask, *out_geometry)
+            return self._linear_out(linear, sat_mask, shape, region)
         # compensated sums of the image and of its indicator: (sum, compensation) each
         sums = [self._zeros(n) for _ in range(4)]
         pos = np.float64 if self.info.fp64 else np.float32
         hom = params["homographies"]
-        for h in hom:  # one pose at a time
-            hinv = self._constant(np.linalg.inv(h), pos)
-            prg.gb_blur_trajectory_add(self.queue, grid, None, src, indicator, *geometry, hinv,
-                                       *sums, *out_geometry)
-        prg.gb_blur_trajectory_finish(self.queue, (n,), None, *sums, np.uint32(len(hom)),
-                                      linear, sat_mask)
-        return self._download(linear, shape), self._download(sat_mask, shape)
+        inverses = [self._constant(np.linalg.inv(h), pos) for h in hom]
+        with self._kernels():
+            for hinv in inverses:  # one pose at a time
+                prg.gb_blur_trajectory_add(self.queue, grid, None, src, indicator, *geometry,
+                                           hinv, *sums, *out_geometry)
+            prg.gb_blur_trajectory_finish(self.queue, (n,), None, *sums, np.uint32(len(hom)),
+                                          linear, sat_mask)
+        return self._linear_out(linear, sat_mask, shape, region)
+
+    def _linear_out(self, linear, sat_mask, shape, region: Region):
+        """The accumulate pass's (linear, mask) on the host."""
+        linear = planted_fault("accumulate", self._download(linear, shape), region.origin)
+        return linear, self._download(sat_mask, shape)
 
     # -- pass 2: to_raw ----------------------------------------------------------------------
     def to_raw(self, plan: Plan, params: dict, camera: Camera, linear: np.ndarray,
@@ -340,18 +364,22 @@ class OpenCLBackend:
         saturated, raw = self._zeros(h * w * 3), self._zeros(h * w)
         key = key_from_seed(seed)
         r = self.real
-        prg.gb_to_raw(
-            self.queue, self._grid(w, h), None, self._upload(linear), self._upload(mask),
-            np.int64(origin[1]), np.int64(origin[0]), np.int64(w), np.int64(h),
-            r(params.get("alpha", 0.0)), self._constant(camera.linear_to_camera),
-            np.int32(cfa_bits(params.get("pattern"))), r(params.get("red_gain", 1.0)),
-            r(params.get("blue_gain", 1.0)), r(params.get("shot_noise_k", 1.0)),
-            r(params.get("read_noise_std", 0.0)), np.uint32(key[0]), np.uint32(key[1]),
-            np.uint32(sample_index), saturated, raw)
+        inputs = (self._upload(linear), self._upload(mask))
+        matrix = self._constant(camera.linear_to_camera)
+        with self._kernels():
+            prg.gb_to_raw(
+                self.queue, self._grid(w, h), None, *inputs,
+                np.int64(origin[1]), np.int64(origin[0]), np.int64(w), np.int64(h),
+                r(params.get("alpha", 0.0)), matrix,
+                np.int32(cfa_bits(params.get("pattern"))), r(params.get("red_gain", 1.0)),
+                r(params.get("blue_gain", 1.0)), r(params.get("shot_noise_k", 1.0)),
+                r(params.get("read_noise_std", 0.0)), np.uint32(key[0]), np.uint32(key[1]),
+                np.uint32(sample_index), saturated, raw)
+        del inputs
         sat = self._download(saturated, (h, w, 3))
         if not plan.raw_round_trip:
-            return sat, sat
-        return self._download(raw, (h, w)), sat
+            return planted_fault("to_raw", sat, origin), sat
+        return planted_fault("to_raw", self._download(raw, (h, w)), origin), sat
 
     # -- pass 3: finish ----------------------------------------------------------------------
     def finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
@@ -365,16 +393,21 @@ class OpenCLBackend:
         raw = image if plan.raw_round_trip else np.zeros(1)
         result = self._zeros(out.h * out.w * 3)
         key = key_from_seed(seed)
-        prg.gb_finish(
-            self.queue, self._grid(out.w, out.h), None, self._upload(raw),
-            self._upload(saturated), np.int64(view.x0), np.int64(view.y0), np.int64(view.w),
-            np.int64(view.full_w), np.int64(view.full_h), np.int64(out.x0), np.int64(out.y0),
-            np.int64(out.w), np.int64(out.h), np.int32(cfa_bits(params.get("pattern"))),
-            self._constant(camera.camera_to_linear), self.real(params.get("gaussian_std", 0.0)),
-            np.uint32(key[0]), np.uint32(key[1]), np.uint32(sample_index),
-            self._constant(A7R3_CRF_POLYNOMIAL), np.int32(A7R3_CRF_POLYNOMIAL.size),
-            self._upload(table), np.int32(table.size), result)
-        return self._download(result, (out.h, out.w, 3))
+        raw_buf, sat_buf = self._upload(raw), self._upload(saturated)
+        matrix, polynomial = (self._constant(camera.camera_to_linear),
+                              self._constant(A7R3_CRF_POLYNOMIAL))
+        table_buf = self._upload(table)
+        with self._kernels():
+            prg.gb_finish(
+                self.queue, self._grid(out.w, out.h), None, raw_buf, sat_buf,
+                np.int64(view.x0), np.int64(view.y0), np.int64(view.w), np.int64(view.full_w),
+                np.int64(view.full_h), np.int64(out.x0), np.int64(out.y0), np.int64(out.w),
+                np.int64(out.h), np.int32(cfa_bits(params.get("pattern"))), matrix,
+                self.real(params.get("gaussian_std", 0.0)), np.uint32(key[0]),
+                np.uint32(key[1]), np.uint32(sample_index), polynomial,
+                np.int32(A7R3_CRF_POLYNOMIAL.size), table_buf, np.int32(table.size), result)
+        del raw_buf, sat_buf
+        return planted_fault("finish", self._download(result, (out.h, out.w, 3)), out.origin)
 
     def retone(self, plan: Plan, image: np.ndarray) -> np.ndarray:
         """The output tone curve for the sharp reference (host side, float64)."""

@@ -14,12 +14,13 @@ from collections.abc import Sequence
 import numpy as np
 import warp as wp
 
-from gpu_blur.backends import cfa_bits
+from gpu_blur.backends import cfa_bits, planted_fault
 from gpu_blur.cameras import Camera
 from gpu_blur.plan import Plan
 from gpu_blur.reference import blur
 from gpu_blur.reference.rng import key_from_seed
 from gpu_blur.tiling import Region
+from gpu_blur.timings import timer
 
 wp.config.log_level = wp.LOG_WARNING  # no banner or per-module load lines
 
@@ -66,7 +67,7 @@ class WarpBackend:
         name = wp.get_device(self.wp_device).name
         self.device = f"warp:{self.wp_device} {name}, {precision}"
 
-    # -- buffers -----------------------------------------------------------------------------
+    # -- buffers (uploads and downloads are timed as "copies", gpu_blur.timings) --------------
     @staticmethod
     def _check_size(count: int) -> None:
         """Refuse, before any allocation, a buffer larger than Warp's int32 indices reach."""
@@ -79,8 +80,9 @@ class WarpBackend:
 
     def _array(self, values, dtype=None) -> wp.array:
         self._check_size(int(np.size(values)))
-        data = np.ascontiguousarray(np.ravel(values), dtype=dtype or self.np_real)
-        return wp.array(data, device=self.wp_device)
+        with timer("copies"):
+            data = np.ascontiguousarray(np.ravel(values), dtype=dtype or self.np_real)
+            return wp.array(data, device=self.wp_device)
 
     def _zeros(self, count: int, dtype=None) -> wp.array:
         self._check_size(count)
@@ -89,9 +91,17 @@ class WarpBackend:
     def _launch(self, kernel, dim, *args) -> None:
         wp.launch(kernel, dim=dim, inputs=list(args), device=self.wp_device)
 
+    def _kernels(self, sync: bool = True):
+        """Time launches as "kernels"; ``sync`` waits for them (``wp.synchronize_device``)."""
+        return timer("kernels", self._synchronize if sync else None)
+
+    def _synchronize(self) -> None:
+        wp.synchronize_device(self.wp_device)
+
     @staticmethod
     def _host(array: wp.array, shape) -> np.ndarray:
-        return array.numpy()[:int(np.prod(shape))].reshape(shape).astype(np.float64)
+        with timer("copies"):
+            return array.numpy()[:int(np.prod(shape))].reshape(shape).astype(np.float64)
 
     # -- pass 1: accumulate ------------------------------------------------------------------
     def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
@@ -108,23 +118,33 @@ class WarpBackend:
             total, compensation = self._zeros(n), self._zeros(n)
             saturated = self._zeros(n, wp.uint32)
             count = 0
-            for frame in frames:  # one frame on the device at a time
-                self._launch(k["blur_average_add"], n, self._array(region.of(frame)), total,
-                             compensation, saturated)
+            for frame in frames:  # one frame uploading while the previous one is summed
+                source = self._array(region.of(frame))
+                with self._kernels(sync=False):
+                    self._launch(k["blur_average_add"], n, source, total, compensation,
+                                 saturated)
+                del source
                 count += 1
             linear, sat_mask = self._zeros(n), self._zeros(n)
-            self._launch(k["blur_average_finish"], n, total, compensation, saturated, count,
-                         linear, sat_mask)
-            return self._host(linear, shape), self._host(sat_mask, shape)
+            with self._kernels():
+                self._launch(k["blur_average_finish"], n, total, compensation, saturated,
+                             count, linear, sat_mask)
+            return self._linear_out(linear, sat_mask, shape, region)
         if mode == "none":
             linear, indicator = self._zeros(n), self._zeros(n)
-            self._launch(k["linearize"], n, self._array(region.of(frames[0])), linear, indicator)
+            source = self._array(region.of(frames[0]))
+            with self._kernels():
+                self._launch(k["linearize"], n, source, linear, indicator)
+            del source
             sat_mask = np.zeros(shape) if mask is None else region.of(mask).astype(np.float64)
-            return self._host(linear, shape), sat_mask
+            return planted_fault("accumulate", self._host(linear, shape), region.origin), sat_mask
         view = region.expand(blur.blur_halo(mode, params, region.full_h, region.full_w))
         vn = view.h * view.w * 3
         src, indicator = self._zeros(vn), self._zeros(vn)
-        self._launch(k["linearize"], vn, self._array(view.of(frames[0])), src, indicator)
+        source = self._array(view.of(frames[0]))
+        with self._kernels(sync=False):
+            self._launch(k["linearize"], vn, source, src, indicator)
+        del source
         geometry = (view.x0, view.y0, view.w, region.full_w, region.full_h)
         linear, sat_mask = self._zeros(n), self._zeros(n)
         grid = (region.h, region.w)
@@ -132,19 +152,26 @@ class WarpBackend:
             kernel = blur.normalize_kernel(params["kernel"])
             kw = self._array(kernel)
             kh, kwid = kernel.shape
-            for image, out in ((src, linear), (indicator, sat_mask)):
-                self._launch(k["blur_kernel"], grid, image, *geometry, kw, kh, kwid, out,
-                             region.x0, region.y0, region.w)
-            return self._host(linear, shape), self._host(sat_mask, shape)
+            with self._kernels():
+                for image, out in ((src, linear), (indicator, sat_mask)):
+                    self._launch(k["blur_kernel"], grid, image, *geometry, kw, kh, kwid, out,
+                                 region.x0, region.y0, region.w)
+            return self._linear_out(linear, sat_mask, shape, region)
         # compensated sums of the image and of its indicator: (sum, compensation) each
         sums = [self._zeros(n) for _ in range(4)]
         hom = params["homographies"]
-        for h in hom:  # one pose at a time
-            self._launch(k["blur_trajectory_add"], grid, src, indicator, *geometry,
-                         self._array(np.linalg.inv(h), np.float64), *sums, region.x0,
-                         region.y0, region.w)
-        self._launch(k["blur_trajectory_finish"], n, *sums, len(hom), linear, sat_mask)
-        return self._host(linear, shape), self._host(sat_mask, shape)
+        inverses = [self._array(np.linalg.inv(h), np.float64) for h in hom]
+        with self._kernels():
+            for hinv in inverses:  # one pose at a time
+                self._launch(k["blur_trajectory_add"], grid, src, indicator, *geometry, hinv,
+                             *sums, region.x0, region.y0, region.w)
+            self._launch(k["blur_trajectory_finish"], n, *sums, len(hom), linear, sat_mask)
+        return self._linear_out(linear, sat_mask, shape, region)
+
+    def _linear_out(self, linear, sat_mask, shape, region: Region):
+        """The accumulate pass's (linear, mask) on the host."""
+        linear = planted_fault("accumulate", self._host(linear, shape), region.origin)
+        return linear, self._host(sat_mask, shape)
 
     # -- pass 2: to_raw ----------------------------------------------------------------------
     def to_raw(self, plan: Plan, params: dict, camera: Camera, linear: np.ndarray,
@@ -161,17 +188,21 @@ class WarpBackend:
         saturated, raw = self._zeros(h * w * 3), self._zeros(h * w)
         key = key_from_seed(seed)
         r = self.np_real
-        self._launch(
-            kernel, (h, w), self._array(linear), self._array(mask), origin[1], origin[0], w,
-            r(params.get("alpha", 0.0)), self._array(camera.linear_to_camera),
-            cfa_bits(params.get("pattern")), r(params.get("red_gain", 1.0)),
-            r(params.get("blue_gain", 1.0)), r(params.get("shot_noise_k", 1.0)),
-            r(params.get("read_noise_std", 0.0)), wp.uint32(int(key[0])),
-            wp.uint32(int(key[1])), wp.uint32(sample_index), saturated, raw)
+        inputs = (self._array(linear), self._array(mask))
+        matrix = self._array(camera.linear_to_camera)
+        with self._kernels():
+            self._launch(
+                kernel, (h, w), *inputs, origin[1], origin[0], w,
+                r(params.get("alpha", 0.0)), matrix,
+                cfa_bits(params.get("pattern")), r(params.get("red_gain", 1.0)),
+                r(params.get("blue_gain", 1.0)), r(params.get("shot_noise_k", 1.0)),
+                r(params.get("read_noise_std", 0.0)), wp.uint32(int(key[0])),
+                wp.uint32(int(key[1])), wp.uint32(sample_index), saturated, raw)
+        del inputs
         sat = self._host(saturated, (h, w, 3))
         if not plan.raw_round_trip:
-            return sat, sat
-        return self._host(raw, (h, w)), sat
+            return planted_fault("to_raw", sat, origin), sat
+        return planted_fault("to_raw", self._host(raw, (h, w)), origin), sat
 
     # -- pass 3: finish ----------------------------------------------------------------------
     def finish_on_device(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
@@ -191,13 +222,16 @@ class WarpBackend:
         result = self._zeros(out.h * out.w * 3)
         key = key_from_seed(seed)
         raw = image if plan.raw_round_trip else np.zeros(1)
-        self._launch(
-            kernel, (out.h, out.w), self._array(raw), self._array(saturated), view.x0, view.y0,
-            view.w, view.full_w, view.full_h, out.x0, out.y0, out.w,
-            cfa_bits(params.get("pattern")), self._array(camera.camera_to_linear),
-            self.np_real(params.get("gaussian_std", 0.0)), wp.uint32(int(key[0])),
-            wp.uint32(int(key[1])), wp.uint32(sample_index), self._array(A7R3_CRF_POLYNOMIAL),
-            self._array(A7R3_CRF_TABLE_X255 / 255.0), result)
+        inputs = (self._array(raw), self._array(saturated))
+        constants = (self._array(camera.camera_to_linear), self._array(A7R3_CRF_POLYNOMIAL),
+                     self._array(A7R3_CRF_TABLE_X255 / 255.0))
+        with self._kernels():
+            self._launch(
+                kernel, (out.h, out.w), *inputs, view.x0, view.y0, view.w, view.full_w,
+                view.full_h, out.x0, out.y0, out.w, cfa_bits(params.get("pattern")),
+                constants[0], self.np_real(params.get("gaussian_std", 0.0)),
+                wp.uint32(int(key[0])), wp.uint32(int(key[1])), wp.uint32(sample_index),
+                constants[1], constants[2], result)
         return result.reshape((out.h, out.w, 3))
 
     def finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
@@ -206,7 +240,9 @@ class WarpBackend:
         """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
         result = self.finish_on_device(plan, params, camera, image, saturated, view, out,
                                        seed=seed, sample_index=sample_index)
-        return result.numpy().astype(np.float64)
+        with timer("copies"):
+            result = result.numpy().astype(np.float64)
+        return planted_fault("finish", result, out.origin)
 
     def retone(self, plan: Plan, image: np.ndarray) -> np.ndarray:
         """The output tone curve for the sharp reference (host side, float64)."""

@@ -96,9 +96,9 @@ POISSON_INVERSION_MAX_K = 64
 class Stream(enum.IntEnum):
     """Independent families of draws; the value goes into the top 8 bits of counter word 3.
 
-    PARAMS, TRAJECTORY and KERNEL are per-image streams (drawn with :func:`image_uniforms`);
-    SHOT_NOISE, READ_NOISE and SRGB_NOISE are per-pixel streams (:func:`pixel_bits` and what
-    builds on it).
+    PARAMS, TRAJECTORY, KERNEL and SPOT_CHECK are per-image streams (drawn with
+    :func:`image_uniforms`); SHOT_NOISE, READ_NOISE and SRGB_NOISE are per-pixel streams
+    (:func:`pixel_bits` and what builds on it).
     """
 
     PARAMS = 1  #: per-image scalar draws (WB gains, noise levels, saturation scale, ...)
@@ -107,6 +107,7 @@ class Stream(enum.IntEnum):
     SHOT_NOISE = 4  #: Poisson shot noise, one count per RAW sample
     READ_NOISE = 5  #: Gaussian read noise, one normal per RAW sample
     SRGB_NOISE = 6  #: Gaussian noise added in sRGB, three normals per pixel
+    SPOT_CHECK = 7  #: which tiles a spot check recomputes (gpu_blur.scheduler), one per tile
 
 
 # --------------------------------------------------------------------------------------------
@@ -280,7 +281,7 @@ def image_uniforms(seed: int, sample_index: int, stream: Stream, count: int) -> 
     Args:
         seed: 64-bit seed.
         sample_index: sample number in ``[0, 2**32)``.
-        stream: a per-image :class:`Stream` (PARAMS, TRAJECTORY, KERNEL).
+        stream: a per-image :class:`Stream` (PARAMS, TRAJECTORY, KERNEL, SPOT_CHECK).
         count: number of uniforms, >= 0.
 
     Returns:

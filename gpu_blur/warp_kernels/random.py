@@ -59,6 +59,7 @@ __all__ = [
     "READ_NOISE",
     "ROUND_LIMIT",
     "SHOT_NOISE",
+    "SPOT_CHECK",
     "SRGB_NOISE",
     "TRAJECTORY",
     "box_muller",
@@ -77,6 +78,7 @@ KERNEL = wp.constant(wp.uint32(int(rng.Stream.KERNEL)))
 SHOT_NOISE = wp.constant(wp.uint32(int(rng.Stream.SHOT_NOISE)))
 READ_NOISE = wp.constant(wp.uint32(int(rng.Stream.READ_NOISE)))
 SRGB_NOISE = wp.constant(wp.uint32(int(rng.Stream.SRGB_NOISE)))
+SPOT_CHECK = wp.constant(wp.uint32(int(rng.Stream.SPOT_CHECK)))  # host only (scheduler)
 
 # -- Philox4x32 (Random123's PHILOX_M4x32_0/1 and PHILOX_W32_0/1) -------------------------------
 _PHILOX_M0 = wp.constant(wp.uint64(0xD2511F53))

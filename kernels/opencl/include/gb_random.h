@@ -54,6 +54,7 @@ typedef float gb_wide;
 #define GB_STREAM_SHOT_NOISE 4u
 #define GB_STREAM_READ_NOISE 5u
 #define GB_STREAM_SRGB_NOISE 6u
+#define GB_STREAM_SPOT_CHECK 7u /* host only: which tiles gpu_blur.scheduler spot-checks */
 
 /* rng.POISSON_INVERSION_MAX_K, and the round limit 2^24. */
 #define GB_POISSON_INVERSION_MAX_K 64

@@ -1,0 +1,388 @@
+"""Making a set's samples in parallel: one process per device of this host, or a Ray cluster.
+
+Both executors keep the contract of :func:`gpu_blur.generate.run_serial`: they take a
+:class:`~gpu_blur.generate.Job` and the samples' specs and yield ``(spec, result, error)`` as
+samples finish, in any order; the driver (``gpu-blur generate``) writes the files and the
+manifest. A sample depends only on (seed, index, scene), so the files are those of a serial
+run, byte for byte, whichever worker makes which sample (on devices of one model: two GPU
+models, or a GPU and a CPU, may differ in a float32 last bit).
+
+What crosses a process boundary: the job (a few hundred bytes, once per worker), each
+:class:`~gpu_blur.dataset.SampleSpec` (index, name, input paths) and each result (the
+:class:`~gpu_blur.pipeline.Synthesis`: blurred, sharp and mask arrays, the drawn parameters and
+the plan; 8.6 MB for the 600 x 400 built-in photo, pickled in about a millisecond). Workers
+read the inputs themselves from the spec's paths, so on a Ray cluster the inputs (and
+gpu_blur, in the same version) must be at the same paths on every node.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import dataclasses
+import functools
+import multiprocessing
+import os
+import signal
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+
+from gpu_blur.dataset import SampleSpec
+from gpu_blur.generate import Job, make_sample, run_serial
+
+#: Test hook, not an option: with ``GPU_BLUR_TEST_FAIL_ONCE=<index>:<marker file>`` in the
+#: driver's environment, the Ray task that makes sample ``index`` kills its worker process
+#: (as a lost node would) unless the marker file exists, creating it first: only the first
+#: attempt fails (tests/test_distributed.py).
+TEST_FAIL_ONCE = "GPU_BLUR_TEST_FAIL_ONCE"
+RAY_INSTALL = "pip install 'gpu_blur[ray]'"
+#: Samples per Ray task on GPUs. Ray starts a fresh worker process for every GPU task (its
+#: default ``max_calls=1``, which pins the process to the GPU Ray assigned and frees that
+#: GPU's memory afterwards), so each task pays a process start, imports and the backend's
+#: set-up: 0.6 to 0.9 s on 2 CPU cores (numpy, OpenCL, Warp CPU), more with a CUDA context;
+#: a batch spreads that over its samples. CPU tasks reuse their worker processes, where a
+#: task costs about 6 ms more than the sample itself, round trip, and one sample per task
+#: keeps the load balanced and a retry small.
+GPU_BATCH = 32
+#: Samples handed to one local device worker ahead of the one it makes, so it never waits.
+DEVICE_DEPTH = 2
+
+
+def family(backend: str) -> str:
+    """The backend family of a device name: ``numpy``, ``opencl`` or ``warp``."""
+    return backend.split(":", 1)[0]
+
+
+# -- device names --------------------------------------------------------------------------
+
+def _present(kind: str, precision: str) -> tuple[list[str], dict[str, str]]:
+    """The usable device names of a family, and why each unusable one is not."""
+    if kind == "numpy":
+        return ["numpy"], {}
+    if kind == "opencl":
+        from gpu_blur.backends.opencl import opencl_devices
+
+        found = opencl_devices()
+        usable = [d for d in found if d.usable and (d.fp64 or precision != "float64")]
+        unusable = {d.spec: (d.problem and f"cannot build kernels: {d.problem}")
+                    or "has no fp64 (cl_khr_fp64), and output.precision is float64"
+                    for d in found if d not in usable}
+        gpus = [d.spec for d in usable if d.kind == "GPU"]
+        return gpus + [d.spec for d in usable if d.kind != "GPU"], unusable
+    if kind == "warp":
+        from gpu_blur.backends.warp import warp_devices
+
+        found = warp_devices()
+        return [d["spec"] for d in found if d["kind"] == "GPU"] + [
+            d["spec"] for d in found if d["kind"] != "GPU"], {}
+    raise ValueError(f"unknown backend {kind!r}")
+
+
+def all_devices(backend: str, precision: str = "float32") -> list[str]:
+    """What ``--devices all`` stands for with a backend.
+
+    numpy: ``os.cpu_count()`` workers; opencl: every usable OpenCL GPU, or every usable
+    OpenCL device when there is no GPU (a CPU runtime beside GPUs would be slow, share the
+    driver's cores and round float32 differently); warp: every CUDA device, else ``warp:cpu``.
+    """
+    kind = family(backend)
+    if kind == "numpy":
+        return ["numpy"] * (os.cpu_count() or 1)
+    names, unusable = _present(kind, precision)
+    if kind == "opencl":
+        gpus = [n for n in names if _is_opencl_gpu(n)]
+        names = gpus or names
+    if kind == "warp":
+        names = [n for n in names if n.startswith("warp:cuda")] or ["warp:cpu"]
+    if not names:
+        why = "; ".join(f"{n}: {p}" for n, p in unusable.items()) or "none found"
+        raise ValueError(f"--devices all: no usable {kind} device here ({why}); see "
+                         "`gpu-blur devices`")
+    return names
+
+
+def _is_opencl_gpu(name: str) -> bool:
+    from gpu_blur.backends.opencl import opencl_devices
+
+    return any(d.spec == name and d.kind == "GPU" for d in opencl_devices())
+
+
+def parse_devices(text: str, backend: str, precision: str = "float32") -> list[str]:
+    """The worker devices of ``--devices``: ``all`` or a comma list (a name may repeat).
+
+    Every device must belong to ``--backend``'s family (samples of different backends differ
+    in their last bits, and the manifest names one backend) and be usable here.
+
+    Raises:
+        ValueError: naming the device, what is wrong and the devices present.
+    """
+    kind = family(backend)
+    if text.strip() == "all":
+        return all_devices(backend, precision)
+    names = [n.strip() for n in text.split(",")]
+    if not all(names):
+        raise ValueError(f"--devices {text!r}: an empty device name; give 'all' or names "
+                         "separated by commas, e.g. opencl:0:0,opencl:1:0")
+    present, unusable = _present(kind, precision)
+    aliases = [kind] if kind != "numpy" else []
+    for name in names:
+        listed = ", ".join(present + aliases) or "none"
+        if family(name) != kind:
+            raise ValueError(f"--devices {name}: not a {kind} device (--backend {backend}); "
+                             "one set is made with one backend, whose samples differ from "
+                             f"another's in the last bits; {kind} devices here: {listed} "
+                             "(or pass the --backend that device belongs to)")
+        if name in unusable:
+            raise ValueError(f"--devices {name}: {unusable[name]}")
+        if name not in present and name not in aliases:
+            raise ValueError(f"--devices {name}: no such device; {kind} devices here: "
+                             f"{listed} (see `gpu-blur devices`)")
+    return names
+
+
+def uses_cuda(backend) -> bool:
+    """Whether a backend object runs on an NVIDIA GPU (Warp on CUDA, OpenCL on NVIDIA's GPU)."""
+    if str(getattr(backend, "wp_device", "")).startswith("cuda"):
+        return True
+    info = getattr(backend, "info", None)
+    return info is not None and info.kind == "GPU" and "NVIDIA" in info.platform
+
+
+# -- one worker process per device of this host ---------------------------------------------
+
+_worker_job: Job | None = None
+
+
+def _worker_start(job: Job) -> None:
+    global _worker_job
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's; it stops workers
+    _worker_job = job
+
+
+def _worker_open() -> str:
+    """Build the worker's backend (once: get_backend keeps it); returns its description."""
+    from gpu_blur.backends import get_backend
+
+    return get_backend(_worker_job.backend, _worker_job.scene.output.precision).device
+
+
+def _worker_make(spec: SampleSpec) -> tuple:
+    return make_sample(_worker_job, spec)
+
+
+def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str]) -> Iterator[tuple]:
+    """Make the samples in one worker process per entry of ``devices``, yielding as they finish.
+
+    Workers are started with ``spawn`` (OpenCL and CUDA contexts do not survive a fork),
+    each builds its backend once (``job`` with its device as the backend) and takes the
+    next sample when it finishes one, so faster devices make more. A device that cannot be
+    opened stops the run before any sample.
+
+    Raises:
+        RuntimeError: a device that cannot be opened, or a worker that died (killed, out of
+            memory), naming the device and the sample.
+    """
+    if not devices:
+        raise ValueError("run_devices needs at least one device")
+    return _device_results(job, list(specs), list(devices))
+
+
+def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
+    if not todo:
+        return
+    specs = iter(todo)
+    context = multiprocessing.get_context("spawn")
+    pools = [cf.ProcessPoolExecutor(1, mp_context=context, initializer=_worker_start,
+                                    initargs=(dataclasses.replace(job, backend=device),))
+             for device in devices]
+    try:
+        opening = [pool.submit(_worker_open) for pool in pools]
+        for device, future in zip(devices, opening, strict=True):
+            try:
+                future.result()
+            except cf.process.BrokenProcessPool:
+                raise RuntimeError(f"--devices {device}: its worker process died while "
+                                   "opening the device") from None
+            except Exception as e:  # any reason the device cannot be opened
+                raise RuntimeError(f"--devices {device}: {e}") from None
+        pending: dict[cf.Future, tuple[int, SampleSpec]] = {}
+
+        def feed(worker: int) -> None:
+            spec = next(specs, None)
+            if spec is not None:
+                pending[pools[worker].submit(_worker_make, spec)] = (worker, spec)
+
+        for worker in range(len(pools)):
+            for _ in range(DEVICE_DEPTH):
+                feed(worker)
+        while pending:
+            done, _ = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+            for future in done:
+                worker, spec = pending.pop(future)
+                try:
+                    _, result, error = future.result()
+                except cf.process.BrokenProcessPool:
+                    raise RuntimeError(
+                        f"the worker on {devices[worker]} died while making sample "
+                        f"{spec.index} ({spec.name}): killed, or out of memory? The samples "
+                        "finished so far are kept: run the same command with --resume"
+                    ) from None
+                feed(worker)
+                yield spec, result, error  # the driver's own spec object
+    finally:
+        for pool in pools:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+# -- Ray ------------------------------------------------------------------------------------
+
+def import_ray():
+    """The ``ray`` module, or a RuntimeError that says how to install it."""
+    try:
+        import ray
+    except ImportError:
+        raise RuntimeError(f"--ray needs Ray, which is not installed: {RAY_INSTALL}") from None
+    return ray
+
+
+def _ray_make(job: Job, specs: list[SampleSpec], cwd: str, fail_once) -> list[tuple]:
+    """One Ray task: make a few samples (runs on a cluster node)."""
+    if os.getcwd() != cwd and os.path.isdir(cwd):
+        os.chdir(cwd)  # relative inputs and scene paths mean what they mean to the driver
+    if fail_once is not None:
+        index, marker = fail_once
+        if any(s.index == index for s in specs) and not Path(marker).exists():
+            Path(marker).write_text("failed once\n")
+            os._exit(1)  # the worker dies, as on a lost node
+    return [make_sample(job, spec) for spec in specs]
+
+
+def _fail_once_hook():
+    value = os.environ.get(TEST_FAIL_ONCE)
+    if not value:
+        return None
+    index, marker = value.split(":", 1)
+    return int(index), marker
+
+
+def run_ray(job: Job, specs: Iterable[SampleSpec], address: str = "auto",
+            gpus_per_task: float | None = None, retries: int = 3,
+            batch: int | None = None) -> Iterator[tuple]:
+    """Make the samples as tasks on a Ray cluster, yielding them as tasks complete.
+
+    Args:
+        job: what every task makes its samples with.
+        specs: the samples.
+        address: ``"auto"``: an initialized Ray, else the cluster in ``RAY_ADDRESS`` or the
+            one ``ray start`` last started on this machine, else a new local instance on
+            this machine's cores and GPUs (shut down at the end); any other value is passed
+            to ``ray.init(address=...)`` (``host:6379``, ``ray://host:10001``).
+        gpus_per_task: GPUs each task asks for (fractions share a GPU); default 1 when the
+            backend runs on an NVIDIA GPU (tasks then use the GPU Ray assigns), else 0.
+        retries: how many times a failed task (a worker or node lost, an exception that is
+            not bad input) is run again before the run stops.
+        batch: samples per task (default 1 on CPUs, :data:`GPU_BATCH` on GPUs).
+
+    Tasks return the samples' results (arrays and parameters, not files); at most two tasks
+    per cluster slot (CPU, or GPU share) are in flight, which bounds what waits in the object
+    store. Unless ``gpus_per_task`` is 0, the driver opens ``job.backend`` to tell whether it
+    runs on an NVIDIA GPU.
+
+    Raises:
+        RuntimeError: Ray missing, a cluster without the GPUs asked for, or a task that
+            failed ``retries + 1`` times.
+    """
+    ray = import_ray()
+    if retries < 0:
+        raise ValueError(f"--retries {retries}: must be >= 0")
+    if gpus_per_task is not None and gpus_per_task < 0:
+        raise ValueError(f"--gpus-per-task {gpus_per_task}: must be >= 0")
+    if batch is not None and batch < 1:
+        raise ValueError(f"--ray-batch {batch}: must be >= 1")
+    return _ray_results(ray, job, list(specs), address, gpus_per_task, retries, batch)
+
+
+def _ray_results(ray, job, specs, address, gpus_per_task, retries, batch):
+    from gpu_blur.backends import get_backend
+
+    if not specs:
+        return
+    cuda = gpus_per_task != 0 and uses_cuda(get_backend(job.backend,
+                                                         job.scene.output.precision))
+    gpus = (1 if cuda else 0) if gpus_per_task is None else gpus_per_task
+    if gpus and cuda:  # the task sees only the GPU Ray gave it, as device 0
+        job = dataclasses.replace(job, backend="warp:cuda:0" if family(job.backend) == "warp"
+                                  else "opencl")
+    batch = batch or (GPU_BATCH if gpus else 1)
+    ours = not ray.is_initialized()
+    if ours:
+        ray.init(address=None if address == "auto" else address, include_dashboard=False)
+    pending: dict = {}
+    try:
+        have = ray.cluster_resources()
+        if gpus and have.get("GPU", 0) < gpus:
+            raise RuntimeError(
+                f"the Ray cluster offers {have.get('GPU', 0):g} GPU(s) and each task asks for "
+                f"{gpus:g} (--gpus-per-task); its tasks would wait forever: add GPU nodes, or "
+                "pass --gpus-per-task 0 with a backend that runs on CPUs")
+        slots = int(have.get("GPU", 0) / gpus) if gpus else int(have.get("CPU", 1))
+        window = max(4, 2 * slots)
+        task = ray.remote(num_gpus=gpus, max_retries=retries, retry_exceptions=True)(_ray_make)
+        job_ref, cwd, hook = ray.put(job), os.getcwd(), _fail_once_hook()
+        chunks = iter([specs[i:i + batch] for i in range(0, len(specs), batch)])
+
+        def submit() -> None:
+            chunk = next(chunks, None)
+            if chunk is not None:
+                pending[task.remote(job_ref, chunk, cwd, hook)] = chunk
+
+        for _ in range(window):
+            submit()
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            chunk = pending.pop(ready[0])
+            try:
+                items = ray.get(ready[0])
+            except ray.exceptions.RayError as e:
+                what = (f"sample {chunk[0].index} ({chunk[0].name})" if len(chunk) == 1 else
+                        f"samples {chunk[0].index} to {chunk[-1].index}")
+                cause = getattr(e, "cause", None) or e  # an exception raised in the task
+                why = (str(cause).strip().splitlines() or [""])[0]
+                raise RuntimeError(
+                    f"{what}: the Ray task failed {retries + 1} time(s) (--retries {retries}): "
+                    f"{type(cause).__name__}: {why}; the samples finished so far are kept: "
+                    "run the same command with --resume") from None
+            submit()
+            for original, (_, result, error) in zip(chunk, items, strict=True):
+                yield original, result, error  # the driver's own spec (its paths as given)
+    finally:
+        for ref in pending:
+            ray.cancel(ref)
+        if ours:
+            ray.shutdown()
+
+
+# -- the CLI's choice -----------------------------------------------------------------------
+
+def pick_executor(args, precision: str) -> Callable[[Job, list[SampleSpec]], Iterator[tuple]]:
+    """The executor ``gpu-blur generate`` runs (serial, ``--devices`` or ``--ray``).
+
+    Checks the options before any work: device names, Ray installed, option combinations.
+    """
+    devices = getattr(args, "devices", None)
+    address = getattr(args, "ray", None)
+    gpus = getattr(args, "gpus_per_task", None)
+    retries = getattr(args, "retries", None)
+    batch = getattr(args, "ray_batch", None)
+    if address is None and (gpus is not None or retries is not None or batch is not None):
+        raise ValueError("--gpus-per-task, --retries and --ray-batch apply to --ray")
+    if devices is not None:
+        return functools.partial(run_devices, devices=parse_devices(devices, args.backend,
+                                                                    precision))
+    if address is not None:
+        import_ray()
+        if (retries is not None and retries < 0) or (gpus is not None and gpus < 0) or (
+                batch is not None and batch < 1):
+            raise ValueError("--retries and --gpus-per-task must be >= 0, --ray-batch >= 1")
+        return functools.partial(run_ray, address=address, gpus_per_task=gpus,
+                                 retries=3 if retries is None else retries, batch=batch)
+    return run_serial

@@ -1,0 +1,145 @@
+"""Where a sample's time goes: cheap wall-clock timers by category, one collector per thread.
+
+Backends and the scheduler wrap their work in :func:`timer`; :func:`gpu_blur.synthesize`
+returns what its call added, per category, as ``Synthesis.timings`` (a plain dict, so an
+executor in another process can send it back). Categories:
+
+* ``reading``: decoding input images;
+* ``copies``: host <-> device transfers (uploads, downloads and their dtype conversions);
+* ``kernels``: the passes' compute, from launch to a synchronize at the end of each pass
+  (``queue.finish()`` on OpenCL, ``wp.synchronize_device`` on Warp; the numpy backend's
+  passes are its compute); a transfer a driver defers to the first kernel that uses the
+  buffer is counted here too;
+* ``checks``: spot checks against the numpy reference (:mod:`gpu_blur.scheduler`);
+* ``writing``: encoding outputs (measured by ``gpu-blur generate``, not by ``synthesize``).
+
+Timers do not nest: inside a running timer another one records nothing, so the outermost
+category gets the time (a spot check's reference passes count as ``checks``, not
+``kernels``). Each timer costs about a microsecond.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+CATEGORIES = ("reading", "copies", "kernels", "checks", "writing")
+
+
+class Timings:
+    """Seconds spent per category by one thread (see :data:`CATEGORIES`)."""
+
+    def __init__(self):
+        self.seconds = dict.fromkeys(CATEGORIES, 0.0)
+        self._running = False
+
+    def timer(self, category: str, sync: Callable[[], object] | None = None) -> _Timer:
+        """A context manager adding its wall time to ``category``.
+
+        Args:
+            category: one of :data:`CATEGORIES`.
+            sync: called at the end of the timed block (e.g. a device synchronize), so the
+                time includes work the block only queued.
+        """
+        if category not in self.seconds:
+            raise ValueError(f"unknown timing category {category!r}; known: "
+                             f"{', '.join(CATEGORIES)}")
+        return _Timer(self, category, sync)
+
+    def snapshot(self) -> dict[str, float]:
+        """A copy of the totals so far."""
+        return dict(self.seconds)
+
+
+class _Timer:
+    __slots__ = ("_owner", "_category", "_sync", "_start")
+
+    def __init__(self, owner: Timings, category: str, sync):
+        self._owner, self._category, self._sync = owner, category, sync
+        self._start = None
+
+    def __enter__(self):
+        if not self._owner._running:  # the outermost timer counts
+            self._owner._running = True
+            self._start = time.perf_counter()
+        return self
+
+    def __exit__(self, kind, value, traceback):
+        if self._sync is not None and kind is None:
+            self._sync()
+        if self._start is not None:
+            self._owner.seconds[self._category] += time.perf_counter() - self._start
+            self._owner._running = False
+        return False
+
+
+_local = threading.local()
+
+
+def current() -> Timings:
+    """The calling thread's collector (made on first use)."""
+    timings = getattr(_local, "timings", None)
+    if timings is None:
+        timings = _local.timings = Timings()
+    return timings
+
+
+def timer(category: str, sync: Callable[[], object] | None = None) -> _Timer:
+    """``current().timer(category, sync)``: time a block of this thread's work."""
+    return current().timer(category, sync)
+
+
+def since(before: dict[str, float], total: float) -> dict[str, float]:
+    """Seconds per category added since ``before`` (a :meth:`Timings.snapshot`).
+
+    Adds ``total`` (the wall time of the whole call) and ``other`` (total minus the
+    categories, at least 0).
+    """
+    now = current().snapshot()
+    spent = {k: max(now[k] - before.get(k, 0.0), 0.0) for k in CATEGORIES}
+    spent["other"] = max(total - sum(spent.values()), 0.0)
+    spent["total"] = total
+    return spent
+
+
+#: What each category of the run summary holds, in words.
+MEANING = {
+    "reading": "decoding input images",
+    "copies": "host <-> device transfers",
+    "kernels": "device compute (synchronized after each pass)",
+    "checks": "spot checks against the numpy reference",
+    "writing": "encoding and writing outputs",
+    "other": "drawing parameters, the sharp reference, scheduling, bookkeeping",
+}
+
+
+class RunTotals:
+    """Seconds per category summed over a run's samples (``gpu-blur generate``'s summary)."""
+
+    def __init__(self):
+        self.seconds = dict.fromkeys(CATEGORIES, 0.0)
+
+    def add(self, spent: dict) -> None:
+        """Add one sample's ``Synthesis.timings`` (or any category -> seconds mapping)."""
+        for category in CATEGORIES:
+            self.seconds[category] += float(spent.get(category, 0.0))
+
+    def summary(self, wall: float) -> list[str]:
+        """Lines saying where ``wall`` seconds went: each category, then ``other``.
+
+        ``other`` is the wall time the categories leave (at least 0). Workers in other
+        processes or threads add their own time, so the categories may then exceed the wall
+        time; a last line says so.
+        """
+        spent = dict(self.seconds)
+        counted = sum(spent.values())
+        spent["other"] = max(wall - counted, 0.0)
+        scale = max(wall, counted, 1e-12)
+        lines = [f"where the time went ({wall:.2f} s):"]
+        for category, seconds in spent.items():
+            lines.append(f"  {category:<8} {seconds:9.3f} s {100 * seconds / scale:5.1f} %  "
+                         f"{MEANING[category]}")
+        if counted > wall * 1.01:
+            lines.append(f"  (parallel workers: {counted:.2f} s of work in {wall:.2f} s)")
+        return lines

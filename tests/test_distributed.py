@@ -1,0 +1,234 @@
+"""Samples made by one process per device (--devices) or on a Ray cluster (--ray) give the
+files and manifest of a serial run, byte for byte (issue 6).
+
+The manifests are compared whole, line by line after sorting by index (executors finish in
+any order): no field is ignored, since every field is the driver's (seed, backend, device)
+or the sample's own.
+"""
+
+import json
+import os
+import pickle
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from gpu_blur.cli import main
+from gpu_blur.dataset import discover
+from gpu_blur.distributed import TEST_FAIL_ONCE, parse_devices, run_devices, run_ray
+from gpu_blur.generate import Job, run_serial
+from gpu_blur.scene import load_scene
+
+SETS = ("blur", "sharp", "params")
+
+
+def _opencl_usable():
+    try:
+        from gpu_blur.backends.opencl import opencl_devices
+    except ImportError:
+        return []
+    return [d for d in opencl_devices() if d.usable]
+
+
+def _warp_devices():
+    try:
+        from gpu_blur.backends.warp import warp_devices
+    except ImportError:
+        return None
+    return warp_devices()
+
+
+OPENCL = _opencl_usable()
+WARP = _warp_devices()
+
+
+@pytest.fixture(scope="module")
+def photos(tmp_path_factory):
+    """Two small photos and a truncated one; 2 samples each: 4 good, 2 failed (bad input)."""
+    folder = tmp_path_factory.mktemp("in")
+    rng = np.random.default_rng(0)
+    for name in ("a", "b", "c"):
+        cv2.imwrite(str(folder / f"{name}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    (folder / "c.png").write_bytes((folder / "c.png").read_bytes()[:60])
+    scene = folder.parent / "scene.toml"
+    scene.write_text("[blur]\nsteps = 3\n")  # the full default chain, 3 camera poses
+    return folder, scene
+
+
+def args(photos, out, *extra):
+    folder, scene = photos
+    return ["generate", "--input", str(folder), "--output", str(out), "--scene", str(scene),
+            "--samples-per-photo", "2", "--quiet", *extra]
+
+
+@pytest.fixture(scope="module")
+def reference(photos, tmp_path_factory):
+    """The serial run's folder, per backend (made once)."""
+    made = {}
+
+    def get(backend="numpy"):
+        if backend not in made:
+            out = tmp_path_factory.mktemp("serial") / "out"
+            assert main(args(photos, out, "--backend", backend)) == 1  # c.png's samples fail
+            made[backend] = out
+        return made[backend]
+
+    return get
+
+
+@pytest.fixture(scope="module")
+def ray_local():
+    """One local Ray instance on 2 CPUs for the module; `--ray auto` uses it."""
+    ray = pytest.importorskip("ray")
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+def manifest_lines(out):
+    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    return sorted(lines, key=lambda x: x["index"])
+
+
+def files(out):
+    return {p.relative_to(out).as_posix(): p.read_bytes()
+            for sub in SETS for p in sorted((out / sub).iterdir())}
+
+
+def assert_same_set(out, reference):
+    assert files(out) == files(reference)
+    lines = manifest_lines(out)
+    assert lines == manifest_lines(reference)
+    assert (out / "run.json").read_bytes() == (reference / "run.json").read_bytes()
+    failed = [x for x in lines if x["status"] == "failed"]
+    assert [x["index"] for x in failed] == [4, 5] and "truncated PNG" in failed[0]["error"]
+    assert [x["status"] for x in lines[:4]] == ["ok"] * 4
+
+
+EXECUTORS = [
+    pytest.param("numpy", ["--devices", "numpy,numpy"], id="devices-2-numpy"),
+    pytest.param("numpy", ["--ray", "auto"], id="ray-numpy"),
+    pytest.param("opencl", ["--devices", ",".join([OPENCL[0].spec] * 2) if OPENCL else ""],
+                 id="devices-2-opencl", marks=pytest.mark.skipif(
+                     not OPENCL, reason="no usable OpenCL device")),
+    pytest.param("warp:cpu", ["--devices", "warp:cpu,warp:cpu"], id="devices-2-warp-cpu",
+                 marks=pytest.mark.skipif(WARP is None, reason="warp-lang not installed")),
+]
+
+
+@pytest.mark.parametrize("backend, executor", EXECUTORS)
+def test_every_executor_writes_the_files_and_manifest_of_a_serial_run(
+        request, tmp_path, photos, reference, backend, executor):
+    if "--ray" in executor:
+        request.getfixturevalue("ray_local")
+    if backend == "opencl":
+        backend = OPENCL[0].spec
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--backend", backend, *executor)) == 1
+    assert_same_set(out, reference(backend))
+
+
+def test_a_ray_task_whose_worker_dies_is_retried_and_the_run_completes(
+        ray_local, tmp_path, photos, reference, monkeypatch):
+    marker = tmp_path / "died-once"
+    monkeypatch.setenv(TEST_FAIL_ONCE, f"2:{marker}")
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--ray", "auto")) == 1  # only c.png's samples fail
+    assert marker.exists()  # the first attempt at sample 2 did kill its worker
+    assert_same_set(out, reference())
+
+
+def test_a_ray_task_failing_past_its_retries_stops_the_run_and_resume_finishes_it(
+        ray_local, tmp_path, photos, reference, monkeypatch, capsys):
+    marker = tmp_path / "died-once"
+    monkeypatch.setenv(TEST_FAIL_ONCE, f"2:{marker}")
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--ray", "auto", "--retries", "0")) == 2
+    err = capsys.readouterr().err
+    assert "sample 2 (b_0): the Ray task failed 1 time(s) (--retries 0)" in err
+    assert "run the same command with --resume" in err
+    assert 2 not in [x["index"] for x in manifest_lines(out)]
+    assert main(args(photos, out, "--ray", "auto", "--resume")) == 1
+    assert_same_set(out, reference())
+
+
+def test_run_ray_in_batches_yields_the_serial_results_with_the_callers_specs(
+        ray_local, photos):
+    folder, scene_path = photos
+    scene = load_scene(scene_path)
+    specs = discover(folder, "trajectory", 1, 2)
+    job = Job(scene, 3, "numpy")
+    serial = {s.index: (s, r, e) for s, r, e in run_serial(job, specs)}
+    got = list(run_ray(job, specs, batch=4))
+    assert sorted(s.index for s, _, _ in got) == [s.index for s in specs]
+    for spec, result, error in got:
+        want_spec, want, want_error = serial[spec.index]
+        assert spec is specs[spec.index] and error == want_error
+        if want is None:
+            assert result is None
+            continue
+        np.testing.assert_array_equal(result.blurred, want.blurred)
+        np.testing.assert_array_equal(result.sharp, want.sharp)
+        np.testing.assert_array_equal(result.mask, want.mask)
+        assert pickle.dumps(result.params) == pickle.dumps(want.params)
+
+
+def test_ray_without_ray_installed_says_how_to_install_it(tmp_path, photos, monkeypatch,
+                                                          capsys):
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` raises ImportError
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--ray", "auto")) == 2
+    assert "--ray needs Ray, which is not installed: pip install 'gpu_blur[ray]'" in (
+        capsys.readouterr().err)
+    assert not out.exists()  # refused before any work
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--devices", "opencl:9:9"], "--devices opencl:9:9: not a numpy device (--backend numpy)"),
+    (["--devices", "cuda:0"], "--devices cuda:0: not a numpy device"),
+    (["--devices", "numpy,,numpy"], "--devices 'numpy,,numpy': an empty device name"),
+    pytest.param(["--backend", "opencl", "--devices", "opencl:9:9"],
+                 "--devices opencl:9:9: no such device; opencl devices here: ",
+                 marks=pytest.mark.skipif(not OPENCL, reason="no usable OpenCL device")),
+    pytest.param(["--backend", "warp:cpu", "--devices", "warp:cpu,warp:cuda:99"],
+                 "--devices warp:cuda:99: no such device; warp devices here: ",
+                 marks=pytest.mark.skipif(WARP is None, reason="warp-lang not installed")),
+    (["--retries", "2"], "--gpus-per-task, --retries and --ray-batch apply to --ray"),
+])
+def test_bad_device_options_are_refused_before_any_work(tmp_path, photos, capsys, extra,
+                                                        message):
+    out = tmp_path / "out"
+    assert main(args(photos, out, *extra)) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_devices_and_ray_exclude_each_other(tmp_path, photos):
+    with pytest.raises(SystemExit):
+        main(args(photos, tmp_path / "out", "--devices", "all", "--ray", "auto"))
+
+
+def test_devices_all_is_every_usable_device_of_the_backend():
+    assert parse_devices("all", "numpy") == ["numpy"] * os.cpu_count()
+    if OPENCL:
+        gpus = [d.spec for d in OPENCL if d.kind == "GPU"]
+        assert parse_devices("all", "opencl") == (gpus or [d.spec for d in OPENCL])
+    if WARP is not None:
+        cuda = [d["spec"] for d in WARP if d["spec"].startswith("warp:cuda")]
+        assert parse_devices("all", "warp:cpu") == (cuda or ["warp:cpu"])
+
+
+def test_a_device_that_cannot_open_stops_the_run_before_any_sample(photos):
+    folder, scene_path = photos
+    job = Job(load_scene(scene_path), 0, "numpy")
+    specs = discover(folder, "trajectory", 1, 1)
+    with pytest.raises(RuntimeError, match="--devices nosuch: unknown backend 'nosuch'"):
+        next(run_devices(job, specs, ["numpy", "nosuch"]))
+
+
+def test_a_job_pickles(photos):
+    _, scene_path = photos
+    job = Job(load_scene(scene_path), 7, "opencl:0:0", (16, 16))
+    assert pickle.loads(pickle.dumps(job)) == job
