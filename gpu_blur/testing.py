@@ -181,7 +181,10 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
         # Poisson rate near 1e4 moves by ~5e-3 and its count flips on a few bright pixels; the
         # flip (K = 9e-5 in RAW) spreads over the demosaic stencil. Issue target 1e-5; measured
         # 4.6e-5 to 2.3e-4 of values over 3 samples (max 0.016). float64 builds meet 1e-5.
-        ("to_raw_noisy_outliers", "float32"): (0.0, 1e-5),  # same inputs: 0 measured
+        # The same float64 inputs, rounded to float32 on upload: a rate near 1e4 moves by
+        # ~1e-3 and flips a count on 4.3e-5 of values on real photos (3.1 M values measured;
+        # 0 on the test's crop); float64 builds flip none.
+        ("to_raw_noisy_outliers", "float32"): (0.0, 1e-4),
         ("pipeline_noisy", "float32"): (0.0, 2e-4),  # the issue's bound per value
         ("pipeline_noisy_outliers", "float32"): (0.0, 3e-4),
         # float64: the reference's operations in another order.
