@@ -98,27 +98,8 @@ _TWO_PI = wp.constant(wp.float64(6.283185307179586))
 
 # -- log(k!) and Poisson -------------------------------------------------------------------------
 _vec16d = wp.types.vector(length=16, dtype=wp.float64)
-#: log(k!) for k = 0..15: the float64 literals of rng.LOG_FACTORIAL_TABLE.
-LOG_FACTORIAL_TABLE = wp.constant(
-    _vec16d(
-        0.0,
-        0.0,
-        0.6931471805599453,
-        1.791759469228055,
-        3.1780538303479458,
-        4.787491742782046,
-        6.579251212010101,
-        8.525161361065415,
-        10.60460290274525,
-        12.801827480081469,
-        15.104412573075516,
-        17.502307845873887,
-        19.987214495661885,
-        22.552163853123425,
-        25.19122118273868,
-        27.89927138384089,
-    )
-)
+#: log(k!) for k = 0..15: rng.LOG_FACTORIAL_TABLE, the same float64 values.
+LOG_FACTORIAL_TABLE = wp.constant(_vec16d(*rng.LOG_FACTORIAL_TABLE.tolist()))
 _HALF_LOG_TWO_PI = wp.constant(wp.float64(0.9189385332046728))
 #: rng.POISSON_PTRS_MIN_RATE: PTRS at and above this rate, inversion below.
 POISSON_PTRS_MIN_RATE = wp.constant(wp.float64(rng.POISSON_PTRS_MIN_RATE))
