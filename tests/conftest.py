@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -114,3 +115,21 @@ def opencl_queue():
         pytest.skip(str(e))
     context = cl.Context([device])
     return cl, context, cl.CommandQueue(context)
+
+
+# -- generated sets: what a run wrote, for comparing runs ------------------------------------
+
+#: The folders of a generated set that hold per-sample files.
+SETS = ("blur", "sharp", "params")
+
+
+def manifest_lines(out):
+    """Every manifest line of the set in ``out`` parsed (a torn line fails here), by index."""
+    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    return sorted(lines, key=lambda x: x["index"])
+
+
+def files(out):
+    """{relative path: bytes} of every per-sample file of the set in ``out``."""
+    return {p.relative_to(out).as_posix(): p.read_bytes()
+            for sub in SETS for p in sorted((out / sub).iterdir())}

@@ -6,7 +6,6 @@ any order): no field is ignored, since every field is the driver's (seed, backen
 or the sample's own.
 """
 
-import json
 import os
 import pickle
 import sys
@@ -14,14 +13,13 @@ import sys
 import cv2
 import numpy as np
 import pytest
+from conftest import files, manifest_lines
 
 from gpu_blur.cli import main
 from gpu_blur.dataset import discover
 from gpu_blur.distributed import TEST_FAIL_ONCE, parse_devices, run_devices, run_ray
 from gpu_blur.generate import Job, run_serial
 from gpu_blur.scene import load_scene
-
-SETS = ("blur", "sharp", "params")
 
 
 def _opencl_usable():
@@ -85,16 +83,6 @@ def ray_local():
     ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield ray
     ray.shutdown()
-
-
-def manifest_lines(out):
-    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
-    return sorted(lines, key=lambda x: x["index"])
-
-
-def files(out):
-    return {p.relative_to(out).as_posix(): p.read_bytes()
-            for sub in SETS for p in sorted((out / sub).iterdir())}
 
 
 def assert_same_set(out, reference):

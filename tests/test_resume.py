@@ -10,11 +10,10 @@ import time
 import cv2
 import numpy as np
 import pytest
+from conftest import files, manifest_lines
 
 from gpu_blur.cli import TEST_SLEEP_AFTER, main
 from gpu_blur.dataset import DatasetWriter
-
-SETS = ("blur", "sharp", "params")
 
 
 @pytest.fixture
@@ -34,17 +33,6 @@ def args(photos, out, *extra):
     folder, scene = photos
     return ["generate", "--input", str(folder), "--output", str(out), "--scene", str(scene),
             "--samples-per-photo", "4", "--quiet", *extra]
-
-
-def manifest_lines(out):
-    """Every manifest line parsed (a torn line fails here), sorted by index."""
-    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
-    return sorted(lines, key=lambda x: x["index"])
-
-
-def files(out):
-    return {p.relative_to(out).as_posix(): p.read_bytes()
-            for sub in SETS for p in sorted((out / sub).iterdir())}
 
 
 def stamps(out, lines):
