@@ -109,6 +109,27 @@ def to_unit(image: np.ndarray, what: str = "image") -> np.ndarray:
     """uint8 / uint16 codes or floats in [0, 1] -> float64 in [0, 1], H x W x 3.
 
     Raises:
+        ValueError: as :func:`check_image`.
+    """
+    return unit_values(check_image(image, what))
+
+
+def unit_values(image: np.ndarray) -> np.ndarray:
+    """A checked image (:func:`check_image`) as float64 in [0, 1]: codes / (2^bits - 1)."""
+    if image.dtype == np.uint8:
+        return image / 255.0
+    if image.dtype == np.uint16:
+        return image / 65535.0
+    return np.asarray(image, dtype=np.float64)
+
+
+def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
+    """An H x W x 3 RGB input as stored: uint8 or uint16 codes, or float64 values in [0, 1].
+
+    Frames stay in their integer codes until a backend reads them (kernels upload 1 or 2
+    bytes per value and divide on the device); floats are checked and made float64.
+
+    Raises:
         ValueError: naming ``what``, with how many bad values there are, where the first is,
             and the way out, for a wrong shape or dtype, NaN or infinity, or floats outside
             [0, 1].
@@ -121,10 +142,8 @@ def to_unit(image: np.ndarray, what: str = "image") -> np.ndarray:
                          f"{hint}")
     if image.size == 0:
         raise ValueError(f"{what}: the image is empty (shape {image.shape})")
-    if image.dtype == np.uint8:
-        return image / 255.0
-    if image.dtype == np.uint16:
-        return image / 65535.0
+    if image.dtype in (np.uint8, np.uint16):
+        return image
     if np.issubdtype(image.dtype, np.floating):
         x = image.astype(np.float64)
         finite = np.isfinite(x)

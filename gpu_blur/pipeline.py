@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.backends import get_backend
+from gpu_blur.backends import get_backend, to_host
 from gpu_blur.cameras import Camera, get_camera
-from gpu_blur.imageio import read_image, to_unit
+from gpu_blur.imageio import check_image, read_image, unit_values
 from gpu_blur.params import draw_params
 from gpu_blur.plan import Plan, plan
 from gpu_blur.reference import transfer
@@ -30,7 +30,8 @@ class Synthesis:
             when the scene quantizes).
         sharp: H x W x 3 float32 in [0, 1], the reference frame (middle frame of an average,
             the photo itself otherwise), toned like ``blurred``.
-        mask: H x W x 3 float32 in [0, 1], the blurred saturation mask.
+        mask: H x W x 3 float32 in [0, 1], the blurred saturation mask (fetched from the
+            device on first use).
         params: every drawn value (see :data:`gpu_blur.params.DRAW_INDEX`).
         plan: the stages that ran.
         timings: seconds this call spent per :mod:`gpu_blur.timings` category (reading,
@@ -41,12 +42,23 @@ class Synthesis:
 
     blurred: np.ndarray
     sharp: np.ndarray
-    mask: np.ndarray
+    _mask: object = dataclasses.field(repr=False)
     params: dict
     plan: Plan
     timings: dict = dataclasses.field(default_factory=dict)
     tiles: int = 1
     spot_checks: int = 0
+    crop: int = 0
+
+    @property
+    def mask(self) -> np.ndarray:
+        """The blurred saturation mask, H x W x 3 float32 in [0, 1]."""
+        if not isinstance(self._mask, np.ndarray):
+            self._mask = crop_border(to_host(self._mask, np.float32), self.crop)
+        return self._mask
+
+    def __getstate__(self):  # a device array does not cross processes: fetch it first
+        return {**self.__dict__, "_mask": self.mask}
 
 
 def _as_scene(scene) -> Scene:
@@ -56,9 +68,10 @@ def _as_scene(scene) -> Scene:
 
 
 def _load(item, what: str) -> np.ndarray:
+    """An input as stored (uint8/uint16 codes, or float64 in [0, 1]), checked."""
     if isinstance(item, (str, Path)):
-        return to_unit(read_image(item), str(item))
-    return to_unit(np.asarray(item), what)
+        return check_image(read_image(item), str(item))
+    return check_image(np.asarray(item), what)
 
 
 def _name(item, what: str) -> str:
@@ -156,7 +169,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         params.pop("alpha", None)
 
     if on_device and (schedule.tile is not None or schedule.verify or scene.output.crop
-                      or not hasattr(runner, "finish_on_device")):
+                      or not hasattr(runner, "device_array")):
         raise ValueError("on_device=True needs a backend that keeps results on a device "
                          "(warp), no tile, no verify and output.crop = 0")
     # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
@@ -166,18 +179,22 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
     if sample_plan.kept("quantize"):
         sharp_out = quantize(sharp_out, scene.output.bits)
     crop = scene.output.crop
-    sharp_out, sat_mask = crop_border(sharp_out, crop), crop_border(tiled.mask, crop)
-    out = tiled.blurred if on_device else crop_border(tiled.blurred, crop).astype(np.float32)
-    return Synthesis(out, sharp_out.astype(np.float32), sat_mask.astype(np.float32), params,
-                     sample_plan, since(before, time.perf_counter() - start), tiled.tiles,
-                     tiled.checked)
+    sharp_out = crop_border(sharp_out, crop)
+    out = tiled.blurred if on_device else crop_border(tiled.blurred, crop)
+    sat_mask = tiled.mask  # a backend's device array is fetched (and cropped) on first use
+    if isinstance(sat_mask, np.ndarray):
+        sat_mask = crop_border(sat_mask, crop).astype(np.float32, copy=False)
+    return Synthesis(out, sharp_out.astype(np.float32), sat_mask, params, sample_plan,
+                     since(before, time.perf_counter() - start), tiled.tiles, tiled.checked,
+                     crop)
 
 
 def _reaches_clip_level(frames, mask) -> bool:
     """Whether any input pixel reaches the clip level (auto saturation runs only then)."""
     if mask is not None:
         return bool(np.any(np.asarray(mask) > 0))
-    return any(bool(np.any(f >= 1.0)) for f in frames)
+    top = {np.dtype(np.uint8): 255, np.dtype(np.uint16): 65535}.get(frames[0].dtype, 1.0)
+    return any(bool(np.any(f >= top)) for f in frames)
 
 
 def render_sharp(sample_plan: Plan, sharp: np.ndarray, runner) -> np.ndarray:
@@ -188,7 +205,11 @@ def render_sharp(sample_plan: Plan, sharp: np.ndarray, runner) -> np.ndarray:
 
 
 def _gather(inputs, scene: Scene):
-    """(frames, mask, sharp) as float64 [0, 1] arrays, validated against the blur mode."""
+    """(frames, mask, sharp), validated against the blur mode.
+
+    Frames keep their stored dtype (uint8/uint16 codes, or float64 in [0, 1]; one dtype per
+    sample: mixed inputs become float64); mask and sharp are float64 in [0, 1].
+    """
     mode = scene.blur.mode
     if mode == "none":
         if not isinstance(inputs, Mapping) or "blurred" not in inputs:
@@ -201,7 +222,7 @@ def _gather(inputs, scene: Scene):
         given += [(x, _name(inputs[k], k)) for x, k in ((mask, "mask"), (sharp, "sharp"))
                   if inputs.get(k) is not None]
         _same_shape([x for x, _ in given], [n for _, n in given])
-        return [blurred], mask, sharp
+        return [blurred], None if mask is None else unit_values(mask), unit_values(sharp)
     if isinstance(inputs, (str, Path, np.ndarray)):
         inputs = [inputs]
     if not isinstance(inputs, Sequence) or len(inputs) == 0:
@@ -210,7 +231,9 @@ def _gather(inputs, scene: Scene):
         raise ValueError(f"blur.mode = {mode} blurs one photo; got {len(inputs)} images")
     frames = [_load(x, f"frame {i}") for i, x in enumerate(inputs)]
     _same_shape(frames, [_name(x, f"frame {i}") for i, x in enumerate(inputs)])
-    return frames, None, frames[len(frames) // 2]
+    if len({f.dtype for f in frames}) > 1:
+        frames = [unit_values(f) for f in frames]
+    return frames, None, unit_values(frames[len(frames) // 2])
 
 
 def _same_shape(images, names):

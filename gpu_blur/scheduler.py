@@ -25,26 +25,32 @@ another and free their buffers; constants are small and listed per pass):
   the RAW round trip (else 0);
 * ``S = (r + 2 d + a + 2 b) (c + 2 d + a + 2 b)`` pixels of blur source, ``b`` the blur halo
   (kernel radius, or the camera path's largest displacement; 0 for average and none);
-* each side clipped to the image; ``s`` bytes per value (4 float32, 8 float64), RGB values.
+* each side clipped to the image; ``s`` bytes per value (4 float32, 8 float64), RGB values;
+  ``b`` bytes per value of a frame as stored (1 uint8, 2 uint16, ``s`` float input);
+* ``F`` frames (mode average), ``P = min(F, FRAMES_PER_LAUNCH)`` summed per launch.
 
 ========== ============================================================================
 pass       bytes
 ========== ============================================================================
-accumulate average: ``3 V (5 s + 4)`` (compensated sum: sum and compensation, uint32
-           saturation counts, two streamed frames, the linear image and mask);
-           none: ``9 V s`` (frame, linear, indicator);
-           kernel: ``3 s (3 S + 2 V) + kh kw s`` (source upload, linear source and its
-           saturation indicator, linear image and mask, the kernel);
-           trajectory: ``3 s (3 S + 6 V) + 72 n`` (as kernel, plus four compensated sums;
-           ``n`` poses' float64 3 x 3 inverses)
+accumulate average, ``F <= P``: ``3 V (F b + 2 s)`` (one stack of frames, the linear
+           image and mask); ``F > P``: ``3 V (2 P b + 4 s + 4)`` (two stacks taking
+           turns, the compensated sum: sum, compensation, uint32 counts; linear, mask);
+           none: ``3 V (b + 3 s)`` (frame, linear, indicator, mask);
+           kernel: ``3 (S b + 2 S s + 2 V s) + kh kw s`` (source upload, linear source
+           and its saturation indicator, linear image and mask, the kernel);
+           trajectory: ``3 (S b + 2 S s + 6 V s) + 72 n`` (as kernel, plus four
+           compensated sums; ``n`` poses' float64 3 x 3 inverses)
 to_raw     ``10 V s + 9 s`` (linear image, mask, saturated image, RAW mosaic, Lin2Cam)
-finish     ``(4 V + 3 r c) s + 2,568 s`` (RAW mosaic, saturated image, result; Cam2Lin,
-           the A7R3 polynomial and its 2,551-node table)
+finish     ``(10 V + 3 r c) s + 2,568 s`` (the accumulate pass's linear image and mask,
+           kept for the spot checks and the mask; RAW mosaic, saturated image, result;
+           Cam2Lin, the A7R3 polynomial and its 2,551-node table)
 ========== ============================================================================
 
-The formula assumes a buffer a pass drops is only released when its kernels finish (as
-OpenCL may do). Warp on an H100 (CUDA memory pool, stream-ordered frees) peaked at 79 to 89 %
-of it, under every budget from 8 MiB to 512 MiB, for 1920 x 1200 images in all three blur
+Pass outputs stay on the device for the next pass (nothing returns to the host between
+passes). The formula assumes a buffer a pass drops is only released when its kernels finish
+(as OpenCL may do). Before frames were uploaded as stored and outputs kept on the device, Warp
+on an H100 (CUDA memory pool, stream-ordered frees) peaked at 79 to 89 % of the formula of
+the time, under every budget from 8 MiB to 512 MiB, for 1920 x 1200 images in all three blur
 modes and both precisions (bench/scheduler_gpu_check.py, bench/results/).
 
 The budget gives the largest square tile whose peak fits, then widens it (columns, then
@@ -83,6 +89,7 @@ import re
 
 import numpy as np
 
+from gpu_blur.backends import FRAMES_PER_LAUNCH, to_host
 from gpu_blur.plan import Plan
 from gpu_blur.reference import bayer, blur, noise, rng
 from gpu_blur.reference.demosaic import halo as demosaic_halo
@@ -189,6 +196,9 @@ class Footprint:
         blur_halo: pixels the blur reads on each side.
         itemsize: bytes per value (4 float32, 8 float64).
         blur_constants: bytes of the blur's constants (kernel taps, pose inverses).
+        frames: frames summed (mode average).
+        source_itemsize: bytes per value of a frame as stored (1 uint8, 2 uint16; 0: as
+            ``itemsize``, float input).
     """
 
     height: int
@@ -199,11 +209,17 @@ class Footprint:
     blur_halo: int
     itemsize: int
     blur_constants: int = 0
+    frames: int = 1
+    source_itemsize: int = 0
 
     @classmethod
-    def of(cls, sample_plan: Plan, params: dict, height: int, width: int,
-           precision: str) -> Footprint:
-        """The footprint of a sample (its plan and drawn parameters) at a precision."""
+    def of(cls, sample_plan: Plan, params: dict, height: int, width: int, precision: str,
+           frames: int = 1, source_dtype=None) -> Footprint:
+        """The footprint of a sample (its plan and drawn parameters) at a precision.
+
+        ``frames`` and ``source_dtype``: how many input frames and their stored dtype
+        (uint8/uint16 codes; float input travels in the compute type).
+        """
         mode = sample_plan.variant("blur") or "none"
         raw = sample_plan.raw_round_trip
         itemsize = np.dtype(precision).itemsize
@@ -212,27 +228,33 @@ class Footprint:
             constants = int(np.size(params["kernel"])) * itemsize
         elif mode == "trajectory":
             constants = len(params["homographies"]) * 9 * 8
+        stored = np.dtype(source_dtype) if source_dtype is not None else None
+        source = stored.itemsize if stored is not None and stored.kind == "u" else 0
         return cls(height, width, mode, raw,
                    demosaic_halo(sample_plan["demosaic"].options["method"]) if raw else 0,
-                   blur.blur_halo(mode, params, height, width), itemsize, constants)
+                   blur.blur_halo(mode, params, height, width), itemsize, constants,
+                   max(int(frames), 1), source)
 
     def pass_bytes(self, rows: int, cols: int) -> dict[str, int]:
         """Device bytes each pass holds for a tile of ``rows x cols`` output pixels."""
-        s = self.itemsize
+        s, b = self.itemsize, self.source_itemsize or self.itemsize
         rows, cols = min(rows, self.height), min(cols, self.width)
         pad = 2 * self.demosaic_halo + (2 if self.raw_round_trip else 0)
         vh, vw = min(rows + pad, self.height), min(cols + pad, self.width)
         sh = min(vh + 2 * self.blur_halo, self.height)
         sw = min(vw + 2 * self.blur_halo, self.width)
         view, source = vh * vw, sh * sw
+        per = min(self.frames, FRAMES_PER_LAUNCH)
+        average = (3 * view * (self.frames * b + 2 * s) if self.frames <= per
+                   else 3 * view * (2 * per * b + 4 * s + 4))
         accumulate = {
-            "average": 3 * view * (5 * s + 4),
-            "none": 9 * view * s,
-            "kernel": 3 * s * (3 * source + 2 * view),
-            "trajectory": 3 * s * (3 * source + 6 * view),
+            "average": average,
+            "none": 3 * view * (b + 3 * s),
+            "kernel": 3 * (source * b + 2 * source * s + 2 * view * s),
+            "trajectory": 3 * (source * b + 2 * source * s + 6 * view * s),
         }[self.mode] + self.blur_constants
         return {"accumulate": accumulate, "to_raw": 10 * view * s + 9 * s,
-                "finish": (4 * view + 3 * rows * cols + _FINISH_CONSTANTS) * s}
+                "finish": (10 * view + 3 * rows * cols + _FINISH_CONSTANTS) * s}
 
     def tile_bytes(self, rows: int, cols: int) -> int:
         """The peak device bytes of a tile: the largest pass."""
@@ -322,8 +344,9 @@ class Tiled:
     """What :func:`run` returns.
 
     Attributes:
-        blurred: ``h x w x 3`` float64 (or the backend's device array with ``on_device``).
-        mask: ``h x w x 3`` float64, the blurred saturation mask.
+        blurred: ``h x w x 3`` float32 (or the backend's device array with ``on_device``).
+        mask: ``h x w x 3``, the blurred saturation mask: float32, or for a whole-image run
+            what the backend returned (:func:`gpu_blur.backends.to_host` fetches it).
         tiles: how many tiles ran.
         checked: how many of them were spot-checked.
     """
@@ -343,7 +366,8 @@ def run(runner, sample_plan: Plan, params: dict, camera, frames, mask, schedule:
         sample_plan: the sample's plan.
         params: its drawn parameters.
         camera: its camera.
-        frames: the input frames, ``H x W x 3`` float64 in [0, 1] (host memory).
+        frames: the input frames, ``H x W x 3`` as stored (uint8/uint16 codes, or float64
+            in [0, 1]; :func:`gpu_blur.imageio.check_image`), in host memory.
         mask: blur mode none: the given saturation mask, or None.
         schedule: tile size, memory budget and spot-check fraction.
         seed: dataset seed.
@@ -360,8 +384,9 @@ def run(runner, sample_plan: Plan, params: dict, camera, frames, mask, schedule:
     halo = demosaic_halo(sample_plan["demosaic"].options["method"]) if raw else 0
     tile = schedule.tile
     if tile is None and schedule.max_device_memory is not None:
-        footprint = Footprint.of(sample_plan, params, h, w, getattr(runner, "precision",
-                                                                    "float64"))
+        footprint = Footprint.of(sample_plan, params, h, w,
+                                 getattr(runner, "precision", "float64"), len(frames),
+                                 frames[0].dtype)
         tile = footprint.tile_for_budget(schedule.max_device_memory, sample_index)
     regions = list(tiles(h, w, tile))
     chosen = set(spot_check_tiles(seed, sample_index, len(regions), schedule.verify))
@@ -371,26 +396,44 @@ def run(runner, sample_plan: Plan, params: dict, camera, frames, mask, schedule:
                          f"{len(chosen)}")
     check = _SpotCheck(runner, sample_plan, params, camera, frames, mask, seed=seed,
                        sample_index=sample_index) if chosen else None
-    finish = runner.finish_on_device if on_device else runner.finish
-    out = None if on_device else np.empty((h, w, 3), dtype=np.float64)
-    sat_mask = np.empty((h, w, 3), dtype=np.float64)
+    if len(regions) == 1:  # the whole image: results stay where the backend left them
+        region = regions[0]
+        view = region.expand(halo).aligned(2 if raw else 1)
+        linear, view_mask, image, saturated, result = _passes(
+            runner, sample_plan, params, camera, frames, mask, view, region, seed, sample_index)
+        if chosen:
+            with timer("checks"):
+                check.tile("tile 1 of 1", region, view, linear, view_mask, image, saturated,
+                           result)
+        blurred = runner.device_array(result) if on_device else to_host(result, np.float32)
+        return Tiled(blurred, view_mask, 1, len(chosen))
+    out = np.empty((h, w, 3), dtype=np.float32)
+    sat_mask = np.empty((h, w, 3), dtype=np.float32)
     for i, region in enumerate(regions):
         view = region.expand(halo).aligned(2 if raw else 1)
-        linear, view_mask = runner.accumulate(sample_plan, params, frames, mask, view)
-        image, saturated = runner.to_raw(sample_plan, params, camera, linear, view_mask,
-                                         view.origin, seed=seed, sample_index=sample_index)
-        result = finish(sample_plan, params, camera, image, saturated, view, region,
-                        seed=seed, sample_index=sample_index)
+        linear, view_mask, image, saturated, result = _passes(
+            runner, sample_plan, params, camera, frames, mask, view, region, seed, sample_index)
         if i in chosen:
             with timer("checks"):
                 check.tile(f"tile {i + 1} of {len(regions)}", region, view, linear, view_mask,
                            image, saturated, result)
-        if on_device:
-            out = result  # one region: the whole image
-        else:
-            region.of(out)[...] = result
-        region.of(sat_mask)[...] = view_mask[region.within(view)]
+        region.of(out)[...] = to_host(result, np.float32)
+        region.of(sat_mask)[...] = to_host(view_mask, np.float32)[region.within(view)]
     return Tiled(out, sat_mask, len(regions), len(chosen))
+
+
+def _passes(runner, sample_plan, params, camera, frames, mask, view: Region, region: Region,
+            seed: int, sample_index: int):
+    """One tile's three passes: (linear, mask, image, saturated, result).
+
+    Outputs are as the backend leaves them: on its device for kernel backends.
+    """
+    linear, view_mask = runner.accumulate(sample_plan, params, frames, mask, view)
+    image, saturated = runner.to_raw(sample_plan, params, camera, linear, view_mask,
+                                     view.origin, seed=seed, sample_index=sample_index)
+    result = runner.finish(sample_plan, params, camera, image, saturated, view, region,
+                           seed=seed, sample_index=sample_index)
+    return linear, view_mask, image, saturated, result
 
 
 def _without(sample_plan: Plan, stage: str) -> Plan:
@@ -424,6 +467,8 @@ class _SpotCheck:
     def tile(self, name: str, region: Region, view: Region, linear, view_mask, image,
              saturated, result) -> None:
         """Compare one tile's pass outputs with the reference's from the same inputs."""
+        linear, view_mask, image, saturated, result = (
+            to_host(x) for x in (linear, view_mask, image, saturated, result))
         p, ref = self.plan, self.reference
         kw = {"seed": self.seed, "sample_index": self.sample_index}
 

@@ -80,11 +80,41 @@ KERNEL_BACKEND_SPECS = [s for s in BACKEND_SPECS if s != "numpy"]
 
 
 def make_backend(spec: str):
-    """A backend for 'numpy' or 'opencl:P:D/<precision>' (one per session)."""
+    """A backend for 'numpy' or 'opencl:P:D/<precision>' (one per session), whose passes
+    return host float64 arrays, as tests compare them (:class:`HostOutputs`)."""
     from gpu_blur.backends import get_backend
 
     name, _, precision = spec.partition("/")
-    return get_backend(name, precision or "float64")
+    return HostOutputs(get_backend(name, precision or "float64"))
+
+
+class HostOutputs:
+    """A backend whose pass outputs come back to the host as float64 (gpu_blur.backends.to_host).
+
+    Kernel backends leave outputs on the device; tests compare values. Everything else is the
+    wrapped backend's (``.backend``).
+    """
+
+    def __init__(self, backend):
+        self.backend = backend
+
+    def __getattr__(self, name):
+        return getattr(self.backend, name)
+
+    def accumulate(self, *args, **kwargs):
+        from gpu_blur.backends import to_host
+
+        return tuple(to_host(x) for x in self.backend.accumulate(*args, **kwargs))
+
+    def to_raw(self, *args, **kwargs):
+        from gpu_blur.backends import to_host
+
+        return tuple(to_host(x) for x in self.backend.to_raw(*args, **kwargs))
+
+    def finish(self, *args, **kwargs):
+        from gpu_blur.backends import to_host
+
+        return to_host(self.backend.finish(*args, **kwargs))
 
 
 def spec_dtype(spec: str) -> str:

@@ -209,3 +209,48 @@ def test_device_noise_has_the_model_mean_and_variance(spec, level):
     # 5 standard errors of the sample mean and of the sample variance (normal approximation)
     assert abs(raw.mean() - level) <= 5 * np.sqrt(variance / n)
     assert abs(raw.var() - variance) <= 5 * variance * np.sqrt(2 / n)
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+@pytest.mark.parametrize("mode", ["average", "trajectory"])
+def test_frames_sent_as_8_bit_codes_equal_frames_sent_as_floats(spec, mode, photo):
+    # kernels divide codes by 255 on the device (correctly rounded), as the host's float64
+    # code / 255 rounded to the compute type: the same linear image, bit for bit
+    gen = np.random.default_rng(2)
+    base = np.round(photo * 255).astype(int)  # the photo's 8-bit codes
+    codes = [np.clip(base + gen.integers(-9, 10, photo.shape), 0, 255).astype(np.uint8)
+             for _ in range(7)]
+    frames = codes if mode == "average" else codes[:1]
+    _, p, _, params = sample({"blur": {"mode": mode, "frames": len(frames)}}, photo.shape[:2])
+    region = Region(5, 7, 60, 90, *photo.shape[:2])
+    backend = make_backend(spec)
+    from_codes = backend.accumulate(p, params, frames, None, region)
+    from_floats = backend.accumulate(p, params, [f / 255.0 for f in frames], None, region)
+    for got, expected in zip(from_codes, from_floats, strict=True):
+        assert np.array_equal(got, expected)
+
+
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+def test_overlapped_and_serial_frame_copies_give_the_same_sample(spec, photo):
+    # 9 frames: three stacks of up to FRAMES_PER_LAUNCH, uploaded from pinned buffers on a
+    # copy queue or stream while the previous stack is summed, or with blocking copies
+    from gpu_blur.backends import get_backend
+
+    name, _, precision = spec.partition("/")
+    cls = type(get_backend(name, precision))
+    gen = np.random.default_rng(4)
+    base = np.round(photo * 255).astype(int)  # the photo's 8-bit codes
+    frames = [np.clip(base + gen.integers(-20, 21, photo.shape), 0, 255).astype(np.uint8)
+              for _ in range(9)]
+    scene = scene_from_dict({"blur": {"mode": "average", "frames": 9},
+                             "saturation": {"mode": "on"}, "noise": {"model": "none"},
+                             "isp": {"round_trip": "always"},
+                             "output": {"bits": 0, "precision": precision}})
+    results = [gpu_blur.synthesize(frames, scene, seed=SEED, sample_index=SAMPLE,
+                                   backend=cls(name, precision, overlap=overlap))
+               for overlap in (True, False)]
+    assert np.array_equal(results[0].blurred, results[1].blurred)
+    assert np.array_equal(results[0].mask, results[1].mask)
+    reference = gpu_blur.synthesize(frames, scene, seed=SEED, sample_index=SAMPLE)
+    assert_close(results[0].blurred, reference.blurred, "pipeline", spec_backend(spec),
+                 spec_dtype(spec))

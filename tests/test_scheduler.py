@@ -9,7 +9,7 @@ import pytest
 from conftest import BACKEND_SPECS, KERNEL_BACKEND_SPECS, make_backend, spec_backend, spec_dtype
 
 import gpu_blur
-from gpu_blur.backends import TEST_FAULT
+from gpu_blur.backends import FRAMES_PER_LAUNCH, TEST_FAULT
 from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.cli import main
 from gpu_blur.dataset import discover
@@ -68,14 +68,22 @@ def test_the_budget_formula_counts_halos_precision_and_streamed_frames():
     f = footprint()
     # to_raw of a 100 x 100 tile: view (100 + 2 * 2 + 2)^2 pixels, 10 values each
     assert f.pass_bytes(100, 100)["to_raw"] == 10 * 106 * 106 * 4 + 9 * 4
-    # accumulate (trajectory): 3 s (3 S + 6 V), S the view grown by the blur halo
+    # accumulate (trajectory): 3 (S b + 2 S s + 6 V s), S the view grown by the blur halo; a
+    # float frame uploads in the compute type (b = s), an 8-bit one in its codes (b = 1)
     assert f.pass_bytes(100, 100)["accumulate"] == 3 * 4 * (3 * 126 * 126 + 6 * 106 * 106)
+    assert footprint(source_itemsize=1).pass_bytes(100, 100)["accumulate"] == 3 * (
+        126 * 126 + 2 * 126 * 126 * 4 + 6 * 106 * 106 * 4)
     assert footprint(blur_halo=30).tile_bytes(100, 100) > f.tile_bytes(100, 100)
     assert footprint(itemsize=8).tile_bytes(100, 100) == pytest.approx(
         2 * f.tile_bytes(100, 100), rel=0.01)
-    # average: a compensated sum, uint32 counts, linear + mask and two streamed frames
-    a = footprint(mode="average", blur_halo=0)
-    assert a.pass_bytes(100, 100)["accumulate"] == 3 * 106 * 106 * (5 * 4 + 4)
+    # average of 9 8-bit frames: two stacks of FRAMES_PER_LAUNCH frames taking turns, a
+    # compensated sum (sum, compensation, uint32 counts), linear + mask
+    a = footprint(mode="average", blur_halo=0, frames=9, source_itemsize=1)
+    assert a.pass_bytes(100, 100)["accumulate"] == 3 * 106 * 106 * (
+        2 * FRAMES_PER_LAUNCH + 4 * 4 + 4)
+    # as many frames as one stack holds: no running sums, one launch
+    few = footprint(mode="average", blur_halo=0, frames=FRAMES_PER_LAUNCH, source_itemsize=1)
+    assert few.pass_bytes(100, 100)["accumulate"] == 3 * 106 * 106 * (FRAMES_PER_LAUNCH + 2 * 4)
     # sides are clipped to the image: a tile as large as the image needs no more than it
     assert f.tile_bytes(5000, 5000) == f.tile_bytes(1000, 1500)
 

@@ -1,15 +1,20 @@
 """Backends: how a plan runs. One small protocol, three implementations.
 
 A backend carries out the plan's three passes under the stages' names, on the whole image or
-on a region (a tile with its halo), and returns host arrays:
+on a region (a tile with its halo):
 
 * ``accumulate(plan, params, frames, mask, region) -> (linear, mask)``: linearize and blur,
-  frames read one at a time (never all in device memory at once);
+  frames sent to the device a few at a time (never all in device memory at once);
 * ``to_raw(plan, params, camera, linear, mask, origin, *, seed, sample_index)
   -> (image, saturated)``: saturation to the noisy white-balanced RAW mosaic;
 * ``finish(plan, params, camera, image, saturated, view, out, *, seed, sample_index)
   -> rgb``: demosaic to the final (quantized) image over the ``out`` region;
 * ``retone(plan, image)``: the output tone curve, also applied to the sharp reference.
+
+Frames come as stored (:func:`gpu_blur.imageio.check_image`: uint8/uint16 codes or float64 in
+[0, 1]). Kernel backends return their outputs as :class:`OnDevice` arrays, which the next pass
+takes without a copy; ``np.asarray`` (or ``.numpy()``) brings one to the host as float64. The
+numpy backend returns numpy arrays. Any pass also takes host arrays.
 
 Names: ``numpy`` (float64 reference), ``opencl`` (first usable OpenCL device, GPUs first),
 ``opencl:<platform>:<device>``, ``warp`` (CUDA if present, else the CPU), ``warp:cpu``,
@@ -26,9 +31,64 @@ import numpy as np
 from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.reference.bayer import BayerPattern
 
+#: Frames summed per accumulate launch (blur mode average) on the kernel backends: a device
+#: stack of this many frames fills (on a GPU, on a copy stream, while the previous stack is
+#: summed on the compute stream) and one launch adds them to the running sums in registers.
+#: Two stacks live at once (gpu_blur.scheduler's memory formula counts them).
+FRAMES_PER_LAUNCH = 4
+
+
+def to_host(values, dtype=np.float64) -> np.ndarray:
+    """A pass's output on the host: :class:`OnDevice` downloaded, host arrays as they are."""
+    if isinstance(values, OnDevice):
+        return values.numpy(dtype)
+    return np.asarray(values, dtype=dtype)
+
+
+def fill_stack(host: np.ndarray, frames, indices: range, region) -> None:
+    """Write ``region`` of frames ``indices`` one after another into the flat array ``host``.
+
+    Frames are read one at a time (``frames[i]``) and dropped once copied, so a lazy sequence
+    never has more than one frame alive.
+    """
+    values = region.h * region.w * 3
+    for j, i in enumerate(indices):
+        frame = frames[i]
+        np.copyto(host[j * values:(j + 1) * values].reshape(region.h, region.w, 3),
+                  region.of(frame), casting="same_kind")
+        del frame
+
+
+class OnDevice:
+    """A pass's output left on a kernel backend's device.
+
+    Attributes:
+        data: the flat device buffer (a ``cl.Buffer`` or a 1-D ``wp.array``) in the
+            backend's precision, row-major, 3 values per pixel for RGB.
+        shape: the image it holds, ``h x w x 3`` or ``h x w`` (the RAW mosaic).
+    """
+
+    __slots__ = ("data", "shape", "_fetch")
+
+    def __init__(self, data, shape: tuple[int, ...], fetch):
+        self.data, self.shape, self._fetch = data, tuple(int(n) for n in shape), fetch
+
+    @property
+    def ndim(self) -> int:
+        """Number of image dimensions (2 for a mosaic, 3 for RGB)."""
+        return len(self.shape)
+
+    def numpy(self, dtype=np.float64) -> np.ndarray:
+        """A host copy, float64 unless asked otherwise (timed as ``copies``)."""
+        return self._fetch(self, np.dtype(dtype))
+
+    def __array__(self, dtype=None, copy=None):
+        return self.numpy(np.float64 if dtype is None else dtype)
+
+
 #: Test hook, not an option: with ``GPU_BLUR_TEST_FAULT=<pass>`` or ``<pass>@<row>,<col>`` in
 #: the environment (``pass`` one of accumulate, to_raw, finish), the kernel backends (OpenCL,
-#: Warp) corrupt that pass's host output at global pixel (row, col) (default 0, 0) by 0.25,
+#: Warp) corrupt that pass's output at global pixel (row, col) (default 0, 0) by 0.25,
 #: in every tile whose output holds the pixel, so a test can check that spot checks
 #: (``--verify``) catch a wrong kernel (tests/test_scheduler.py). Never set it otherwise.
 TEST_FAULT = "GPU_BLUR_TEST_FAULT"
@@ -43,6 +103,12 @@ def cfa_bits(pattern: str | None) -> int:
     if pattern is None:
         return 0
     return sum(c << (2 * i) for i, c in enumerate(BayerPattern(pattern).channels))
+
+
+def fault_planted(pass_: str) -> bool:
+    """Whether the :data:`TEST_FAULT` test hook names ``pass_`` (cheap; checked per pass)."""
+    fault = os.environ.get(TEST_FAULT)
+    return bool(fault) and fault.partition("@")[0].strip() == pass_
 
 
 def planted_fault(pass_: str, values: np.ndarray, origin: tuple[int, int]) -> np.ndarray:

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from gpu_blur.cameras import Camera
+from gpu_blur.imageio import unit_values
 from gpu_blur.plan import Plan
 from gpu_blur.reference import bayer, blur, demosaic, noise, transfer
 from gpu_blur.reference.color import apply_matrix
@@ -38,8 +39,9 @@ class NumpyBackend:
         Args:
             plan: the sample's plan.
             params: its drawn parameters (``kernel``, ``homographies``).
-            frames: full-size sRGB frames in [0, 1], H x W x 3, read one at a time (mode
-                average), or one photo (kernel, trajectory), or the blurred image (none).
+            frames: full-size sRGB frames, H x W x 3 uint8/uint16 codes or floats in [0, 1]
+                (:func:`gpu_blur.imageio.check_image`), read one at a time (mode average), or
+                one photo (kernel, trajectory), or the blurred image (none).
             mask: blur mode none only: the saturation mask that came with the image.
             region: the part of the image to return.
         """
@@ -85,10 +87,10 @@ class NumpyBackend:
         if mode == "average":
             acc = blur.FrameAccumulator(*frames[0].shape[:2])
             for frame in frames:
-                acc.add(transfer.srgb_to_linear(frame))
+                acc.add(transfer.srgb_to_linear(unit_values(frame)))
             linear, sat_mask = acc.result()
         else:
-            first = transfer.srgb_to_linear(frames[0])
+            first = transfer.srgb_to_linear(unit_values(frames[0]))
             if mode == "kernel":
                 kernel = params["kernel"]
                 linear, sat_mask = (blur.convolve_kernel(first, kernel),

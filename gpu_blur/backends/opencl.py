@@ -1,5 +1,9 @@
 """The OpenCL backend: the plan's three passes as fused kernels (``kernels/opencl/*.cl``).
 
+Pass outputs stay on the device between passes. Frames upload in their stored dtype
+(``-DGB_SOURCE_BITS``), from pinned host buffers on a second queue that overlaps the summing of
+the previous frames.
+
 Only the stages a plan keeps are compiled in (``-DGB_STAGE_<NAME>``); programs are built once
 per (device, source, defines). ``float32`` by default; ``float64`` builds need cl_khr_fp64.
 Random draws use Random123's Philox through pyopencl's bundled header and match
@@ -20,7 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.backends import cfa_bits, planted_fault
+from gpu_blur.backends import (
+    FRAMES_PER_LAUNCH,
+    OnDevice,
+    cfa_bits,
+    fault_planted,
+    fill_stack,
+    planted_fault,
+)
 from gpu_blur.cameras import Camera
 from gpu_blur.plan import Plan
 from gpu_blur.reference import blur
@@ -185,11 +196,20 @@ def pass_defines(plan: Plan, pass_: str) -> dict[str, str]:
 
 
 class OpenCLBackend:
-    """Runs a plan as OpenCL kernels on one device (see :mod:`gpu_blur.backends`)."""
+    """Runs a plan as OpenCL kernels on one device (see :mod:`gpu_blur.backends`).
+
+    Args:
+        spec: ``opencl`` (first usable device, GPUs first) or ``opencl:<platform>:<device>``.
+        precision: the kernels' compute type, ``float32`` or ``float64`` (cl_khr_fp64).
+        overlap: upload frames from pinned host buffers (``CL_MEM_ALLOC_HOST_PTR``, mapped)
+            on a second queue while the previous stack of frames is summed (False: blocking
+            copies on the compute queue, to measure what the overlap gains).
+    """
 
     name = "opencl"
 
-    def __init__(self, spec: str = "opencl", precision: str = "float32"):
+    def __init__(self, spec: str = "opencl", precision: str = "float32", *,
+                 overlap: bool = True):
         self.cl_device, self.info = select_device(spec)
         if precision not in ("float32", "float64"):
             raise ValueError(f"precision must be float32 or float64, got {precision!r}")
@@ -201,8 +221,13 @@ class OpenCLBackend:
         self.device = f"{self.info.spec} {self.info.name} ({self.info.platform}), {precision}"
         self.ctx = cl.Context([self.cl_device])
         self.queue = cl.CommandQueue(self.ctx)
+        self.overlap = bool(overlap)
+        self.copy_queue = cl.CommandQueue(self.ctx) if self.overlap else self.queue
         self._programs: dict = {}
         self._kernel_cache: dict = {}
+        self._staging: dict = {}  # slot -> (pinned buffer, its mapped host array)
+        self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
+        self._constants: dict = {}  # (bytes, dtype) -> buffer of a small constant
 
     # -- building ----------------------------------------------------------------------------
     def program(self, source: str, defines: dict[str, str]):
@@ -247,17 +272,26 @@ class OpenCLBackend:
         return _Kernels(self.program(source, defines), self._kernel_cache)
 
     # -- buffers (uploads and downloads are timed as "copies", gpu_blur.timings) --------------
-    def _upload(self, array) -> cl.Buffer:
+    def _upload(self, array, dtype=None) -> cl.Buffer:
+        """``array`` on the device: an :class:`OnDevice` as it is, host data copied."""
+        if isinstance(array, OnDevice):
+            return array.data
         with timer("copies"):
-            data = np.ascontiguousarray(array, dtype=self.real)
+            data = np.ascontiguousarray(array, dtype=dtype or self.real)
             return cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                              hostbuf=data)
 
     def _constant(self, array, dtype=None) -> cl.Buffer:
-        with timer("copies"):
-            data = np.ascontiguousarray(np.ravel(array), dtype=dtype or self.real)
-            return cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                             hostbuf=data)
+        """A small constant (matrix, polynomial, table) on the device, uploaded once."""
+        data = np.ascontiguousarray(np.ravel(array), dtype=dtype or self.real)
+        key = (data.tobytes(), data.dtype.str)
+        if key not in self._constants:
+            self._constants[key] = self._upload(data, data.dtype)
+        return self._constants[key]
+
+    def _empty(self, count: int, dtype=None) -> cl.Buffer:
+        nbytes = max(count, 1) * np.dtype(dtype or self.real).itemsize
+        return cl.Buffer(self.ctx, cl.mem_flags.READ_WRITE, nbytes)
 
     def _zeros(self, count: int, dtype=None) -> cl.Buffer:
         nbytes = max(count, 1) * np.dtype(dtype or self.real).itemsize
@@ -265,11 +299,19 @@ class OpenCLBackend:
         cl.enqueue_fill_buffer(self.queue, buf, np.zeros(1, dtype or self.real), 0, nbytes)
         return buf
 
-    def _download(self, buf: cl.Buffer, shape) -> np.ndarray:
+    def _fetch(self, values: OnDevice, dtype) -> np.ndarray:
         with timer("copies"):
-            out = np.empty(shape, dtype=self.real)
-            cl.enqueue_copy(self.queue, out, buf)
-            return out.astype(np.float64)
+            out = np.empty(values.shape, dtype=self.real)
+            cl.enqueue_copy(self.queue, out, values.data)
+            return out.astype(dtype, copy=False)
+
+    def _out(self, buf: cl.Buffer, shape, pass_: str, origin) -> OnDevice:
+        """A pass's output, with the :data:`~gpu_blur.backends.TEST_FAULT` hook applied."""
+        result = OnDevice(buf, shape, self._fetch)
+        if fault_planted(pass_):
+            host = planted_fault(pass_, result.numpy(), origin)
+            cl.enqueue_copy(self.queue, buf, np.ascontiguousarray(host, dtype=self.real))
+        return result
 
     def _kernels(self, sync: bool = True):
         """Time launches as "kernels"; ``sync`` waits for them (``queue.finish()``) at the end."""
@@ -279,44 +321,103 @@ class OpenCLBackend:
     def _grid(w: int, h: int) -> tuple[int, int]:
         return (int(w), int(h))
 
+    def _source(self, frame: np.ndarray):
+        """(numpy dtype, GB_SOURCE_BITS) a frame travels in: its codes, or the compute type."""
+        return {np.dtype(np.uint8): (np.uint8, 8), np.dtype(np.uint16): (np.uint16, 16)}.get(
+            np.dtype(frame.dtype), (self.real, 0))
+
+    def _frame_stacks(self, frames: Sequence[np.ndarray], region: Region):
+        """Yield (stack, count, upload event): device stacks of up to FRAMES_PER_LAUNCH frames.
+
+        Two stacks take turns. With ``overlap``, a stack's frames go through a mapped pinned
+        buffer and upload on the copy queue without blocking; the caller's launch waits for
+        the upload event and returns its own event through ``send``, which the next upload
+        into that stack waits for. Without it, copies block on the compute queue.
+        """
+        dtype = self._source(frames[0])[0]
+        per = min(FRAMES_PER_LAUNCH, len(frames))
+        values = region.h * region.w * 3
+        groups = [range(i, min(i + per, len(frames))) for i in range(0, len(frames), per)]
+        stacks = [self._empty(per * values, dtype) for _ in range(min(2, len(groups)))]
+        read = [None] * len(stacks)  # event: the launch that last read each stack
+        for c, group in enumerate(groups):
+            slot = c % len(stacks)
+            with timer("copies"):
+                if self.overlap:
+                    staging = self._staging_buffer(slot, per * values, dtype)
+                    fill_stack(staging, frames, group, region)
+                    event = cl.enqueue_copy(
+                        self.copy_queue, stacks[slot], staging[:len(group) * values],
+                        is_blocking=False, wait_for=[read[slot]] if read[slot] else None)
+                    self._staged[slot] = event
+                else:
+                    host = np.empty(len(group) * values, dtype=dtype)
+                    fill_stack(host, frames, group, region)
+                    cl.enqueue_copy(self.queue, stacks[slot], host)
+                    event = None
+            read[slot] = yield stacks[slot], len(group), event
+
+    def _staging_buffer(self, slot: int, count: int, dtype) -> np.ndarray:
+        """Mapped pinned host buffer ``slot`` for ``count`` values, once its last copy is done."""
+        if slot in self._staged:
+            self._staged.pop(slot).wait()
+        held = self._staging.get(slot)
+        if held is None or held[1].dtype != dtype or held[1].size < count:
+            if held is not None:
+                held[1].base.release()
+            buf = cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.ALLOC_HOST_PTR,
+                            count * np.dtype(dtype).itemsize)
+            mapped, _ = cl.enqueue_map_buffer(self.copy_queue, buf, cl.map_flags.WRITE, 0,
+                                              (count,), dtype, is_blocking=True)
+            held = (buf, mapped)
+            self._staging[slot] = held
+        return held[1]
+
     # -- pass 1: accumulate ------------------------------------------------------------------
     def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
-                   mask: np.ndarray | None, region: Region) -> tuple[np.ndarray, np.ndarray]:
-        """Linearize and blur on the device; return (linear, mask) over ``region``."""
-        prg = self.kernels("accumulate.cl", pass_defines(plan, "accumulate"))
+                   mask: np.ndarray | None, region: Region) -> tuple[OnDevice, OnDevice]:
+        """Linearize and blur on the device; (linear, mask) over ``region``, on the device."""
+        dtype, bits = self._source(frames[0])
+        defines = {**pass_defines(plan, "accumulate"), "GB_SOURCE_BITS": str(bits)}
+        prg = self.kernels("accumulate.cl", defines)
         mode = plan.variant("blur") or "none"
         n = region.h * region.w * 3
         shape = (region.h, region.w, 3)
+        linear, sat_mask = self._empty(n), self._empty(n)
         if mode == "average":
-            # a compensated sum (the sum and its rounding errors) and the saturation counts
-            total, compensation = self._zeros(n), self._zeros(n)
-            saturated = self._zeros(n, np.uint32)
-            count = 0
-            for frame in frames:  # one frame uploading while the previous one is summed
-                source = self._upload(region.of(frame))
-                with self._kernels(sync=False):
-                    prg.gb_blur_average_add(self.queue, (n,), None, source, total,
-                                            compensation, saturated)
-                del source
-                count += 1
-            linear, sat_mask = self._zeros(n), self._zeros(n)
-            with self._kernels():
-                prg.gb_blur_average_finish(self.queue, (n,), None, total, compensation,
-                                           saturated, np.uint32(count), linear, sat_mask)
+            # running compensated sums (sum, rounding errors, saturation counts) are only
+            # needed between launches: one stack of frames is summed in registers
+            sums = ((self._empty(n), self._empty(n), self._empty(n, np.uint32))
+                    if len(frames) > FRAMES_PER_LAUNCH
+                    else (linear, sat_mask, self._empty(1, np.uint32)))
+            done, stacks = 0, self._frame_stacks(frames, region)
+            stack, count, uploaded = next(stacks)
+            while True:
+                last = done + count == len(frames)
+                with self._kernels(sync=last):
+                    launched = prg.gb_blur_average_add(
+                        self.queue, (n,), None, stack, np.uint32(count), np.int64(n), *sums,
+                        np.int32(done == 0), np.uint32(len(frames) if last else 0), linear,
+                        sat_mask, wait_for=[uploaded] if uploaded else None)
+                done += count
+                if last:
+                    stacks.close()
+                    break
+                stack, count, uploaded = stacks.send(launched)
             return self._linear_out(linear, sat_mask, shape, region)
         if mode == "none":
-            linear, indicator = self._zeros(n), self._zeros(n)
-            source = self._upload(region.of(frames[0]))
+            indicator = self._empty(n)
+            source = self._upload(region.of(frames[0]), dtype)
             with self._kernels():
                 prg.gb_linearize(self.queue, (n,), None, source, linear, indicator)
             del source
-            sat_mask = np.zeros(shape) if mask is None else region.of(mask).astype(np.float64)
-            linear = planted_fault("accumulate", self._download(linear, shape), region.origin)
-            return linear, sat_mask
+            given = np.zeros(shape) if mask is None else region.of(mask)
+            return (self._out(linear, shape, "accumulate", region.origin),
+                    OnDevice(self._upload(given), shape, self._fetch))
         view = region.expand(blur.blur_halo(mode, params, region.full_h, region.full_w))
         vn = view.h * view.w * 3
-        src, indicator = self._zeros(vn), self._zeros(vn)
-        source = self._upload(view.of(frames[0]))
+        src, indicator = self._empty(vn), self._empty(vn)
+        source = self._upload(view.of(frames[0]), dtype)
         with self._kernels(sync=False):
             prg.gb_linearize(self.queue, (vn,), None, source, src, indicator)
         del source
@@ -324,11 +425,10 @@ class OpenCLBackend:
                     np.int64(region.full_w), np.int64(region.full_h))
         out_geometry = (np.int64(region.x0), np.int64(region.y0), np.int64(region.w),
                         np.int64(region.h))
-        linear, sat_mask = self._zeros(n), self._zeros(n)
         grid = self._grid(region.w, region.h)
         if mode == "kernel":
             kernel = blur.normalize_kernel(params["kernel"])
-            k = self._constant(kernel)
+            k = self._upload(np.ravel(kernel))
             kh, kw = (np.int32(s) for s in kernel.shape)
             with self._kernels():
                 prg.gb_blur_kernel(self.queue, grid, None, src, *geometry, k, kh, kw, linear,
@@ -340,7 +440,7 @@ class OpenCLBackend:
         sums = [self._zeros(n) for _ in range(4)]
         pos = np.float64 if self.info.fp64 else np.float32
         hom = params["homographies"]
-        inverses = [self._constant(np.linalg.inv(h), pos) for h in hom]
+        inverses = [self._upload(np.ravel(np.linalg.inv(h)), pos) for h in hom]
         with self._kernels():
             for hinv in inverses:  # one pose at a time
                 prg.gb_blur_trajectory_add(self.queue, grid, None, src, indicator, *geometry,
@@ -350,18 +450,19 @@ class OpenCLBackend:
         return self._linear_out(linear, sat_mask, shape, region)
 
     def _linear_out(self, linear, sat_mask, shape, region: Region):
-        """The accumulate pass's (linear, mask) on the host."""
-        linear = planted_fault("accumulate", self._download(linear, shape), region.origin)
-        return linear, self._download(sat_mask, shape)
+        """The accumulate pass's (linear, mask), left on the device."""
+        return (self._out(linear, shape, "accumulate", region.origin),
+                OnDevice(sat_mask, shape, self._fetch))
 
     # -- pass 2: to_raw ----------------------------------------------------------------------
-    def to_raw(self, plan: Plan, params: dict, camera: Camera, linear: np.ndarray,
-               mask: np.ndarray, origin: tuple[int, int] = (0, 0), *, seed: int,
-               sample_index: int) -> tuple[np.ndarray, np.ndarray]:
+    def to_raw(self, plan: Plan, params: dict, camera: Camera, linear, mask,
+               origin: tuple[int, int] = (0, 0), *, seed: int,
+               sample_index: int) -> tuple[OnDevice, OnDevice]:
         """Saturation to noisy RAW on the device (see NumpyBackend.to_raw)."""
         prg = self.kernels("to_raw.cl", pass_defines(plan, "to_raw"))
         h, w = linear.shape[:2]
-        saturated, raw = self._zeros(h * w * 3), self._zeros(h * w)
+        saturated = self._empty(h * w * 3)
+        raw = self._empty(h * w if plan.raw_round_trip else 1)
         key = key_from_seed(seed)
         r = self.real
         inputs = (self._upload(linear), self._upload(mask))
@@ -376,27 +477,27 @@ class OpenCLBackend:
                 r(params.get("read_noise_std", 0.0)), np.uint32(key[0]), np.uint32(key[1]),
                 np.uint32(sample_index), saturated, raw)
         del inputs
-        sat = self._download(saturated, (h, w, 3))
         if not plan.raw_round_trip:
-            return planted_fault("to_raw", sat, origin), sat
-        return planted_fault("to_raw", self._download(raw, (h, w)), origin), sat
+            return (self._out(saturated, (h, w, 3), "to_raw", origin),
+                    OnDevice(saturated, (h, w, 3), self._fetch))
+        return (self._out(raw, (h, w), "to_raw", origin),
+                OnDevice(saturated, (h, w, 3), self._fetch))
 
     # -- pass 3: finish ----------------------------------------------------------------------
-    def finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
-               saturated: np.ndarray, view: Region, out: Region, *, seed: int,
-               sample_index: int) -> np.ndarray:
+    def finish(self, plan: Plan, params: dict, camera: Camera, image, saturated, view: Region,
+               out: Region, *, seed: int, sample_index: int) -> OnDevice:
         """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
         from gpu_blur.constants import A7R3_CRF_POLYNOMIAL, A7R3_CRF_TABLE_X255
 
         prg = self.kernels("finish.cl", pass_defines(plan, "finish"))
         table = A7R3_CRF_TABLE_X255 / 255.0
         raw = image if plan.raw_round_trip else np.zeros(1)
-        result = self._zeros(out.h * out.w * 3)
+        result = self._empty(out.h * out.w * 3)
         key = key_from_seed(seed)
         raw_buf, sat_buf = self._upload(raw), self._upload(saturated)
         matrix, polynomial = (self._constant(camera.camera_to_linear),
                               self._constant(A7R3_CRF_POLYNOMIAL))
-        table_buf = self._upload(table)
+        table_buf = self._constant(table)
         with self._kernels():
             prg.gb_finish(
                 self.queue, self._grid(out.w, out.h), None, raw_buf, sat_buf,
@@ -407,7 +508,7 @@ class OpenCLBackend:
                 np.uint32(key[1]), np.uint32(sample_index), polynomial,
                 np.int32(A7R3_CRF_POLYNOMIAL.size), table_buf, np.int32(table.size), result)
         del raw_buf, sat_buf
-        return planted_fault("finish", self._download(result, (out.h, out.w, 3)), out.origin)
+        return self._out(result, (out.h, out.w, 3), "finish", out.origin)
 
     def retone(self, plan: Plan, image: np.ndarray) -> np.ndarray:
         """The output tone curve for the sharp reference (host side, float64)."""
@@ -427,3 +528,4 @@ class _Kernels:
         if key not in self._cache:
             self._cache[key] = cl.Kernel(self._program, name)
         return self._cache[key]
+

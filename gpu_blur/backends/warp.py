@@ -3,8 +3,10 @@
 Devices: ``warp`` (the first CUDA device if there is one, else the CPU), ``warp:cpu``,
 ``warp:cuda:N``. Only the stages a plan keeps are generated (``wp.static`` flags); float32 by
 default, float64 on request. Random draws repeat :mod:`gpu_blur.reference.rng` bit for bit.
-On CUDA, :meth:`WarpBackend.finish_on_device` leaves the result on the GPU as a ``wp.array``
-that ``torch.from_dlpack`` takes without a copy.
+Pass outputs stay on the device between passes; :meth:`WarpBackend.device_array` gives the
+result as a ``wp.array`` that ``torch.from_dlpack`` takes without a copy. Frames upload in their
+stored dtype (8-bit frames: a quarter of a float32 copy), on CUDA from pinned host buffers on a
+copy stream that overlaps the summing of the previous frames.
 """
 
 from __future__ import annotations
@@ -14,7 +16,14 @@ from collections.abc import Sequence
 import numpy as np
 import warp as wp
 
-from gpu_blur.backends import cfa_bits, planted_fault
+from gpu_blur.backends import (
+    FRAMES_PER_LAUNCH,
+    OnDevice,
+    cfa_bits,
+    fault_planted,
+    fill_stack,
+    planted_fault,
+)
 from gpu_blur.cameras import Camera
 from gpu_blur.plan import Plan
 from gpu_blur.reference import blur
@@ -53,19 +62,32 @@ def _device(spec: str) -> str:
 
 
 class WarpBackend:
-    """Runs a plan as Warp kernels on one device (see :mod:`gpu_blur.backends`)."""
+    """Runs a plan as Warp kernels on one device (see :mod:`gpu_blur.backends`).
+
+    Args:
+        spec: ``warp``, ``warp:cpu`` or ``warp:cuda:<n>``.
+        precision: the kernels' compute type, ``float32`` or ``float64``.
+        overlap: on CUDA, upload frames from pinned host buffers on a second stream while the
+            previous stack of frames is summed (False: plain synchronous copies, to measure
+            what the overlap gains; bench/generate_throughput.py).
+    """
 
     name = "warp"
 
-    def __init__(self, spec: str = "warp", precision: str = "float32"):
+    def __init__(self, spec: str = "warp", precision: str = "float32", *, overlap: bool = True):
         if precision not in ("float32", "float64"):
             raise ValueError(f"precision must be float32 or float64, got {precision!r}")
         self.wp_device = _device(spec)
         self.precision = precision
         self.real = wp.float64 if precision == "float64" else wp.float32
         self.np_real = np.float64 if precision == "float64" else np.float32
-        name = wp.get_device(self.wp_device).name
-        self.device = f"warp:{self.wp_device} {name}, {precision}"
+        device = wp.get_device(self.wp_device)
+        self.device = f"warp:{self.wp_device} {device.name}, {precision}"
+        self.overlap = bool(overlap and device.is_cuda)
+        self._copier = wp.Stream(self.wp_device) if self.overlap else None
+        self._staging: dict = {}  # slot -> pinned host buffer (kept across samples)
+        self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
+        self._constants: dict = {}  # (bytes, dtype) -> device array of a small constant
 
     # -- buffers (uploads and downloads are timed as "copies", gpu_blur.timings) --------------
     @staticmethod
@@ -79,14 +101,29 @@ class WarpBackend:
                 "4096 4096) or on an OpenCL backend")
 
     def _array(self, values, dtype=None) -> wp.array:
+        """``values`` on the device, flat: an :class:`OnDevice` as it is, host data uploaded."""
+        if isinstance(values, OnDevice):
+            return values.data
         self._check_size(int(np.size(values)))
         with timer("copies"):
             data = np.ascontiguousarray(np.ravel(values), dtype=dtype or self.np_real)
             return wp.array(data, device=self.wp_device)
 
+    def _constant(self, values, dtype=None) -> wp.array:
+        """A small constant (matrix, polynomial, table) on the device, uploaded once."""
+        data = np.ascontiguousarray(np.ravel(values), dtype=dtype or self.np_real)
+        key = (data.tobytes(), data.dtype.str)
+        if key not in self._constants:
+            self._constants[key] = self._array(data, data.dtype)
+        return self._constants[key]
+
     def _zeros(self, count: int, dtype=None) -> wp.array:
         self._check_size(count)
         return wp.zeros(max(count, 1), dtype=dtype or self.real, device=self.wp_device)
+
+    def _empty(self, count: int, dtype=None) -> wp.array:
+        self._check_size(count)
+        return wp.empty(max(count, 1), dtype=dtype or self.real, device=self.wp_device)
 
     def _launch(self, kernel, dim, *args) -> None:
         wp.launch(kernel, dim=dim, inputs=list(args), device=self.wp_device)
@@ -98,55 +135,122 @@ class WarpBackend:
     def _synchronize(self) -> None:
         wp.synchronize_device(self.wp_device)
 
+    def _out(self, array: wp.array, shape, pass_: str, origin) -> OnDevice:
+        """A pass's output, with the :data:`~gpu_blur.backends.TEST_FAULT` hook applied."""
+        result = OnDevice(array, shape, self._fetch)
+        if fault_planted(pass_):
+            host = planted_fault(pass_, result.numpy(), origin)
+            wp.copy(array, wp.array(host.ravel().astype(self.np_real), device=self.wp_device))
+        return result
+
     @staticmethod
-    def _host(array: wp.array, shape) -> np.ndarray:
+    def _fetch(values: OnDevice, dtype) -> np.ndarray:
         with timer("copies"):
-            return array.numpy()[:int(np.prod(shape))].reshape(shape).astype(np.float64)
+            count = int(np.prod(values.shape))
+            host = values.data.numpy()[:count].reshape(values.shape)
+            # a CPU array's numpy() is a view of memory freed with the array: always copy
+            return host.astype(dtype, copy=values.data.device.is_cpu)
+
+    def _source(self, frame: np.ndarray):
+        """(numpy dtype, Warp dtype) a frame travels in: its codes, or the compute type."""
+        return {np.dtype(np.uint8): (np.uint8, wp.uint8),
+                np.dtype(np.uint16): (np.uint16, wp.uint16)}.get(
+                    np.dtype(frame.dtype), (self.np_real, self.real))
+
+    def _frame_stacks(self, frames: Sequence[np.ndarray], region: Region):
+        """Yield (stack, count): device stacks of up to FRAMES_PER_LAUNCH frames of ``region``.
+
+        Two stacks take turns. On CUDA with ``overlap``, a stack's frames go through a pinned
+        host buffer and upload on the copy stream; the compute stream waits for that copy,
+        and the next upload into the stack waits for the launch that read it (the caller
+        launches before asking for the next stack). Elsewhere copies are synchronous.
+        """
+        np_dtype, wp_dtype = self._source(frames[0])
+        per = min(FRAMES_PER_LAUNCH, len(frames))
+        values = region.h * region.w * 3
+        groups = [range(i, min(i + per, len(frames))) for i in range(0, len(frames), per)]
+        stacks = [self._empty(per * values, wp_dtype) for _ in range(min(2, len(groups)))]
+        compute = wp.get_stream(self.wp_device) if self.overlap else None
+        read = [None] * len(stacks)  # event: the launch that last read each stack
+        for c, group in enumerate(groups):
+            slot = c % len(stacks)
+            stack = stacks[slot]
+            with timer("copies"):
+                if self.overlap:
+                    staging = self._staging_buffer(slot, per * values, np_dtype, wp_dtype)
+                    fill_stack(staging.numpy(), frames, group, region)
+                    if read[slot] is not None:
+                        self._copier.wait_event(read[slot])
+                    wp.copy(stack, staging, count=len(group) * values, stream=self._copier)
+                    self._staged[slot] = self._copier.record_event()
+                    compute.wait_event(self._staged[slot])
+                elif self.wp_device == "cpu":
+                    fill_stack(stack.numpy(), frames, group, region)  # host memory itself
+                else:
+                    host = np.empty(len(group) * values, dtype=np_dtype)
+                    fill_stack(host, frames, group, region)
+                    wp.copy(stack, wp.array(host, device="cpu"), count=host.size)
+            yield stack, len(group)
+            if self.overlap:
+                read[slot] = compute.record_event()
+
+    def _staging_buffer(self, slot: int, count: int, np_dtype, wp_dtype) -> wp.array:
+        """Pinned host buffer ``slot`` for ``count`` values, once its last copy is done."""
+        if slot in self._staged:
+            wp.synchronize_event(self._staged.pop(slot))
+        buffer = self._staging.get(slot)
+        if buffer is None or buffer.dtype != wp_dtype or buffer.size < count:
+            buffer = wp.empty(count, dtype=wp_dtype, device="cpu", pinned=True)
+            self._staging[slot] = buffer
+        return buffer
+
+    @staticmethod
+    def device_array(values: OnDevice) -> wp.array:
+        """An output as an ``h x w x 3`` ``wp.array`` on the device (``torch.from_dlpack``)."""
+        return values.data.reshape(values.shape)
 
     # -- pass 1: accumulate ------------------------------------------------------------------
     def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
-                   mask: np.ndarray | None, region: Region) -> tuple[np.ndarray, np.ndarray]:
-        """Linearize and blur on the device; return (linear, mask) over ``region``."""
+                   mask: np.ndarray | None, region: Region) -> tuple[OnDevice, OnDevice]:
+        """Linearize and blur on the device; (linear, mask) over ``region``, on the device."""
         from gpu_blur.warp_kernels.passes import accumulate_kernels
 
-        k = accumulate_kernels(self.real)
+        k = accumulate_kernels(self.real, self._source(frames[0])[1])
         mode = plan.variant("blur") or "none"
         n = region.h * region.w * 3
         shape = (region.h, region.w, 3)
+        linear, sat_mask = self._empty(n), self._empty(n)
         if mode == "average":
-            # a compensated sum (the sum and its rounding errors) and the saturation counts
-            total, compensation = self._zeros(n), self._zeros(n)
-            saturated = self._zeros(n, wp.uint32)
-            count = 0
-            for frame in frames:  # one frame uploading while the previous one is summed
-                source = self._array(region.of(frame))
-                with self._kernels(sync=False):
-                    self._launch(k["blur_average_add"], n, source, total, compensation,
-                                 saturated)
-                del source
-                count += 1
-            linear, sat_mask = self._zeros(n), self._zeros(n)
-            with self._kernels():
-                self._launch(k["blur_average_finish"], n, total, compensation, saturated,
-                             count, linear, sat_mask)
+            # running compensated sums (sum, rounding errors, saturation counts) are only
+            # needed between launches: one stack of frames is summed in registers
+            sums = ((self._empty(n), self._empty(n), self._empty(n, wp.uint32))
+                    if len(frames) > FRAMES_PER_LAUNCH
+                    else (linear, sat_mask, self._empty(1, wp.uint32)))
+            done = 0
+            for stack, count in self._frame_stacks(frames, region):
+                last = done + count == len(frames)
+                with self._kernels(sync=last):
+                    self._launch(k["blur_average_add"], n, stack, count, n, *sums,
+                                 int(done == 0), len(frames) if last else 0, linear, sat_mask)
+                done += count
             return self._linear_out(linear, sat_mask, shape, region)
         if mode == "none":
-            linear, indicator = self._zeros(n), self._zeros(n)
-            source = self._array(region.of(frames[0]))
+            indicator = self._empty(n)
+            source = self._array(region.of(frames[0]), self._source(frames[0])[0])
             with self._kernels():
                 self._launch(k["linearize"], n, source, linear, indicator)
             del source
-            sat_mask = np.zeros(shape) if mask is None else region.of(mask).astype(np.float64)
-            return planted_fault("accumulate", self._host(linear, shape), region.origin), sat_mask
+            given = (np.zeros(shape) if mask is None else region.of(mask))
+            return (self._out(linear, shape, "accumulate", region.origin),
+                    OnDevice(self._array(given), shape, self._fetch))
         view = region.expand(blur.blur_halo(mode, params, region.full_h, region.full_w))
         vn = view.h * view.w * 3
-        src, indicator = self._zeros(vn), self._zeros(vn)
-        source = self._array(view.of(frames[0]))
+        src, indicator = self._empty(vn), self._empty(vn)
+        source = self._array(view.of(frames[0]), self._source(frames[0])[0])
         with self._kernels(sync=False):
             self._launch(k["linearize"], vn, source, src, indicator)
         del source
         geometry = (view.x0, view.y0, view.w, region.full_w, region.full_h)
-        linear, sat_mask = self._zeros(n), self._zeros(n)
         grid = (region.h, region.w)
         if mode == "kernel":
             kernel = blur.normalize_kernel(params["kernel"])
@@ -169,14 +273,14 @@ class WarpBackend:
         return self._linear_out(linear, sat_mask, shape, region)
 
     def _linear_out(self, linear, sat_mask, shape, region: Region):
-        """The accumulate pass's (linear, mask) on the host."""
-        linear = planted_fault("accumulate", self._host(linear, shape), region.origin)
-        return linear, self._host(sat_mask, shape)
+        """The accumulate pass's (linear, mask), left on the device."""
+        return (self._out(linear, shape, "accumulate", region.origin),
+                OnDevice(sat_mask, shape, self._fetch))
 
     # -- pass 2: to_raw ----------------------------------------------------------------------
-    def to_raw(self, plan: Plan, params: dict, camera: Camera, linear: np.ndarray,
-               mask: np.ndarray, origin: tuple[int, int] = (0, 0), *, seed: int,
-               sample_index: int) -> tuple[np.ndarray, np.ndarray]:
+    def to_raw(self, plan: Plan, params: dict, camera: Camera, linear, mask,
+               origin: tuple[int, int] = (0, 0), *, seed: int,
+               sample_index: int) -> tuple[OnDevice, OnDevice]:
         """Saturation to noisy RAW on the device (see NumpyBackend.to_raw)."""
         from gpu_blur.warp_kernels.passes import to_raw_kernel
 
@@ -185,11 +289,12 @@ class WarpBackend:
             plan.kept("linear_to_camera") and plan["linear_to_camera"].options["clip"],
             plan.kept("poisson_gaussian_noise"))
         h, w = linear.shape[:2]
-        saturated, raw = self._zeros(h * w * 3), self._zeros(h * w)
+        saturated = self._empty(h * w * 3)
+        raw = self._empty(h * w) if plan.raw_round_trip else self._empty(1)
         key = key_from_seed(seed)
         r = self.np_real
         inputs = (self._array(linear), self._array(mask))
-        matrix = self._array(camera.linear_to_camera)
+        matrix = self._constant(camera.linear_to_camera)
         with self._kernels():
             self._launch(
                 kernel, (h, w), *inputs, origin[1], origin[0], w,
@@ -199,16 +304,16 @@ class WarpBackend:
                 r(params.get("read_noise_std", 0.0)), wp.uint32(int(key[0])),
                 wp.uint32(int(key[1])), wp.uint32(sample_index), saturated, raw)
         del inputs
-        sat = self._host(saturated, (h, w, 3))
         if not plan.raw_round_trip:
-            return planted_fault("to_raw", sat, origin), sat
-        return planted_fault("to_raw", self._host(raw, (h, w)), origin), sat
+            return self._out(saturated, (h, w, 3), "to_raw", origin), OnDevice(
+                saturated, (h, w, 3), self._fetch)
+        return (self._out(raw, (h, w), "to_raw", origin),
+                OnDevice(saturated, (h, w, 3), self._fetch))
 
     # -- pass 3: finish ----------------------------------------------------------------------
-    def finish_on_device(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
-                         saturated: np.ndarray, view: Region, out: Region, *, seed: int,
-                         sample_index: int) -> wp.array:
-        """:meth:`finish`, leaving the ``out.h x out.w x 3`` result on the device."""
+    def finish(self, plan: Plan, params: dict, camera: Camera, image, saturated, view: Region,
+               out: Region, *, seed: int, sample_index: int) -> OnDevice:
+        """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
         from gpu_blur.constants import A7R3_CRF_POLYNOMIAL, A7R3_CRF_TABLE_X255
         from gpu_blur.warp_kernels.passes import finish_kernel
 
@@ -219,12 +324,13 @@ class WarpBackend:
             plan.kept("tone"), plan.kept("gaussian_noise"), plan.kept("restore_saturated"),
             plan["retone"].options["crf"] if plan.kept("retone") else "",
             plan["quantize"].options["bits"] if plan.kept("quantize") else 0)
-        result = self._zeros(out.h * out.w * 3)
+        result = self._empty(out.h * out.w * 3)
         key = key_from_seed(seed)
         raw = image if plan.raw_round_trip else np.zeros(1)
         inputs = (self._array(raw), self._array(saturated))
-        constants = (self._array(camera.camera_to_linear), self._array(A7R3_CRF_POLYNOMIAL),
-                     self._array(A7R3_CRF_TABLE_X255 / 255.0))
+        constants = (self._constant(camera.camera_to_linear),
+                     self._constant(A7R3_CRF_POLYNOMIAL),
+                     self._constant(A7R3_CRF_TABLE_X255 / 255.0))
         with self._kernels():
             self._launch(
                 kernel, (out.h, out.w), *inputs, view.x0, view.y0, view.w, view.full_w,
@@ -232,20 +338,11 @@ class WarpBackend:
                 constants[0], self.np_real(params.get("gaussian_std", 0.0)),
                 wp.uint32(int(key[0])), wp.uint32(int(key[1])), wp.uint32(sample_index),
                 constants[1], constants[2], result)
-        return result.reshape((out.h, out.w, 3))
-
-    def finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
-               saturated: np.ndarray, view: Region, out: Region, *, seed: int,
-               sample_index: int) -> np.ndarray:
-        """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
-        result = self.finish_on_device(plan, params, camera, image, saturated, view, out,
-                                       seed=seed, sample_index=sample_index)
-        with timer("copies"):
-            result = result.numpy().astype(np.float64)
-        return planted_fault("finish", result, out.origin)
+        return self._out(result, (out.h, out.w, 3), "finish", out.origin)
 
     def retone(self, plan: Plan, image: np.ndarray) -> np.ndarray:
         """The output tone curve for the sharp reference (host side, float64)."""
         from gpu_blur.backends.numpy import NumpyBackend
 
         return NumpyBackend().retone(plan, image)
+

@@ -14,7 +14,6 @@ Warp turns the indices into 64-bit byte offsets (tests/test_hard_cases.py runs b
 bytes). Streamed sums (frames, poses) are compensated, as in kernels/opencl/accumulate.cl.
 """
 
-from __future__ import annotations
 
 import functools
 from typing import Any
@@ -44,37 +43,71 @@ def add_compensated(total: wp.array(dtype=Any), compensation: wp.array(dtype=Any
     total[i] = t
 
 
+#: Largest code of a stored frame dtype (values are code / top); floats are values already.
+SOURCE_TOP = {wp.uint8: 255.0, wp.uint16: 65535.0}
+
+
 @functools.cache
-def accumulate_kernels(real) -> dict:
-    """Pass 1, stages "linearize" and "blur" (average, kernel, trajectory), for ``real``."""
+def accumulate_kernels(real, source=None) -> dict:
+    """Pass 1, stages "linearize" and "blur" (average, kernel, trajectory), for ``real``.
+
+    ``source`` is how frames are stored on the device: ``wp.uint8`` or ``wp.uint16`` codes
+    (value = code / (2^bits - 1), a correctly rounded division, equal to the host's float64
+    quotient rounded to ``real`` for every code), or ``real`` values in [0, 1] (the default).
+    """
+    source = real if source is None else source
+    top = SOURCE_TOP.get(source, 0.0)
+
+    @wp.func
+    def source_value(code: source) -> real:
+        if wp.static(top > 0.0):
+            return real(code) / real(top)
+        return real(code)
 
     @wp.kernel(module="unique")
-    def linearize(srgb: wp.array(dtype=real), linear: wp.array(dtype=real),
+    def linearize(srgb: wp.array(dtype=source), linear: wp.array(dtype=real),
                   indicator: wp.array(dtype=real)):
         i = wp.tid()
-        v = pixel.srgb_to_linear(srgb[i])
+        v = pixel.srgb_to_linear(source_value(srgb[i]))
         linear[i] = v
         indicator[i] = real(0.0)
         if v >= real(1.0):
             indicator[i] = real(1.0)
 
     @wp.kernel(module="unique")
-    def blur_average_add(srgb: wp.array(dtype=real), total: wp.array(dtype=real),
-                         compensation: wp.array(dtype=real),
-                         saturated: wp.array(dtype=wp.uint32)):
+    def blur_average_add(frames: wp.array(dtype=source), count: int, stride: int,
+                         total: wp.array(dtype=real), compensation: wp.array(dtype=real),
+                         saturated: wp.array(dtype=wp.uint32), first: int, mean_of: int,
+                         linear: wp.array(dtype=real), mask: wp.array(dtype=real)):
+        # frames k = 0..count-1 of a device stack (frame k at k * stride) join the running
+        # compensated sum in registers (Neumaier, as add_compensated); ``first`` starts from
+        # zero, ``mean_of`` > 0 ends the average: linear and mask get the means over that many
+        # frames instead of the running state going back to total/compensation/saturated
         i = wp.tid()
-        v = pixel.srgb_to_linear(srgb[i])
-        add_compensated(total, compensation, i, v)
-        if v >= real(1.0):
-            saturated[i] = saturated[i] + wp.uint32(1)
-
-    @wp.kernel(module="unique")
-    def blur_average_finish(total: wp.array(dtype=real), compensation: wp.array(dtype=real),
-                            saturated: wp.array(dtype=wp.uint32), count: int,
-                            linear: wp.array(dtype=real), mask: wp.array(dtype=real)):
-        i = wp.tid()
-        linear[i] = (total[i] + compensation[i]) / real(count)
-        mask[i] = real(saturated[i]) / real(count)
+        s = real(0.0)
+        c = real(0.0)
+        n = wp.uint32(0)
+        if first == 0:
+            s = total[i]
+            c = compensation[i]
+            n = saturated[i]
+        for k in range(count):
+            v = pixel.srgb_to_linear(source_value(frames[k * stride + i]))
+            t = s + v
+            if wp.abs(s) >= wp.abs(v):
+                c = c + ((s - t) + v)
+            else:
+                c = c + ((v - t) + s)
+            s = t
+            if v >= real(1.0):
+                n = n + wp.uint32(1)
+        if mean_of > 0:
+            linear[i] = (s + c) / real(mean_of)
+            mask[i] = real(n) / real(mean_of)
+        else:
+            total[i] = s
+            compensation[i] = c
+            saturated[i] = n
 
     @wp.kernel(module="unique")
     def blur_kernel(src: wp.array(dtype=real), sx0: int, sy0: int, sw: int, full_w: int,
@@ -153,7 +186,7 @@ def accumulate_kernels(real) -> dict:
 
     return {
         "linearize": linearize, "blur_average_add": blur_average_add,
-        "blur_average_finish": blur_average_finish, "blur_kernel": blur_kernel,
+        "blur_kernel": blur_kernel,
         "blur_trajectory_add": blur_trajectory_add,
         "blur_trajectory_finish": blur_trajectory_finish,
     }

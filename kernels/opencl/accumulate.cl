@@ -1,7 +1,8 @@
 /* accumulate.cl: pass 1 of the plan, stages "linearize" and "blur".
  *
- * Images are interleaved RGB (3 reals per pixel), row-major. Sums stay on the device while the
- * host streams frames (mode average) or poses (mode trajectory) through them one at a time.
+ * Images are interleaved RGB (3 values per pixel), row-major; input frames are gb_source (their
+ * stored dtype, gb_common.h). Sums stay on the device while the host streams frames (mode
+ * average, a few per launch) or poses (mode trajectory, one per launch) through them.
  * Every kernel addresses pixels by global coordinates (see gb_common.h): a tile's output
  * equals the whole image's at the same pixels.
  */
@@ -29,35 +30,50 @@ static inline void gb_add_compensated(__global real *sum, __global real *compens
 }
 
 /* linearize: sRGB -> linear (EOTF), and the saturation indicator [linear >= 1]. */
-__kernel void gb_linearize(__global const real *srgb, __global real *linear,
+__kernel void gb_linearize(__global const gb_source *srgb, __global real *linear,
                            __global real *indicator)
 {
     size_t i = get_global_id(0);
-    real v = gb_srgb_to_linear(srgb[i]);
+    real v = gb_srgb_to_linear(gb_source_value(srgb[i]));
     linear[i] = v;
     indicator[i] = v >= GB_REAL(1.0) ? GB_REAL(1.0) : GB_REAL(0.0);
 }
 
-/* blur, variant average: add one sRGB frame (linearized on the fly) to the compensated sum
- * and count its saturated channels. The frame covers the same region as the sums. */
-__kernel void gb_blur_average_add(__global const real *srgb, __global real *sum,
-                                  __global real *compensation, __global uint *saturated)
+/* blur, variant average: frames k = 0..count-1 of a device stack (frame k at k * stride, each
+ * covering the region of the sums), linearized on the fly, join the running compensated sum in
+ * registers (the same operations as gb_add_compensated) and the saturation counts. `first`
+ * starts from zero instead of the state in sum/compensation/saturated; `mean_of` > 0 ends the
+ * average: linear and mask get the mean over that many frames and the fraction of them
+ * saturated, instead of the state going back. */
+__kernel void gb_blur_average_add(__global const gb_source *frames, uint count, long stride,
+                                  __global real *sum, __global real *compensation,
+                                  __global uint *saturated, int first, uint mean_of,
+                                  __global real *linear, __global real *mask)
 {
+#pragma OPENCL FP_CONTRACT OFF
     size_t i = get_global_id(0);
-    real v = gb_srgb_to_linear(srgb[i]);
-    gb_add_compensated(sum, compensation, i, v);
-    saturated[i] += v >= GB_REAL(1.0) ? 1u : 0u;
-}
-
-/* blur, variant average: the mean of the frames (the compensated total over the count) and the
- * fraction of saturated frames. */
-__kernel void gb_blur_average_finish(__global const real *sum, __global const real *compensation,
-                                     __global const uint *saturated, uint count,
-                                     __global real *linear, __global real *mask)
-{
-    size_t i = get_global_id(0);
-    linear[i] = (sum[i] + compensation[i]) / (real)count;
-    mask[i] = (real)saturated[i] / (real)count;
+    real s = GB_REAL(0.0), c = GB_REAL(0.0);
+    uint n = 0;
+    if (!first) {
+        s = sum[i];
+        c = compensation[i];
+        n = saturated[i];
+    }
+    for (uint k = 0; k < count; ++k) {
+        real v = gb_srgb_to_linear(gb_source_value(frames[k * stride + i]));
+        real t = s + v;
+        c += fabs(s) >= fabs(v) ? (s - t) + v : (v - t) + s;
+        s = t;
+        n += v >= GB_REAL(1.0) ? 1u : 0u;
+    }
+    if (mean_of > 0) {
+        linear[i] = (s + c) / (real)mean_of;
+        mask[i] = (real)n / (real)mean_of;
+    } else {
+        sum[i] = s;
+        compensation[i] = c;
+        saturated[i] = n;
+    }
 }
 
 /* blur, variant kernel: out = src convolved with k (true convolution, k normalized by the host),

@@ -4,6 +4,8 @@
  *   GB_FP64          compute in double (cl_khr_fp64) instead of float
  *   GB_HAS_FP64      the device has cl_khr_fp64 (samplers may use double inside)
  *   GB_STAGE_<NAME>  a stage of the plan is compiled in (see gpu_blur.plan)
+ *   GB_SOURCE_BITS   how input frames are stored: 8 (uchar codes), 16 (ushort codes) or 0
+ *                    (real sRGB values in [0, 1]; the default)
  *
  * Images live in row-major buffers that cover a region of the full image: a buffer "view"
  * is (x0, y0) = global coordinates of its first pixel, (w, h) = its size, and the full image's
@@ -23,6 +25,24 @@ typedef double real;
 #else
 typedef float real;
 #define GB_REAL(x) (x##f)
+#endif
+
+/* Input frames travel to the device as stored (an 8-bit frame is a quarter of its float copy)
+ * and become values in [0, 1] in the kernel: code / (2^bits - 1), a correctly rounded division,
+ * so a value equals the host's float64 code / 255 rounded to real (checked for every 8- and
+ * 16-bit code), as gpu_blur.imageio.to_unit. */
+#ifndef GB_SOURCE_BITS
+#define GB_SOURCE_BITS 0
+#endif
+#if GB_SOURCE_BITS == 8
+typedef uchar gb_source;
+#define gb_source_value(v) ((real)(v) / GB_REAL(255.0))
+#elif GB_SOURCE_BITS == 16
+typedef ushort gb_source;
+#define gb_source_value(v) ((real)(v) / GB_REAL(65535.0))
+#else
+typedef real gb_source;
+#define gb_source_value(v) (v)
 #endif
 
 /* Mirror index i into [0, n) without repeating the edge sample (numpy "reflect", OpenCV
