@@ -100,14 +100,21 @@ def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
     # accumulate
     add("linearize", "accumulate", True, "sRGB input decoded with the sRGB EOTF")
     blurring = b.mode != "none"
+    interpolated = b.mode == "average" and b.interpolation > 1
+    average = (f"mean of {b.frames} linear frames and their saturation masks"
+               if not interpolated else
+               f"mean of {(b.frames - 1) * b.interpolation + 1} linear frames and their "
+               f"saturation masks: {b.frames} frames and {b.interpolation - 1} interpolated in "
+               f"each gap ({b.interpolation}x frame rate, {b.flow} optical flow)")
+    options = {"interpolation": b.interpolation, "flow": b.flow} if b.mode == "average" else {}
     add("blur", "accumulate", blurring,
-        {"average": f"mean of {b.frames} linear frames and their saturation masks",
+        {"average": average,
          "kernel": "one photo convolved with "
                    + (f"the kernel {b.kernel}" if b.kernel else "a random motion kernel"),
          "trajectory": "one photo warped along a camera-shake path of "
                        + (f"{b.steps} poses" if b.steps else "one pose per pixel of motion"),
          "none": "blur.mode = none: the input is already blurred"}[b.mode],
-        b.mode if blurring else "")
+        b.mode if blurring else "", **options)
 
     # to_raw
     sat = scene.saturation.mode == "on" or (scene.saturation.mode == "auto" and saturated

@@ -19,6 +19,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 from gpu_blur.constants import GAUSSIAN_SRGB_NOISE_STD
+from gpu_blur.reference.interpolate import FLOW_METHODS, INTERPOLATION_FACTORS
 
 PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 
@@ -45,6 +46,12 @@ FIELDS: dict[str, dict[str, Field]] = {
                       choices=("average", "kernel", "trajectory", "none")),
         "frames": Field(9, "frames averaged per sample in mode 'average' (RSBlur: 9)",
                         kind=int, minimum=1),
+        "interpolation": Field(1, "mode 'average': raise the frame rate by this factor before "
+                               "averaging, (frames - 1) * factor + 1 frames in all (RSBlur: 8, "
+                               "9 -> 65); 1 averages the frames as they are",
+                               choices=INTERPOLATION_FACTORS),
+        "flow": Field("dis", "optical flow for blur.interpolation > 1, computed on the host with "
+                      "OpenCV: 'dis' (DIS, preset medium) or 'farneback'", choices=FLOW_METHODS),
         "steps": Field(0, "poses along the camera path in mode 'trajectory'; 0 = auto: about "
                        "one per pixel of the longest pixel path, so blur is a streak, not copies",
                        kind=int, minimum=0),
@@ -216,6 +223,10 @@ def scene_from_dict(data: dict, where: str = "scene", path: Path | None = None) 
 
 
 def _check_consistency(scene: Scene, where: str) -> None:
+    if scene.blur.interpolation > 1 and scene.blur.mode != "average":
+        raise SceneError(f"{where}: blur.interpolation = {scene.blur.interpolation!r} needs "
+                         f"blur.mode = 'average' (it is {scene.blur.mode!r}); allowed: 1 for "
+                         "this mode, or set blur.mode = 'average'")
     lo, hi = scene.blur.kernel_size
     if scene.blur.mode == "kernel" and not scene.blur.kernel and lo % 2 == 0 and lo == hi:
         raise SceneError(f"{where}: blur.kernel_size = {scene.blur.kernel_size!r} holds no odd "

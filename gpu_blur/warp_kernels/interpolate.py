@@ -1,0 +1,151 @@
+"""Frame interpolation inside pass 1 as a Warp kernel: the port of kernels/opencl/interpolate.cl.
+
+``blur_interpolate_add`` adds the frame at time ``t`` between two sRGB frames, linearized, to the
+averaging sums, as ``gb_blur_interpolate_add``: the maths of gpu_blur.reference.interpolate
+(both frames warped backwards along the scaled flows, bilinear with reflect-101 neighbours, the
+forward-backward occlusion rule, blend ``(1 - t, t)``), the same operations in the same order.
+Frames and flows are views of one region (first pixel ``(sx0, sy0)``, width ``sw``) holding the
+output region plus the interpolation halo; the sums cover the output region; pixels are addressed
+by global coordinates, so a tile gives the whole image's values. Flows are float32 (OpenCV's
+type); positions, flows and the occlusion test are float64, as the reference, and the kernel is
+built with ``fuse_fp=False`` so that CUDA fuses no ``a * b + c`` there and the test decides as
+the reference does.
+
+No ``from __future__ import annotations`` here: Warp reads the kernels' annotations, which name
+the factory's local types.
+"""
+
+import functools
+
+import warp as wp
+
+from gpu_blur.warp_kernels import pixel
+from gpu_blur.warp_kernels.passes import add_compensated
+
+
+@wp.func
+def sample_flow(flow: wp.array(dtype=wp.float32), sx0: int, sy0: int, sw: int, full_w: int,
+                full_h: int, px: wp.float64, py: wp.float64) -> wp.vec2d:
+    """Bilinear sample of a flow view at ``(px, py)``, reflect-101 neighbours, in float64."""
+    fx0 = wp.floor(px)
+    fy0 = wp.floor(py)
+    fx = px - fx0
+    fy = py - fy0
+    xi = int(fx0)
+    yi = int(fy0)
+    c0 = pixel.reflect101(xi, full_w) - sx0
+    c1 = pixel.reflect101(xi + 1, full_w) - sx0
+    r0 = (pixel.reflect101(yi, full_h) - sy0) * sw
+    r1 = (pixel.reflect101(yi + 1, full_h) - sy0) * sw
+    out = wp.vec2d()
+    for c in range(2):
+        a = wp.float64(flow[2 * (r0 + c0) + c])
+        b = wp.float64(flow[2 * (r0 + c1) + c])
+        top = a + (b - a) * fx
+        a = wp.float64(flow[2 * (r1 + c0) + c])
+        b = wp.float64(flow[2 * (r1 + c1) + c])
+        bottom = a + (b - a) * fx
+        out[c] = top + (bottom - top) * fy
+    return out
+
+
+@wp.func
+def consistent(flow: wp.array(dtype=wp.float32), reverse: wp.array(dtype=wp.float32), sx0: int,
+               sy0: int, sw: int, full_w: int, full_h: int, gx: int, gy: int,
+               relative: wp.float64, absolute_px2: wp.float64) -> bool:
+    """Whether ``flow`` at global ``(gx, gy)`` passes the test against ``reverse``.
+
+    The forward-backward test of reference.interpolate.flow_consistent, in float64.
+    """
+    o = 2 * ((gy - sy0) * sw + (gx - sx0))
+    wx = wp.float64(flow[o])
+    wy = wp.float64(flow[o + 1])
+    back = sample_flow(reverse, sx0, sy0, sw, full_w, full_h, wp.float64(gx) + wx,
+                       wp.float64(gy) + wy)
+    ex = wx + back[0]
+    ey = wy + back[1]
+    norms = (wx * wx + wy * wy) + (back[0] * back[0] + back[1] * back[1])
+    return ex * ex + ey * ey <= relative * norms + absolute_px2
+
+
+@functools.cache
+def interpolate_kernels(real) -> dict:
+    """``{"blur_interpolate_add": kernel}`` for the compute type ``real``.
+
+    Frames are ``real`` sRGB values in [0, 1]; the one read of a frame value is
+    ``frame_value``.
+    """
+    vec3 = wp.types.vector(length=3, dtype=real)
+
+    @wp.func
+    def frame_value(frame: wp.array(dtype=real), i: int) -> real:
+        return frame[i]
+
+    @wp.func
+    def sample_rgb(frame: wp.array(dtype=real), sx0: int, sy0: int, sw: int, full_w: int,
+                   full_h: int, px: wp.float64, py: wp.float64) -> vec3:
+        # as reference.blur._bilinear_sample: a + f (b - a) along x, then along y
+        fx0 = wp.floor(px)
+        fy0 = wp.floor(py)
+        fx = real(px - fx0)
+        fy = real(py - fy0)
+        xi = int(fx0)
+        yi = int(fy0)
+        c0 = pixel.reflect101(xi, full_w) - sx0
+        c1 = pixel.reflect101(xi + 1, full_w) - sx0
+        r0 = (pixel.reflect101(yi, full_h) - sy0) * sw
+        r1 = (pixel.reflect101(yi + 1, full_h) - sy0) * sw
+        out = vec3()
+        for c in range(3):
+            a = frame_value(frame, 3 * (r0 + c0) + c)
+            b = frame_value(frame, 3 * (r0 + c1) + c)
+            top = a + (b - a) * fx
+            a = frame_value(frame, 3 * (r1 + c0) + c)
+            b = frame_value(frame, 3 * (r1 + c1) + c)
+            bottom = a + (b - a) * fx
+            out[c] = top + (bottom - top) * fy
+        return out
+
+    @wp.kernel(module="unique", module_options={"fuse_fp": False})
+    def blur_interpolate_add(frame0: wp.array(dtype=real), frame1: wp.array(dtype=real),
+                             flow_fw: wp.array(dtype=wp.float32),
+                             flow_bw: wp.array(dtype=wp.float32), sx0: int, sy0: int, sw: int,
+                             full_w: int, full_h: int, t: wp.float64, relative: wp.float64,
+                             absolute_px2: wp.float64, total: wp.array(dtype=real),
+                             compensation: wp.array(dtype=real),
+                             saturated: wp.array(dtype=wp.uint32), dx0: int, dy0: int, dw: int):
+        # launched over (dh, dw); flow_fw maps frame0 to frame1, flow_bw frame1 to frame0
+        y, x = wp.tid()
+        gx = dx0 + x
+        gy = dy0 + y
+        o = 2 * ((gy - sy0) * sw + (gx - sx0))
+        fwx = wp.float64(flow_fw[o])
+        fwy = wp.float64(flow_fw[o + 1])
+        bwx = wp.float64(flow_bw[o])
+        bwy = wp.float64(flow_bw[o + 1])
+        # frame0's sample came along flow_bw, frame1's along flow_fw: each is trusted where the
+        # flow that carried it passes the test against the other
+        trust_a = consistent(flow_bw, flow_fw, sx0, sy0, sw, full_w, full_h, gx, gy, relative,
+                             absolute_px2)
+        trust_b = consistent(flow_fw, flow_bw, sx0, sy0, sw, full_w, full_h, gx, gy, relative,
+                             absolute_px2)
+        one = wp.float64(1.0)
+        a = sample_rgb(frame0, sx0, sy0, sw, full_w, full_h, wp.float64(gx) + t * bwx,
+                       wp.float64(gy) + t * bwy)
+        b = sample_rgb(frame1, sx0, sy0, sw, full_w, full_h, wp.float64(gx) + (one - t) * fwx,
+                       wp.float64(gy) + (one - t) * fwy)
+        wa = real(one - t)
+        wb = real(t)
+        od = 3 * (y * dw + x)
+        for c in range(3):
+            v = wa * a[c] + wb * b[c]
+            if trust_a != trust_b:
+                v = b[c]
+                if trust_a:
+                    v = a[c]
+            lin = pixel.srgb_to_linear(v)
+            add_compensated(total, compensation, od + c, lin)
+            if lin >= real(1.0):
+                saturated[od + c] = saturated[od + c] + wp.uint32(1)
+
+    return {"blur_interpolate_add": blur_interpolate_add}

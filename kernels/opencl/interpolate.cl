@@ -1,0 +1,134 @@
+/* interpolate.cl: frame interpolation inside pass 1 (stage "blur", variant average, with
+ * blur.interpolation > 1).
+ *
+ * The maths is gpu_blur.reference.interpolate (module docstring, steps 2 to 4): the frame at
+ * time t between two sRGB frames is blended from both frames warped backwards along the scaled
+ * optical flows, with the forward-backward occlusion rule, then linearized and added to the
+ * averaging sums like any frame. Intermediate frames are never stored: each work item computes
+ * its pixel and adds it.
+ *
+ * Images are interleaved RGB (3 values per pixel), flows interleaved (dx, dy) float32 (OpenCV's
+ * type, so read exactly in either precision), all row-major. The frames and flows are views
+ * (first pixel (sx0, sy0), width sw) of one region that holds the output region plus the halo of
+ * gpu_blur.reference.interpolate.interpolation_halo; the sums cover the output region. Pixels are
+ * addressed by global coordinates (gb_common.h), so a tile gives the whole image's values.
+ * Positions, flows and the occlusion test are computed in gb_pos (double where the device has
+ * it), as the reference's float64, so the test decides as the reference does.
+ */
+#include "gb_common.h"
+#include "gb_pixel.h"
+#include "gb_sum.h"
+
+#pragma OPENCL FP_CONTRACT OFF
+
+#ifdef GB_HAS_FP64
+typedef double gb_pos;
+#else
+typedef float gb_pos;
+#endif
+
+/* One sRGB value in [0, 1] of a frame, at offset o. */
+#define GB_FRAME_VALUE(frame, o) ((frame)[o])
+
+/* Bilinear sample of an RGB frame view at (px, py), reflect-101 neighbours, as
+ * reference.blur._bilinear_sample: a + f (b - a) along x, then along y. */
+static inline void gb_interp_sample_rgb(__global const real *frame, long sx0, long sy0, long sw,
+                                        long full_w, long full_h, gb_pos px, gb_pos py,
+                                        real out[3])
+{
+    gb_pos fx0 = floor(px), fy0 = floor(py);
+    real fx = (real)(px - fx0), fy = (real)(py - fy0);
+    long xi = (long)fx0, yi = (long)fy0;
+    long c0 = gb_reflect101(xi, full_w), c1 = gb_reflect101(xi + 1, full_w);
+    long r0 = gb_reflect101(yi, full_h), r1 = gb_reflect101(yi + 1, full_h);
+    long o00 = 3 * gb_offset(c0, r0, sx0, sy0, sw), o01 = 3 * gb_offset(c1, r0, sx0, sy0, sw);
+    long o10 = 3 * gb_offset(c0, r1, sx0, sy0, sw), o11 = 3 * gb_offset(c1, r1, sx0, sy0, sw);
+    for (int c = 0; c < 3; ++c) {
+        real a = GB_FRAME_VALUE(frame, o00 + c), b = GB_FRAME_VALUE(frame, o01 + c);
+        real top = a + (b - a) * fx;
+        a = GB_FRAME_VALUE(frame, o10 + c);
+        b = GB_FRAME_VALUE(frame, o11 + c);
+        real bottom = a + (b - a) * fx;
+        out[c] = top + (bottom - top) * fy;
+    }
+}
+
+/* Bilinear sample of a flow view at (px, py) in gb_pos, reflect-101 neighbours (the order of
+ * gb_interp_sample_rgb). */
+static inline void gb_interp_sample_flow(__global const float *flow, long sx0, long sy0, long sw,
+                                         long full_w, long full_h, gb_pos px, gb_pos py,
+                                         gb_pos out[2])
+{
+    gb_pos fx0 = floor(px), fy0 = floor(py);
+    gb_pos fx = px - fx0, fy = py - fy0;
+    long xi = (long)fx0, yi = (long)fy0;
+    long c0 = gb_reflect101(xi, full_w), c1 = gb_reflect101(xi + 1, full_w);
+    long r0 = gb_reflect101(yi, full_h), r1 = gb_reflect101(yi + 1, full_h);
+    long o00 = 2 * gb_offset(c0, r0, sx0, sy0, sw), o01 = 2 * gb_offset(c1, r0, sx0, sy0, sw);
+    long o10 = 2 * gb_offset(c0, r1, sx0, sy0, sw), o11 = 2 * gb_offset(c1, r1, sx0, sy0, sw);
+    for (int c = 0; c < 2; ++c) {
+        gb_pos a = flow[o00 + c], b = flow[o01 + c];
+        gb_pos top = a + (b - a) * fx;
+        a = flow[o10 + c];
+        b = flow[o11 + c];
+        gb_pos bottom = a + (b - a) * fx;
+        out[c] = top + (bottom - top) * fy;
+    }
+}
+
+/* Whether `flow` at global (gx, gy) is confirmed by `reverse` (reference.interpolate.
+ * flow_consistent): |w + w'|^2 <= relative (|w|^2 + |w'|^2) + absolute_px2, w' = reverse
+ * sampled at (gx, gy) + w. */
+static inline int gb_interp_consistent(__global const float *flow, __global const float *reverse,
+                                       long sx0, long sy0, long sw, long full_w, long full_h,
+                                       long gx, long gy, gb_pos relative, gb_pos absolute_px2)
+{
+    long o = 2 * gb_offset(gx, gy, sx0, sy0, sw);
+    gb_pos wx = flow[o], wy = flow[o + 1];
+    gb_pos back[2];
+    gb_interp_sample_flow(reverse, sx0, sy0, sw, full_w, full_h, (gb_pos)gx + wx,
+                          (gb_pos)gy + wy, back);
+    gb_pos ex = wx + back[0], ey = wy + back[1];
+    gb_pos norms = (wx * wx + wy * wy) + (back[0] * back[0] + back[1] * back[1]);
+    return ex * ex + ey * ey <= relative * norms + absolute_px2;
+}
+
+/* blur, variant average with interpolation: add the frame at time t in (0, 1) between frame0
+ * and frame1, linearized, to the compensated sums, and count its saturated channels. flow_fw
+ * maps frame0 to frame1, flow_bw frame1 to frame0 (pixels, OpenCV's convention); relative and
+ * absolute_px2 are the occlusion test's constants (reference.interpolate.CONSISTENCY_*).
+ * Launched over (dw, dh) work items or more (extra ones return). */
+__kernel void gb_blur_interpolate_add(__global const real *frame0, __global const real *frame1,
+                                      __global const float *flow_fw,
+                                      __global const float *flow_bw, long sx0, long sy0, long sw,
+                                      long full_w, long full_h, gb_pos t, gb_pos relative,
+                                      gb_pos absolute_px2, __global real *sum,
+                                      __global real *compensation, __global uint *saturated,
+                                      long dx0, long dy0, long dw, long dh)
+{
+    long x = get_global_id(0), y = get_global_id(1);
+    if (x >= dw || y >= dh) return;
+    long gx = dx0 + x, gy = dy0 + y;
+    long o = 2 * gb_offset(gx, gy, sx0, sy0, sw);
+    gb_pos fwx = flow_fw[o], fwy = flow_fw[o + 1];
+    gb_pos bwx = flow_bw[o], bwy = flow_bw[o + 1];
+    /* frame0's sample came along flow_bw, frame1's along flow_fw: each is trusted where the
+     * flow that carried it passes the test against the other */
+    int trust_a = gb_interp_consistent(flow_bw, flow_fw, sx0, sy0, sw, full_w, full_h, gx, gy,
+                                       relative, absolute_px2);
+    int trust_b = gb_interp_consistent(flow_fw, flow_bw, sx0, sy0, sw, full_w, full_h, gx, gy,
+                                       relative, absolute_px2);
+    real a[3], b[3];
+    gb_interp_sample_rgb(frame0, sx0, sy0, sw, full_w, full_h, (gb_pos)gx + t * bwx,
+                         (gb_pos)gy + t * bwy, a);
+    gb_interp_sample_rgb(frame1, sx0, sy0, sw, full_w, full_h, (gb_pos)gx + (1 - t) * fwx,
+                         (gb_pos)gy + (1 - t) * fwy, b);
+    real wa = (real)(1 - t), wb = (real)t;
+    long od = 3 * (y * dw + x);
+    for (int c = 0; c < 3; ++c) {
+        real v = trust_a == trust_b ? wa * a[c] + wb * b[c] : (trust_a ? a[c] : b[c]);
+        real lin = gb_srgb_to_linear(v);
+        gb_sum_add(sum, compensation, od + c, lin);
+        saturated[od + c] += lin >= GB_REAL(1.0) ? 1u : 0u;
+    }
+}

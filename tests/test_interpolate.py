@@ -1,0 +1,435 @@
+"""Frame interpolation before averaging: the reference, the scene and plan, the kernels.
+
+Reference (gpu_blur.reference.interpolate): a translation sequence made of integer shifts of a
+real photo, with its exact flows, has intermediates at sub-pixel shifts whose true values are the
+photo's bilinear reconstruction there; factor 1 is plain averaging bit for bit; the occlusion
+rule on a constructed case; OpenCV's flows on a translated photo. Kernels: OpenCL's
+``gb_blur_interpolate_add`` and Warp's ``blur_interpolate_add`` add one intermediate frame as the
+reference computes it, and a tile with its halo gives the whole image's sums bit for bit.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gpu_blur.plan import plan
+from gpu_blur.reference.blur import average_frames
+from gpu_blur.reference.interpolate import (
+    CONSISTENCY_ABSOLUTE_PX2,
+    CONSISTENCY_RELATIVE,
+    flow_consistent,
+    interpolate_frame,
+    interpolated_average,
+    interpolation_halo,
+    interpolation_times,
+    optical_flow,
+    sequence_flows,
+)
+from gpu_blur.reference.transfer import srgb_to_linear
+from gpu_blur.scene import SceneError, scene_from_dict
+from gpu_blur.testing import assert_close
+
+# -- a translation sequence --------------------------------------------------------------------
+
+#: Size of the test frames (pixels), cut from the rocket photo away from its edges.
+FRAME_H, FRAME_W = 48, 64
+#: Top-left corner of frame 0 in the photo.
+ORIGIN_Y, ORIGIN_X = 150, 250
+
+
+def shifted(photo: np.ndarray, sx: float, sy: float) -> np.ndarray:
+    """The frame whose content is the photo moved by ``(sx, sy)`` pixels: ``F(x) = P(x - s)``.
+
+    Integer shifts are crops; a fractional shift is the photo's bilinear reconstruction there,
+    written out from the four integer-shifted crops (independent of the reference's sampler).
+    """
+    ix, iy = int(np.floor(sx)), int(np.floor(sy))
+    fx, fy = sx - ix, sy - iy
+
+    def crop(dx: int, dy: int) -> np.ndarray:
+        y, x = ORIGIN_Y - dy, ORIGIN_X - dx
+        return photo[y:y + FRAME_H, x:x + FRAME_W]
+
+    top = (1 - fx) * crop(ix, iy) + fx * crop(ix + 1, iy)
+    bottom = (1 - fx) * crop(ix, iy + 1) + fx * crop(ix + 1, iy + 1)
+    return (1 - fy) * top + fy * bottom
+
+
+def translation(photo, velocity, frames: int):
+    """Frames moving by ``velocity`` (integer px per frame) and their exact flows."""
+    seq = [shifted(photo, k * velocity[0], k * velocity[1]) for k in range(frames)]
+    forward = np.broadcast_to(np.asarray(velocity, np.float32), (FRAME_H, FRAME_W, 2))
+    pair = np.stack([forward, -forward])
+    return seq, np.broadcast_to(pair, (frames - 1, *pair.shape))
+
+
+def interior(image: np.ndarray, margin: int) -> np.ndarray:
+    """``image`` without ``margin`` pixels on each side (where reads may leave the frame)."""
+    return image[margin:-margin, margin:-margin]
+
+
+@pytest.mark.parametrize("velocity, factor", [((3, -2), 4), ((1, 0), 2), ((-5, 7), 8)])
+def test_translation_intermediates_match_exactly_shifted_frames(rocket_rgb, velocity, factor):
+    frames, flows = translation(rocket_rgb, velocity, 2)
+    margin = interpolation_halo(flows)
+    for t in interpolation_times(factor):
+        got = interpolate_frame(frames[0], frames[1], flows[0, 0], flows[0, 1], t)
+        expected = shifted(rocket_rgb, t * velocity[0], t * velocity[1])
+        assert_close(interior(got, margin), interior(expected, margin), "interpolate_translation")
+
+
+def test_translation_average_is_the_mean_of_exactly_shifted_frames(rocket_rgb):
+    velocity, factor, n = (3, -2), 4, 3
+    frames, flows = translation(rocket_rgb, velocity, n)
+    blurred, mask = interpolated_average(frames, factor, flows)
+    steps = [k / factor for k in range((n - 1) * factor + 1)]
+    expected, expected_mask = average_frames(
+        srgb_to_linear(shifted(rocket_rgb, s * velocity[0], s * velocity[1])) for s in steps)
+    margin = (n - 1) * interpolation_halo(flows)
+    assert_close(interior(blurred, margin), interior(expected, margin), "interpolate_translation")
+    assert np.array_equal(interior(mask, margin), interior(expected_mask, margin))
+
+
+def test_factor_1_is_plain_averaging_bitwise(coffee_rgb):
+    frames = [coffee_rgb[k:k + 40, 2 * k:2 * k + 50] for k in range(4)]
+    frames[1] = frames[1].copy()
+    frames[1][:5] = 1.0  # saturated rows, so the mask is not all zero
+    blurred, mask = interpolated_average(frames, 1)
+    plain, plain_mask = average_frames(srgb_to_linear(f) for f in frames)
+    assert np.array_equal(blurred, plain) and np.array_equal(mask, plain_mask)
+    assert mask.max() > 0
+
+
+def test_occlusion_rule_keeps_the_trusted_sample_only():
+    """Where only one flow passes the forward-backward test, that frame's sample alone."""
+    h, w, t = 12, 20, 0.25
+    frame0, frame1 = np.full((h, w, 3), 0.2), np.full((h, w, 3), 0.8)
+    forward = np.zeros((h, w, 2))
+    forward[..., 0] = 2.0
+    backward = -forward
+    backward[:, 8:12, 0] = 5.0  # columns 8..11: F_bw points the wrong way
+    got = interpolate_frame(frame0, frame1, forward, backward, t)[:, :, 0]
+    # frame0's sample (0.2) came along F_bw: distrusted on columns 8..11. frame1's (0.8) came
+    # along F_fw, whose check reads F_bw at x + 2: distrusted on columns 6..9.
+    blend = (1 - t) * 0.2 + t * 0.8
+    expected = np.full(w, blend)
+    expected[6:8] = 0.2  # only frame0's sample trusted
+    expected[10:12] = 0.8  # only frame1's
+    assert np.array_equal(got, np.broadcast_to(expected, (h, w)))
+
+
+@pytest.mark.parametrize("flow, error, consistent", [
+    (1.0, 0.7, True),    # 0.49 <= 0.01 (1 + 0.09) + 0.5
+    (1.0, 0.72, False),  # 0.5184 > 0.01 (1 + 0.0784) + 0.5
+    (20.0, 2.5, True),   # 6.25 <= 0.01 (400 + 306.25) + 0.5: the bound grows with the motion
+    (20.0, 3.0, False),  # 9 > 0.01 (400 + 289) + 0.5
+])
+def test_consistency_bound_is_relative_plus_absolute(flow, error, consistent):
+    forward = np.zeros((5, 40, 2))
+    forward[..., 0] = flow
+    backward = np.zeros_like(forward)
+    backward[..., 0] = error - flow
+    assert (CONSISTENCY_RELATIVE, CONSISTENCY_ABSOLUTE_PX2) == (0.01, 0.5)  # the cases' bound
+    assert (flow_consistent(forward, backward) == consistent).all()
+
+
+#: OpenCV on the coffee photo moved by an integer shift: share of textured interior pixels
+#: (Sobel gradient magnitude > 40 codes) whose flow lies within 0.5 px of the true shift.
+#: Measured for shifts (3, -2) and (1, 4): DIS medium 0.928 and 0.943, Farneback 0.970 and
+#: 0.969 (flat regions, 72 % of the crop, are left out: no method sees motion there, and warping
+#: flat content needs none).
+FLOW_WITHIN_HALF_PIXEL_MIN = 0.9
+#: Median flow error over those pixels, px (measured 0.054 and 0.050 for DIS, 0.0034 and 0.0046
+#: for Farneback).
+FLOW_MEDIAN_ERROR_MAX_PX = 0.1
+
+
+@pytest.mark.parametrize("method", ["dis", "farneback"])
+@pytest.mark.parametrize("shift", [(3, -2), (1, 4)])
+def test_opencv_flow_of_a_translated_photo_is_the_shift(coffee_rgb, method, shift):
+    import cv2
+
+    sx, sy = shift
+    frame0 = coffee_rgb[100:300, 150:450]
+    frame1 = coffee_rgb[100 - sy:300 - sy, 150 - sx:450 - sx]
+    flow = optical_flow(frame0, frame1, method)
+    assert flow.dtype == np.float32 and flow.shape == (200, 300, 2)
+    gray = cv2.cvtColor(np.rint(frame0 * 255).astype(np.uint8), cv2.COLOR_RGB2GRAY)
+    gradient = np.hypot(cv2.Sobel(gray, cv2.CV_64F, 1, 0), cv2.Sobel(gray, cv2.CV_64F, 0, 1))
+    textured = interior(gradient > 40, 10)
+    error = interior(np.hypot(flow[..., 0] - sx, flow[..., 1] - sy), 10)[textured]
+    assert textured.mean() > 0.2
+    assert (error < 0.5).mean() >= FLOW_WITHIN_HALF_PIXEL_MIN
+    assert np.median(error) <= FLOW_MEDIAN_ERROR_MAX_PX
+    assert np.array_equal(flow, optical_flow(frame0, frame1, method))  # deterministic
+
+
+def test_sequence_flows_hold_forward_and_backward_per_pair(coffee_rgb):
+    frames = [coffee_rgb[50 + k:110 + k, 60:140] for k in range(3)]
+    flows = sequence_flows(frames)
+    assert flows.shape == (2, 2, 60, 80, 2) and flows.dtype == np.float32
+    assert np.array_equal(flows[1, 0], optical_flow(frames[1], frames[2]))
+    assert np.array_equal(flows[1, 1], optical_flow(frames[2], frames[1]))
+
+
+def test_tile_with_halo_gives_the_whole_image_values(coffee_rgb):
+    """A window of region + halo, mirrored at its own edges, never reads past them."""
+    frames = [coffee_rgb[40:120, 100:200], coffee_rgb[43:123, 98:198]]
+    flows = sequence_flows(frames)
+    halo = interpolation_halo(flows)
+    whole = interpolate_frame(frames[0], frames[1], flows[0, 0], flows[0, 1], 0.375)
+    y0, y1, x0, x1 = 30, 50, 40, 70  # the region, at least the halo from the image's edges
+    assert halo < min(y0, x0, 80 - y1, 100 - x1)
+    win = (slice(y0 - halo, y1 + halo), slice(x0 - halo, x1 + halo))
+    tile = interpolate_frame(frames[0][win], frames[1][win], flows[0, 0][win], flows[0, 1][win],
+                             0.375)
+    assert np.array_equal(tile[halo:-halo, halo:-halo], whole[y0:y1, x0:x1])
+
+
+def test_interpolation_halo_is_largest_flow_component_plus_one():
+    flows = np.zeros((2, 2, 4, 5, 2), np.float32)
+    assert interpolation_halo(flows) == 1
+    flows[1, 0, 2, 3, 1] = -6.25
+    assert interpolation_halo(flows) == 8
+    assert interpolation_halo(np.zeros((0, 2, 4, 5, 2))) == 0
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda f, fl: interpolate_frame(f, f, fl, fl, 1.0), "t must lie in the open interval"),
+    (lambda f, fl: interpolate_frame(f, f, fl[:, :3], fl, 0.5), "flow_fw must be H x W x 2"),
+    (lambda f, fl: interpolated_average([f, f], 3, None), "must be one of (1, 2, 4, 8)"),
+    (lambda f, fl: optical_flow(f, f, "lucas-kanade"), "flow method 'lucas-kanade' is unknown"),
+    (lambda f, fl: interpolated_average([f, f], 2, fl[None, None]), "flows must be (n - 1) x"),
+    (lambda f, fl: interpolation_halo(np.full(2, np.nan)), "flows must be finite"),
+])
+def test_bad_input_names_the_value_and_the_rule(call, message):
+    frame, flow = np.zeros((4, 5, 3)), np.zeros((4, 5, 2))
+    with pytest.raises(ValueError) as e:
+        call(frame, flow)
+    assert message in str(e.value)
+
+
+# -- scene and plan ----------------------------------------------------------------------------
+
+def test_scene_interpolation_defaults_to_plain_averaging_with_dis():
+    scene = scene_from_dict({"blur": {"mode": "average"}})
+    assert scene.blur.interpolation == 1 and scene.blur.flow == "dis"
+    stage = plan(scene)["blur"]
+    assert stage.options == {"interpolation": 1, "flow": "dis"}
+    assert stage.reason == "mean of 9 linear frames and their saturation masks"
+
+
+def test_plan_says_the_frames_are_interpolated(tmp_path, capsys):
+    from gpu_blur.cli import main
+
+    path = tmp_path / "rsblur65.toml"
+    path.write_text('[blur]\nmode = "average"\nframes = 9\ninterpolation = 8\n'
+                    'flow = "farneback"\n')
+    assert main(["plan", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert ("mean of 65 linear frames and their saturation masks: 9 frames and 7 interpolated "
+            "in each gap (8x frame rate, farneback optical flow)") in out
+
+
+@pytest.mark.parametrize("data, message", [
+    ({"blur": {"mode": "trajectory", "interpolation": 2}},
+     "blur.interpolation = 2 needs blur.mode = 'average' (it is 'trajectory')"),
+    ({"blur": {"mode": "average", "interpolation": 3}},
+     "blur.interpolation = 3 is invalid; allowed: 1 | 2 | 4 | 8"),
+    ({"blur": {"mode": "average", "interpolation": True}}, "blur.interpolation = True is invalid"),
+    ({"blur": {"mode": "average", "flow": "raft"}},
+     "blur.flow = 'raft' is invalid; allowed: 'dis' | 'farneback'"),
+])
+def test_scene_refuses_bad_interpolation_settings(data, message):
+    with pytest.raises(SceneError) as e:
+        scene_from_dict(data, "my.toml")
+    assert str(e.value).startswith("my.toml: ") and message in str(e.value)
+
+
+# -- kernels: one intermediate frame against the reference -------------------------------------
+
+#: Kernel test frames: two crops of the coffee photo 3 px apart with a saturated patch, and
+#: their DIS flows (whose borders and the patch fail the occlusion test here and there).
+KERNEL_H, KERNEL_W = 36, 52
+
+
+@pytest.fixture(scope="module")
+def pair(coffee_rgb):
+    """(frame0, frame1, flow_fw, flow_bw): a real pair with both trust states present."""
+    frame0 = coffee_rgb[150:150 + KERNEL_H, 200:200 + KERNEL_W].copy()
+    frame1 = coffee_rgb[152:152 + KERNEL_H, 197:197 + KERNEL_W].copy()
+    frame0[10:16, 20:30] = 1.0
+    frame1[12:18, 26:36] = 1.0
+    flows = sequence_flows([frame0, frame1])
+    trust = flow_consistent(flows[0, 1], flows[0, 0]), flow_consistent(flows[0, 0], flows[0, 1])
+    assert (trust[0] != trust[1]).any() and (trust[0] == trust[1]).any()
+    return frame0, frame1, flows[0, 0], flows[0, 1]
+
+
+def expected_add(pair, t, real):
+    """What one added intermediate frame contributes: linear values and saturated channels."""
+    frame0, frame1, fw, bw = pair
+    f0 = frame0.astype(real).astype(np.float64)
+    f1 = frame1.astype(real).astype(np.float64)
+    linear = srgb_to_linear(interpolate_frame(f0, f1, fw, bw, t))
+    return linear, (linear >= 1.0).astype(np.uint32)
+
+
+#: Output region of the tile test (rows y0:y1, columns x0:x1) inside the kernel frames.
+TILE = (9, 27, 14, 40)
+
+OPENCL_DIR = Path(__file__).resolve().parents[1] / "kernels" / "opencl"
+
+
+class OpenCLInterpolate:
+    """interpolate.cl built for one precision on the tests' OpenCL device."""
+
+    def __init__(self, cl, context, queue, dtype: str):
+        self.cl, self.context, self.queue, self.dtype = cl, context, queue, dtype
+        self.real = np.dtype(dtype)
+        device = context.devices[0]
+        self.pos = np.float64 if "cl_khr_fp64" in device.extensions else np.float32
+        options = ["-I", str(OPENCL_DIR / "include")]
+        options += ["-DGB_FP64=1"] if dtype == "float64" else []
+        options += ["-DGB_HAS_FP64=1"] if self.pos is np.float64 else []
+        source = (OPENCL_DIR / "interpolate.cl").read_text()
+        with warnings.catch_warnings():  # the compiler's log of a successful build
+            warnings.simplefilter("ignore", cl.CompilerWarning)
+            program = cl.Program(context, source).build(options=options)
+        self.kernel = cl.Kernel(program, "gb_blur_interpolate_add")
+
+    def buffer(self, array, dtype):
+        mf = self.cl.mem_flags
+        host = np.ascontiguousarray(array, dtype=dtype)
+        return self.cl.Buffer(self.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=host)
+
+    def add(self, pair, t, region=None):
+        """Sums after adding the frame at t over region (y0, y1, x0, x1), from its halo view."""
+        frame0, frame1, fw, bw = pair
+        h, w = frame0.shape[:2]
+        y0, y1, x0, x1 = region or (0, h, 0, w)
+        halo = interpolation_halo(np.stack([fw, bw]))
+        vy0, vy1 = max(y0 - halo, 0), min(y1 + halo, h)
+        vx0, vx1 = max(x0 - halo, 0), min(x1 + halo, w)
+        view = (slice(vy0, vy1), slice(vx0, vx1))
+        dh, dw = y1 - y0, x1 - x0
+        total = self.buffer(np.zeros((dh, dw, 3)), self.real)
+        comp = self.buffer(np.zeros((dh, dw, 3)), self.real)
+        saturated = self.buffer(np.zeros((dh, dw, 3)), np.uint32)
+        i64, pos = np.int64, self.pos
+        self.kernel(self.queue, (dw, dh), None,
+                    self.buffer(frame0[view], self.real), self.buffer(frame1[view], self.real),
+                    self.buffer(fw[view], np.float32), self.buffer(bw[view], np.float32),
+                    i64(vx0), i64(vy0), i64(vx1 - vx0), i64(w), i64(h), pos(t),
+                    pos(CONSISTENCY_RELATIVE), pos(CONSISTENCY_ABSOLUTE_PX2), total, comp,
+                    saturated, i64(x0), i64(y0), i64(dw), i64(dh))  # fmt: skip
+        out = [np.empty((dh, dw, 3), self.real), np.empty((dh, dw, 3), self.real),
+               np.empty((dh, dw, 3), np.uint32)]
+        for host, buf in zip(out, (total, comp, saturated), strict=True):
+            self.cl.enqueue_copy(self.queue, host, buf)
+        return out
+
+
+@pytest.fixture(scope="module", params=["float32", "float64"])
+def opencl_interpolate(request, opencl_queue):
+    cl, context, queue = opencl_queue
+    device = context.devices[0]
+    if request.param == "float64" and "cl_khr_fp64" not in device.extensions:
+        pytest.skip(f"{device.name} has no cl_khr_fp64")
+    return OpenCLInterpolate(cl, context, queue, request.param)
+
+
+@pytest.mark.parametrize("t", [0.125, 0.5, 0.75])
+def test_opencl_interpolate_add_is_the_reference_frame(opencl_interpolate, pair, t):
+    k = opencl_interpolate
+    total, comp, saturated = k.add(pair, t)
+    linear, indicator = expected_add(pair, t, k.real)
+    assert_close(total.astype(np.float64) + comp, linear, "interpolate", "opencl", k.dtype)
+    assert np.array_equal(saturated, indicator) and indicator.any()
+
+
+def test_opencl_interpolate_tile_equals_whole_image(opencl_interpolate, pair):
+    y0, y1, x0, x1 = TILE
+    whole = opencl_interpolate.add(pair, 0.25)
+    tile = opencl_interpolate.add(pair, 0.25, TILE)
+    for a, b in zip(tile, whole, strict=True):
+        assert np.array_equal(a, b[y0:y1, x0:x1])
+
+
+class WarpInterpolate:
+    """gpu_blur.warp_kernels.interpolate for one precision on one Warp device."""
+
+    def __init__(self, device: str, dtype: str):
+        import warp as wp
+
+        from gpu_blur.warp_kernels.interpolate import interpolate_kernels
+
+        wp.config.quiet = True
+        self.wp, self.device, self.dtype = wp, device, dtype
+        self.real = np.dtype(dtype)
+        self.kernel = interpolate_kernels({"float32": wp.float32,
+                                           "float64": wp.float64}[dtype])["blur_interpolate_add"]
+
+    def array(self, values, dtype):
+        return self.wp.array(np.ascontiguousarray(values, dtype=dtype).ravel(),
+                             device=self.device)
+
+    def add(self, pair, t, region=None):
+        """Sums after adding the frame at t over region (y0, y1, x0, x1), from its halo view."""
+        frame0, frame1, fw, bw = pair
+        h, w = frame0.shape[:2]
+        y0, y1, x0, x1 = region or (0, h, 0, w)
+        halo = interpolation_halo(np.stack([fw, bw]))
+        vy0, vy1 = max(y0 - halo, 0), min(y1 + halo, h)
+        vx0, vx1 = max(x0 - halo, 0), min(x1 + halo, w)
+        view = (slice(vy0, vy1), slice(vx0, vx1))
+        dh, dw = y1 - y0, x1 - x0
+        out = [self.array(np.zeros((dh, dw, 3)), self.real),
+               self.array(np.zeros((dh, dw, 3)), self.real),
+               self.array(np.zeros((dh, dw, 3)), np.uint32)]
+        self.wp.launch(self.kernel, dim=(dh, dw), device=self.device, inputs=[
+            self.array(frame0[view], self.real), self.array(frame1[view], self.real),
+            self.array(fw[view], np.float32), self.array(bw[view], np.float32),
+            vx0, vy0, vx1 - vx0, w, h, t, CONSISTENCY_RELATIVE, CONSISTENCY_ABSOLUTE_PX2,
+            *out, x0, y0, dw])
+        return [a.numpy().reshape(dh, dw, 3) for a in out]
+
+
+def warp_devices() -> list[str]:
+    try:
+        import warp as wp
+    except ImportError:
+        return []
+    wp.config.quiet = True
+    return ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
+
+
+@pytest.fixture(scope="module", params=[(d, p) for d in warp_devices() or ["none"]
+                                        for p in ("float32", "float64")],
+                ids=lambda v: f"{v[0]}-{v[1]}")
+def warp_interpolate(request):
+    device, dtype = request.param
+    if device == "none":
+        pytest.skip("warp is not installed")
+    return WarpInterpolate(device, dtype)
+
+
+@pytest.mark.parametrize("t", [0.125, 0.5, 0.75])
+def test_warp_interpolate_add_is_the_reference_frame(warp_interpolate, pair, t):
+    k = warp_interpolate
+    total, comp, saturated = k.add(pair, t)
+    linear, indicator = expected_add(pair, t, k.real)
+    assert_close(total.astype(np.float64) + comp, linear, "interpolate", "warp", k.dtype)
+    assert np.array_equal(saturated, indicator) and indicator.any()
+
+
+def test_warp_interpolate_tile_equals_whole_image(warp_interpolate, pair):
+    y0, y1, x0, x1 = TILE
+    whole = warp_interpolate.add(pair, 0.25)
+    tile = warp_interpolate.add(pair, 0.25, TILE)
+    for a, b in zip(tile, whole, strict=True):
+        assert np.array_equal(a, b[y0:y1, x0:x1])
