@@ -21,6 +21,12 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("srgb_round_trip", "numpy", "float64"): (1e-13, 2.5e-9),
     # Horner against numpy's polyval: rounding in a degree-7 sum with coefficients up to 368.
     ("crf_polynomial", "independent", "float64"): (0.0, 1e-12),
+    # A7R3 tables resampled to N nodes (output.crf_table_size, tests/test_knobs.py) against the
+    # authors' 2,551-node table, re-toning 1e6 + 1 values: the resolution alone, largest in the
+    # steep dark end (measured 5.79e-3, 1.46e-3 and 3.51e-4; one 8-bit code is 3.9e-3).
+    ("crf_table_256", "numpy", "float64"): (0.0, 6e-3),
+    ("crf_table_1024", "numpy", "float64"): (0.0, 1.5e-3),
+    ("crf_table_4096", "numpy", "float64"): (0.0, 3.6e-4),
     # -- colour --
     # Composed 3 x 3 matrices against the stage-by-stage chain and the authors' derived values.
     ("color_matrix", "independent", "float64"): (1e-12, 1e-13),
@@ -54,6 +60,11 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # where a * b + c is fused) absolute.
     ("crf_lookup", "opencl", "float32"): (0.0, 8e-8),
     ("crf_lookup", "opencl", "float64"): (0.0, 1.2e-16),
+    # The same function on the tables resampled to 256, 1,024 and 4,096 nodes
+    # (output.crf_table_size, tests/test_opencl_knobs.py): measured 8.5e-8 (float32, 256 nodes;
+    # 7.2e-8 on the authors' table in the same test) and 1.1e-16 (float64).
+    ("crf_lookup_resampled", "opencl", "float32"): (0.0, 1e-7),
+    ("crf_lookup_resampled", "opencl", "float64"): (0.0, 1.2e-16),
     # A7R3 3 x 3 matrices (float64 ones for the reference) on linear pixels in [-0.1, 1.2]:
     # measured 1.9e-7 (float32, matrix rounding included) and 4.4e-16 (float64) absolute.
     ("apply_matrix", "opencl", "float32"): (0.0, 2.5e-7),
@@ -86,6 +97,10 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # A7R3 lookup table (2,551 nodes): absolute 7.4e-8 / 7.4e-8 (float32), 0 / 1.1e-16 (float64).
     ("crf_lookup", "warp", "float32"): (0.0, 8e-8),
     ("crf_lookup", "warp", "float64"): (0.0, 1.2e-16),
+    # Tables resampled to 256, 1,024 and 4,096 nodes (tests/test_warp_knobs.py): measured
+    # 8.5e-8 (float32) and 0 (float64) on the CPU.
+    ("crf_lookup_resampled", "warp", "float32"): (0.0, 1e-7),
+    ("crf_lookup_resampled", "warp", "float64"): (0.0, 1.2e-16),
     # A7R3 3 x 3 matrices (float64 ones for the reference) on linear pixels in [-0.1, 1.2]:
     # absolute 2.5e-7 / 1.9e-7 (float32, matrix rounding included), 4.4e-16 / 4.4e-16 (float64).
     ("apply_matrix", "warp", "float32"): (0.0, 3e-7),
@@ -137,6 +152,13 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # float32 without fp64, inversion rates (< 10) only (measured 1e-5 at rate 3); float PTRS
     # differs on 0.35 % of pixels at 1e4 and 15 % at 1e7, so it is checked statistically.
     ("poisson_agreement", "opencl", "float32-nofp64"): (0.0, 1e-4),
+    # The normal approximation above a threshold (noise.poisson = "normal",
+    # tests/test_opencl_knobs.py): the FRACTION OF COUNTS differing from rng.poisson(...,
+    # normal_above=1000) at rates 0 to 1e7; a count moves only where rate + sqrt(rate) z falls
+    # within the device libm's ulps of a half integer. Measured 0 of 2.3e5. Without fp64 the
+    # sum rounds in float (0.5 % of counts move at 1e5, half at 1e7): statistics only.
+    ("poisson_normal_agreement", "opencl", "float32"): (0.0, 1e-5),
+    ("poisson_normal_agreement", "opencl", "float64"): (0.0, 1e-5),
     # -- Warp random --
     # gpu_blur/warp_kernels/random.py against rng (tests/test_warp_random.py), on Warp's "cpu"
     # device (x86-64) and on CUDA (an NVIDIA H200); the samplers are float64 whatever the
@@ -152,6 +174,22 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # against 0 (issue: identical on >= 99.999 %). Measured 0 of 1.2e6 + 8.2e5 pixels on both
     # devices, with fuse_fp=False and (H200) fuse_fp=True.
     ("poisson_agreement", "warp", "float64"): (0.0, 1e-5),
+    # The normal approximation above a threshold, as the OpenCL row (tests/test_warp_knobs.py):
+    # measured 0 of 2.3e5 counts.
+    ("poisson_normal_agreement", "warp", "float64"): (0.0, 1e-5),
+    # -- fast maths (output.fast_math) --
+    # float32 builds with GB_FAST_MATH (OpenCL native_powr in the sRGB curves, native_log /
+    # sqrt / cos / sin in the normals; kernels/opencl/include/gb_math.h) and Warp modules built
+    # with its fast_math option (CUDA's approximate float intrinsics; Warp's CPU compiler
+    # ignores the option) with float32 normals (random.pixel_normal_fast), against the
+    # reference (tests/test_opencl_knobs.py, tests/test_warp_knobs.py). sRGB relative,
+    # denormal results on float32's grid; normals absolute, |z| <= 5.8.
+    ("srgb_to_linear", "opencl", "float32-fast"): (1e-5, 1e-45),
+    ("linear_to_srgb", "opencl", "float32-fast"): (1.5e-5, 1e-45),
+    ("normal", "opencl", "float32-fast"): (0.0, 2e-6),
+    ("srgb_to_linear", "warp", "float32-fast"): (1e-5, 1e-45),
+    ("linear_to_srgb", "warp", "float32-fast"): (1.5e-5, 1e-45),
+    ("normal", "warp", "float32-fast"): (0.0, 2e-6),
     # -- backends against the reference (tests/test_backends.py) --
     # numpy is the reference: it must agree with itself exactly, tiled or not.
     **{(stage, "numpy", "float64"): (0.0, 0.0) for stage in (

@@ -70,11 +70,14 @@ def add_poisson_gaussian(
     seed: int,
     sample_index: int,
     origin: tuple[int, int] = (0, 0),
+    poisson_normal_above: float | None = None,
 ) -> np.ndarray:
     """Add heteroscedastic Poisson-Gaussian noise to a RAW mosaic.
 
-    Per sample, with ``n = poisson(max(x, 0) / K)`` (stream SHOT_NOISE) and ``z`` the first
-    normal of :func:`~gpu_blur.reference.rng.pixel_normals` (stream READ_NOISE)::
+    Per sample, with ``n = poisson(max(x, 0) / K)`` (stream SHOT_NOISE; with
+    ``poisson_normal_above`` set, rates above it use the normal approximation, see
+    :func:`~gpu_blur.reference.rng.poisson`) and ``z`` the first normal of
+    :func:`~gpu_blur.reference.rng.pixel_normals` (stream READ_NOISE)::
 
         x' = K * n + sigma_r * z
 
@@ -93,12 +96,16 @@ def add_poisson_gaussian(
         sample_index: sample number in ``[0, 2**32)``.
         origin: ``(row, col)`` of ``raw[0, 0]`` in the full image, so a tile draws what the
             whole image draws at the same photosites.
+        poisson_normal_above: ``None`` (scene ``noise.poisson = "exact"``) or the Poisson rate,
+            in counts, above which counts are a rounded normal (``noise.poisson = "normal"``,
+            ``noise.normal_above``).
 
     Returns:
         float64 array ``(H, W)``.
 
     Raises:
-        ValueError: on a bad shape, non-finite input, or K / sigma_r out of range.
+        ValueError: on a bad shape, non-finite input, K / sigma_r out of range, or a bad
+            ``poisson_normal_above``.
     """
     raw = np.asarray(raw, dtype=np.float64)
     if raw.ndim != 2:
@@ -118,7 +125,8 @@ def add_poisson_gaussian(
     require_finite(raw, "raw", hint="; the Poisson rate x / K must be finite")
     y, x = _global_coordinates(raw.shape, origin)
     rate = np.maximum(raw, 0.0) / k
-    counts = poisson(rate, seed, sample_index, y, x, stream=Stream.SHOT_NOISE)
+    counts = poisson(rate, seed, sample_index, y, x, stream=Stream.SHOT_NOISE,
+                     normal_above=poisson_normal_above)
     z = pixel_normals(seed, sample_index, Stream.READ_NOISE, y, x, count=1)[..., 0]
     return k * counts + sigma_r * z
 

@@ -37,8 +37,9 @@ Normals and Poisson counts
 --------------------------
 Normals come from the Box-Muller transform (:func:`box_muller`, :func:`pixel_normals`); Poisson
 counts from inversion below rate 10 and Hörmann's PTRS transformed rejection at 10 and above
-(:func:`poisson`). Both are written as plain scalar arithmetic so OpenCL C and Warp can repeat
-them operation for operation.
+(:func:`poisson`), or, as an accuracy knob, from a rounded normal above a chosen rate
+(:func:`poisson` with ``normal_above``). All are written as plain scalar arithmetic so OpenCL C
+and Warp can repeat them operation for operation.
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ __all__ = [
     "pixel_normals",
     "pixel_uniforms",
     "poisson",
+    "poisson_normal_approximation",
     "uniform_from_bits",
 ]
 
@@ -540,13 +542,82 @@ def require_finite(values, what: str, noun: str = "values", hint: str = "") -> n
     return values
 
 
-def poisson(
+def _normal_counts(rate: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+    """``max(0, floor(rate + sqrt(rate) * z + 0.5))`` with ``z`` the cos normal of (u1, u2)."""
+    z, _ = box_muller(u1, u2)
+    return np.maximum(np.floor(rate + np.sqrt(rate) * z + 0.5), 0.0)
+
+
+def _check_normal_above(normal_above) -> float | None:
+    """``None`` (exact sampler) or the threshold rate as a finite float >= 0."""
+    if normal_above is None:
+        return None
+    try:
+        value = float(normal_above)
+    except (TypeError, ValueError):
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0.0):
+        raise ValueError(
+            f"normal_above must be a finite Poisson rate >= 0 (counts, e.g. 1000.0) above "
+            f"which counts come from the normal approximation, or None for the exact sampler; "
+            f"got {normal_above!r}"
+        )
+    return value
+
+
+def poisson_normal_approximation(
     rate, seed: int, sample_index: int, y, x, stream: Stream = Stream.SHOT_NOISE
+) -> np.ndarray:
+    """Poisson counts approximated by a rounded normal, one per pixel, for every given rate.
+
+    ``N(rate, rate)`` is the Poisson law's normal limit (central limit theorem; its skewness
+    ``rate**-0.5`` is what the approximation drops). With ``z`` the cos normal of
+    :func:`box_muller` on words 0 (``u1``) and 1 (``u2``) of round 0 of the pixel's counter in
+    ``stream`` (the same two words PTRS's first attempt reads)::
+
+        count = max(0, floor(rate + sqrt(rate) * z + 0.5))
+
+    i.e. rounded half up, then clamped at 0. Each operation rounds once in float64 (the
+    product and the sum are not fused); ``floor(t + 0.5)`` is exact for ``t < 2**52``. The
+    rounding adds 1/12 to the variance (Sheppard's correction) and ``|z| <= 5.77`` cuts the
+    tails (see :func:`box_muller`). :func:`poisson` uses it above ``normal_above``.
+
+    Args:
+        rate: float array of Poisson means (counts), any shape; finite, clamped at 0.
+        seed: 64-bit seed.
+        sample_index: sample number in ``[0, 2**32)``.
+        y: integer array of global rows, broadcastable to ``rate.shape``.
+        x: integer array of global columns, broadcastable to ``rate.shape``.
+        stream: the per-pixel :class:`Stream` to draw from.
+
+    Returns:
+        float64 array of integer-valued counts, shape of ``rate``.
+    """
+    stream = _check_stream(stream)
+    rate = np.maximum(require_finite(rate, "poisson_normal_approximation", "rates"), 0.0)
+    yy = np.broadcast_to(_check_coordinate(y, "y"), rate.shape)
+    xx = np.broadcast_to(_check_coordinate(x, "x"), rate.shape)
+    u = pixel_uniforms(seed, sample_index, stream, yy, xx, round=0)
+    return _normal_counts(rate, u[..., 0], u[..., 1])
+
+
+def poisson(
+    rate,
+    seed: int,
+    sample_index: int,
+    y,
+    x,
+    stream: Stream = Stream.SHOT_NOISE,
+    *,
+    normal_above: float | None = None,
 ) -> np.ndarray:
     """One Poisson count per pixel, drawn from the pixel's own counters.
 
     Rates are clamped at 0 first (``max(rate, 0)``), so negative rates give 0; a rate of 0
-    gives exactly 0. The sampler switches on the clamped rate:
+    gives exactly 0. With ``normal_above`` set, clamped rates strictly above it take
+    :func:`poisson_normal_approximation` (an accuracy knob: one uniform pair and no loop) and
+    the others the exact sampler below, so counts at or below the threshold are those of
+    ``normal_above=None`` bit for bit. The exact sampler switches on the clamped rate:
 
     **rate < 10: inversion by sequential search** (Devroye, *Non-Uniform Random Variate
     Generation*, 1986, §X.3), with ``u`` = word 0 of round 0::
@@ -585,27 +656,38 @@ def poisson(
         y: integer array of global rows, broadcastable to ``rate.shape``.
         x: integer array of global columns, broadcastable to ``rate.shape``.
         stream: the per-pixel :class:`Stream` to draw from.
+        normal_above: ``None`` for the exact sampler everywhere, or a finite rate >= 0 above
+            which counts come from the normal approximation.
 
     Returns:
         float64 array of integer-valued counts, shape of ``rate``.
 
     Raises:
-        ValueError: if any rate is NaN or infinite (naming how many and one of them).
+        ValueError: if any rate is NaN or infinite (naming how many and one of them), or
+            ``normal_above`` is not None or a finite rate >= 0.
     """
     key_from_seed(seed)
     _check_sample_index(sample_index)
     stream = _check_stream(stream)
+    threshold = _check_normal_above(normal_above)
     rate = require_finite(rate, "poisson", "rates")
     yy = np.broadcast_to(_check_coordinate(y, "y"), rate.shape).reshape(-1)
     xx = np.broadcast_to(_check_coordinate(x, "x"), rate.shape).reshape(-1)
     flat = np.maximum(rate.reshape(-1), 0.0)
     out = np.zeros(flat.shape, dtype=np.float64)
+    exact = np.ones(flat.shape, dtype=bool)
+    if threshold is not None:
+        exact = ~(flat > threshold)
+        normal = np.flatnonzero(~exact)
+        if normal.size:
+            u = pixel_uniforms(seed, sample_index, stream, yy[normal], xx[normal], round=0)
+            out[normal] = _normal_counts(flat[normal], u[:, 0], u[:, 1])
 
-    small = np.flatnonzero(flat < POISSON_PTRS_MIN_RATE)
+    small = np.flatnonzero(exact & (flat < POISSON_PTRS_MIN_RATE))
     if small.size:
         u = pixel_uniforms(seed, sample_index, stream, yy[small], xx[small], round=0)[:, 0]
         out[small] = _poisson_inversion(flat[small], u)
-    large = np.flatnonzero(flat >= POISSON_PTRS_MIN_RATE)
+    large = np.flatnonzero(exact & (flat >= POISSON_PTRS_MIN_RATE))
     if large.size:
         out[large] = _poisson_ptrs(flat[large], seed, sample_index, stream, yy[large], xx[large])
     return out.reshape(rate.shape)

@@ -10,6 +10,8 @@ camera data and lives in :mod:`gpu_blur.cameras`; these functions take it as an 
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 #: sRGB EOTF knee on the encoded value (IEC 61966-2-1).
@@ -124,6 +126,54 @@ def lookup_crf(linear, rendered_x255) -> np.ndarray:
     return np.clip(np.interp(x, nodes, rendered), 0.0, 1.0)
 
 
+def resample_lookup_table(rendered_x255, size: int) -> np.ndarray:
+    """A response table resampled to ``size`` evenly spaced linear nodes by linear interpolation.
+
+    Node ``i`` lies at linear ``i / (size - 1)`` (``np.linspace(0, 1, size)``) and takes the
+    value of the table's own piecewise-linear curve there (``np.interp`` on the table's nodes,
+    as :func:`lookup_crf` before its clip). Sampling a strictly increasing piecewise-linear
+    curve at strictly increasing points keeps the new table strictly increasing, so it has an
+    inverse too, and both end nodes keep the table's end values.
+
+    Args:
+        rendered_x255: (N + 1,) rendered values times 255 at linear 0, 1/N, ..., 1.
+        size: nodes of the new table, an integer >= 2.
+
+    Returns:
+        float64 array ``(size,)``, rendered values times 255.
+    """
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 2:
+        raise ValueError(f"a response table needs an integer size >= 2 (nodes); got {size!r}")
+    nodes, rendered = lookup_table_grid(rendered_x255)
+    return np.interp(np.linspace(0.0, 1.0, int(size)), nodes, rendered) * 255.0
+
+
+@functools.cache
+def a7r3_lookup_table(size: int = 0) -> np.ndarray:
+    """The A7R3 response table that ``output.crf = "a7r3-lut"`` re-tones with, x 255.
+
+    ``size`` 0 is the authors' table itself (2,551 nodes, RSBlur ``lookup_table.mat``);
+    another size (``output.crf_table_size``, an accuracy knob) is that table resampled by
+    :func:`resample_lookup_table`. It is resampled from the authors' table, not from the
+    degree-7 polynomial, so that every size approximates the one curve "a7r3-lut" names and
+    the error against size 0 is the table's resolution alone: the polynomial differs from the
+    table by up to 0.0071 and dips near linear 0.862, so its samples would not be monotone.
+
+    Args:
+        size: 0, or the number of nodes (>= 2).
+
+    Returns:
+        Read-only float64 array of rendered values times 255 at linear ``i / (n - 1)``.
+    """
+    from gpu_blur.constants import A7R3_CRF_TABLE_X255
+
+    if isinstance(size, (int, np.integer)) and not isinstance(size, bool) and size == 0:
+        return A7R3_CRF_TABLE_X255
+    table = resample_lookup_table(A7R3_CRF_TABLE_X255, size)
+    table.setflags(write=False)
+    return table
+
+
 def inverse_lookup_crf(encoded, rendered_x255) -> np.ndarray:
     """Inverse camera response from the same table: monotone because the table is."""
     nodes, rendered = lookup_table_grid(rendered_x255)
@@ -131,7 +181,7 @@ def inverse_lookup_crf(encoded, rendered_x255) -> np.ndarray:
     return np.clip(np.interp(x, rendered, nodes), 0.0, 1.0)
 
 
-def retone(encoded, crf: str) -> np.ndarray:
+def retone(encoded, crf: str, table_size: int = 0) -> np.ndarray:
     """Re-tone an sRGB image with the A7R3 response: ``crf(srgb_to_linear(x))``.
 
     The RSBlur PyTorch pipeline does this to both the synthetic input and its ground truth so
@@ -140,12 +190,17 @@ def retone(encoded, crf: str) -> np.ndarray:
     Args:
         encoded: sRGB image in [0, 1]; any shape.
         crf: ``"a7r3"`` (the polynomial) or ``"a7r3-lut"`` (its lookup table).
+        table_size: ``"a7r3-lut"`` only: 0 for the authors' 2,551-node table, else the nodes
+            of :func:`a7r3_lookup_table` (``output.crf_table_size``).
     """
-    from gpu_blur.constants import A7R3_CRF_POLYNOMIAL, A7R3_CRF_TABLE_X255
+    from gpu_blur.constants import A7R3_CRF_POLYNOMIAL
 
     linear = srgb_to_linear(encoded)
     if crf == "a7r3":
+        if table_size != 0:
+            raise ValueError(f"table_size = {table_size!r} needs crf 'a7r3-lut'; the 'a7r3' "
+                             "polynomial has no table (use table_size 0)")
         return polynomial_crf(linear, A7R3_CRF_POLYNOMIAL)
     if crf == "a7r3-lut":
-        return lookup_crf(linear, A7R3_CRF_TABLE_X255)
+        return lookup_crf(linear, a7r3_lookup_table(table_size))
     raise ValueError(f"crf must be 'a7r3' or 'a7r3-lut', got {crf!r}")

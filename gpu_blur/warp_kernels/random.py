@@ -1,8 +1,10 @@
 """Counter-based random draws as Warp device functions: the Warp side of gpu_blur/reference/rng.py.
 
 Provides Philox4x32-10 (:func:`philox4x32`), the per-pixel words (:func:`pixel_bits`),
-uniforms (:func:`uniform`), Box-Muller normals (:func:`box_muller`, :func:`pixel_normal`),
-``log(k!)`` (:func:`log_factorial`) and the Poisson sampler (:func:`poisson`), all
+uniforms (:func:`uniform`), Box-Muller normals (:func:`box_muller`, :func:`pixel_normal`, and
+the float32 :func:`pixel_normal_fast` of scene ``output.fast_math``), ``log(k!)``
+(:func:`log_factorial`), the Poisson sampler (:func:`poisson`) and its normal approximation
+above a threshold rate (:func:`poisson_normal_above`, scene ``noise.poisson = "normal"``), all
 ``@wp.func``, for kernels of the Warp backend to call. kernels/opencl/include/gb_random.h is
 the OpenCL port of the same functions.
 
@@ -20,7 +22,8 @@ normals
     four per round: (cos, sin) of Box-Muller on words (0, 1), then on words (2, 3).
 Poisson
     stream SHOT_NOISE; inversion on word 0 of round 0 below rate 10, PTRS at 10 and above,
-    attempt ``2r`` on words (0, 1) and attempt ``2r + 1`` on words (2, 3) of round ``r``.
+    attempt ``2r`` on words (0, 1) and attempt ``2r + 1`` on words (2, 3) of round ``r``; the
+    normal approximation on the cos normal of words (0, 1) of round 0.
 
 Warp types. Words, keys, sample indices, streams, coordinates and rounds are ``wp.uint32``; a
 block of four words is ``wp.vec4ui`` (Warp's built-in ``vector(length=4, dtype=uint32)``);
@@ -65,9 +68,13 @@ __all__ = [
     "box_muller",
     "log_factorial",
     "philox4x32",
+    "box_muller_fast",
     "pixel_bits",
     "pixel_normal",
+    "pixel_normal_fast",
     "poisson",
+    "poisson_normal_above",
+    "poisson_normal_count",
     "uniform",
 ]
 
@@ -95,6 +102,8 @@ _UNIFORM_SHIFT = wp.constant(wp.uint32(9))
 _UNIFORM_SCALE = wp.constant(wp.float64(2.0**-23))
 #: 2 * pi rounded to float64, as the reference's ``2.0 * math.pi``.
 _TWO_PI = wp.constant(wp.float64(6.283185307179586))
+#: 2 * pi rounded to float32 (6.2831855), for the fast normals.
+_TWO_PI_F32 = wp.constant(wp.float32(6.283185307179586))
 
 # -- log(k!) and Poisson -------------------------------------------------------------------------
 _vec16d = wp.types.vector(length=16, dtype=wp.float64)
@@ -237,6 +246,46 @@ def pixel_normal(
     return z[wp.int32(j & wp.uint32(1))]
 
 
+@wp.func
+def box_muller_fast(u1: wp.float32, u2: wp.float32) -> wp.vec2f:
+    """Box-Muller in float32 (scene ``output.fast_math``), as gb_box_muller under GB_FAST_MATH.
+
+    ``r = sqrt(-2 log u1)``; the angle is moved into [-pi, pi), where fast sin and cos are most
+    accurate: ``t' = (2 pi)_f (u2 - 0.5)`` (``u2 - 0.5`` is exact), and ``cos t = -cos t'``,
+    ``sin t = -sin t'``. A module built with Warp's ``fast_math`` option runs these on CUDA's
+    approximate intrinsics; on the CPU they are libm's float functions. Returns
+    ``wp.vec2f(r cos t, r sin t)``.
+    """
+    radius = wp.sqrt(wp.float32(-2.0) * wp.log(u1))
+    angle = _TWO_PI_F32 * (u2 - wp.float32(0.5))
+    return wp.vec2f(-radius * wp.cos(angle), -radius * wp.sin(angle))
+
+
+@wp.func
+def pixel_normal_fast(
+    key0: wp.uint32,
+    key1: wp.uint32,
+    sample_index: wp.uint32,
+    stream: wp.uint32,
+    x: wp.uint32,
+    y: wp.uint32,
+    index: wp.uint32,
+) -> wp.float32:
+    """:func:`pixel_normal` through :func:`box_muller_fast`: the same words, in float32.
+
+    The uniforms are exact in float32 (:func:`uniform`), so only the fast Box-Muller differs.
+    """
+    bits = pixel_bits(key0, key1, sample_index, stream, x, y, index >> wp.uint32(2))
+    j = index & wp.uint32(3)
+    w1 = bits[0]
+    w2 = bits[1]
+    if j >= wp.uint32(2):
+        w1 = bits[2]
+        w2 = bits[3]
+    z = box_muller_fast(wp.float32(uniform(w1)), wp.float32(uniform(w2)))
+    return z[wp.int32(j & wp.uint32(1))]
+
+
 # ------------------------------------------------------------------------------------------------
 # log(k!) and Poisson
 # ------------------------------------------------------------------------------------------------
@@ -343,3 +392,48 @@ def poisson(
             return second[0]
         block = block + wp.uint32(1)
     return _NAN  # unreachable: each attempt accepts with probability > 0.9
+
+
+@wp.func
+def poisson_normal_count(
+    rate: wp.float64,
+    key0: wp.uint32,
+    key1: wp.uint32,
+    sample_index: wp.uint32,
+    x: wp.uint32,
+    y: wp.uint32,
+) -> wp.float64:
+    """A count by the normal approximation (rng.poisson_normal_approximation), in float64.
+
+    For a finite rate >= 0: ``z`` the cos normal of :func:`box_muller` on words 0 and 1 of round
+    0 of stream SHOT_NOISE, then ``max(0, floor(rate + sqrt(rate) z + 0.5))`` (rounded half
+    up, clamped at 0), as gb_poisson_normal_count. Bit for bit with the reference needs a module
+    built with ``fuse_fp=False``, as :func:`poisson` (see the module docstring).
+    """
+    bits = pixel_bits(key0, key1, sample_index, SHOT_NOISE, x, y, wp.uint32(0))
+    z = box_muller(uniform(bits[0]), uniform(bits[1]))
+    count = wp.floor(rate + wp.sqrt(rate) * z[0] + _F_HALF)
+    if count > _F0:
+        return count
+    return _F0
+
+
+@wp.func
+def poisson_normal_above(
+    rate: wp.float64,
+    normal_above: wp.float64,
+    key0: wp.uint32,
+    key1: wp.uint32,
+    sample_index: wp.uint32,
+    x: wp.uint32,
+    y: wp.uint32,
+) -> wp.float64:
+    """rng.poisson with ``normal_above``: the normal approximation above the threshold.
+
+    Rates strictly above ``normal_above`` (>= 0, the host checks it) take
+    :func:`poisson_normal_count`, all others :func:`poisson`, so counts at or below it are
+    :func:`poisson`'s bit for bit; NaN and +inf go to :func:`poisson` (as gb_poisson_normal_above).
+    """
+    if rate > normal_above and not wp.isinf(rate):
+        return poisson_normal_count(rate, key0, key1, sample_index, x, y)
+    return poisson(rate, key0, key1, sample_index, x, y)

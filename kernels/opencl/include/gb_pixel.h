@@ -11,11 +11,15 @@
  *                                         to_integers
  * NaN goes through every function as NaN (as in numpy), except gb_quantize_code, where the code of
  * a NaN is undefined (numpy's cast of NaN to an integer is too).
+ *
+ * The sRGB curves' power is gb_pow (gb_math.h): pow, or native_powr in float builds with
+ * GB_FAST_MATH, whose error the tolerance table's "fast" rows bound.
  */
 #ifndef GB_PIXEL_H
 #define GB_PIXEL_H
 
 #include "gb_common.h"
+#include "gb_math.h"
 
 /* sRGB, IEC 61966-2-1 (the same constants as gpu_blur.reference.transfer). */
 #ifdef GB_FP64
@@ -49,7 +53,7 @@ static inline real gb_srgb_to_linear(real x)
     real a = fabs(x);
     int low = a < GB_SRGB_DECODE_KNEE;
     real curve = low ? GB_SRGB_DECODE_KNEE : a; /* NaN stays NaN */
-    real y = low ? a / GB_SRGB_SLOPE : pow((curve + GB_SRGB_OFFSET) / GB_SRGB_SCALE, GB_SRGB_GAMMA);
+    real y = low ? a / GB_SRGB_SLOPE : gb_pow((curve + GB_SRGB_OFFSET) / GB_SRGB_SCALE, GB_SRGB_GAMMA);
     return copysign(y, x);
 }
 
@@ -60,7 +64,7 @@ static inline real gb_linear_to_srgb(real x)
     real a = fabs(x);
     int low = a < GB_SRGB_ENCODE_KNEE;
     real curve = low ? GB_SRGB_ENCODE_KNEE : a;
-    real y = low ? GB_SRGB_SLOPE * a : GB_SRGB_SCALE * pow(curve, GB_SRGB_INV_GAMMA) - GB_SRGB_OFFSET;
+    real y = low ? GB_SRGB_SLOPE * a : GB_SRGB_SCALE * gb_pow(curve, GB_SRGB_INV_GAMMA) - GB_SRGB_OFFSET;
     return copysign(y, x);
 }
 

@@ -3,7 +3,8 @@
  *
  * Provides Philox4x32-10 (gb_philox, from pyopencl's bundled Random123 philox.cl), the per-pixel
  * words (gb_pixel_bits), uniforms (gb_uniform), Box-Muller normals (gb_box_muller,
- * gb_pixel_normal), log(k!) (gb_log_factorial) and the Poisson sampler (gb_poisson).
+ * gb_pixel_normal), log(k!) (gb_log_factorial), the Poisson sampler (gb_poisson) and its normal
+ * approximation above a threshold rate (gb_poisson_normal_above, scene noise.poisson = "normal").
  *
  * The contract is rng.py's module docstring, repeated here operation for operation:
  *   key      (seed & 0xFFFFFFFF, seed >> 32), passed as a uint2
@@ -12,7 +13,8 @@
  *   uniform  ((bits >> 9) + 0.5) * 2^-23: exact in float and in double
  *   normals  4 per round: (cos, sin) of Box-Muller on words (0, 1), then on words (2, 3)
  *   Poisson  stream SHOT_NOISE; inversion on word 0 of round 0 below rate 10, PTRS at 10 and
- *            above, attempt 2r on words (0, 1) and attempt 2r + 1 on words (2, 3) of round r
+ *            above, attempt 2r on words (0, 1) and attempt 2r + 1 on words (2, 3) of round r;
+ *            the normal approximation on the cos normal of words (0, 1) of round 0
  *
  * Precision rule. Where the device has fp64 (GB_HAS_FP64, or GB_FP64) the Poisson sampler,
  * log(k!) and Box-Muller compute in double even in a float build, and round once to `real` at
@@ -22,6 +24,9 @@
  * code runs in float (type gb_wide) and agrees with the reference less closely: Poisson counts
  * are then right in distribution, not pixel for pixel, at rates >= 10. The measured agreement
  * is in gpu_blur/testing.py (section "OpenCL random").
+ *
+ * Fast maths (GB_FAST_MATH in a float build, gb_math.h): the normals of gb_box_muller run in float
+ * with native_ functions; the Poisson samplers are unchanged.
  *
  * Floating-point contraction is switched off inside the functions below (the reference rounds
  * every product and sum); do not build with -cl-mad-enable, -cl-unsafe-math-optimizations or
@@ -33,6 +38,7 @@
 #define GB_RANDOM_H
 
 #include "gb_common.h"
+#include "gb_math.h"
 #include <pyopencl-random123/philox.cl>
 
 /* The wide type of the samplers: double where the device has it, float otherwise. */
@@ -82,22 +88,42 @@ static inline real gb_uniform(uint bits)
     return ((real)(bits >> 9) + GB_REAL(0.5)) * GB_REAL(0x1p-23);
 }
 
-/* Box-Muller: r = sqrt(-2 log u1), t = (2 pi) u2; (r cos t, r sin t), in gb_wide. */
-static inline void gb_box_muller(real u1, real u2, real *z_cos, real *z_sin)
+/* Box-Muller in gb_wide: r = sqrt(-2 log u1), t = (2 pi) u2; (r cos t, r sin t). */
+static inline void gb_box_muller_wide(gb_wide u1, gb_wide u2, gb_wide *z_cos, gb_wide *z_sin)
 {
 #pragma OPENCL FP_CONTRACT OFF
-    const gb_wide radius = sqrt(GB_WIDE(-2.0) * log((gb_wide)u1));
+    const gb_wide radius = sqrt(GB_WIDE(-2.0) * log(u1));
 #ifdef GB_RANDOM_WIDE_IS_DOUBLE
     /* 2 * pi rounded to double, as numpy's 2.0 * math.pi. */
-    const gb_wide angle = 6.283185307179586 * (gb_wide)u2;
-    *z_cos = (real)(radius * cos(angle));
-    *z_sin = (real)(radius * sin(angle));
+    const gb_wide angle = 6.283185307179586 * u2;
+    *z_cos = radius * cos(angle);
+    *z_sin = radius * sin(angle);
 #else
     /* In float, (2 pi)_f * u2 misplaces the angle by up to 4.1e-7 rad (times |z| <= 5.8);
      * 2 * u2 is exact, so cospi / sinpi see the reference's angle. */
     const float half_turns = 2.0f * u2;
-    *z_cos = (real)(radius * cospi(half_turns));
-    *z_sin = (real)(radius * sinpi(half_turns));
+    *z_cos = radius * cospi(half_turns);
+    *z_sin = radius * sinpi(half_turns);
+#endif
+}
+
+/* Box-Muller of the normals (rng.box_muller), rounded once to `real`. With GB_NATIVE_MATH
+ * (gb_math.h) it runs in float on native_ functions instead, the angle moved into [-pi, pi),
+ * where native sin and cos are most accurate: t' = (2 pi)_f (u2 - 0.5) (u2 - 0.5 is exact) and
+ * cos t = -cos t', sin t = -sin t'. */
+static inline void gb_box_muller(real u1, real u2, real *z_cos, real *z_sin)
+{
+#pragma OPENCL FP_CONTRACT OFF
+#ifdef GB_NATIVE_MATH
+    const float radius = gb_sqrt(-2.0f * gb_log(u1));
+    const float angle = 6.2831855f * (u2 - 0.5f);
+    *z_cos = -radius * gb_cos(angle);
+    *z_sin = -radius * gb_sin(angle);
+#else
+    gb_wide c, s;
+    gb_box_muller_wide((gb_wide)u1, (gb_wide)u2, &c, &s);
+    *z_cos = (real)c;
+    *z_sin = (real)s;
 #endif
 }
 
@@ -206,6 +232,35 @@ static inline real gb_poisson(real rate_in, uint2 key, uint sample_index, uint x
         }
     }
     return (real)NAN; /* unreachable: each attempt accepts with probability > 0.9 */
+}
+
+/* A Poisson count by the normal approximation (rng.poisson_normal_approximation) for a finite
+ * rate >= 0, in gb_wide: z the cos normal of Box-Muller on words 0 and 1 of round 0 of stream
+ * SHOT_NOISE (the words PTRS's first attempt reads), then
+ *   count = max(0, floor(rate + sqrt(rate) z + 0.5))      (rounded half up, clamped at 0)
+ * with every operation rounded once, as the reference. Never fast maths: see gb_math.h. */
+static inline gb_wide gb_poisson_normal_count(gb_wide rate, uint2 key, uint sample_index, uint x,
+                                              uint y)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    const uint4 bits = gb_pixel_bits(key, sample_index, GB_STREAM_SHOT_NOISE, x, y, 0u);
+    gb_wide z, z_sin;
+    gb_box_muller_wide((gb_wide)gb_uniform(bits.x), (gb_wide)gb_uniform(bits.y), &z, &z_sin);
+    const gb_wide count = floor(rate + sqrt(rate) * z + GB_WIDE(0.5));
+    return count > GB_WIDE(0.0) ? count : GB_WIDE(0.0);
+}
+
+/* rng.poisson with normal_above: rates strictly above `normal_above` (>= 0, the host checks it)
+ * take gb_poisson_normal_count, all others gb_poisson, so counts at or below the threshold are
+ * gb_poisson's bit for bit. NaN and +inf go to gb_poisson (NaN and +inf out). The threshold is a
+ * `real`, rounded as the rate is. */
+static inline real gb_poisson_normal_above(real rate_in, real normal_above, uint2 key,
+                                           uint sample_index, uint x, uint y)
+{
+    const gb_wide rate = (gb_wide)rate_in;
+    if (rate > (gb_wide)normal_above && !isinf(rate))
+        return (real)gb_poisson_normal_count(rate, key, sample_index, x, y);
+    return gb_poisson(rate_in, key, sample_index, x, y);
 }
 
 #endif
