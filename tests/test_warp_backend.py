@@ -62,3 +62,34 @@ def test_generate_with_the_warp_backend_writes_a_set(tmp_path):
 def test_devices_command_lists_warp(capsys):
     assert main(["devices"]) == 0
     assert "warp:cpu" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("device", [d["spec"] for d in warp_devices()])
+def test_a_wp_array_stack_of_frames_averages_like_a_list_of_frames(device, coffee_rgb):
+    # frames already in memory Warp reaches (the device, or pinned host memory on CUDA) run in
+    # one launch without a host copy; the result is that of the same frames as numpy arrays
+    from gpu_blur.backends import to_host
+    from gpu_blur.cameras import get_camera
+    from gpu_blur.params import draw_params
+    from gpu_blur.plan import plan
+    from gpu_blur.tiling import Region
+
+    codes = np.round(coffee_rgb[100:164, 200:296] * 255).astype(np.uint8)
+    frames = np.stack([np.roll(codes, 2 * i, axis=1) for i in range(6)])
+    scene = scene_from_dict({"blur": {"mode": "average", "frames": 6}})
+    p = plan(scene, saturated=True)
+    params = draw_params(scene, p, get_camera("a7r3"), seed=2, sample_index=0,
+                         image_shape=codes.shape[:2])
+    backend = WarpBackend(device)
+    region = Region.whole(*codes.shape[:2])
+    alias = device.split(":", 1)[1]
+    places = [alias] + (["cpu"] if alias != "cpu" else [])  # pinned host memory on CUDA
+    expected = [to_host(x) for x in backend.accumulate(p, params, list(frames), None, region)]
+    for place in places:
+        stack = wp.array(frames, dtype=wp.uint8, device=place, pinned=place != alias)
+        got = [to_host(x) for x in backend.accumulate(p, params, stack, None, region)]
+        for a, b in zip(got, expected, strict=True):
+            assert np.array_equal(a, b)
+    with pytest.raises(ValueError, match="run whole images"):
+        backend.accumulate(p, params, wp.array(frames, dtype=wp.uint8, device=alias), None,
+                           Region(0, 0, 32, 32, *codes.shape[:2]))

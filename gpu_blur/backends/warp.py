@@ -88,6 +88,7 @@ class WarpBackend:
         self._staging: dict = {}  # slot -> pinned host buffer (kept across samples)
         self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
         self._constants: dict = {}  # (bytes, dtype) -> device array of a small constant
+        self.sync_passes = True
 
     # -- buffers (uploads and downloads are timed as "copies", gpu_blur.timings) --------------
     @staticmethod
@@ -129,8 +130,12 @@ class WarpBackend:
         wp.launch(kernel, dim=dim, inputs=list(args), device=self.wp_device)
 
     def _kernels(self, sync: bool = True):
-        """Time launches as "kernels"; ``sync`` waits for them (``wp.synchronize_device``)."""
-        return timer("kernels", self._synchronize if sync else None)
+        """Time launches as "kernels"; ``sync`` waits for them (``wp.synchronize_device``).
+
+        With ``sync_passes`` False nothing waits (the timings then hold launch times only),
+        so the passes can be captured in a CUDA graph (bench/gpu_targets.py).
+        """
+        return timer("kernels", self._synchronize if sync and self.sync_passes else None)
 
     def _synchronize(self) -> None:
         wp.synchronize_device(self.wp_device)
@@ -215,11 +220,16 @@ class WarpBackend:
         """Linearize and blur on the device; (linear, mask) over ``region``, on the device."""
         from gpu_blur.warp_kernels.passes import accumulate_kernels
 
-        k = accumulate_kernels(self.real, self._source(frames[0])[1])
+        stacked = isinstance(frames, wp.array)
+        k = accumulate_kernels(self.real, frames.dtype if stacked
+                               else self._source(frames[0])[1])
         mode = plan.variant("blur") or "none"
         n = region.h * region.w * 3
         shape = (region.h, region.w, 3)
         linear, sat_mask = self._empty(n), self._empty(n)
+        if stacked:
+            self._average_stack(k, plan, frames, region, linear, sat_mask)
+            return self._linear_out(linear, sat_mask, shape, region)
         if mode == "average":
             # running compensated sums (sum, rounding errors, saturation counts) are only
             # needed between launches: one stack of frames is summed in registers
@@ -271,6 +281,37 @@ class WarpBackend:
                              *sums, region.x0, region.y0, region.w)
             self._launch(k["blur_trajectory_finish"], n, *sums, len(hom), linear, sat_mask)
         return self._linear_out(linear, sat_mask, shape, region)
+
+    def _average_stack(self, k, plan: Plan, frames: wp.array, region: Region, linear,
+                       sat_mask) -> None:
+        """Mode average over frames already in memory Warp reaches: one launch for them all.
+
+        ``frames`` is an ``n x H x W x 3`` ``wp.array`` (uint8, uint16 or the compute type)
+        on this device (no copy at all) or in pinned host memory (one asynchronous copy on the
+        copy stream); whole images only.
+        """
+        if plan.variant("blur") != "average":
+            raise ValueError("a wp.array stack of frames is for blur.mode = average")
+        if frames.ndim != 4 or tuple(frames.shape[1:]) != (region.full_h, region.full_w, 3) \
+                or (region.h, region.w) != (region.full_h, region.full_w):
+            raise ValueError(f"a wp.array stack of frames must be n x H x W x 3 and run whole "
+                             f"images (no tiles); got shape {frames.shape} for a "
+                             f"{region.full_h} x {region.full_w} image")
+        count, values = frames.shape[0], region.h * region.w * 3
+        stack = frames.flatten()
+        if str(frames.device) != str(wp.get_device(self.wp_device)):
+            on_device = self._empty(count * values, frames.dtype)
+            with timer("copies"):
+                if self.overlap:
+                    wp.copy(on_device, stack, stream=self._copier)
+                    wp.get_stream(self.wp_device).wait_event(self._copier.record_event())
+                else:
+                    wp.copy(on_device, stack)
+            stack = on_device
+        spare = self._empty(1, wp.uint32)
+        with self._kernels():
+            self._launch(k["blur_average_add"], values, stack, count, values, linear, sat_mask,
+                         spare, 1, count, linear, sat_mask)
 
     def _linear_out(self, linear, sat_mask, shape, region: Region):
         """The accumulate pass's (linear, mask), left on the device."""

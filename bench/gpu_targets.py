@@ -1,0 +1,264 @@
+"""The GPU targets of issues 6 and 7, measured in one run on one device.
+
+For 9-frame 1920 x 1200 samples (uint8 frames, RSBlur-like plan: average, saturation,
+Poisson-Gaussian noise, RAW round trip, Malvar, A7R3 CRF, 8-bit output), float32:
+
+* **bandwidths** of the device in the same run: device-to-device copy (bytes read + written per
+  second, ``wp.copy`` of 1 GiB) and pinned host-to-device (``wp.copy`` from pinned memory, one
+  sample's frames and 1 GiB);
+* **frames already on the device** (Warp, a ``wp.array`` stack): a sample's three passes, wall
+  time with a synchronize after each pass (median of 30), and the same passes replayed as a CUDA
+  graph (no host in the way: the kernels' own time); the bytes the minimal plan moves (each
+  pass reads its inputs once and writes its outputs once) over the graph's time, against the
+  copy bandwidth;
+* **frames in host memory**: samples per second end to end through ``gpu_blur.synthesize``
+  (numpy frames, result left on the device), with overlapped copies (pinned staging buffers, a
+  copy stream or queue) and with serial copies, on Warp and OpenCL; and through the backend's
+  passes from a pinned ``wp.array`` stack, against the bound set by pinned host-to-device
+  bandwidth (one sample's frames per sample).
+
+Run on the GPU machine from the repository root:
+``PYTHONPATH=$PWD python3 bench/gpu_targets.py OUT.json``; prints a table, writes the JSON.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import statistics
+import sys
+import time
+import traceback
+
+import cv2
+import numpy as np
+
+import gpu_blur
+from gpu_blur.cameras import get_camera
+from gpu_blur.dataset import default_photo
+from gpu_blur.params import draw_params
+from gpu_blur.plan import plan
+from gpu_blur.scene import scene_from_dict
+from gpu_blur.tiling import Region
+
+H, W, FRAMES = 1200, 1920, 9
+SCENE = {"blur": {"mode": "average", "frames": FRAMES}, "saturation": {"mode": "on"},
+         "noise": {"model": "poisson-gaussian"}, "isp": {"round_trip": "always"},
+         "output": {"bits": 8, "precision": "float32"}}
+
+
+def make_frames() -> np.ndarray:
+    """FRAMES x H x W x 3 uint8: the built-in photo at 1920 x 1200, shifted 3 px per frame."""
+    photo = cv2.cvtColor(cv2.imread(str(default_photo())), cv2.COLOR_BGR2RGB)
+    big = cv2.resize(photo, (W, H), interpolation=cv2.INTER_CUBIC)
+    return np.stack([np.roll(big, 3 * i, axis=1) for i in range(FRAMES)])
+
+
+def median_seconds(fn, sync, runs: int) -> float:
+    fn()
+    sync()
+    times = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        fn()
+        sync()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def minimal_bytes(pixels: int, frames: int, itemsize: int = 4) -> dict[str, int]:
+    """Bytes each pass must read and write once: uint8 frames in, float buffers between."""
+    rgb, raw = 3 * pixels * itemsize, pixels * itemsize
+    passes = {
+        "accumulate": frames * 3 * pixels + 2 * rgb,  # frames in; linear image and mask out
+        "to_raw": 2 * rgb + rgb + raw,  # linear image and mask in; saturated image, RAW out
+        "finish": raw + rgb + rgb,  # RAW mosaic and saturated image in; result out
+    }
+    passes["total"] = sum(passes.values())
+    return passes
+
+
+def bandwidths(wp, device: str) -> dict:
+    gib = 1 << 30
+    a = wp.empty(gib, dtype=wp.uint8, device=device)
+    b = wp.empty(gib, dtype=wp.uint8, device=device)
+    d2d = median_seconds(lambda: wp.copy(b, a), lambda: wp.synchronize_device(device), 10)
+    sample = FRAMES * H * W * 3
+    out = {"d2d_copy_bytes_per_s": 2 * gib / d2d, "d2d_copy_seconds_1gib": d2d}
+    for label, size in (("sample", sample), ("1gib", gib)):
+        host = wp.empty(size, dtype=wp.uint8, device="cpu", pinned=True)
+        dev = wp.empty(size, dtype=wp.uint8, device=device)
+        t = median_seconds(lambda d=dev, h=host: wp.copy(d, h),
+                           lambda: wp.synchronize_device(device), 10)
+        out[f"pinned_h2d_bytes_per_s_{label}"] = size / t
+    return out
+
+
+def prepared(scene_dict):
+    scene = scene_from_dict(scene_dict)
+    p = plan(scene, saturated=True)
+    camera = get_camera(scene.camera.name)
+    params = draw_params(scene, p, camera, seed=1, sample_index=0, image_shape=(H, W))
+    return scene, p, camera, params
+
+
+def warp_on_device(wp, frames: np.ndarray, device: str, band: dict) -> dict:
+    from gpu_blur.backends.warp import WarpBackend
+
+    _, p, camera, params = prepared(SCENE)
+    backend = WarpBackend(f"warp:{device}", "float32")
+    region = Region.whole(H, W)
+    stack = wp.array(frames, dtype=wp.uint8, device=device)
+    kw = {"seed": 1, "sample_index": 0}
+
+    def sample():
+        linear, mask = backend.accumulate(p, params, stack, None, region)
+        image, saturated = backend.to_raw(p, params, camera, linear, mask, (0, 0), **kw)
+        return backend.finish(p, params, camera, image, saturated, region, region, **kw)
+
+    wall = median_seconds(sample, lambda: wp.synchronize_device(device), 30)
+    out = {"wall_seconds_synchronized_per_pass": wall}
+    backend.sync_passes = False
+    wall_async = median_seconds(sample, lambda: wp.synchronize_device(device), 30)
+    out["wall_seconds_one_synchronize"] = wall_async
+    try:
+        wp.capture_begin(device)
+        try:
+            sample()
+        finally:
+            graph = wp.capture_end(device)
+        graph_time = median_seconds(lambda: wp.capture_launch(graph),
+                                    lambda: wp.synchronize_device(device), 50)
+        out["graph_seconds"] = graph_time
+    except Exception as e:  # a capture the driver refuses: keep the other figures
+        out["graph_error"] = f"{type(e).__name__}: {e}"
+        graph_time = wall_async
+    backend.sync_passes = True
+    moved = minimal_bytes(H * W, FRAMES)
+    out["minimal_bytes"] = moved
+    out["kernel_bytes_per_s"] = moved["total"] / graph_time
+    out["ratio_to_d2d_copy"] = out["kernel_bytes_per_s"] / band["d2d_copy_bytes_per_s"]
+    return out
+
+
+def warp_from_pinned(wp, frames: np.ndarray, device: str, band: dict, samples: int) -> dict:
+    from gpu_blur.backends.warp import WarpBackend
+
+    _, p, camera, params = prepared(SCENE)
+    backend = WarpBackend(f"warp:{device}", "float32")
+    region = Region.whole(H, W)
+    pinned = wp.array(frames, dtype=wp.uint8, device="cpu", pinned=True)
+    kw = {"seed": 1, "sample_index": 0}
+
+    def sample():
+        linear, mask = backend.accumulate(p, params, pinned, None, region)
+        image, saturated = backend.to_raw(p, params, camera, linear, mask, (0, 0), **kw)
+        return backend.finish(p, params, camera, image, saturated, region, region, **kw)
+
+    per_sample = median_seconds(sample, lambda: wp.synchronize_device(device), samples)
+    bound = band["pinned_h2d_bytes_per_s_sample"] / frames.nbytes
+    return {"seconds_per_sample": per_sample, "samples_per_s": 1 / per_sample,
+            "bound_samples_per_s": bound, "ratio_to_bound": (1 / per_sample) / bound}
+
+
+def through_synthesize(make_backend, frames: np.ndarray, samples: int, on_device: bool) -> dict:
+    scene = scene_from_dict(SCENE)
+    listed = list(frames)
+    out = {}
+    for overlap in (True, False):
+        backend = make_backend(overlap)
+        gpu_blur.synthesize(listed, scene, seed=1, sample_index=0, backend=backend,
+                            on_device=on_device)
+        totals: dict[str, float] = {}
+        start = time.perf_counter()
+        for i in range(samples):
+            r = gpu_blur.synthesize(listed, scene, seed=1, sample_index=i + 1, backend=backend,
+                                    on_device=on_device)
+            if on_device:
+                np.asarray(r.blurred[0:1, 0:1].numpy())  # wait for the result
+            for k, v in r.timings.items():
+                totals[k] = totals.get(k, 0.0) + v
+        elapsed = time.perf_counter() - start
+        out["overlapped" if overlap else "serial"] = {
+            "samples_per_s": samples / elapsed,
+            "mean_seconds": {k: v / samples for k, v in totals.items()}}
+    out["overlap_gain"] = (out["overlapped"]["samples_per_s"]
+                           / out["serial"]["samples_per_s"])
+    return out
+
+
+def section(results: dict, name: str, fn) -> None:
+    try:
+        results[name] = fn()
+    except Exception:
+        results[name] = {"error": traceback.format_exc(limit=3)}
+    print(f"{name}: {json.dumps(results[name], default=float)[:600]}", flush=True)
+
+
+def main() -> int:
+    out_path = sys.argv[1] if len(sys.argv) > 1 else "gpu_targets.json"
+    samples = int(sys.argv[2]) if len(sys.argv) > 2 else 20
+    import warp as wp
+
+    wp.init()
+    device = "cuda:0"
+    frames = make_frames()
+    results = {"host": platform.node(), "python": platform.python_version(),
+               "warp": wp.__version__, "gpu": wp.get_device(device).name,
+               "image": [H, W], "frames": FRAMES, "scene": SCENE, "samples": samples}
+    section(results, "bandwidths", lambda: bandwidths(wp, device))
+    band = results["bandwidths"]
+    section(results, "warp_frames_on_device",
+            lambda: warp_on_device(wp, frames, device, band))
+    section(results, "warp_frames_in_pinned_memory",
+            lambda: warp_from_pinned(wp, frames, device, band, samples))
+
+    def warp_backend(overlap):
+        from gpu_blur.backends.warp import WarpBackend
+        return WarpBackend(f"warp:{device}", "float32", overlap=overlap)
+
+    def opencl_backend(overlap):
+        from gpu_blur.backends.opencl import OpenCLBackend
+        return OpenCLBackend("opencl", "float32", overlap=overlap)
+
+    section(results, "warp_synthesize_numpy_frames",
+            lambda: through_synthesize(warp_backend, frames, samples, on_device=True))
+    section(results, "opencl_synthesize_numpy_frames",
+            lambda: through_synthesize(opencl_backend, frames, samples, on_device=False))
+    try:
+        from gpu_blur.backends.opencl import OpenCLBackend
+        results["opencl_device"] = OpenCLBackend("opencl").device
+    except Exception as e:
+        results["opencl_device"] = f"unavailable: {e}"
+    with open(out_path, "w") as f:
+        json.dump(results, f, indent=1, default=float)
+
+    on_dev = results["warp_frames_on_device"]
+    rows = [
+        ("d2d copy GB/s", band.get("d2d_copy_bytes_per_s", float("nan")) / 1e9),
+        ("pinned H2D GB/s (one sample)",
+         band.get("pinned_h2d_bytes_per_s_sample", float("nan")) / 1e9),
+        ("frames on device: wall ms (sync per pass)",
+         1e3 * on_dev.get("wall_seconds_synchronized_per_pass", float("nan"))),
+        ("frames on device: wall ms (one sync)",
+         1e3 * on_dev.get("wall_seconds_one_synchronize", float("nan"))),
+        ("frames on device: CUDA graph ms", 1e3 * on_dev.get("graph_seconds", float("nan"))),
+        ("kernel bytes / d2d copy rate", on_dev.get("ratio_to_d2d_copy", float("nan"))),
+        ("pinned frames: samples/s",
+         results["warp_frames_in_pinned_memory"].get("samples_per_s", float("nan"))),
+        ("pinned frames: ratio to H2D bound",
+         results["warp_frames_in_pinned_memory"].get("ratio_to_bound", float("nan"))),
+    ]
+    for backend in ("warp", "opencl"):
+        r = results[f"{backend}_synthesize_numpy_frames"]
+        for mode in ("overlapped", "serial"):
+            rows.append((f"{backend} synthesize {mode}: samples/s",
+                         r.get(mode, {}).get("samples_per_s", float("nan"))))
+    print(f"\n{results['gpu']}")
+    for label, value in rows:
+        print(f"  {label:45s} {value:10.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
