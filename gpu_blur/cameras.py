@@ -172,6 +172,9 @@ def load_camera(path: str | Path) -> Camera:
         [noise]
         shot_noise_k = 8.8915e-5
         read_noise_std = 2.9430e-5
+
+    Other tables are not read: ``gpu-blur calibrate`` adds ``[calibration]`` (its fit) and
+    ``[response]`` (a fitted camera response; see :mod:`gpu_blur.calibrate`).
     """
     path = Path(path)
     try:

@@ -14,6 +14,7 @@ EPILOG = """examples:
   gpu-blur generate --output out/                      # built-in photo, camera shake
   gpu-blur generate --input GOPRO/train --output out/ --scene average.toml
   gpu-blur plan realblur_j.toml                        # which stages a scene runs, and why
+  gpu-blur calibrate --chart patches.csv --output my_camera.toml   # a camera from a chart
   gpu-blur scene                                       # every scene key with its default
 
 exit status of generate: 0 all samples made; 1 some samples failed (each is in the manifest
@@ -101,7 +102,72 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("devices", help="list every backend and device, with fp64 support and memory")
     sub.add_parser("scene", help="print every scene key with its default and meaning")
     sub.add_parser("cameras", help="list the built-in cameras")
+    _calibrate_parser(sub)
     return p
+
+
+def _calibrate_parser(sub) -> None:
+    from gpu_blur.calibrate import DEFAULT_CRF_ORDER, help_text
+
+    c = sub.add_parser(
+        "calibrate", help="fit a camera file (WB gains, colour matrix, response) to a chart",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Fit a camera file from a photo of a 24-patch colour chart, as RSBlur's "
+        "supplementary\nSec. 4-7 does: white-balance gains from the grey patches (Eq. 1), the "
+        "brightness alpha,\nthen the XYZ colour correction T by least squares (Eq. 2); "
+        "optionally the alignment to\nanother camera (Eq. 4) and a polynomial response "
+        "that increases on [0, 1] (Eq. 6).\nPrints gains, alpha, T, residuals and condition "
+        "numbers; a scene uses the file with\n[camera] name = \"my_camera.toml\".",
+        epilog="examples:\n"
+        "  gpu-blur calibrate --chart patches.csv --output my_camera.toml\n"
+        "  gpu-blur calibrate --chart chart_raw.tiff --boxes boxes.csv --output my_camera.toml "
+        "\\\n      --crf-linear lin_a.tiff --crf-rendered jpeg_a.jpg \\\n"
+        "      --crf-linear lin_b.tiff --crf-rendered jpeg_b.jpg\n"
+        "  then: scene.toml with [camera] name = \"my_camera.toml\", and\n"
+        "        gpu-blur generate --scene scene.toml --output out\n\n"
+        + help_text() + "\nexit status: 0 written; 2 bad input (the message names the file "
+        "and line)")
+    c.add_argument("--chart", type=Path, required=True, metavar="FILE", help="the chart's "
+                   "camera RGB per patch before white balance: CSV/JSON, or a linear image "
+                   "with --boxes")
+    c.add_argument("--boxes", type=Path, metavar="FILE", help="x,y,w,h of each patch (CSV/"
+                   "JSON), for image inputs")
+    c.add_argument("--output", type=Path, required=True, metavar="FILE", help="camera file "
+                   "to write (.toml or .json)")
+    c.add_argument("--overwrite", action="store_true", help="replace an existing --output")
+    c.add_argument("--name", help="camera name written in the file (default: its file name)")
+    c.add_argument("--reference", type=Path, metavar="JSON", help="chart reference colours "
+                   "(default: the built-in ColorChecker 24, X-Rite values after Nov. 2014)")
+    c.add_argument("--align-to", type=Path, metavar="FILE", help="the same chart from the "
+                   "camera to match (its RAW patches): T becomes T_p @ T (Eq. 4)")
+    c.add_argument("--crf-linear", type=Path, action="append", default=[], metavar="FILE",
+                   help="linear sRGB patch values or image of one exposure (repeatable)")
+    c.add_argument("--crf-rendered", type=Path, action="append", default=[], metavar="FILE",
+                   help="the camera's rendered (JPEG) values of the same exposure (repeatable, "
+                   "in the same order)")
+    c.add_argument("--crf-order", type=int, default=DEFAULT_CRF_ORDER, metavar="K",
+                   help=f"response polynomial order (default {DEFAULT_CRF_ORDER})")
+    c.add_argument("--shot-noise-k", type=float, metavar="K", help="Poisson gain for [noise] "
+                   "(default: RSBlur's estimate; calibrate does not measure noise)")
+    c.add_argument("--read-noise-std", type=float, metavar="S", help="read-noise std for "
+                   "[noise] (default: RSBlur's estimate)")
+
+
+def _calibrate(args) -> int:
+    from gpu_blur.calibrate import calibrate, write_camera_file
+
+    if args.output.exists() and not args.overwrite:
+        raise ValueError(f"--output {args.output} exists; pass --overwrite to replace it")
+    result = calibrate(args.chart, boxes=args.boxes, reference=args.reference,
+                       name=args.name, crf_linear=args.crf_linear,
+                       crf_rendered=args.crf_rendered, crf_order=args.crf_order,
+                       align_to=args.align_to, shot_noise_k=args.shot_noise_k,
+                       read_noise_std=args.read_noise_std)
+    write_camera_file(args.output, result.camera)
+    print(result.report())
+    print(f"wrote {args.output}; a scene in the same folder uses it with [camera] name = "
+          f'"{args.output.name}"')
+    return 0
 
 
 def _check_setup(args, scene) -> None:
@@ -262,6 +328,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "generate":
             return _generate(args)
+        if args.command == "calibrate":
+            return _calibrate(args)
         if args.command == "plan":
             from gpu_blur.plan import plan
             from gpu_blur.scene import load_scene

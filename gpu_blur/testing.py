@@ -320,6 +320,33 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("shake_rotation", "numpy", "float64"): (0.0, 1e-14),
     # The mean of n <= 9 identical frames or warps by a running sum: (n - 1) * 2**-53 relative.
     ("blur_mean_of_copies", "numpy", "float64"): (1e-15, 0.0),
+    # -- calibration (tests/test_calibrate.py) --
+    # CIE L*a*b* -> XYZ against colour-science's Lab_to_XYZ on the ColorChecker: measured 0.
+    ("lab_to_xyz", "independent", "float64"): (1e-15, 1e-17),
+    # The chart's XYZ adapted by constants.D50_TO_D65 (RSBlur's MATLAB matrix) against
+    # colour-science's Bradford from the chart's ICC D50 white to CIE D65 (0.3127, 0.3290):
+    # the white points differ in the fourth decimal; measured 4.4e-4.
+    ("chart_reference_d65", "independent", "float64"): (0.0, 5e-4),
+    # Gains, alpha, T, Cam2Lin, residuals and T_p recovered from exact synthetic charts
+    # (values up to 2.1, condition numbers up to ~30): measured 7.5e-15 over 50 cameras.
+    ("chart_fit_exact", "numpy", "float64"): (0.0, 2e-14),
+    # Box means of flat patches in 8/16-bit images against their codes / (2^bits - 1)
+    # (measured 1.1e-16), and T fitted from them (measured 2.7e-15).
+    ("patch_sampling", "numpy", "float64"): (0.0, 1e-14),
+    # Power coefficients (up to ~60, alternating) of a monotone order-7 response fitted from
+    # 300 exact samples: measured 1.4e-12.
+    ("crf_fit_exact", "numpy", "float64"): (0.0, 5e-12),
+    # The monotone order-7 fit of samples of the A7R3 polynomial against it on [0, 1]: the
+    # polynomial dips near 0.862 and the fit may not; measured 9.45e-4 (at linear 0.918).
+    ("crf_fit_a7r3", "numpy", "float64"): (0.0, 1e-3),
+    # An order-7 fit of the sRGB OETF: a polynomial cannot follow its toe; measured 0.0583
+    # (at linear 0, where the fit starts at 0.058), RMS 0.0038.
+    ("crf_fit_srgb", "numpy", "float64"): (0.0, 0.06),
+    # The response at its inverse table's nodes against the nodes: bisection to float64
+    # resolution, then Horner's rounding with cancelling coefficients (measured 2.6e-14).
+    ("crf_inverse_nodes", "numpy", "float64"): (0.0, 1e-13),
+    # Lawson-Hanson NNLS against scipy.optimize.nnls, random 30 x 8 problems: measured 9.3e-16.
+    ("nnls", "independent", "float64"): (0.0, 1e-14),
     # -- frame interpolation (tests/test_interpolate.py) --
     # An integer-shift sequence of a photo with exact flows against its bilinear reconstruction
     # at the intermediates' sub-pixel shifts, written out independently: the same bilinear
