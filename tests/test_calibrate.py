@@ -2,9 +2,11 @@ import json
 import math
 from importlib import resources
 
+import colour  # colour-science, which the test extra's colour-demosaicing brings
 import cv2
 import numpy as np
 import pytest
+from scipy.optimize import nnls
 
 import gpu_blur
 from gpu_blur import calibrate as cal
@@ -74,7 +76,6 @@ def write_csv(path, rows, header="patch,r,g,b"):
 # ---- the chart reference ----
 
 def test_lab_to_xyz_matches_colour_science(reference):
-    colour = pytest.importorskip("colour")
     spec = json.loads((resources.files("gpu_blur") / "data" / cal.COLORCHECKER24)
                       .read_text())
     lab = np.array([p["lab"] for p in spec["patches"]])
@@ -84,7 +85,6 @@ def test_lab_to_xyz_matches_colour_science(reference):
 
 
 def test_colorchecker_reference_is_bradford_adapted_to_d65_with_six_neutral_patches(reference):
-    colour = pytest.importorskip("colour")
     assert len(reference.patch_names) == 24 and reference.patch_names[18].startswith("white")
     assert reference.neutral.tolist() == [False] * 18 + [True] * 6
     spec = json.loads((resources.files("gpu_blur") / "data" / cal.COLORCHECKER24)
@@ -345,7 +345,6 @@ def test_inverse_table_inverts_the_response(coefficients):
 
 
 def test_nonnegative_least_squares_matches_scipy_and_its_optimality_conditions():
-    nnls = pytest.importorskip("scipy.optimize").nnls
     rng = np.random.default_rng(5)
     for _ in range(20):
         a = rng.normal(size=(30, 8))
