@@ -293,6 +293,24 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
         ("input_float32", "float32"): (0.0, 2.5e-7),
         ("input_float32", "float64"): (0.0, 2.5e-7),
     }.items()},
+    # -- quality metrics and alignment (tests/test_metrics.py, tests/test_align.py) --
+    # gpu_blur.metrics against scikit-image 0.26 (peak_signal_noise_ratio; structural_similarity
+    # with gaussian_weights=True, sigma=1.5, use_sample_covariance=False, channel_axis=-1) on
+    # two photographs with noise, blur, JPEG, shift and darkening, RGB and one channel: the same
+    # maths summed in another order. PSNR in dB, measured <= 3.6e-15; SSIM measured <= 1.6e-15.
+    ("psnr", "independent", "float64"): (0.0, 1e-13),
+    ("ssim", "independent", "float64"): (0.0, 1e-14),
+    # noise_level(255 x) against 255 noise_level(x): the same eigenvalues scaled, rounding only
+    # (measured 2.9e-15 relative).
+    ("noise_level_units", "numpy", "float64"): (1e-13, 0.0),
+    # ECC homography (OpenCV findTransformECC, float32) against the homography a photograph
+    # was warped by (float64 bilinear), as the largest displacement of the image's corners, in
+    # pixels (tests/test_align.py: 280 x 480 and 306 x 520 crops, rotations of 1.5 and 2
+    # degrees, shifts of 4 to 28 px, slight perspective, 1 and 3 pyramid levels, with and
+    # without 8-bit noise): measured 0.021 to 0.116 (rocket's 1.5 degree rotation, its sky
+    # constrains the perspective terms weakly); 0.14 in a wider sweep (2 degrees, shifts of 8
+    # to 32 px). OpenCV resamples at 1/32 px inside ECC.
+    ("ecc_corners_px", "opencv", "float32"): (0.0, 0.2),
     # -- blur --
     # FrameAccumulator's plain float64 running sum of 1,000 frames in [0, 1) against np.mean
     # and an exact math.fsum mean: the running sum's bound (n - 1) * 2**-53 = 1.1e-13 relative.
