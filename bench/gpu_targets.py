@@ -14,8 +14,10 @@ Poisson-Gaussian noise, RAW round trip, Malvar, A7R3 CRF, 8-bit output), float32
 * **frames in host memory**: samples per second end to end through ``gpu_blur.synthesize``
   (numpy frames, result left on the device), with overlapped copies (pinned staging buffers, a
   copy stream or queue) and with serial copies, on Warp and OpenCL; and through the backend's
-  passes from a pinned ``wp.array`` stack, against the bound set by pinned host-to-device
-  bandwidth (one sample's frames per sample).
+  passes from a pinned ``wp.array`` stack (one sample at a time, and pipelined: the next
+  sample's frames copy while this sample's passes run, ``WarpBackend.prefetch``), against the
+  bound set by pinned host-to-device bandwidth (one sample's frames per sample);
+* **each pass alone** replayed as a CUDA graph: its time and its minimal bytes per second.
 
 Run on the GPU machine from the repository root:
 ``PYTHONPATH=$PWD python3 bench/gpu_targets.py OUT.json``; prints a table, writes the JSON.
@@ -157,8 +159,62 @@ def warp_from_pinned(wp, frames: np.ndarray, device: str, band: dict, samples: i
 
     per_sample = median_seconds(sample, lambda: wp.synchronize_device(device), samples)
     bound = band["pinned_h2d_bytes_per_s_sample"] / frames.nbytes
-    return {"seconds_per_sample": per_sample, "samples_per_s": 1 / per_sample,
-            "bound_samples_per_s": bound, "ratio_to_bound": (1 / per_sample) / bound}
+    out = {"one_at_a_time": {"seconds_per_sample": per_sample, "samples_per_s": 1 / per_sample,
+                             "ratio_to_bound": (1 / per_sample) / bound},
+           "bound_samples_per_s": bound}
+    # pipelined: sample i + 1's frames copy on the copy stream while sample i's passes run
+    second = wp.array(frames[::-1].copy(), dtype=wp.uint8, device="cpu", pinned=True)
+    sources = (pinned, second)
+
+    def pipelined(count):
+        coming = backend.prefetch(sources[0])
+        for i in range(count):
+            current, coming = coming, backend.prefetch(sources[(i + 1) % 2])
+            linear, mask = backend.accumulate(p, params, current, None, region)
+            image, saturated = backend.to_raw(p, params, camera, linear, mask, (0, 0), **kw)
+            backend.finish(p, params, camera, image, saturated, region, region, **kw)
+        wp.synchronize_device(device)
+
+    pipelined(3)
+    start = time.perf_counter()
+    pipelined(samples)
+    rate = samples / (time.perf_counter() - start)
+    out["pipelined"] = {"samples_per_s": rate, "ratio_to_bound": rate / bound}
+    return out
+
+
+def per_pass(wp, frames: np.ndarray, device: str) -> dict:
+    """Each pass replayed alone as a CUDA graph (its kernels' time), frames on the device."""
+    from gpu_blur.backends.warp import WarpBackend
+
+    _, p, camera, params = prepared(SCENE)
+    backend = WarpBackend(f"warp:{device}", "float32")
+    region = Region.whole(H, W)
+    stack = wp.array(frames, dtype=wp.uint8, device=device)
+    kw = {"seed": 1, "sample_index": 0}
+    linear, mask = backend.accumulate(p, params, stack, None, region)
+    image, saturated = backend.to_raw(p, params, camera, linear, mask, (0, 0), **kw)
+    backend.finish(p, params, camera, image, saturated, region, region, **kw)
+    backend.sync_passes = False
+    passes = {
+        "accumulate": lambda: backend.accumulate(p, params, stack, None, region),
+        "to_raw": lambda: backend.to_raw(p, params, camera, linear, mask, (0, 0), **kw),
+        "finish": lambda: backend.finish(p, params, camera, image, saturated, region, region,
+                                         **kw),
+    }
+    moved = minimal_bytes(H * W, FRAMES)
+    out = {}
+    for name, fn in passes.items():
+        wp.capture_begin(device)
+        try:
+            fn()
+        finally:
+            graph = wp.capture_end(device)
+        t = median_seconds(lambda g=graph: wp.capture_launch(g),
+                           lambda: wp.synchronize_device(device), 50)
+        out[name] = {"seconds": t, "bytes_per_s": moved[name] / t}
+    backend.sync_passes = True
+    return out
 
 
 def through_synthesize(make_backend, frames: np.ndarray, samples: int, on_device: bool) -> dict:
@@ -221,6 +277,7 @@ def main() -> int:
         from gpu_blur.backends.opencl import OpenCLBackend
         return OpenCLBackend("opencl", "float32", overlap=overlap)
 
+    section(results, "warp_per_pass", lambda: per_pass(wp, frames, device))
     section(results, "warp_synthesize_numpy_frames",
             lambda: through_synthesize(warp_backend, frames, samples, on_device=True))
     section(results, "opencl_synthesize_numpy_frames",
@@ -244,11 +301,17 @@ def main() -> int:
          1e3 * on_dev.get("wall_seconds_one_synchronize", float("nan"))),
         ("frames on device: CUDA graph ms", 1e3 * on_dev.get("graph_seconds", float("nan"))),
         ("kernel bytes / d2d copy rate", on_dev.get("ratio_to_d2d_copy", float("nan"))),
-        ("pinned frames: samples/s",
-         results["warp_frames_in_pinned_memory"].get("samples_per_s", float("nan"))),
-        ("pinned frames: ratio to H2D bound",
-         results["warp_frames_in_pinned_memory"].get("ratio_to_bound", float("nan"))),
     ]
+    pinned = results["warp_frames_in_pinned_memory"]
+    for mode in ("one_at_a_time", "pipelined"):
+        rows.append((f"pinned frames {mode}: samples/s",
+                     pinned.get(mode, {}).get("samples_per_s", float("nan"))))
+        rows.append((f"pinned frames {mode}: ratio to H2D bound",
+                     pinned.get(mode, {}).get("ratio_to_bound", float("nan"))))
+    for name, r in results["warp_per_pass"].items():
+        if isinstance(r, dict):
+            rows.append((f"{name}: graph ms", 1e3 * r["seconds"]))
+            rows.append((f"{name}: GB/s of its minimal bytes", r["bytes_per_s"] / 1e9))
     for backend in ("warp", "opencl"):
         r = results[f"{backend}_synthesize_numpy_frames"]
         for mode in ("overlapped", "serial"):

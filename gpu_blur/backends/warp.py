@@ -11,6 +11,7 @@ copy stream that overlaps the summing of the previous frames.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -24,10 +25,13 @@ from gpu_blur.backends import (
     fill_stack,
     planted_fault,
 )
+from gpu_blur.backends.flows import interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
 from gpu_blur.plan import Plan
 from gpu_blur.reference import blur
+from gpu_blur.reference.interpolate import CONSISTENCY_ABSOLUTE_PX2, CONSISTENCY_RELATIVE
 from gpu_blur.reference.rng import key_from_seed
+from gpu_blur.reference.transfer import a7r3_lookup_table
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
 
@@ -59,6 +63,19 @@ def _device(spec: str) -> str:
         raise ValueError(f"no Warp device {spec!r}; present: "
                          + ", ".join(f"warp:{a}" for a in known))
     return alias
+
+
+@dataclasses.dataclass(frozen=True)
+class Prefetched:
+    """Frames on their way to the device (:meth:`WarpBackend.prefetch`).
+
+    Attributes:
+        frames: the ``n x H x W x 3`` device stack.
+        ready: the copy stream's event that marks the copy done (None: already done).
+    """
+
+    frames: wp.array
+    ready: object
 
 
 class WarpBackend:
@@ -138,7 +155,10 @@ class WarpBackend:
         return timer("kernels", self._synchronize if sync and self.sync_passes else None)
 
     def _synchronize(self) -> None:
-        wp.synchronize_device(self.wp_device)
+        if self.overlap:  # the compute stream only: a prefetch may still be copying
+            wp.synchronize_stream(wp.get_stream(self.wp_device))
+        else:
+            wp.synchronize_device(self.wp_device)
 
     def _out(self, array: wp.array, shape, pass_: str, origin) -> OnDevice:
         """A pass's output, with the :data:`~gpu_blur.backends.TEST_FAULT` hook applied."""
@@ -209,6 +229,21 @@ class WarpBackend:
             self._staging[slot] = buffer
         return buffer
 
+    def prefetch(self, frames: wp.array) -> Prefetched:
+        """Start copying an ``n x H x W x 3`` stack of frames in pinned host memory to the device.
+
+        The copy runs on the copy stream, beside whatever the device is computing (the
+        previous sample's passes); :meth:`accumulate` takes the returned stack and waits for
+        its copy first. Without ``overlap`` the copy is synchronous.
+        """
+        out = wp.empty(frames.shape, dtype=frames.dtype, device=self.wp_device)
+        with timer("copies"):
+            if not self.overlap:
+                wp.copy(out, frames)
+                return Prefetched(out, None)
+            wp.copy(out, frames, stream=self._copier)
+            return Prefetched(out, self._copier.record_event())
+
     @staticmethod
     def device_array(values: OnDevice) -> wp.array:
         """An output as an ``h x w x 3`` ``wp.array`` on the device (``torch.from_dlpack``)."""
@@ -220,6 +255,10 @@ class WarpBackend:
         """Linearize and blur on the device; (linear, mask) over ``region``, on the device."""
         from gpu_blur.warp_kernels.passes import accumulate_kernels
 
+        if isinstance(frames, Prefetched):
+            if frames.ready is not None:
+                wp.get_stream(self.wp_device).wait_event(frames.ready)
+            frames = frames.frames
         stacked = isinstance(frames, wp.array)
         k = accumulate_kernels(self.real, frames.dtype if stacked
                                else self._source(frames[0])[1])
@@ -227,6 +266,9 @@ class WarpBackend:
         n = region.h * region.w * 3
         shape = (region.h, region.w, 3)
         linear, sat_mask = self._empty(n), self._empty(n)
+        if mode == "average" and interpolation_factor(plan) > 1:
+            self._interpolated_average(plan, params, frames, region, linear, sat_mask)
+            return self._linear_out(linear, sat_mask, shape, region)
         if stacked:
             self._average_stack(k, plan, frames, region, linear, sat_mask)
             return self._linear_out(linear, sat_mask, shape, region)
@@ -313,6 +355,47 @@ class WarpBackend:
             self._launch(k["blur_average_add"], values, stack, count, values, linear, sat_mask,
                          spare, 1, count, linear, sat_mask)
 
+    def _interpolated_average(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
+                              region: Region, linear, sat_mask) -> None:
+        """Mode average at ``blur.interpolation`` times the frame rate, into linear, sat_mask.
+
+        One gap at a time, in time order: frame i+1 and the gap's two flows upload over the
+        region plus the flows' halo (frame i stays from the gap before), then the original
+        frame and the intermediates after it join one set of compensated sums
+        (gpu_blur/warp_kernels/interpolate.py); intermediate frames are never stored.
+        """
+        from gpu_blur.warp_kernels.interpolate import interpolate_kernels
+
+        if isinstance(frames, wp.array):
+            raise ValueError("blur.interpolation > 1 needs the frames in host memory (its "
+                             "optical flows are computed there), not a wp.array stack")
+        np_dtype, wp_dtype = self._source(frames[0])
+        k = interpolate_kernels(self.real, wp_dtype)
+        params = with_flows(plan, params, frames)
+        flows, factor = params["flows"], interpolation_factor(plan)
+        view = region.expand(blur.blur_halo("average", params, region.full_h, region.full_w))
+        n = region.h * region.w * 3
+        sums = (self._zeros(n), self._zeros(n), self._zeros(n, wp.uint32))
+        geometry = (view.x0, view.y0, view.w)
+        out_geometry = (region.x0, region.y0, region.w)
+        grid = (region.h, region.w)
+        previous = None
+        for i in range(len(frames)):
+            current = self._array(view.of(frames[i]), np_dtype)
+            gap = [self._array(view.of(f), np.float32) for f in flows[i - 1]] if i else []
+            with self._kernels(sync=False):
+                for step in range(1, factor if i else 1):
+                    self._launch(k["blur_interpolate_add"], grid, previous, current, *gap,
+                                 *geometry, region.full_w, region.full_h, step / factor,
+                                 CONSISTENCY_RELATIVE, CONSISTENCY_ABSOLUTE_PX2, *sums,
+                                 *out_geometry)
+                self._launch(k["blur_interpolate_add_frame"], grid, current, *geometry, *sums,
+                             *out_geometry)
+            previous, gap = current, None  # frame i stays for the next gap; the flows go
+        with self._kernels():
+            self._launch(k["blur_interpolate_finish"], n, *sums, (len(frames) - 1) * factor + 1,
+                         linear, sat_mask)
+
     def _linear_out(self, linear, sat_mask, shape, region: Region):
         """The accumulate pass's (linear, mask), left on the device."""
         return (self._out(linear, shape, "accumulate", region.origin),
@@ -325,10 +408,11 @@ class WarpBackend:
         """Saturation to noisy RAW on the device (see NumpyBackend.to_raw)."""
         from gpu_blur.warp_kernels.passes import to_raw_kernel
 
+        noise = plan["poisson_gaussian_noise"].options
         kernel = to_raw_kernel(
             self.real, plan.kept("saturate"), plan.kept("mosaic"),
             plan.kept("linear_to_camera") and plan["linear_to_camera"].options["clip"],
-            plan.kept("poisson_gaussian_noise"))
+            plan.kept("poisson_gaussian_noise"), noise["sampler"] == "normal", plan.fast_math)
         h, w = linear.shape[:2]
         saturated = self._empty(h * w * 3)
         raw = self._empty(h * w) if plan.raw_round_trip else self._empty(1)
@@ -342,8 +426,9 @@ class WarpBackend:
                 r(params.get("alpha", 0.0)), matrix,
                 cfa_bits(params.get("pattern")), r(params.get("red_gain", 1.0)),
                 r(params.get("blue_gain", 1.0)), r(params.get("shot_noise_k", 1.0)),
-                r(params.get("read_noise_std", 0.0)), wp.uint32(int(key[0])),
-                wp.uint32(int(key[1])), wp.uint32(sample_index), saturated, raw)
+                r(params.get("read_noise_std", 0.0)), r(noise["normal_above"]),
+                wp.uint32(int(key[0])), wp.uint32(int(key[1])), wp.uint32(sample_index),
+                saturated, raw)
         del inputs
         if not plan.raw_round_trip:
             return self._out(saturated, (h, w, 3), "to_raw", origin), OnDevice(
@@ -355,7 +440,7 @@ class WarpBackend:
     def finish(self, plan: Plan, params: dict, camera: Camera, image, saturated, view: Region,
                out: Region, *, seed: int, sample_index: int) -> OnDevice:
         """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
-        from gpu_blur.constants import A7R3_CRF_POLYNOMIAL, A7R3_CRF_TABLE_X255
+        from gpu_blur.constants import A7R3_CRF_POLYNOMIAL
         from gpu_blur.warp_kernels.passes import finish_kernel
 
         demosaic = plan["demosaic"].options if plan.raw_round_trip else None
@@ -364,14 +449,15 @@ class WarpBackend:
             bool(demosaic and demosaic["border"] == "zero"), bool(demosaic and demosaic["clip"]),
             plan.kept("tone"), plan.kept("gaussian_noise"), plan.kept("restore_saturated"),
             plan["retone"].options["crf"] if plan.kept("retone") else "",
-            plan["quantize"].options["bits"] if plan.kept("quantize") else 0)
+            plan["quantize"].options["bits"] if plan.kept("quantize") else 0, plan.fast_math)
         result = self._empty(out.h * out.w * 3)
         key = key_from_seed(seed)
         raw = image if plan.raw_round_trip else np.zeros(1)
         inputs = (self._array(raw), self._array(saturated))
         constants = (self._constant(camera.camera_to_linear),
                      self._constant(A7R3_CRF_POLYNOMIAL),
-                     self._constant(A7R3_CRF_TABLE_X255 / 255.0))
+                     self._constant(a7r3_lookup_table(plan["retone"].options["table_size"])
+                                    / 255.0))
         with self._kernels():
             self._launch(
                 kernel, (out.h, out.w), *inputs, view.x0, view.y0, view.w, view.full_w,
