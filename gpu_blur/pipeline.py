@@ -175,18 +175,24 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
     # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
     tiled = run(runner, sample_plan, params, camera, frames, mask, schedule, seed=seed,
                 sample_index=sample_index, on_device=on_device)
-    sharp_out = render_sharp(sample_plan, sharp, runner)
-    if sample_plan.kept("quantize"):
-        sharp_out = quantize(sharp_out, scene.output.bits)
+    if (sharp.dtype == np.uint8 and scene.output.bits == 8 and sample_plan.kept("quantize")
+            and sample_plan.kept("tone") and not sample_plan.kept("retone")):
+        # 8-bit sRGB in and out, no re-toning: the sharp reference is its own codes, c / 255
+        # (quantize(c / 255, 8) gives c back; float32 c / 255 is the float64 one rounded)
+        sharp_out = sharp.astype(np.float32) / np.float32(255.0)
+    else:
+        sharp_out = render_sharp(sample_plan, unit_values(sharp), runner)
+        if sample_plan.kept("quantize"):
+            sharp_out = quantize(sharp_out, scene.output.bits)
     crop = scene.output.crop
     sharp_out = crop_border(sharp_out, crop)
     out = tiled.blurred if on_device else crop_border(tiled.blurred, crop)
     sat_mask = tiled.mask  # a backend's device array is fetched (and cropped) on first use
     if isinstance(sat_mask, np.ndarray):
         sat_mask = crop_border(sat_mask, crop).astype(np.float32, copy=False)
-    return Synthesis(out, sharp_out.astype(np.float32), sat_mask, params, sample_plan,
-                     since(before, time.perf_counter() - start), tiled.tiles, tiled.checked,
-                     crop)
+    return Synthesis(out, sharp_out.astype(np.float32, copy=False), sat_mask, params,
+                     sample_plan, since(before, time.perf_counter() - start), tiled.tiles,
+                     tiled.checked, crop)
 
 
 def _reaches_clip_level(frames, mask) -> bool:
@@ -207,8 +213,8 @@ def render_sharp(sample_plan: Plan, sharp: np.ndarray, runner) -> np.ndarray:
 def _gather(inputs, scene: Scene):
     """(frames, mask, sharp), validated against the blur mode.
 
-    Frames keep their stored dtype (uint8/uint16 codes, or float64 in [0, 1]; one dtype per
-    sample: mixed inputs become float64); mask and sharp are float64 in [0, 1].
+    Frames and sharp keep their stored dtype (uint8/uint16 codes, or float64 in [0, 1]; one
+    dtype per sample: mixed inputs become float64); the mask is float64 in [0, 1].
     """
     mode = scene.blur.mode
     if mode == "none":
@@ -222,7 +228,7 @@ def _gather(inputs, scene: Scene):
         given += [(x, _name(inputs[k], k)) for x, k in ((mask, "mask"), (sharp, "sharp"))
                   if inputs.get(k) is not None]
         _same_shape([x for x, _ in given], [n for _, n in given])
-        return [blurred], None if mask is None else unit_values(mask), unit_values(sharp)
+        return [blurred], None if mask is None else unit_values(mask), sharp
     if isinstance(inputs, (str, Path, np.ndarray)):
         inputs = [inputs]
     if not isinstance(inputs, Sequence) or len(inputs) == 0:
@@ -233,7 +239,7 @@ def _gather(inputs, scene: Scene):
     _same_shape(frames, [_name(x, f"frame {i}") for i, x in enumerate(inputs)])
     if len({f.dtype for f in frames}) > 1:
         frames = [unit_values(f) for f in frames]
-    return frames, None, unit_values(frames[len(frames) // 2])
+    return frames, None, frames[len(frames) // 2]
 
 
 def _same_shape(images, names):

@@ -252,3 +252,19 @@ def test_crop_applies_to_output_sharp_and_mask_alike(coffee_rgb):
     scene = scene_with(blur={"steps": 3}, output={"crop": 4})
     result = gpu_blur.synthesize([coffee_rgb[:40, :48]], scene)
     assert result.blurred.shape == result.sharp.shape == result.mask.shape == (32, 40, 3)
+
+
+@pytest.mark.parametrize("retone", [False, True])
+def test_8_bit_frames_give_the_sharp_reference_of_their_float_values(retone, coffee_rgb):
+    # 8-bit in and out without re-toning takes the sharp frame's codes directly; it must be
+    # the quantized float path's result bit for bit (and the re-toned path still runs)
+    codes = np.round(coffee_rgb[:64, :96] * 255).astype(np.uint8)
+    frames = [np.roll(codes, i, axis=1) for i in range(3)]
+    output = {"bits": 8, "crf": "a7r3" if retone else "none"}
+    scene = scene_from_dict({"blur": {"mode": "average", "frames": 3}, "output": output})
+    from_codes = gpu_blur.synthesize(frames, scene, seed=3)
+    from_floats = gpu_blur.synthesize([f / 255.0 for f in frames], scene, seed=3)
+    assert from_codes.plan.kept("retone") == retone
+    assert from_codes.sharp.dtype == np.float32
+    assert np.array_equal(from_codes.sharp, from_floats.sharp)
+    assert np.array_equal(from_codes.blurred, from_floats.blurred)
