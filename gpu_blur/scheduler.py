@@ -24,7 +24,8 @@ another and free their buffers; constants are small and listed per pass):
   1 bilinear, 0 without the RAW round trip) and ``a = 2`` for the Bayer-cell alignment with
   the RAW round trip (else 0);
 * ``S = (r + 2 d + a + 2 b) (c + 2 d + a + 2 b)`` pixels of blur source, ``b`` the blur halo
-  (kernel radius, or the camera path's largest displacement; 0 for average and none);
+  (kernel radius, the camera path's largest displacement, or the largest optical-flow
+  component + 1 for interpolated averaging; 0 for plain average and none);
 * each side clipped to the image; ``s`` bytes per value (4 float32, 8 float64), RGB values;
   ``b`` bytes per value of a frame as stored (1 uint8, 2 uint16, ``s`` float input);
 * ``F`` frames (mode average), ``P = min(F, FRAMES_PER_LAUNCH)`` summed per launch.
@@ -35,6 +36,9 @@ pass       bytes
 accumulate average, ``F <= P``: ``3 V (F b + 2 s)`` (one stack of frames, the linear
            image and mask); ``F > P``: ``3 V (2 P b + 4 s + 4)`` (two stacks taking
            turns, the compensated sum: sum, compensation, uint32 counts; linear, mask);
+           average with ``blur.interpolation > 1``: ``6 S b + 16 S + 3 V (4 s + 4)``
+           (two frames and a gap's two float32 flows over the source, which holds the
+           flows' halo; the compensated sum, linear, mask);
            none: ``3 V (b + 3 s)`` (frame, linear, indicator, mask);
            kernel: ``3 (S b + 2 S s + 2 V s) + kh kw s`` (source upload, linear source
            and its saturation indicator, linear image and mask, the kernel);
@@ -90,6 +94,7 @@ import re
 import numpy as np
 
 from gpu_blur.backends import FRAMES_PER_LAUNCH, to_host
+from gpu_blur.backends.flows import interpolation_factor, with_flows
 from gpu_blur.plan import Plan
 from gpu_blur.reference import bayer, blur, noise, rng
 from gpu_blur.reference.demosaic import halo as demosaic_halo
@@ -199,6 +204,7 @@ class Footprint:
         frames: frames summed (mode average).
         source_itemsize: bytes per value of a frame as stored (1 uint8, 2 uint16; 0: as
             ``itemsize``, float input).
+        interpolation: the frame-rate factor of mode average (1: frames as they are).
     """
 
     height: int
@@ -211,6 +217,7 @@ class Footprint:
     blur_constants: int = 0
     frames: int = 1
     source_itemsize: int = 0
+    interpolation: int = 1
 
     @classmethod
     def of(cls, sample_plan: Plan, params: dict, height: int, width: int, precision: str,
@@ -233,7 +240,7 @@ class Footprint:
         return cls(height, width, mode, raw,
                    demosaic_halo(sample_plan["demosaic"].options["method"]) if raw else 0,
                    blur.blur_halo(mode, params, height, width), itemsize, constants,
-                   max(int(frames), 1), source)
+                   max(int(frames), 1), source, interpolation_factor(sample_plan))
 
     def pass_bytes(self, rows: int, cols: int) -> dict[str, int]:
         """Device bytes each pass holds for a tile of ``rows x cols`` output pixels."""
@@ -247,6 +254,8 @@ class Footprint:
         per = min(self.frames, FRAMES_PER_LAUNCH)
         average = (3 * view * (self.frames * b + 2 * s) if self.frames <= per
                    else 3 * view * (2 * per * b + 4 * s + 4))
+        if self.interpolation > 1:
+            average = 6 * source * b + 16 * source + 3 * view * (4 * s + 4)
         accumulate = {
             "average": average,
             "none": 3 * view * (b + 3 * s),
@@ -315,9 +324,11 @@ def check_budget(budget, scene_plan: Plan, precision: str) -> int:
     """
     count = parse_bytes(budget)
     raw = scene_plan.raw_round_trip
+    factor = interpolation_factor(scene_plan)
     floor = Footprint(MIN_TILE, MIN_TILE, scene_plan.variant("blur") or "none", raw,
                       demosaic_halo(scene_plan["demosaic"].options["method"]) if raw else 0, 0,
-                      np.dtype(precision).itemsize).tile_bytes(MIN_TILE, MIN_TILE)
+                      np.dtype(precision).itemsize,
+                      interpolation=factor).tile_bytes(MIN_TILE, MIN_TILE)
     if count < floor:
         raise ValueError(f"--max-device-memory {budget}: {format_bytes(count)} is less than "
                          f"the smallest tile ({MIN_TILE} x {MIN_TILE} pixels) of this scene "
@@ -379,6 +390,7 @@ def run(runner, sample_plan: Plan, params: dict, camera, frames, mask, schedule:
         ValueError: the budget is too small for the smallest tile, or ``on_device`` with
             several tiles or spot checks.
     """
+    params = with_flows(sample_plan, params, frames)  # once per sample, for every tile and check
     h, w = frames[0].shape[:2]
     raw = sample_plan.raw_round_trip
     halo = demosaic_halo(sample_plan["demosaic"].options["method"]) if raw else 0

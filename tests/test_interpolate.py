@@ -1,4 +1,4 @@
-"""Frame interpolation before averaging: the reference, the scene and plan, the kernels.
+"""Frame interpolation before averaging: the reference, the scene and plan, kernels, backends.
 
 Reference (gpu_blur.reference.interpolate): a translation sequence made of integer shifts of a
 real photo, with its exact flows, has intermediates at sub-pixel shifts whose true values are the
@@ -6,6 +6,9 @@ photo's bilinear reconstruction there; factor 1 is plain averaging bit for bit; 
 rule on a constructed case; OpenCV's flows on a translated photo. Kernels: OpenCL's
 ``gb_blur_interpolate_add`` and Warp's ``blur_interpolate_add`` add one intermediate frame as the
 reference computes it, and a tile with its halo gives the whole image's sums bit for bit.
+Backends: every kernel backend's accumulate pass against the numpy reference on a real sequence,
+tiled and budgeted runs equal to whole-image runs bit for bit (with spot checks), and
+``gpu-blur generate`` on a scene with ``interpolation = 2``.
 """
 
 from __future__ import annotations
@@ -15,9 +18,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import KERNEL_BACKEND_SPECS, make_backend, spec_backend, spec_dtype
 
+import gpu_blur
+from gpu_blur.backends.flows import with_flows
 from gpu_blur.plan import plan
-from gpu_blur.reference.blur import average_frames
+from gpu_blur.reference.blur import average_frames, blur_halo
 from gpu_blur.reference.interpolate import (
     CONSISTENCY_ABSOLUTE_PX2,
     CONSISTENCY_RELATIVE,
@@ -31,7 +37,9 @@ from gpu_blur.reference.interpolate import (
 )
 from gpu_blur.reference.transfer import srgb_to_linear
 from gpu_blur.scene import SceneError, scene_from_dict
+from gpu_blur.scheduler import Footprint
 from gpu_blur.testing import assert_close
+from gpu_blur.tiling import Region
 
 # -- a translation sequence --------------------------------------------------------------------
 
@@ -433,3 +441,108 @@ def test_warp_interpolate_tile_equals_whole_image(warp_interpolate, pair):
     tile = warp_interpolate.add(pair, 0.25, TILE)
     for a, b in zip(tile, whole, strict=True):
         assert np.array_equal(a, b[y0:y1, x0:x1])
+
+
+# -- backends: the accumulate pass, tiles, budgets, the command line --------------------------
+
+#: Frames of the backend tests (pixels): small, so every backend runs them in a second.
+SEQUENCE_H, SEQUENCE_W = 40, 56
+
+
+@pytest.fixture(scope="module")
+def sequence(coffee_rgb):
+    """Three 8-bit frames of the coffee photo moving by (-3, 2) px per frame, a patch clipped."""
+    codes = np.rint(coffee_rgb * 255).astype(np.uint8)
+    frames = [np.ascontiguousarray(codes[120 + 2 * k:120 + 2 * k + SEQUENCE_H,
+                                         220 - 3 * k:220 - 3 * k + SEQUENCE_W]) for k in range(3)]
+    frames[1][14:20, 22:31] = 255
+    return frames
+
+
+def interpolating_scene(factor: int = 4, **sections):
+    """Mode average over 3 frames at ``factor`` times the frame rate."""
+    return scene_from_dict({"blur": {"mode": "average", "frames": 3, "interpolation": factor},
+                            **sections})
+
+
+def test_interpolation_halo_is_the_blur_halo_of_interpolated_averaging(sequence):
+    scene = interpolating_scene()
+    params = with_flows(plan(scene), {}, sequence)
+    halo = interpolation_halo(params["flows"])
+    assert halo >= 4  # the motion is 3 px per frame
+    assert blur_halo("average", params, SEQUENCE_H, SEQUENCE_W) == halo
+    assert blur_halo("average", {}, SEQUENCE_H, SEQUENCE_W) == 0
+    assert with_flows(plan(interpolating_scene(1)), {}, sequence) == {}
+
+
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+def test_backend_accumulates_interpolated_frames_as_the_reference(spec, sequence):
+    p = plan(interpolating_scene())
+    whole = Region.whole(SEQUENCE_H, SEQUENCE_W)
+    params = with_flows(p, {}, sequence)
+    linear, mask = make_backend(spec).accumulate(p, params, sequence, None, whole)
+    expected, expected_mask = make_backend("numpy").accumulate(p, params, sequence, None, whole)
+    backend, dtype = spec_backend(spec), spec_dtype(spec)
+    assert_close(linear, expected, "accumulate", backend, dtype)
+    assert_close(mask, expected_mask, "accumulate", backend, dtype)
+    # not plain averaging: the intermediates move the blur and count in the mask (of 9 frames)
+    plain, _ = make_backend("numpy").accumulate(plan(interpolating_scene(1)), {}, sequence, None,
+                                                whole)
+    assert np.abs(expected - plain).max() > 0.01
+    assert set(np.unique(np.rint(expected_mask * 9))) > {0.0, 1.0}
+    # without flows the backend computes the same ones itself
+    alone, _ = make_backend(spec).accumulate(p, {}, sequence, None, whole)
+    assert np.array_equal(alone, linear)
+
+
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+def test_tiles_and_budgets_give_the_whole_image_bitwise(spec, sequence):
+    name, _, precision = spec.partition("/")
+    scene = interpolating_scene(output={"precision": precision})
+    whole = gpu_blur.synthesize(sequence, scene, seed=3, sample_index=1, backend=name)
+    tiled = gpu_blur.synthesize(sequence, scene, seed=3, sample_index=1, backend=name,
+                                tile=(16, 24), verify=1.0)
+    need = Footprint.of(whole.plan, with_flows(whole.plan, whole.params, sequence),
+                        SEQUENCE_H, SEQUENCE_W, precision, 3, np.uint8)
+    budget = need.tile_bytes(SEQUENCE_H, SEQUENCE_W) // 2
+    budgeted = gpu_blur.synthesize(sequence, scene, seed=3, sample_index=1, backend=name,
+                                   max_device_memory=budget)
+    assert whole.tiles == 1 and tiled.tiles > 1 and tiled.spot_checks == tiled.tiles
+    assert budgeted.tiles > 1
+    for run in (tiled, budgeted):
+        assert np.array_equal(run.blurred, whole.blurred)
+        assert np.array_equal(run.mask, np.asarray(whole.mask))
+
+
+def test_memory_formula_counts_frames_and_flows_over_the_halo():
+    p = plan(interpolating_scene())
+    f = Footprint(100, 200, "average", False, 0, 5, 4, frames=3, source_itemsize=1,
+                  interpolation=4)
+    view, source = 20 * 30, 30 * 40
+    assert f.pass_bytes(20, 30)["accumulate"] == 6 * source + 16 * source + 3 * view * 20
+    assert Footprint.of(p, {}, 100, 200, "float32", 3, np.uint8).interpolation == 4
+
+
+def test_generate_runs_a_scene_with_interpolation_2(tmp_path, sequence):
+    import json
+
+    import cv2
+
+    from gpu_blur.cli import main
+
+    folder = tmp_path / "in" / "GOPR0001" / "sharp"
+    folder.mkdir(parents=True)
+    for i, frame in enumerate(sequence):
+        cv2.imwrite(str(folder / f"{i:06d}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    blurred = {}
+    for factor in (1, 2):
+        scene = tmp_path / f"x{factor}.toml"
+        scene.write_text(f'[blur]\nmode = "average"\nframes = 3\ninterpolation = {factor}\n')
+        out = tmp_path / f"out{factor}"
+        assert main(["generate", "--input", str(tmp_path / "in"), "--output", str(out),
+                     "--scene", str(scene), "--quiet"]) == 0
+        (line,) = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+        assert line["status"] == "ok" and "flows" not in line["params"]
+        blurred[factor] = cv2.imread(str(out / line["blurred"]), cv2.IMREAD_UNCHANGED)
+    assert blurred[2].shape == (SEQUENCE_H, SEQUENCE_W, 3)
+    assert not np.array_equal(blurred[1], blurred[2])

@@ -11,11 +11,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from gpu_blur.backends.flows import UnitFrames, interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
 from gpu_blur.imageio import unit_values
 from gpu_blur.plan import Plan
 from gpu_blur.reference import bayer, blur, demosaic, noise, transfer
 from gpu_blur.reference.color import apply_matrix
+from gpu_blur.reference.interpolate import interpolated_average
 from gpu_blur.reference.output import quantize
 from gpu_blur.reference.saturation import restore_saturated, synthesize_saturation
 from gpu_blur.tiling import Region
@@ -38,7 +40,8 @@ class NumpyBackend:
 
         Args:
             plan: the sample's plan.
-            params: its drawn parameters (``kernel``, ``homographies``).
+            params: its drawn parameters (``kernel``, ``homographies``; ``flows`` with
+                interpolated frames, computed here when missing).
             frames: full-size sRGB frames, H x W x 3 uint8/uint16 codes or floats in [0, 1]
                 (:func:`gpu_blur.imageio.check_image`), read one at a time (mode average), or
                 one photo (kernel, trajectory), or the blurred image (none).
@@ -84,7 +87,11 @@ class NumpyBackend:
                     mask: np.ndarray | None, region: Region) -> tuple[np.ndarray, np.ndarray]:
         """The accumulate pass, untimed."""
         mode = plan.variant("blur") or "none"
-        if mode == "average":
+        if mode == "average" and interpolation_factor(plan) > 1:
+            linear, sat_mask = interpolated_average(
+                UnitFrames(frames), interpolation_factor(plan),
+                with_flows(plan, params, frames)["flows"])
+        elif mode == "average":
             acc = blur.FrameAccumulator(*frames[0].shape[:2])
             for frame in frames:
                 acc.add(transfer.srgb_to_linear(unit_values(frame)))

@@ -32,9 +32,11 @@ from gpu_blur.backends import (
     fill_stack,
     planted_fault,
 )
+from gpu_blur.backends.flows import interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
 from gpu_blur.plan import Plan
 from gpu_blur.reference import blur
+from gpu_blur.reference.interpolate import CONSISTENCY_ABSOLUTE_PX2, CONSISTENCY_RELATIVE
 from gpu_blur.reference.rng import key_from_seed
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
@@ -384,6 +386,9 @@ class OpenCLBackend:
         n = region.h * region.w * 3
         shape = (region.h, region.w, 3)
         linear, sat_mask = self._empty(n), self._empty(n)
+        if mode == "average" and interpolation_factor(plan) > 1:
+            self._interpolated_average(plan, params, frames, region, defines, linear, sat_mask)
+            return self._linear_out(linear, sat_mask, shape, region)
         if mode == "average":
             # running compensated sums (sum, rounding errors, saturation counts) are only
             # needed between launches: one stack of frames is summed in registers
@@ -448,6 +453,51 @@ class OpenCLBackend:
             prg.gb_blur_trajectory_finish(self.queue, (n,), None, *sums, np.uint32(len(hom)),
                                           linear, sat_mask)
         return self._linear_out(linear, sat_mask, shape, region)
+
+    def _interpolated_average(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
+                              region: Region, defines: dict, linear, sat_mask) -> None:
+        """Mode average at ``blur.interpolation`` times the frame rate, into linear, sat_mask.
+
+        One gap at a time, in time order: frame i+1 and the gap's two flows upload over the
+        region plus the flows' halo (frame i stays from the gap before), then the original
+        frame and the intermediates after it join one set of compensated sums
+        (kernels/opencl/interpolate.cl); intermediate frames are never stored.
+        """
+        dtype = self._source(frames[0])[0]
+        prg = self.kernels("interpolate.cl", defines)
+        params = with_flows(plan, params, frames)
+        flows, factor = params["flows"], interpolation_factor(plan)
+        view = region.expand(blur.blur_halo("average", params, region.full_h, region.full_w))
+        n = region.h * region.w * 3
+        sums = (self._zeros(n), self._zeros(n), self._zeros(n, np.uint32))
+        geometry = (np.int64(view.x0), np.int64(view.y0), np.int64(view.w))
+        full = (np.int64(region.full_w), np.int64(region.full_h))
+        out_geometry = (np.int64(region.x0), np.int64(region.y0), np.int64(region.w),
+                        np.int64(region.h))
+        pos = np.float64 if self.info.fp64 else np.float32
+        test = (pos(CONSISTENCY_RELATIVE), pos(CONSISTENCY_ABSOLUTE_PX2))
+        grid = self._grid(region.w, region.h)
+        frame_bufs = [self._empty(view.h * view.w * 3, dtype) for _ in range(min(2, len(frames)))]
+        flow_bufs = [self._empty(view.h * view.w * 2, np.float32) for _ in range(2)]
+        for i in range(len(frames)):
+            with timer("copies"):  # waits for the launches that read the buffer before
+                cl.enqueue_copy(self.queue, frame_bufs[i % 2],
+                                np.ascontiguousarray(view.of(frames[i]), dtype=dtype))
+                if i > 0:
+                    for buf, flow in zip(flow_bufs, flows[i - 1], strict=True):
+                        cl.enqueue_copy(self.queue, buf, np.ascontiguousarray(view.of(flow)))
+            with self._kernels(sync=False):
+                for k in range(1, factor if i > 0 else 1):
+                    prg.gb_blur_interpolate_add(
+                        self.queue, grid, None, frame_bufs[(i - 1) % 2], frame_bufs[i % 2],
+                        *flow_bufs, *geometry, *full, pos(k / factor), *test, *sums,
+                        *out_geometry)
+                prg.gb_blur_interpolate_add_frame(self.queue, grid, None, frame_bufs[i % 2],
+                                                  *geometry, *sums, *out_geometry)
+        with self._kernels():
+            prg.gb_blur_interpolate_finish(self.queue, (n,), None, *sums,
+                                           np.uint32((len(frames) - 1) * factor + 1), linear,
+                                           sat_mask)
 
     def _linear_out(self, linear, sat_mask, shape, region: Region):
         """The accumulate pass's (linear, mask), left on the device."""

@@ -912,11 +912,18 @@ def blur_halo(mode: str, params: dict, height: int, width: int) -> int:
 
     Args:
         mode: the blur variant: ``"average"`` and ``"none"`` are pointwise, ``"kernel"`` needs
-            the kernel's radius, ``"trajectory"`` the camera path's largest displacement.
-        params: the sample's parameters (``kernel`` or ``homographies``).
+            the kernel's radius, ``"trajectory"`` the camera path's largest displacement;
+            ``"average"`` with interpolated frames reads along its optical flows
+            (:func:`gpu_blur.reference.interpolate.interpolation_halo`).
+        params: the sample's parameters (``kernel`` or ``homographies``; ``flows`` for
+            interpolated frames).
         height: full image height.
         width: full image width.
     """
+    if mode == "average" and params.get("flows") is not None:
+        from gpu_blur.reference.interpolate import interpolation_halo  # it imports this module
+
+        return interpolation_halo(params["flows"])
     if mode == "kernel":
         return kernel_halo(normalize_kernel(params["kernel"]))
     if mode == "trajectory":

@@ -161,21 +161,23 @@ def sequence_flows(frames: Sequence, method: str = "dis") -> np.ndarray:
     """Forward and backward flow of every consecutive pair of a sequence.
 
     Args:
-        frames: ``n >= 1`` sRGB frames ``H x W x C`` in [0, 1], one shape.
+        frames: ``n >= 1`` sRGB frames ``H x W x C`` in [0, 1], one shape; read by index, two
+            at a time (a lazy sequence never has more than two alive).
         method: see :func:`optical_flow`.
 
     Returns:
         ``(n - 1) x 2 x H x W x 2`` float32: ``[i, 0]`` the forward flow from frame i to
         i + 1, ``[i, 1]`` the backward flow from i + 1 to i.
     """
-    arrays = [_check_frame(f, f"frame {i}") for i, f in enumerate(frames)]
-    if not arrays:
+    if len(frames) < 1:
         raise ValueError("sequence_flows needs at least one frame")
-    h, w = arrays[0].shape[:2]
-    flows = np.empty((len(arrays) - 1, 2, h, w, 2), dtype=np.float32)
-    for i in range(len(arrays) - 1):
-        flows[i, 0] = optical_flow(arrays[i], arrays[i + 1], method)
-        flows[i, 1] = optical_flow(arrays[i + 1], arrays[i], method)
+    current = _check_frame(frames[0], "frame 0")
+    h, w = current.shape[:2]
+    flows = np.empty((len(frames) - 1, 2, h, w, 2), dtype=np.float32)
+    for i in range(1, len(frames)):
+        previous, current = current, _check_frame(frames[i], f"frame {i}")
+        flows[i - 1, 0] = optical_flow(previous, current, method)
+        flows[i - 1, 1] = optical_flow(current, previous, method)
     return flows
 
 
@@ -266,7 +268,8 @@ def interpolated_average(frames: Sequence, factor: int, flows=None,
     """Average a sequence at ``factor`` times its frame rate (module step 5).
 
     Args:
-        frames: ``n >= 1`` sRGB frames ``H x W x C`` in [0, 1], one shape.
+        frames: ``n >= 1`` sRGB frames ``H x W x C`` in [0, 1], one shape; read by index, two
+            at a time.
         factor: 1, 2, 4 or 8; 1 is plain averaging.
         flows: ``(n - 1) x 2 x H x W x 2`` from :func:`sequence_flows`, or ``None`` to compute
             them with ``method`` (unused when ``factor`` is 1).
@@ -277,23 +280,24 @@ def interpolated_average(frames: Sequence, factor: int, flows=None,
         ``(n - 1) factor + 1`` frames (see :class:`~gpu_blur.reference.blur.FrameAccumulator`).
     """
     times = interpolation_times(factor)
-    arrays = [_check_frame(f, f"frame {i}") for i, f in enumerate(frames)]
-    if not arrays:
+    if len(frames) < 1:
         raise ValueError("cannot average zero frames")
+    current = _check_frame(frames[0], "frame 0")
     if times and flows is None:
-        flows = sequence_flows(arrays, method)
+        flows = sequence_flows(frames, method)
     if times:
-        expected = (len(arrays) - 1, 2, *arrays[0].shape[:2], 2)
+        expected = (len(frames) - 1, 2, *current.shape[:2], 2)
         if np.shape(flows) != expected:
             raise ValueError(f"flows must be (n - 1) x 2 x H x W x 2 = {expected}; got "
                              f"{np.shape(flows)}")
-    acc = FrameAccumulator(*arrays[0].shape)
-    for i, frame in enumerate(arrays):
-        if i > 0:
-            for t in times:
-                acc.add(srgb_to_linear(interpolate_frame(arrays[i - 1], frame, flows[i - 1, 0],
-                                                         flows[i - 1, 1], t)))
-        acc.add(srgb_to_linear(frame))
+    acc = FrameAccumulator(*current.shape)
+    acc.add(srgb_to_linear(current))
+    for i in range(1, len(frames)):
+        previous, current = current, _check_frame(frames[i], f"frame {i}")
+        for t in times:
+            acc.add(srgb_to_linear(interpolate_frame(previous, current, flows[i - 1, 0],
+                                                     flows[i - 1, 1], t)))
+        acc.add(srgb_to_linear(current))
     return acc.result()
 
 

@@ -20,7 +20,7 @@ import functools
 import warp as wp
 
 from gpu_blur.warp_kernels import pixel
-from gpu_blur.warp_kernels.passes import add_compensated
+from gpu_blur.warp_kernels.passes import add_compensated, source_value_func
 
 
 @wp.func
@@ -69,20 +69,25 @@ def consistent(flow: wp.array(dtype=wp.float32), reverse: wp.array(dtype=wp.floa
 
 
 @functools.cache
-def interpolate_kernels(real) -> dict:
-    """``{"blur_interpolate_add": kernel}`` for the compute type ``real``.
+def interpolate_kernels(real, source=None) -> dict:
+    """The interpolated-averaging kernels for the compute type ``real``.
 
-    Frames are ``real`` sRGB values in [0, 1]; the one read of a frame value is
-    ``frame_value``.
+    ``source`` is how frames are stored on the device (passes.source_value_func; ``real``
+    values in [0, 1] by default). The host adds, in time order, each original frame
+    (``blur_interpolate_add_frame``) and the intermediates after it
+    (``blur_interpolate_add``) to one set of compensated sums, then takes the mean
+    (``blur_interpolate_finish``), as kernels/opencl/interpolate.cl.
     """
+    source = real if source is None else source
+    source_value = source_value_func(real, source)
     vec3 = wp.types.vector(length=3, dtype=real)
 
     @wp.func
-    def frame_value(frame: wp.array(dtype=real), i: int) -> real:
-        return frame[i]
+    def frame_value(frame: wp.array(dtype=source), i: int) -> real:
+        return source_value(frame[i])
 
     @wp.func
-    def sample_rgb(frame: wp.array(dtype=real), sx0: int, sy0: int, sw: int, full_w: int,
+    def sample_rgb(frame: wp.array(dtype=source), sx0: int, sy0: int, sw: int, full_w: int,
                    full_h: int, px: wp.float64, py: wp.float64) -> vec3:
         # as reference.blur._bilinear_sample: a + f (b - a) along x, then along y
         fx0 = wp.floor(px)
@@ -107,7 +112,7 @@ def interpolate_kernels(real) -> dict:
         return out
 
     @wp.kernel(module="unique", module_options={"fuse_fp": False})
-    def blur_interpolate_add(frame0: wp.array(dtype=real), frame1: wp.array(dtype=real),
+    def blur_interpolate_add(frame0: wp.array(dtype=source), frame1: wp.array(dtype=source),
                              flow_fw: wp.array(dtype=wp.float32),
                              flow_bw: wp.array(dtype=wp.float32), sx0: int, sy0: int, sw: int,
                              full_w: int, full_h: int, t: wp.float64, relative: wp.float64,
@@ -148,4 +153,30 @@ def interpolate_kernels(real) -> dict:
             if lin >= real(1.0):
                 saturated[od + c] = saturated[od + c] + wp.uint32(1)
 
-    return {"blur_interpolate_add": blur_interpolate_add}
+    @wp.kernel(module="unique")
+    def blur_interpolate_add_frame(frame: wp.array(dtype=source), sx0: int, sy0: int, sw: int,
+                                   total: wp.array(dtype=real),
+                                   compensation: wp.array(dtype=real),
+                                   saturated: wp.array(dtype=wp.uint32), dx0: int, dy0: int,
+                                   dw: int):
+        # an original frame (a view holding the output region), as an intermediate is added
+        y, x = wp.tid()
+        o = 3 * ((dy0 + y - sy0) * sw + (dx0 + x - sx0))
+        od = 3 * (y * dw + x)
+        for c in range(3):
+            lin = pixel.srgb_to_linear(frame_value(frame, o + c))
+            add_compensated(total, compensation, od + c, lin)
+            if lin >= real(1.0):
+                saturated[od + c] = saturated[od + c] + wp.uint32(1)
+
+    @wp.kernel(module="unique")
+    def blur_interpolate_finish(total: wp.array(dtype=real), compensation: wp.array(dtype=real),
+                                saturated: wp.array(dtype=wp.uint32), count: int,
+                                linear: wp.array(dtype=real), mask: wp.array(dtype=real)):
+        i = wp.tid()
+        linear[i] = (total[i] + compensation[i]) / real(count)
+        mask[i] = real(saturated[i]) / real(count)
+
+    return {"blur_interpolate_add": blur_interpolate_add,
+            "blur_interpolate_add_frame": blur_interpolate_add_frame,
+            "blur_interpolate_finish": blur_interpolate_finish}

@@ -48,14 +48,13 @@ SOURCE_TOP = {wp.uint8: 255.0, wp.uint16: 65535.0}
 
 
 @functools.cache
-def accumulate_kernels(real, source=None) -> dict:
-    """Pass 1, stages "linearize" and "blur" (average, kernel, trajectory), for ``real``.
+def source_value_func(real, source):
+    """``source_value(code) -> real``: a stored frame value as a value in [0, 1].
 
     ``source`` is how frames are stored on the device: ``wp.uint8`` or ``wp.uint16`` codes
     (value = code / (2^bits - 1), a correctly rounded division, equal to the host's float64
-    quotient rounded to ``real`` for every code), or ``real`` values in [0, 1] (the default).
+    quotient rounded to ``real`` for every code), or ``real`` values in [0, 1].
     """
-    source = real if source is None else source
     top = SOURCE_TOP.get(source, 0.0)
 
     @wp.func
@@ -63,6 +62,19 @@ def accumulate_kernels(real, source=None) -> dict:
         if wp.static(top > 0.0):
             return real(code) / real(top)
         return real(code)
+
+    return source_value
+
+
+@functools.cache
+def accumulate_kernels(real, source=None) -> dict:
+    """Pass 1, stages "linearize" and "blur" (average, kernel, trajectory), for ``real``.
+
+    ``source`` is how frames are stored on the device (:func:`source_value_func`; ``real``
+    values in [0, 1] by default).
+    """
+    source = real if source is None else source
+    source_value = source_value_func(real, source)
 
     @wp.kernel(module="unique")
     def linearize(srgb: wp.array(dtype=source), linear: wp.array(dtype=real),

@@ -8,26 +8,7 @@
  */
 #include "gb_common.h"
 #include "gb_pixel.h"
-
-/* Streamed sums are compensated (Neumaier's variant of Kahan summation): `sum` holds the running
- * sum, `compensation` the rounding errors of its additions, and sum + compensation the total,
- * within 2u |total| + O(n u^2) sum |terms| of the exact sum of the terms (u = 2^-24 in float,
- * 2^-53 in double; Higham, "Accuracy and Stability of Numerical Algorithms", 2nd ed., 4.3):
- * about one rounding of the total, for any number of terms in practice. A plain float sum
- * drifts by up to (n - 1) u of it: measured 1.5e-5 on the mean of 1,000 equal frames, 5.5e-6
- * over a 1,000-pose camera path. The float64 reference keeps its plain float64 sum (its own
- * error is below (n - 1) 2^-53 relative, 1.1e-13 at 1,000 frames). Contraction is off and
- * nothing may be reassociated: do not build with -cl-fast-relaxed-math or
- * -cl-unsafe-math-optimizations. */
-static inline void gb_add_compensated(__global real *sum, __global real *compensation, size_t i,
-                                      real v)
-{
-#pragma OPENCL FP_CONTRACT OFF
-    real s = sum[i];
-    real t = s + v;
-    compensation[i] += fabs(s) >= fabs(v) ? (s - t) + v : (v - t) + s;
-    sum[i] = t;
-}
+#include "gb_sum.h" /* gb_add_compensated: the streamed sums */
 
 /* linearize: sRGB -> linear (EOTF), and the saturation indicator [linear >= 1]. */
 __kernel void gb_linearize(__global const gb_source *srgb, __global real *linear,
@@ -104,12 +85,6 @@ __kernel void gb_blur_kernel(__global const real *src, long sx0, long sy0, long 
     dst[o + 1] = acc1;
     dst[o + 2] = acc2;
 }
-
-#ifdef GB_HAS_FP64
-typedef double gb_pos;
-#else
-typedef float gb_pos;
-#endif
 
 /* blur, variant trajectory: add the linear image and its indicator warped by one pose to their
  * compensated sums. Output pixel (gx, gy) samples src bilinearly at H^-1 (gx, gy, 1) (hinv

@@ -7,8 +7,11 @@
  * averaging sums like any frame. Intermediate frames are never stored: each work item computes
  * its pixel and adds it.
  *
- * Images are interleaved RGB (3 values per pixel), flows interleaved (dx, dy) float32 (OpenCV's
- * type, so read exactly in either precision), all row-major. The frames and flows are views
+ * Images are interleaved RGB (3 values per pixel), frames in their stored type (gb_source,
+ * gb_common.h), flows interleaved (dx, dy) float32 (OpenCV's type, so read exactly in either
+ * precision), all row-major. The host adds, in time order, each original frame
+ * (gb_blur_interpolate_add_frame) and the intermediates after it (gb_blur_interpolate_add) to
+ * one set of sums, then takes the mean (gb_blur_interpolate_finish). The frames and flows are views
  * (first pixel (sx0, sy0), width sw) of one region that holds the output region plus the halo of
  * gpu_blur.reference.interpolate.interpolation_halo; the sums cover the output region. Pixels are
  * addressed by global coordinates (gb_common.h), so a tile gives the whole image's values.
@@ -21,18 +24,12 @@
 
 #pragma OPENCL FP_CONTRACT OFF
 
-#ifdef GB_HAS_FP64
-typedef double gb_pos;
-#else
-typedef float gb_pos;
-#endif
-
-/* One sRGB value in [0, 1] of a frame, at offset o. */
-#define GB_FRAME_VALUE(frame, o) ((frame)[o])
+/* One sRGB value in [0, 1] of a frame (stored as gb_source), at offset o. */
+#define GB_FRAME_VALUE(frame, o) gb_source_value((frame)[o])
 
 /* Bilinear sample of an RGB frame view at (px, py), reflect-101 neighbours, as
  * reference.blur._bilinear_sample: a + f (b - a) along x, then along y. */
-static inline void gb_interp_sample_rgb(__global const real *frame, long sx0, long sy0, long sw,
+static inline void gb_interp_sample_rgb(__global const gb_source *frame, long sx0, long sy0, long sw,
                                         long full_w, long full_h, gb_pos px, gb_pos py,
                                         real out[3])
 {
@@ -98,7 +95,8 @@ static inline int gb_interp_consistent(__global const float *flow, __global cons
  * maps frame0 to frame1, flow_bw frame1 to frame0 (pixels, OpenCV's convention); relative and
  * absolute_px2 are the occlusion test's constants (reference.interpolate.CONSISTENCY_*).
  * Launched over (dw, dh) work items or more (extra ones return). */
-__kernel void gb_blur_interpolate_add(__global const real *frame0, __global const real *frame1,
+__kernel void gb_blur_interpolate_add(__global const gb_source *frame0,
+                                      __global const gb_source *frame1,
                                       __global const float *flow_fw,
                                       __global const float *flow_bw, long sx0, long sy0, long sw,
                                       long full_w, long full_h, gb_pos t, gb_pos relative,
@@ -128,7 +126,39 @@ __kernel void gb_blur_interpolate_add(__global const real *frame0, __global cons
     for (int c = 0; c < 3; ++c) {
         real v = trust_a == trust_b ? wa * a[c] + wb * b[c] : (trust_a ? a[c] : b[c]);
         real lin = gb_srgb_to_linear(v);
-        gb_sum_add(sum, compensation, od + c, lin);
+        gb_add_compensated(sum, compensation, od + c, lin);
         saturated[od + c] += lin >= GB_REAL(1.0) ? 1u : 0u;
     }
+}
+
+/* blur, variant average with interpolation: add an original frame, linearized, to the sums and
+ * count its saturated channels, as gb_blur_interpolate_add adds an intermediate. frame is a
+ * view (first pixel (sx0, sy0), width sw) holding the output region (dx0, dy0, dw, dh). */
+__kernel void gb_blur_interpolate_add_frame(__global const gb_source *frame, long sx0, long sy0,
+                                            long sw, __global real *sum,
+                                            __global real *compensation,
+                                            __global uint *saturated, long dx0, long dy0,
+                                            long dw, long dh)
+{
+    long x = get_global_id(0), y = get_global_id(1);
+    if (x >= dw || y >= dh) return;
+    long o = 3 * gb_offset(dx0 + x, dy0 + y, sx0, sy0, sw);
+    long od = 3 * (y * dw + x);
+    for (int c = 0; c < 3; ++c) {
+        real lin = gb_srgb_to_linear(GB_FRAME_VALUE(frame, o + c));
+        gb_add_compensated(sum, compensation, od + c, lin);
+        saturated[od + c] += lin >= GB_REAL(1.0) ? 1u : 0u;
+    }
+}
+
+/* blur, variant average with interpolation: the mean of the count frames (the compensated total
+ * over the count) and the fraction of them saturated, per channel. */
+__kernel void gb_blur_interpolate_finish(__global const real *sum,
+                                         __global const real *compensation,
+                                         __global const uint *saturated, uint count,
+                                         __global real *linear, __global real *mask)
+{
+    size_t i = get_global_id(0);
+    linear[i] = (sum[i] + compensation[i]) / (real)count;
+    mask[i] = (real)saturated[i] / (real)count;
 }

