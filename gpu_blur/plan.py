@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from gpu_blur.constants import A7R3_CRF_TABLE_X255
 from gpu_blur.scene import Scene
 
 PASSES = ("accumulate", "to_raw", "finish")
@@ -45,9 +46,17 @@ class Stage:
 
 @dataclasses.dataclass(frozen=True)
 class Plan:
-    """The ordered stages of a scene."""
+    """The ordered stages of a scene.
+
+    Attributes:
+        stages: the stages in data-flow order.
+        fast_math: kernel backends may use fast float transcendentals (scene
+            ``output.fast_math``): how the maths runs, not what it is, so no stage carries it
+            and the reference ignores it.
+    """
 
     stages: tuple[Stage, ...]
+    fast_math: bool = False
 
     def kept(self, name: str) -> bool:
         """Whether stage ``name`` runs."""
@@ -79,6 +88,8 @@ class Plan:
             mark = "run " if s.kept else "skip"
             variant = f"[{s.variant}]" if s.variant else ""
             lines.append(f"  {mark} {s.name:<{width}}  {variant:<{vwidth}}  {s.reason}")
+        if self.fast_math:
+            lines.append("kernels: fast float transcendentals (output.fast_math)")
         return "\n".join(lines)
 
 
@@ -140,9 +151,13 @@ def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
     add("mosaic", "to_raw", raw, why_raw if raw else why_not, isp.pattern if raw else "")
     add("inverse_white_balance", "to_raw", raw, why_raw if raw else why_not)
     pg = n.model == "poisson-gaussian"
+    normal = n.poisson == "normal"
     add("poisson_gaussian_noise", "to_raw", pg,
-        "K * Poisson(x / K) + sigma_r * N(0, 1) on the mosaic" if pg
-        else f"noise.model = {n.model}")
+        ("K * Poisson(x / K) + sigma_r * N(0, 1) on the mosaic"
+         + (f"; rates above {n.normal_above:g} drawn as a rounded normal" if normal else ""))
+        if pg else f"noise.model = {n.model}",
+        f"normal above {n.normal_above:g}" if pg and normal else "",
+        sampler=n.poisson, normal_above=float(n.normal_above))
     add("white_balance", "to_raw", raw, why_raw if raw else why_not)
 
     # finish
@@ -158,14 +173,17 @@ def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
     add("restore_saturated", "finish", sat,
         "channels saturated after synthesis set to exactly 1" if sat else "no saturation stage")
     retone = out.crf in ("a7r3", "a7r3-lut")
-    curve = "lookup table" if out.crf == "a7r3-lut" else "polynomial"
+    nodes = out.crf_table_size or A7R3_CRF_TABLE_X255.size
+    curve = (f"lookup table ({nodes} nodes)" if out.crf == "a7r3-lut" else "polynomial")
     add("retone", "finish", retone,
         f"output and sharp re-toned with the A7R3 {curve}" if retone
-        else f"output.crf = {out.crf}: no re-toning", out.crf if retone else "",
-        crf=out.crf)
+        else f"output.crf = {out.crf}: no re-toning",
+        (out.crf + (f", {out.crf_table_size} nodes" if out.crf_table_size else ""))
+        if retone else "",
+        crf=out.crf, table_size=out.crf_table_size)
     add("crop", "finish", out.crop > 0,
         f"{out.crop} px cut from every side" if out.crop else "output.crop = 0")
     add("quantize", "finish", out.bits > 0,
         f"{out.bits}-bit, round half up" if out.bits else "output.bits = 0: float output",
         bits=out.bits)
-    return Plan(tuple(stages))
+    return Plan(tuple(stages), fast_math=out.fast_math)

@@ -9,6 +9,7 @@ full list (``gpu-blur plan --help`` prints it).
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -85,6 +86,12 @@ FIELDS: dict[str, dict[str, Field]] = {
                         kind=(int, float), minimum=0, maximum=1),
         "gaussian_std": Field(GAUSSIAN_SRGB_NOISE_STD, "sRGB Gaussian noise std before the "
                               "+- spread draw (RSBlur TF)", kind=(int, float), minimum=0),
+        "poisson": Field("exact", "shot-noise sampler: 'exact' (inversion below rate 10, PTRS "
+                         "above) or 'normal' (accuracy knob: max(0, round(rate + sqrt(rate) z)) "
+                         "for rates above noise.normal_above)", choices=("exact", "normal")),
+        "normal_above": Field(1000.0, "noise.poisson = 'normal': the Poisson rate (photon "
+                              "counts per photosite) above which counts are a rounded normal",
+                              kind=(int, float), minimum=0),
     },
     "isp": {
         "round_trip": Field("auto", "RAW round trip: 'auto' (only with poisson-gaussian noise) "
@@ -110,6 +117,14 @@ FIELDS: dict[str, dict[str, Field]] = {
                       kind=int, minimum=0),
         "precision": Field("float32", "compute precision of kernel backends",
                            choices=("float32", "float64")),
+        "crf_table_size": Field(0, "output.crf = 'a7r3-lut': nodes of the re-toning table; 0 = "
+                                "the authors' 2,551, another size (>= 2, e.g. 256, 1024, 4096) "
+                                "resamples it (accuracy knob)", kind=int, minimum=0,
+                                maximum=65536),
+        "fast_math": Field(False, "kernel backends, float32 only: fast transcendentals (OpenCL "
+                           "native_ functions, Warp's CUDA fast math) for the sRGB curves and "
+                           "the Gaussian normals; Poisson counts stay exact (accuracy knob)",
+                           kind=bool),
     },
 }
 
@@ -231,6 +246,21 @@ def _check_consistency(scene: Scene, where: str) -> None:
     if scene.blur.mode == "kernel" and not scene.blur.kernel and lo % 2 == 0 and lo == hi:
         raise SceneError(f"{where}: blur.kernel_size = {scene.blur.kernel_size!r} holds no odd "
                          "size; allowed: a range containing an odd size")
+    if not math.isfinite(scene.noise.normal_above):
+        raise SceneError(f"{where}: noise.normal_above = {scene.noise.normal_above!r} is "
+                         "invalid; allowed: a finite rate >= 0 (use noise.poisson = 'exact' "
+                         "for no approximation)")
+    size, crf = scene.output.crf_table_size, scene.output.crf
+    if size == 1:
+        raise SceneError(f"{where}: output.crf_table_size = 1 is invalid; allowed: 0 (the "
+                         "authors' table) or a size >= 2")
+    if size and crf != "a7r3-lut":
+        raise SceneError(f"{where}: output.crf_table_size = {size!r} needs output.crf = "
+                         f"'a7r3-lut' (it is {crf!r}); allowed with another crf: 0")
+    if scene.output.fast_math and scene.output.precision != "float32":
+        raise SceneError(f"{where}: output.fast_math = true needs output.precision = "
+                         "'float32' (fast functions exist for float only); allowed with "
+                         "'float64': false")
 
 
 def load_scene(path: str | Path | None = None) -> Scene:

@@ -190,6 +190,11 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("srgb_to_linear", "warp", "float32-fast"): (1e-5, 1e-45),
     ("linear_to_srgb", "warp", "float32-fast"): (1.5e-5, 1e-45),
     ("normal", "warp", "float32-fast"): (0.0, 2e-6),
+    # The whole pipeline with output.fast_math (tests/test_knobs_backends.py: trajectory blur,
+    # saturation, RAW round trip, noise none or sRGB Gaussian, float output) against the
+    # float64 reference.
+    ("pipeline_fast_math", "opencl", "float32"): (0.0, 1e-4),
+    ("pipeline_fast_math", "warp", "float32"): (0.0, 1e-4),
     # -- backends against the reference (tests/test_backends.py) --
     # numpy is the reference: it must agree with itself exactly, tiled or not.
     **{(stage, "numpy", "float64"): (0.0, 0.0) for stage in (

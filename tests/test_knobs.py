@@ -1,5 +1,5 @@
-"""Accuracy knobs in the reference: the Poisson normal approximation and resampled A7R3
-response tables (issue 7).
+"""Accuracy knobs in the reference and the scene: the Poisson normal approximation, resampled
+A7R3 response tables, and the fast-maths switch (issue 7).
 
 The kernels' side of the same knobs is in tests/test_opencl_knobs.py and tests/test_warp_knobs.py,
 the passes' in tests/test_knobs_backends.py.
@@ -14,8 +14,10 @@ import pytest
 from test_noise import poisson_gaussian_moments
 
 from gpu_blur.constants import A7R3_CRF_TABLE_X255
+from gpu_blur.plan import plan
 from gpu_blur.reference import noise, rng, transfer
 from gpu_blur.reference.rng import Stream
+from gpu_blur.scene import SceneError, scene_from_dict
 from gpu_blur.testing import assert_close, z_mean, z_var
 
 SEED = 0x0DD_BA11
@@ -170,3 +172,38 @@ def test_bad_table_sizes_are_refused(size):
 def test_table_size_with_the_polynomial_is_refused():
     with pytest.raises(ValueError, match="needs crf 'a7r3-lut'"):
         transfer.retone(np.zeros(3), "a7r3", 256)
+
+
+# --------------------------------------------------------------------------------------------
+# Scene keys and the plan
+# --------------------------------------------------------------------------------------------
+
+
+def test_knobs_reach_the_plan_as_stage_options():
+    scene = scene_from_dict({"noise": {"poisson": "normal", "normal_above": 300},
+                             "output": {"crf": "a7r3-lut", "crf_table_size": 1024,
+                                        "fast_math": True}})
+    p = plan(scene)
+    assert p["poisson_gaussian_noise"].options == {"sampler": "normal", "normal_above": 300.0}
+    assert p["poisson_gaussian_noise"].variant == "normal above 300"
+    assert p["retone"].options == {"crf": "a7r3-lut", "table_size": 1024}
+    assert p.fast_math and "fast float transcendentals" in str(p)
+    default = plan(scene_from_dict({}))
+    assert default["poisson_gaussian_noise"].options["sampler"] == "exact"
+    assert not default.fast_math and "fast" not in str(default)
+
+
+@pytest.mark.parametrize("data, message", [
+    ({"noise": {"poisson": "gauss"}}, "noise.poisson = 'gauss' is invalid; allowed: 'exact'"),
+    ({"noise": {"normal_above": -1.0}}, "noise.normal_above = -1.0 is invalid"),
+    ({"noise": {"normal_above": math.inf}}, "noise.normal_above = inf is invalid"),
+    ({"noise": {"normal_above": math.nan}}, "noise.normal_above = nan is invalid"),
+    ({"output": {"crf": "a7r3-lut", "crf_table_size": 1}}, "crf_table_size = 1 is invalid"),
+    ({"output": {"crf_table_size": 256}}, "needs output.crf = 'a7r3-lut' (it is 'srgb')"),
+    ({"output": {"fast_math": 1}}, "output.fast_math = 1 is invalid; allowed: bool"),
+    ({"output": {"fast_math": True, "precision": "float64"}}, "needs output.precision"),
+])
+def test_bad_knob_values_are_named_with_what_is_allowed(data, message):
+    with pytest.raises(SceneError) as e:
+        scene_from_dict(data, "knobs.toml")
+    assert str(e.value).startswith("knobs.toml: ") and message in str(e.value)

@@ -125,9 +125,12 @@ class NumpyBackend:
         raw = bayer.inverse_white_balance(bayer.mosaic(cam, pattern, origin), pattern, *gains,
                                           origin=origin)
         if plan.kept("poisson_gaussian_noise"):
+            sampler = plan["poisson_gaussian_noise"].options
             raw = noise.add_poisson_gaussian(
                 raw, params["shot_noise_k"], params["read_noise_std"], seed=seed,
-                sample_index=sample_index, origin=origin)
+                sample_index=sample_index, origin=origin,
+                poisson_normal_above=(sampler["normal_above"] if sampler["sampler"] == "normal"
+                                      else None))
         return bayer.white_balance(raw, pattern, *gains, origin=origin), sat
 
     def _finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
@@ -161,5 +164,6 @@ class NumpyBackend:
     def retone(self, plan: Plan, image: np.ndarray) -> np.ndarray:
         """The final re-toning with the A7R3 response, when the plan keeps it."""
         if plan.kept("retone"):
-            return transfer.retone(image, plan["retone"].options["crf"])
+            options = plan["retone"].options
+            return transfer.retone(image, options["crf"], options["table_size"])
         return image

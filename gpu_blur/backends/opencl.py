@@ -38,6 +38,7 @@ from gpu_blur.plan import Plan
 from gpu_blur.reference import blur
 from gpu_blur.reference.interpolate import CONSISTENCY_ABSOLUTE_PX2, CONSISTENCY_RELATIVE
 from gpu_blur.reference.rng import key_from_seed
+from gpu_blur.reference.transfer import a7r3_lookup_table
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
 
@@ -179,6 +180,13 @@ def pass_defines(plan: Plan, pass_: str) -> dict[str, str]:
     """The build-time defines of one pass: its kept stages and their options."""
     defines = {f"GB_STAGE_{s.name.upper()}": "1" for s in plan.stages
                if s.kept and s.pass_ == pass_}
+    if plan.fast_math:
+        # native_ functions in float builds (gb_math.h), every pass: only functions change,
+        # never the arithmetic rules (no -cl-fast-relaxed-math), so compensated sums hold
+        defines["GB_FAST_MATH"] = "1"
+    if pass_ == "to_raw" and plan.kept("poisson_gaussian_noise"):
+        if plan["poisson_gaussian_noise"].options["sampler"] == "normal":
+            defines["GB_POISSON_NORMAL"] = "1"
     if pass_ == "to_raw" and plan.kept("linear_to_camera"):
         if plan["linear_to_camera"].options["clip"]:
             defines["GB_CLIP_CAMERA"] = "1"
@@ -524,8 +532,9 @@ class OpenCLBackend:
                 r(params.get("alpha", 0.0)), matrix,
                 np.int32(cfa_bits(params.get("pattern"))), r(params.get("red_gain", 1.0)),
                 r(params.get("blue_gain", 1.0)), r(params.get("shot_noise_k", 1.0)),
-                r(params.get("read_noise_std", 0.0)), np.uint32(key[0]), np.uint32(key[1]),
-                np.uint32(sample_index), saturated, raw)
+                r(params.get("read_noise_std", 0.0)),
+                r(plan["poisson_gaussian_noise"].options["normal_above"]), np.uint32(key[0]),
+                np.uint32(key[1]), np.uint32(sample_index), saturated, raw)
         del inputs
         if not plan.raw_round_trip:
             return (self._out(saturated, (h, w, 3), "to_raw", origin),
@@ -537,10 +546,10 @@ class OpenCLBackend:
     def finish(self, plan: Plan, params: dict, camera: Camera, image, saturated, view: Region,
                out: Region, *, seed: int, sample_index: int) -> OnDevice:
         """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
-        from gpu_blur.constants import A7R3_CRF_POLYNOMIAL, A7R3_CRF_TABLE_X255
+        from gpu_blur.constants import A7R3_CRF_POLYNOMIAL
 
         prg = self.kernels("finish.cl", pass_defines(plan, "finish"))
-        table = A7R3_CRF_TABLE_X255 / 255.0
+        table = a7r3_lookup_table(plan["retone"].options["table_size"]) / 255.0
         raw = image if plan.raw_round_trip else np.zeros(1)
         result = self._empty(out.h * out.w * 3)
         key = key_from_seed(seed)

@@ -204,20 +204,32 @@ def accumulate_kernels(real, source=None) -> dict:
     }
 
 
+def _fast(real, fast_math: bool) -> bool:
+    """Whether a kernel of compute type ``real`` gets fast maths (float32 only, as gb_math.h)."""
+    return bool(fast_math) and real == wp.float32
+
+
 @functools.cache
-def to_raw_kernel(real, saturate: bool, mosaic: bool, clip_camera: bool, noise: bool):
+def to_raw_kernel(real, saturate: bool, mosaic: bool, clip_camera: bool, noise: bool,
+                  poisson_normal: bool = False, fast_math: bool = False):
     """Pass 2, with the kept stages as flags.
 
     Stages: saturate, linear_to_camera, mosaic, inverse_white_balance, poisson_gaussian_noise,
-    white_balance.
+    white_balance. ``poisson_normal`` draws counts above the kernel's ``poisson_normal_above``
+    rate by the normal approximation (scene ``noise.poisson = "normal"``, the Warp side of
+    -DGB_POISSON_NORMAL); ``fast_math`` (scene ``output.fast_math``, float32 only) builds the
+    module with Warp's fast_math option and draws the read noise with the float32
+    random.pixel_normal_fast. Poisson counts are never fast.
     """
+    fast = _fast(real, fast_math)
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", module_options={"fast_math": fast})
     def to_raw(linear: wp.array(dtype=real), mask: wp.array(dtype=real), x0: int, y0: int,
                w: int, alpha: real, lin_to_cam: wp.array(dtype=real), cfa: int,
                red_gain: real, blue_gain: real, shot_noise_k: real, read_noise_std: real,
-               key0: wp.uint32, key1: wp.uint32, sample_index: wp.uint32,
-               saturated: wp.array(dtype=real), raw: wp.array(dtype=real)):
+               poisson_normal_above: real, key0: wp.uint32, key1: wp.uint32,
+               sample_index: wp.uint32, saturated: wp.array(dtype=real),
+               raw: wp.array(dtype=real)):
         y, x = wp.tid()
         i = y * w + x
         v0 = linear[3 * i]
@@ -247,11 +259,22 @@ def to_raw_kernel(real, saturate: bool, mosaic: bool, clip_camera: bool, noise: 
             s = s / gain  # inverse_white_balance
             if wp.static(noise):
                 rate = wp.max(s, real(0.0)) / shot_noise_k
-                counts = random.poisson(wp.float64(rate), key0, key1, sample_index,
-                                        wp.uint32(gx), wp.uint32(gy))
-                z = random.pixel_normal(key0, key1, sample_index, wp.uint32(random.READ_NOISE),
-                                        wp.uint32(gx), wp.uint32(gy), wp.uint32(0))
-                s = shot_noise_k * real(counts) + read_noise_std * real(z)
+                if wp.static(poisson_normal):
+                    counts = random.poisson_normal_above(
+                        wp.float64(rate), wp.float64(poisson_normal_above), key0, key1,
+                        sample_index, wp.uint32(gx), wp.uint32(gy))
+                else:
+                    counts = random.poisson(wp.float64(rate), key0, key1, sample_index,
+                                            wp.uint32(gx), wp.uint32(gy))
+                if wp.static(fast):
+                    z = real(random.pixel_normal_fast(
+                        key0, key1, sample_index, wp.uint32(random.READ_NOISE), wp.uint32(gx),
+                        wp.uint32(gy), wp.uint32(0)))
+                else:
+                    z = real(random.pixel_normal(
+                        key0, key1, sample_index, wp.uint32(random.READ_NOISE), wp.uint32(gx),
+                        wp.uint32(gy), wp.uint32(0)))
+                s = shot_noise_k * real(counts) + read_noise_std * z
             raw[i] = s * gain  # white_balance
 
     return to_raw
@@ -259,17 +282,20 @@ def to_raw_kernel(real, saturate: bool, mosaic: bool, clip_camera: bool, noise: 
 
 @functools.cache
 def finish_kernel(real, demosaic: str, zero_border: bool, clip_demosaic: bool, tone: bool,
-                  gaussian_noise: bool, restore: bool, retone: str, bits: int):
+                  gaussian_noise: bool, restore: bool, retone: str, bits: int,
+                  fast_math: bool = False):
     """Pass 3, with the kept stages as flags.
 
     Stages: demosaic ("" when there is no RAW round trip), camera_to_linear, tone,
-    gaussian_noise, restore_saturated, retone ("" / "a7r3" / "a7r3-lut"), quantize (bits 0:
-    none).
+    gaussian_noise, restore_saturated, retone ("" / "a7r3" / "a7r3-lut", the table any size
+    the host passes), quantize (bits 0: none). ``fast_math`` (float32 only) builds the module
+    with Warp's fast_math option and draws the sRGB noise with random.pixel_normal_fast.
     """
     vec3 = wp.types.vector(length=3, dtype=real)
     border = 1 if zero_border else 0
+    fast = _fast(real, fast_math)
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", module_options={"fast_math": fast})
     def finish(raw: wp.array(dtype=real), saturated: wp.array(dtype=real), vx0: int, vy0: int,
                vw: int, full_w: int, full_h: int, ox0: int, oy0: int, ow: int, cfa: int,
                cam_to_lin: wp.array(dtype=real), gaussian_std: real, key0: wp.uint32,
@@ -300,9 +326,15 @@ def finish_kernel(real, demosaic: str, zero_border: bool, clip_demosaic: bool, t
                 p = pixel.linear_to_srgb(p)
             p = pixel.clip01(p)
             if wp.static(gaussian_noise):
-                z = random.pixel_normal(key0, key1, sample_index, wp.uint32(random.SRGB_NOISE),
-                                        wp.uint32(gx), wp.uint32(gy), wp.uint32(c))
-                p = pixel.clip01(p + gaussian_std * real(z))
+                if wp.static(fast):
+                    z = real(random.pixel_normal_fast(
+                        key0, key1, sample_index, wp.uint32(random.SRGB_NOISE), wp.uint32(gx),
+                        wp.uint32(gy), wp.uint32(c)))
+                else:
+                    z = real(random.pixel_normal(
+                        key0, key1, sample_index, wp.uint32(random.SRGB_NOISE), wp.uint32(gx),
+                        wp.uint32(gy), wp.uint32(c)))
+                p = pixel.clip01(p + gaussian_std * z)
             if wp.static(restore):
                 if saturated[v + c] >= real(1.0):
                     p = real(1.0)

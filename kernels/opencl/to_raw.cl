@@ -1,9 +1,10 @@
 /* to_raw.cl: pass 2 of the plan, pointwise from the linear blurred image to noisy RAW:
  * stages "saturate", "linear_to_camera", "mosaic", "inverse_white_balance",
  * "poisson_gaussian_noise", "white_balance" (each compiled in only when the plan keeps it,
- * GB_STAGE_<NAME>). Writes B_sat (3 reals per pixel) and, with the RAW round trip, the
- * white-balanced mosaic (1 real per pixel). All buffers cover the same region of the image,
- * whose first pixel is global (x0, y0).
+ * GB_STAGE_<NAME>; with GB_POISSON_NORMAL, counts above the rate poisson_normal_above come from
+ * the normal approximation, scene noise.poisson = "normal"). Writes B_sat (3 reals per pixel)
+ * and, with the RAW round trip, the white-balanced mosaic (1 real per pixel). All buffers cover
+ * the same region of the image, whose first pixel is global (x0, y0).
  */
 #include "gb_common.h"
 #include "gb_random.h"
@@ -13,8 +14,9 @@
 __kernel void gb_to_raw(__global const real *linear, __global const real *mask, long x0,
                         long y0, long w, long h, real alpha, __constant real *lin_to_cam,
                         int cfa, real red_gain, real blue_gain, real shot_noise_k,
-                        real read_noise_std, uint key_lo, uint key_hi, uint sample_index,
-                        __global real *saturated, __global real *raw)
+                        real read_noise_std, real poisson_normal_above, uint key_lo,
+                        uint key_hi, uint sample_index, __global real *saturated,
+                        __global real *raw)
 {
     long x = get_global_id(0), y = get_global_id(1);
     if (x >= w || y >= h) return;
@@ -41,7 +43,12 @@ __kernel void gb_to_raw(__global const real *linear, __global const real *mask, 
 #ifdef GB_STAGE_POISSON_GAUSSIAN_NOISE
     uint2 key = (uint2)(key_lo, key_hi);
     real rate = fmax(s, GB_REAL(0.0)) / shot_noise_k;
+#ifdef GB_POISSON_NORMAL
+    real counts = gb_poisson_normal_above(rate, poisson_normal_above, key, sample_index, (uint)gx,
+                                          (uint)gy);
+#else
     real counts = gb_poisson(rate, key, sample_index, (uint)gx, (uint)gy);
+#endif
     real z = gb_pixel_normal(key, sample_index, GB_STREAM_READ_NOISE, (uint)gx, (uint)gy, 0u);
     s = shot_noise_k * counts + read_noise_std * z;
 #endif
