@@ -72,10 +72,12 @@ class Prefetched:
     Attributes:
         frames: the ``n x H x W x 3`` device stack.
         ready: the copy stream's event that marks the copy done (None: already done).
+        slot: which of the backend's two prefetch stacks it is (None: its own).
     """
 
     frames: wp.array
     ready: object
+    slot: int | None = None
 
 
 class WarpBackend:
@@ -106,6 +108,9 @@ class WarpBackend:
         self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
         self._constants: dict = {}  # (bytes, dtype) -> device array of a small constant
         self.sync_passes = True
+        self._prefetch_turn = 0
+        self._prefetch_stacks: dict = {}  # slot -> device stack of prefetched frames
+        self._prefetch_read: dict = {}  # slot -> event: the accumulate that read it
 
     # -- buffers (uploads and downloads are timed as "copies", gpu_blur.timings) --------------
     @staticmethod
@@ -234,15 +239,27 @@ class WarpBackend:
 
         The copy runs on the copy stream, beside whatever the device is computing (the
         previous sample's passes); :meth:`accumulate` takes the returned stack and waits for
-        its copy first. Without ``overlap`` the copy is synchronous.
+        its copy first. Two device stacks take turns: a stack is reused (overwritten) by the
+        prefetch after next, once the accumulate pass that read it is done. Without
+        ``overlap`` the copy is synchronous into a new stack.
         """
-        out = wp.empty(frames.shape, dtype=frames.dtype, device=self.wp_device)
-        with timer("copies"):
-            if not self.overlap:
+        if not self.overlap:
+            out = wp.empty(frames.shape, dtype=frames.dtype, device=self.wp_device)
+            with timer("copies"):
                 wp.copy(out, frames)
-                return Prefetched(out, None)
-            wp.copy(out, frames, stream=self._copier)
-            return Prefetched(out, self._copier.record_event())
+            return Prefetched(out, None)
+        slot = self._prefetch_turn
+        self._prefetch_turn ^= 1
+        stack = self._prefetch_stacks.get(slot)
+        if stack is None or stack.shape != frames.shape or stack.dtype != frames.dtype:
+            stack = wp.empty(frames.shape, dtype=frames.dtype, device=self.wp_device)
+            wp.synchronize_device(self.wp_device)  # allocated before the copy stream uses it
+            self._prefetch_stacks[slot] = stack
+        with timer("copies"):
+            if slot in self._prefetch_read:
+                self._copier.wait_event(self._prefetch_read.pop(slot))
+            wp.copy(stack, frames, stream=self._copier)
+            return Prefetched(stack, self._copier.record_event(), slot)
 
     @staticmethod
     def device_array(values: OnDevice) -> wp.array:
@@ -255,10 +272,11 @@ class WarpBackend:
         """Linearize and blur on the device; (linear, mask) over ``region``, on the device."""
         from gpu_blur.warp_kernels.passes import accumulate_kernels
 
-        if isinstance(frames, Prefetched):
-            if frames.ready is not None:
-                wp.get_stream(self.wp_device).wait_event(frames.ready)
-            frames = frames.frames
+        prefetched = frames if isinstance(frames, Prefetched) else None
+        if prefetched is not None:
+            if prefetched.ready is not None:
+                wp.get_stream(self.wp_device).wait_event(prefetched.ready)
+            frames = prefetched.frames
         stacked = isinstance(frames, wp.array)
         k = accumulate_kernels(self.real, frames.dtype if stacked
                                else self._source(frames[0])[1])
@@ -271,6 +289,9 @@ class WarpBackend:
             return self._linear_out(linear, sat_mask, shape, region)
         if stacked:
             self._average_stack(k, plan, frames, region, linear, sat_mask)
+            if prefetched is not None and prefetched.slot is not None:  # the stack is free
+                self._prefetch_read[prefetched.slot] = wp.get_stream(
+                    self.wp_device).record_event()
             return self._linear_out(linear, sat_mask, shape, region)
         if mode == "average":
             # running compensated sums (sum, rounding errors, saturation counts) are only
