@@ -104,6 +104,14 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("devices", help="list every backend and device, with fp64 support and memory")
     sub.add_parser("scene", help="print every scene key with its default and meaning")
     sub.add_parser("cameras", help="list the built-in cameras")
+    from gpu_blur.benchmark import add_arguments as bench_arguments
+
+    bench_arguments(sub.add_parser(
+        "bench", help="accuracy against time of every accuracy knob on every backend",
+        description="Time every accuracy knob's settings on numpy and every OpenCL and Warp "
+        "device, with the error against the numpy float64 reference; writes "
+        "accuracy_vs_time_<tag>.json, .md (tables) and .png (Pareto plot). See "
+        "gpu_blur/benchmark.py."))
 
     c = sub.add_parser(
         "compare", help="score a synthesized blurred image against a real one (PSNR, SSIM, "
@@ -539,6 +547,10 @@ def main(argv: list[str] | None = None) -> int:
             return _generate(args)
         if args.command == "calibrate":
             return _calibrate(args)
+        if args.command == "bench":
+            from gpu_blur.benchmark import run_from_args
+
+            return run_from_args(args)
         if args.command == "plan":
             from gpu_blur.plan import plan
             from gpu_blur.scene import load_scene

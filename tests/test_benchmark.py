@@ -1,0 +1,131 @@
+"""gpu-blur bench (gpu_blur.benchmark): the report's structure, errors, availability, plot."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+
+import cv2
+import numpy as np
+import pytest
+from conftest import KERNEL_BACKEND_SPECS
+
+from gpu_blur import benchmark
+from gpu_blur.cli import main
+from gpu_blur.testing import tolerance
+
+#: The kernel backend the quick run uses: the first one present (OpenCL, else Warp), float32.
+KERNEL_BACKEND = KERNEL_BACKEND_SPECS[0].split("/")[0]
+FAMILY = KERNEL_BACKEND.split(":")[0]
+SIZE = (64, 48)
+#: The base scene re-tones with the A7R3 polynomial: the whole float32 pipeline, noise off,
+#: is within that row (its float32 Horner dominates).
+PIPELINE_ATOL = tolerance("finish_crf_polynomial", FAMILY, "float32")[1]
+
+
+@pytest.fixture(scope="module")
+def quick_report(tmp_path_factory):
+    """``gpu-blur bench --quick`` at 64 x 48 on numpy and one kernel backend: (report, files)."""
+    out = tmp_path_factory.mktemp("bench")
+    status = main(["bench", "--size", f"{SIZE[0]}x{SIZE[1]}", "--quick", "--backends",
+                   f"numpy,{KERNEL_BACKEND}", "--output", str(out), "--tag", "test"])
+    assert status == 0
+    report = json.loads((out / "accuracy_vs_time_test.json").read_text())
+    return report, out
+
+
+def test_quick_run_writes_json_markdown_and_plot(quick_report):
+    report, out = quick_report
+    assert report["size"] == list(SIZE)
+    assert list(report["devices"]) == ["numpy", KERNEL_BACKEND]
+    markdown = (out / "accuracy_vs_time_test.md").read_text()
+    assert "| knob | setting | backend |" in markdown
+    plot = cv2.imread(str(out / "accuracy_vs_time_test.png"))
+    assert plot is not None and plot.std() > 0
+
+
+def test_quick_run_has_two_settings_of_every_knob_on_both_backends(quick_report):
+    report, _ = quick_report
+    expected = benchmark.quick_knobs()
+    for setting in expected:
+        backends = {r["backend"] for r in report["rows"]
+                    if (r["knob"], r["setting"]) == (setting.knob, setting.label)}
+        if setting.kernel_only and not setting.reference:
+            assert backends in ({KERNEL_BACKEND}, {"-"}), setting
+        else:
+            assert backends in ({"numpy", KERNEL_BACKEND}, {"-"}), setting
+
+
+def test_quick_run_errors_are_finite_and_zero_for_the_reference(quick_report):
+    report, _ = quick_report
+    available = [r for r in report["rows"] if r["available"]]
+    assert available
+    for r in available:
+        assert r["ms_per_megapixel"] > 0 and len(r["runs_s"]) == benchmark.MIN_RUNS, r
+        assert math.isfinite(r["max_abs_error"]) and r["max_abs_error"] >= 0, r
+        assert math.isfinite(r["residual_kl"]) and r["residual_kl"] >= 0, r
+        if r["backend"] == "numpy" and r["reference"]:
+            assert r["max_abs_error"] == 0 and r["residual_kl"] == 0 and r["psnr_db"] is None
+    pipeline = {r["backend"]: r for r in report["side_by_side"]["pipeline"]}
+    assert pipeline["numpy"]["max_abs_error"] == 0 and pipeline["numpy"]["residual_kl"] == 0
+    assert pipeline[KERNEL_BACKEND]["max_abs_error"] <= PIPELINE_ATOL
+
+
+def test_a_setting_that_changes_the_output_shows_an_error(quick_report):
+    report, _ = quick_report
+    bilinear = [r for r in report["rows"] if r["setting"] == "bilinear"]
+    # the knob's change is far beyond float32 rounding, on the reference and the kernels
+    assert bilinear and all(r["max_abs_error"] > PIPELINE_ATOL for r in bilinear)
+    normal = [r for r in report["rows"] if r["knob"] == "Poisson" and not r["reference"]]
+    assert normal and all(r["residual_kl"] > 0 for r in normal)
+
+
+def test_side_by_side_rows_agree_with_the_reference_where_the_maths_is_the_same(quick_report):
+    report, _ = quick_report
+    demosaic = {r["method"]: r for r in report["side_by_side"]["demosaic"]}
+    assert demosaic["gpu_blur numpy Malvar 2004 (float64)"]["max_abs_error"] == 0
+    # colour-demosaicing's Malvar is the same filter (tests/test_demosaic.py checks it)
+    assert (demosaic["colour-demosaicing Malvar 2004 (float64)"]["max_abs_error"]
+            <= tolerance("demosaic_malvar2004", "independent", "float64")[1])
+    assert (demosaic[f"gpu_blur {KERNEL_BACKEND} Malvar 2004 (float32)"]["max_abs_error"]
+            <= tolerance("demosaic_malvar2004", FAMILY, "float32")[1])
+    blur = {r["method"]: r for r in report["side_by_side"]["kernel_blur"]}
+    assert (blur["OpenCV filter2D (float64)"]["max_abs_error"]
+            <= tolerance("blur_convolve", "independent", "float64")[1])
+    assert (blur[f"gpu_blur {KERNEL_BACKEND} kernel blur (float32)"]["max_abs_error"]
+            <= tolerance("accumulate", FAMILY, "float32")[1])
+
+
+def test_a_knob_the_scene_does_not_know_is_reported_not_available():
+    knobs = [benchmark.Setting("future", "accurate", reference=True),
+             benchmark.Setting("future", "unknown key", {"noise": {"no_such_key": 1}})]
+    report = benchmark.run_benchmark(SIZE, ["numpy"], knobs=knobs, log=lambda line: None)
+    missing = [r for r in report["rows"] if r["setting"] == "unknown key"]
+    assert len(missing) == 1 and not missing[0]["available"]
+    assert "not available" in missing[0]["note"] and "noise.no_such_key" in missing[0]["note"]
+    assert missing[0]["ms_per_megapixel"] is None and missing[0]["max_abs_error"] is None
+
+
+def test_pareto_front_keeps_the_points_no_other_beats_in_time_and_error():
+    points = [(1.0, 5.0), (2.0, 3.0), (2.5, 4.0), (3.0, 1.0), (0.5, 9.0), (3.0, 1.0)]
+    assert benchmark.pareto_front(points) == [4, 0, 1, 3]
+
+
+def test_plot_is_drawn_with_opencv_without_matplotlib(quick_report, tmp_path, monkeypatch):
+    report, _ = quick_report
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib fails
+    path = tmp_path / "plot.png"
+    assert benchmark.write_plot(report["rows"], path, "title") == "cv2"
+    image = cv2.imread(str(path))
+    assert image is not None and np.count_nonzero(image < 128) > 1000
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--size", "63x48"], "63 x 48"),
+    (["--size", "64x48", "--runs", "3"], "runs = 3"),
+    (["--size", "64x48", "--backends", "numpy,opencl:9:9"], "opencl:9:9"),
+])
+def test_bad_options_are_refused_naming_the_value(argv, message, capsys, tmp_path):
+    assert main(["bench", *argv, "--output", str(tmp_path)]) == 2
+    assert message in capsys.readouterr().err
