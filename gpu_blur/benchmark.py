@@ -33,6 +33,7 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import platform
 import re
 import statistics
@@ -831,7 +832,9 @@ def markdown(report: dict) -> str:
     lines = [
         f"# Accuracy against time: {report['frames']} frames of {size[0]} x {size[1]}",
         "",
-        f"Host: {report['cpu']}. Devices: "
+        f"Host: {report['cpu']}, 1-minute load average {report['load_average'][0]} at the "
+        f"start and {report['load_average'][1]} at the end (other work slows the runs). "
+        f"Source: {report['source']}. Devices: "
         + "; ".join(f"`{k}` {v}" for k, v in report["devices"].items()) + ".",
         "",
         "Base scene (RSBlur-like): " + json.dumps(report["base_scene"]) + ". Times: median of "
@@ -913,9 +916,15 @@ def run_benchmark(size: tuple[int, int] = DEFAULT_SIZE, backends: Sequence[str] 
     if quick:
         settings = quick_knobs(settings)
     frames = make_frames(width, height)
+    load_before = _load_average()
     runner = Runner(frames, chosen, settings, runs, log)
     rows = runner.rows()
     middle = frames[len(frames) // 2]
+    side_by_side = {
+        "pipeline": runner.pipeline(),
+        "demosaic": demosaic_side_by_side(middle, chosen, runs),
+        "kernel_blur": kernel_blur_side_by_side(middle, chosen, runs),
+    }
     return {
         "what": "accuracy against time per knob setting: gpu_blur.synthesize, frames in host "
                 "memory, median of the timed runs after a warm-up; errors of the noise-free "
@@ -927,13 +936,19 @@ def run_benchmark(size: tuple[int, int] = DEFAULT_SIZE, backends: Sequence[str] 
         "size": [width, height], "frames": FRAMES, "pan_px_per_frame": PAN_PX,
         "megapixels": runner.megapixels, "runs": runs, "seed": SEED,
         "sample_index": SAMPLE_INDEX, "base_scene": BASE_SCENE, "noise_free": NOISE_FREE,
-        "quick": quick, "rows": rows,
-        "side_by_side": {
-            "pipeline": runner.pipeline(),
-            "demosaic": demosaic_side_by_side(middle, chosen, runs),
-            "kernel_blur": kernel_blur_side_by_side(middle, chosen, runs),
-        },
+        "quick": quick,
+        # other work on the host slows the runs: its 1-minute load average, start and end
+        "load_average": [load_before, _load_average()],
+        "rows": rows, "side_by_side": side_by_side,
     }
+
+
+def _load_average() -> float | None:
+    """The host's 1-minute load average (None where the OS does not say)."""
+    try:
+        return round(os.getloadavg()[0], 2)
+    except (AttributeError, OSError):
+        return None
 
 
 def write_report(report: dict, folder: Path, tag: str) -> list[Path]:
