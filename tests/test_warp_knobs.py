@@ -233,9 +233,9 @@ def test_fast_srgb_curves_stay_within_their_fast_rows(device, record_property):
     for name, got, expected in (("srgb_to_linear", linear, transfer.srgb_to_linear(x)),
                                 ("linear_to_srgb", encoded, transfer.linear_to_srgb(x))):
         got = got.astype(np.float64)
-        scale = np.maximum(np.abs(expected), np.finfo(np.float32).tiny)
-        report(record_property, f"{name}_fast_max_rel_error[{device}]",
-               float(np.max(np.abs(got - expected) / scale)))
+        normal = np.abs(expected) >= np.finfo(np.float32).tiny  # CUDA's fast maths flushes
+        report(record_property, f"{name}_fast_max_rel_error[{device}]",  # denormals to zero
+               float(np.max(np.abs(got - expected)[normal] / np.abs(expected[normal]))))
         assert_close(got, expected, name, "warp", "float32-fast")
         assert np.array_equal(np.signbit(got), np.signbit(expected))
 
