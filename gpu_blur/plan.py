@@ -77,6 +77,16 @@ class Plan:
         """Whether the image goes through camera RAW and back."""
         return self.kept("mosaic")
 
+    @property
+    def poisson_normal_above(self) -> float | None:
+        """The Poisson rate above which shot-noise counts are a rounded normal, or None.
+
+        None for ``noise.poisson = "exact"``; the ``normal_above`` argument of
+        :func:`gpu_blur.reference.noise.add_poisson_gaussian`.
+        """
+        options = self["poisson_gaussian_noise"].options
+        return options["normal_above"] if options["sampler"] == "normal" else None
+
     def __str__(self) -> str:
         width = max(len(s.name) for s in self.stages)
         vwidth = max(len(s.variant) for s in self.stages) + 2

@@ -186,10 +186,12 @@ def test_knobs_reach_the_plan_as_stage_options():
     p = plan(scene)
     assert p["poisson_gaussian_noise"].options == {"sampler": "normal", "normal_above": 300.0}
     assert p["poisson_gaussian_noise"].variant == "normal above 300"
+    assert p.poisson_normal_above == 300.0
     assert p["retone"].options == {"crf": "a7r3-lut", "table_size": 1024}
     assert p.fast_math and "fast float transcendentals" in str(p)
     default = plan(scene_from_dict({}))
     assert default["poisson_gaussian_noise"].options["sampler"] == "exact"
+    assert default.poisson_normal_above is None
     assert not default.fast_math and "fast" not in str(default)
 
 

@@ -125,12 +125,10 @@ class NumpyBackend:
         raw = bayer.inverse_white_balance(bayer.mosaic(cam, pattern, origin), pattern, *gains,
                                           origin=origin)
         if plan.kept("poisson_gaussian_noise"):
-            sampler = plan["poisson_gaussian_noise"].options
             raw = noise.add_poisson_gaussian(
                 raw, params["shot_noise_k"], params["read_noise_std"], seed=seed,
                 sample_index=sample_index, origin=origin,
-                poisson_normal_above=(sampler["normal_above"] if sampler["sampler"] == "normal"
-                                      else None))
+                poisson_normal_above=plan.poisson_normal_above)
         return bayer.white_balance(raw, pattern, *gains, origin=origin), sat
 
     def _finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
