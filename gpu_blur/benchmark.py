@@ -286,7 +286,8 @@ def device_tag(backends: dict[str, dict]) -> str:
     gpus = [b["device"] for b in backends.values() if b["kind"] == "GPU"]
     if not gpus:
         return "cpu"
-    return re.sub(r"[^a-z0-9]+", "-", gpus[0].split("(")[0].lower()).strip("-")
+    name = gpus[0].split("(")[0].removeprefix("GPU ")  # "GPU NVIDIA H200 (NVIDIA CUDA)"
+    return re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-")
 
 
 # -- measurements ---------------------------------------------------------------------------
@@ -830,6 +831,34 @@ def _number(value, digits: int = 3) -> str:
     return f"{value:.{digits}g}"
 
 
+def summary_table(report: dict) -> list[str]:
+    """One line per knob setting: ms per megapixel on each backend, the largest errors.
+
+    Errors are the largest over the backends that ran the setting (the numpy row shows the
+    setting's own effect; kernel rows add their float32 rounding).
+    """
+    specs = list(report["devices"])
+    lines = ["| knob | setting | " + " | ".join(f"`{s}` ms/MP" for s in specs)
+             + " | max abs error | residual KL |",
+             "|---|---|" + "---:|" * (len(specs) + 2)]
+    settings = dict.fromkeys((r["knob"], r["setting"], r["reference"]) for r in report["rows"])
+    for knob, label, reference in settings:
+        rows = [r for r in report["rows"] if (r["knob"], r["setting"]) == (knob, label)]
+        cells = []
+        for spec in specs:
+            row = next((r for r in rows if r["backend"] in (spec, "-")), None)
+            cells.append("" if row is None and spec == "numpy"
+                         else "n/a" if row is None or not row["available"]
+                         else _number(row["ms_per_megapixel"], 4))
+        worst = {key: max((r[key] for r in rows if r[key] is not None), default=None)
+                 for key in ("max_abs_error", "residual_kl")}
+        star = " *" if reference else ""
+        lines.append(f"| {knob} | {label}{star} | " + " | ".join(cells)
+                     + f" | {_number(worst['max_abs_error'])} | "
+                     f"{_number(worst['residual_kl'])} |")
+    return lines
+
+
 def markdown(report: dict) -> str:
     """The report's tables in Markdown."""
     size = report["size"]
@@ -848,6 +877,14 @@ def markdown(report: dict) -> str:
         "setting (*); residual KL: D(reference || run) of the noise residuals (final with "
         "noise minus final without), one bin per 8-bit code, add-one smoothing. "
         "PSNR \"-\" means identical.",
+        "",
+        "Summary (empty: numpy ignores the setting, it always runs float64 with precise "
+        "maths on whole images; n/a: not offered, by the scene or by that backend (the note "
+        "below says which); errors: the largest over the backends):",
+        "",
+        *summary_table(report),
+        "",
+        "Every row:",
         "",
         "| knob | setting | backend | ms/MP | max abs error | PSNR (dB) | residual KL | note |",
         "|---|---|---|---:|---:|---:|---:|---|",

@@ -41,6 +41,9 @@ def test_quick_run_writes_json_markdown_and_plot(quick_report):
     assert list(report["devices"]) == ["numpy", KERNEL_BACKEND]
     markdown = (out / "accuracy_vs_time_test.md").read_text()
     assert "| knob | setting | backend |" in markdown
+    summary = [line for line in markdown.splitlines() if line.startswith("| demosaic | bilinear |")
+               and "`numpy`" not in line]
+    assert len(summary) == 1 + 2  # the summary line, then one row per backend
     plot = cv2.imread(str(out / "accuracy_vs_time_test.png"))
     assert plot is not None and plot.std() > 0
 
@@ -129,3 +132,11 @@ def test_plot_is_drawn_with_opencv_without_matplotlib(quick_report, tmp_path, mo
 def test_bad_options_are_refused_naming_the_value(argv, message, capsys, tmp_path):
     assert main(["bench", *argv, "--output", str(tmp_path)]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_output_files_are_tagged_cpu_or_by_the_first_gpu():
+    cpu = {"numpy": {"device": "numpy float64 on x", "kind": "CPU"},
+           "warp:cpu": {"device": "CPU x (Warp)", "kind": "CPU"}}
+    assert benchmark.device_tag(cpu) == "cpu"
+    gpu = cpu | {"opencl:0:0": {"device": "GPU NVIDIA H200 (NVIDIA CUDA)", "kind": "GPU"}}
+    assert benchmark.device_tag(gpu) == "nvidia-h200"
