@@ -714,7 +714,8 @@ def _series(rows: list[dict], key: str):
     series: dict[str, list] = {}
     for r in usable:
         name = f"{r['backend']}: {r['device']}"
-        point = (r["ms_per_megapixel"], max(r[key], floor), f"{r['knob']}: {r['setting']}")
+        point = (r["ms_per_megapixel"], max(r[key], floor),
+                 f"{r['backend']} {r['knob']}: {r['setting']}")
         points = series.setdefault(name, [])
         if not any(p[:2] == point[:2] for p in points):  # one run shared by several knobs
             points.append(point)
