@@ -207,7 +207,7 @@ class WarpBackend:
             stack = stacks[slot]
             with timer("copies"):
                 if self.overlap:
-                    staging = self._staging_buffer(slot, per * values, np_dtype, wp_dtype)
+                    staging = self._staging_buffer(slot, per * values, wp_dtype)
                     fill_stack(staging.numpy(), frames, group, region)
                     if read[slot] is not None:
                         self._copier.wait_event(read[slot])
@@ -224,7 +224,7 @@ class WarpBackend:
             if self.overlap:
                 read[slot] = compute.record_event()
 
-    def _staging_buffer(self, slot: int, count: int, np_dtype, wp_dtype) -> wp.array:
+    def _staging_buffer(self, slot: int, count: int, wp_dtype) -> wp.array:
         """Pinned host buffer ``slot`` for ``count`` values, once its last copy is done."""
         if slot in self._staged:
             wp.synchronize_event(self._staged.pop(slot))
