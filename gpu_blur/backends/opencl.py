@@ -477,7 +477,7 @@ class OpenCLBackend:
         flows, factor = params["flows"], interpolation_factor(plan)
         view = region.expand(blur.blur_halo("average", params, region.full_h, region.full_w))
         n = region.h * region.w * 3
-        sums = (self._zeros(n), self._zeros(n), self._zeros(n, np.uint32))
+        sums = (self._zeros(n), self._zeros(n), self._zeros(n))
         geometry = (np.int64(view.x0), np.int64(view.y0), np.int64(view.w))
         full = (np.int64(region.full_w), np.int64(region.full_h))
         out_geometry = (np.int64(region.x0), np.int64(region.y0), np.int64(region.w),

@@ -396,7 +396,7 @@ class WarpBackend:
         flows, factor = params["flows"], interpolation_factor(plan)
         view = region.expand(blur.blur_halo("average", params, region.full_h, region.full_w))
         n = region.h * region.w * 3
-        sums = (self._zeros(n), self._zeros(n), self._zeros(n, wp.uint32))
+        sums = (self._zeros(n), self._zeros(n), self._zeros(n))
         geometry = (view.x0, view.y0, view.w)
         out_geometry = (region.x0, region.y0, region.w)
         grid = (region.h, region.w)

@@ -193,7 +193,8 @@ class FrameAccumulator:
     ``M = mean_t([frame_t >= 1])`` per channel. Frames are added one at a time and not kept, so
     65 (RSBlur) or 1,000 frames cost the memory of two images. The image sum is a plain float64
     sum (relative error ``<= (n - 1) * 2**-53`` for non-negative frames, ``< 1.2e-13`` at
-    ``n = 1000``); the saturation counts are exact integers.
+    ``n = 1000``); the saturation counts are float64 sums, exact integers unless a frame brings
+    its own fractional indicator (an interpolated frame, :mod:`gpu_blur.reference.interpolate`).
 
     Args:
         height: frame height ``H`` in pixels.
@@ -206,7 +207,7 @@ class FrameAccumulator:
             raise ValueError(f"frame shape must be positive; got ({height}, {width}, {channels})")
         self.shape: tuple[int, int, int] = (int(height), int(width), int(channels))
         self._sum = np.zeros(self.shape, dtype=np.float64)
-        self._saturated = np.zeros(self.shape, dtype=np.int64)
+        self._saturated = np.zeros(self.shape, dtype=np.float64)
         self._count = 0
 
     @property
@@ -214,11 +215,13 @@ class FrameAccumulator:
         """Number of frames added so far."""
         return self._count
 
-    def add(self, frame_linear) -> None:
+    def add(self, frame_linear, saturated=None) -> None:
         """Add one linear frame.
 
         Args:
             frame_linear: ``H x W x C`` linear values (any real dtype; summed in float64).
+            saturated: ``H x W x C`` saturated fraction of each value in [0, 1], or ``None``
+                for ``[frame_linear >= 1]``.
 
         Raises:
             ValueError: if the frame's shape is not the accumulator's, or it is not finite.
@@ -231,14 +234,18 @@ class FrameAccumulator:
         if not np.isfinite(frame).all():
             raise ValueError("frame must be finite (no NaN or inf)")
         self._sum += frame
-        self._saturated += frame >= SATURATION_LEVEL
+        if saturated is None:
+            self._saturated += frame >= SATURATION_LEVEL
+        else:
+            self._saturated += np.asarray(saturated, dtype=np.float64)
         self._count += 1
 
     def result(self) -> tuple[np.ndarray, np.ndarray]:
         """Return ``(blurred, saturation_mask)``, both ``H x W x C`` float64.
 
         ``blurred`` is the mean of the frames; ``saturation_mask`` is, per pixel and channel,
-        the fraction of frames at or above :data:`SATURATION_LEVEL` (multiples of ``1 / n``).
+        the fraction of frames at or above :data:`SATURATION_LEVEL` (multiples of ``1 / n``
+        when every frame was tested by its value).
 
         Raises:
             ValueError: if no frame was added.

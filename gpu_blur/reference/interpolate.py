@@ -38,10 +38,17 @@ flow, computed on the host with OpenCV, and a warp-and-blend of the two neighbou
    test instead of learned ones, and equal visibilities when neither is trusted.
 4. **Which values are warped**: the sRGB frames, as stored. RSBlur interpolates its sRGB
    frames with ABME and linearises the network's sRGB output before averaging (issue #6), so
-   an intermediate frame is an image like any other: it is linearised and tested for
-   saturation exactly as an original frame. The saturation mask stays "the fraction of frames
-   whose linear value is >= 1", over originals and intermediates alike; an intermediate pixel
-   is saturated only where both of its blended samples are (or its one trusted sample is).
+   an intermediate frame's values are linearised like an original frame's.
+   **Saturation** of an intermediate frame is not tested on its blended value: it is the same
+   warp and blend applied to the frames' saturation indicators ``[frame >= 1]`` (per channel,
+   sRGB 1 being linear 1), so an intermediate value counts as saturated in proportion to the
+   weights of its saturated neighbours. This is how trajectory blur makes its mask
+   (:func:`gpu_blur.reference.blur.shake_blur` warps the indicator) and it is continuous in
+   the sample position: a value a hair under 1 (``1 - 1e-8``, a saturated region sampled a
+   millionth of a pixel into an unsaturated neighbour) would count 0 in float64 and 1 once
+   rounded to float32, so a test on the blended value makes backends of different precisions
+   disagree by whole frames. The mask is "the mean of the frames' saturated fractions": 0 or 1
+   for an original frame, a blend of its neighbours' 0s and 1s for an intermediate.
 5. **Average** with factor ``f`` over ``n`` frames: the ``n`` originals and ``f - 1``
    intermediates (``t = k / f``, ``k = 1 .. f - 1``) between each consecutive pair,
    ``(n - 1) f + 1`` frames in all (9 frames at ``f = 8``: RSBlur's 65), added in time order
@@ -62,7 +69,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from gpu_blur.reference.blur import FrameAccumulator, _bilinear_sample
+from gpu_blur.reference.blur import SATURATION_LEVEL, FrameAccumulator, _bilinear_sample
 from gpu_blur.reference.transfer import srgb_to_linear
 
 __all__ = [
@@ -219,7 +226,25 @@ def flow_consistent(flow, reverse) -> np.ndarray:
     return ex * ex + ey * ey <= CONSISTENCY_RELATIVE * norms + CONSISTENCY_ABSOLUTE_PX2
 
 
-def interpolate_frame(frame0, frame1, flow_fw, flow_bw, t: float) -> np.ndarray:
+def _interpolate(f0: np.ndarray, f1: np.ndarray, fw: np.ndarray, bw: np.ndarray,
+                 t: float) -> np.ndarray:
+    """Module steps 2 and 3 on checked float64 images: the blend of the two warped samples.
+
+    ``f0`` and ``f1`` may carry any channels (values, indicators); each is sampled at the same
+    positions and blended with the same trust decisions.
+    """
+    h, w = f0.shape[:2]
+    xs, ys = _grid(h, w)
+    a = _sample(f0, xs + t * bw[:, :, 0], ys + t * bw[:, :, 1])
+    b = _sample(f1, xs + (1.0 - t) * fw[:, :, 0], ys + (1.0 - t) * fw[:, :, 1])
+    trust_a = flow_consistent(bw, fw)[:, :, None]
+    trust_b = flow_consistent(fw, bw)[:, :, None]
+    blend = (1.0 - t) * a + t * b
+    return np.where(trust_a == trust_b, blend, np.where(trust_a, a, b))
+
+
+def interpolate_frame(frame0, frame1, flow_fw, flow_bw, t: float,
+                      saturation: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """The frame at time ``t`` between two sRGB frames (module steps 2 and 3).
 
     Args:
@@ -228,10 +253,13 @@ def interpolate_frame(frame0, frame1, flow_fw, flow_bw, t: float) -> np.ndarray:
         flow_fw: ``H x W x 2`` flow from frame0 to frame1 (pixels, OpenCV convention).
         flow_bw: ``H x W x 2`` flow from frame1 to frame0.
         t: time in the open interval (0, 1).
+        saturation: also return the frame's saturated fractions (module step 4).
 
     Returns:
         ``H x W x C`` float64 sRGB values: ``(1 - t) a + t b`` with ``a = frame0(x + t F_bw)``
         and ``b = frame1(x + (1 - t) F_fw)``, or the one trusted sample where only one is.
+        With ``saturation``, ``(values, saturated)``: ``saturated`` is ``H x W x C`` in
+        [0, 1], the same blend of the frames' indicators ``[frame >= 1]``.
 
     Raises:
         ValueError: for frames or flows of wrong shapes, non-finite values, or ``t`` outside
@@ -243,16 +271,15 @@ def interpolate_frame(frame0, frame1, flow_fw, flow_bw, t: float) -> np.ndarray:
         raise ValueError(f"frame0 and frame1 must have one shape; got {f0.shape} and {f1.shape}")
     if not 0.0 < t < 1.0:
         raise ValueError(f"t must lie in the open interval (0, 1); got {t!r}")
-    h, w = f0.shape[:2]
+    h, w, c = f0.shape
     fw = _check_flow(flow_fw, (h, w), "flow_fw")
     bw = _check_flow(flow_bw, (h, w), "flow_bw")
-    xs, ys = _grid(h, w)
-    a = _sample(f0, xs + t * bw[:, :, 0], ys + t * bw[:, :, 1])
-    b = _sample(f1, xs + (1.0 - t) * fw[:, :, 0], ys + (1.0 - t) * fw[:, :, 1])
-    trust_a = flow_consistent(bw, fw)[:, :, None]
-    trust_b = flow_consistent(fw, bw)[:, :, None]
-    blend = (1.0 - t) * a + t * b
-    return np.where(trust_a == trust_b, blend, np.where(trust_a, a, b))
+    if not saturation:
+        return _interpolate(f0, f1, fw, bw, t)
+    # values and indicators side by side: one sampling, one set of trust decisions
+    both = _interpolate(np.concatenate([f0, f0 >= SATURATION_LEVEL], axis=2),
+                        np.concatenate([f1, f1 >= SATURATION_LEVEL], axis=2), fw, bw, t)
+    return both[:, :, :c], both[:, :, c:]
 
 
 def interpolation_times(factor: int) -> tuple[float, ...]:
@@ -295,8 +322,9 @@ def interpolated_average(frames: Sequence, factor: int, flows=None,
     for i in range(1, len(frames)):
         previous, current = current, _check_frame(frames[i], f"frame {i}")
         for t in times:
-            acc.add(srgb_to_linear(interpolate_frame(previous, current, flows[i - 1, 0],
-                                                     flows[i - 1, 1], t)))
+            values, saturated = interpolate_frame(previous, current, flows[i - 1, 0],
+                                                  flows[i - 1, 1], t, saturation=True)
+            acc.add(srgb_to_linear(values), saturated)
         acc.add(srgb_to_linear(current))
     return acc.result()
 

@@ -80,16 +80,24 @@ def interpolate_kernels(real, source=None) -> dict:
     """
     source = real if source is None else source
     source_value = source_value_func(real, source)
-    vec3 = wp.types.vector(length=3, dtype=real)
+    mat23 = wp.types.matrix(shape=(2, 3), dtype=real)
 
     @wp.func
     def frame_value(frame: wp.array(dtype=source), i: int) -> real:
         return source_value(frame[i])
 
     @wp.func
+    def saturated_value(v: real) -> real:
+        # the saturation indicator of a stored sRGB value: 1 at or above 1 (linear 1)
+        if v >= real(1.0):
+            return real(1.0)
+        return real(0.0)
+
+    @wp.func
     def sample_rgb(frame: wp.array(dtype=source), sx0: int, sy0: int, sw: int, full_w: int,
-                   full_h: int, px: wp.float64, py: wp.float64) -> vec3:
-        # as reference.blur._bilinear_sample: a + f (b - a) along x, then along y
+                   full_h: int, px: wp.float64, py: wp.float64) -> mat23:
+        # as reference.blur._bilinear_sample: a + f (b - a) along x, then along y; row 0 the
+        # values, row 1 the same sample of the saturation indicator (reference step 4)
         fx0 = wp.floor(px)
         fy0 = wp.floor(py)
         fx = real(px - fx0)
@@ -100,15 +108,22 @@ def interpolate_kernels(real, source=None) -> dict:
         c1 = pixel.reflect101(xi + 1, full_w) - sx0
         r0 = (pixel.reflect101(yi, full_h) - sy0) * sw
         r1 = (pixel.reflect101(yi + 1, full_h) - sy0) * sw
-        out = vec3()
+        out = mat23()
         for c in range(3):
             a = frame_value(frame, 3 * (r0 + c0) + c)
             b = frame_value(frame, 3 * (r0 + c1) + c)
+            sa = saturated_value(a)
+            sb = saturated_value(b)
             top = a + (b - a) * fx
+            sat_top = sa + (sb - sa) * fx
             a = frame_value(frame, 3 * (r1 + c0) + c)
             b = frame_value(frame, 3 * (r1 + c1) + c)
+            sa = saturated_value(a)
+            sb = saturated_value(b)
             bottom = a + (b - a) * fx
-            out[c] = top + (bottom - top) * fy
+            sat_bottom = sa + (sb - sa) * fx
+            out[0, c] = top + (bottom - top) * fy
+            out[1, c] = sat_top + (sat_bottom - sat_top) * fy
         return out
 
     @wp.kernel(module="unique", module_options={"fuse_fp": False})
@@ -118,7 +133,7 @@ def interpolate_kernels(real, source=None) -> dict:
                              full_w: int, full_h: int, t: wp.float64, relative: wp.float64,
                              absolute_px2: wp.float64, total: wp.array(dtype=real),
                              compensation: wp.array(dtype=real),
-                             saturated: wp.array(dtype=wp.uint32), dx0: int, dy0: int, dw: int):
+                             saturated: wp.array(dtype=real), dx0: int, dy0: int, dw: int):
         # launched over (dh, dw); flow_fw maps frame0 to frame1, flow_bw frame1 to frame0
         y, x = wp.tid()
         gx = dx0 + x
@@ -143,21 +158,22 @@ def interpolate_kernels(real, source=None) -> dict:
         wb = real(t)
         od = 3 * (y * dw + x)
         for c in range(3):
-            v = wa * a[c] + wb * b[c]
+            v = wa * a[0, c] + wb * b[0, c]
+            s = wa * a[1, c] + wb * b[1, c]
             if trust_a != trust_b:
-                v = b[c]
+                v = b[0, c]
+                s = b[1, c]
                 if trust_a:
-                    v = a[c]
-            lin = pixel.srgb_to_linear(v)
-            add_compensated(total, compensation, od + c, lin)
-            if lin >= real(1.0):
-                saturated[od + c] = saturated[od + c] + wp.uint32(1)
+                    v = a[0, c]
+                    s = a[1, c]
+            add_compensated(total, compensation, od + c, pixel.srgb_to_linear(v))
+            saturated[od + c] = saturated[od + c] + s
 
     @wp.kernel(module="unique")
     def blur_interpolate_add_frame(frame: wp.array(dtype=source), sx0: int, sy0: int, sw: int,
                                    total: wp.array(dtype=real),
                                    compensation: wp.array(dtype=real),
-                                   saturated: wp.array(dtype=wp.uint32), dx0: int, dy0: int,
+                                   saturated: wp.array(dtype=real), dx0: int, dy0: int,
                                    dw: int):
         # an original frame (a view holding the output region), as an intermediate is added
         y, x = wp.tid()
@@ -167,15 +183,15 @@ def interpolate_kernels(real, source=None) -> dict:
             lin = pixel.srgb_to_linear(frame_value(frame, o + c))
             add_compensated(total, compensation, od + c, lin)
             if lin >= real(1.0):
-                saturated[od + c] = saturated[od + c] + wp.uint32(1)
+                saturated[od + c] = saturated[od + c] + real(1.0)
 
     @wp.kernel(module="unique")
     def blur_interpolate_finish(total: wp.array(dtype=real), compensation: wp.array(dtype=real),
-                                saturated: wp.array(dtype=wp.uint32), count: int,
+                                saturated: wp.array(dtype=real), count: int,
                                 linear: wp.array(dtype=real), mask: wp.array(dtype=real)):
         i = wp.tid()
         linear[i] = (total[i] + compensation[i]) / real(count)
-        mask[i] = real(saturated[i]) / real(count)
+        mask[i] = saturated[i] / real(count)
 
     return {"blur_interpolate_add": blur_interpolate_add,
             "blur_interpolate_add_frame": blur_interpolate_add_frame,

@@ -27,11 +27,15 @@
 /* One sRGB value in [0, 1] of a frame (stored as gb_source), at offset o. */
 #define GB_FRAME_VALUE(frame, o) gb_source_value((frame)[o])
 
+/* Saturation indicator of one stored sRGB value: 1 at or above 1 (linear 1), else 0. */
+#define GB_SATURATED(v) ((v) >= GB_REAL(1.0) ? GB_REAL(1.0) : GB_REAL(0.0))
+
 /* Bilinear sample of an RGB frame view at (px, py), reflect-101 neighbours, as
- * reference.blur._bilinear_sample: a + f (b - a) along x, then along y. */
+ * reference.blur._bilinear_sample: a + f (b - a) along x, then along y. sat gets the same
+ * sample of the frame's saturation indicator (reference.interpolate, module step 4). */
 static inline void gb_interp_sample_rgb(__global const gb_source *frame, long sx0, long sy0, long sw,
                                         long full_w, long full_h, gb_pos px, gb_pos py,
-                                        real out[3])
+                                        real out[3], real sat[3])
 {
     gb_pos fx0 = floor(px), fy0 = floor(py);
     real fx = (real)(px - fx0), fy = (real)(py - fy0);
@@ -42,11 +46,15 @@ static inline void gb_interp_sample_rgb(__global const gb_source *frame, long sx
     long o10 = 3 * gb_offset(c0, r1, sx0, sy0, sw), o11 = 3 * gb_offset(c1, r1, sx0, sy0, sw);
     for (int c = 0; c < 3; ++c) {
         real a = GB_FRAME_VALUE(frame, o00 + c), b = GB_FRAME_VALUE(frame, o01 + c);
-        real top = a + (b - a) * fx;
+        real sa = GB_SATURATED(a), sb = GB_SATURATED(b);
+        real top = a + (b - a) * fx, sat_top = sa + (sb - sa) * fx;
         a = GB_FRAME_VALUE(frame, o10 + c);
         b = GB_FRAME_VALUE(frame, o11 + c);
-        real bottom = a + (b - a) * fx;
+        sa = GB_SATURATED(a);
+        sb = GB_SATURATED(b);
+        real bottom = a + (b - a) * fx, sat_bottom = sa + (sb - sa) * fx;
         out[c] = top + (bottom - top) * fy;
+        sat[c] = sat_top + (sat_bottom - sat_top) * fy;
     }
 }
 
@@ -91,7 +99,8 @@ static inline int gb_interp_consistent(__global const float *flow, __global cons
 }
 
 /* blur, variant average with interpolation: add the frame at time t in (0, 1) between frame0
- * and frame1, linearized, to the compensated sums, and count its saturated channels. flow_fw
+ * and frame1, linearized, to the compensated sums, and its saturated fractions (the blend of
+ * the frames' sampled indicators) to saturated. flow_fw
  * maps frame0 to frame1, flow_bw frame1 to frame0 (pixels, OpenCV's convention); relative and
  * absolute_px2 are the occlusion test's constants (reference.interpolate.CONSISTENCY_*).
  * Launched over (dw, dh) work items or more (extra ones return). */
@@ -101,7 +110,7 @@ __kernel void gb_blur_interpolate_add(__global const gb_source *frame0,
                                       __global const float *flow_bw, long sx0, long sy0, long sw,
                                       long full_w, long full_h, gb_pos t, gb_pos relative,
                                       gb_pos absolute_px2, __global real *sum,
-                                      __global real *compensation, __global uint *saturated,
+                                      __global real *compensation, __global real *saturated,
                                       long dx0, long dy0, long dw, long dh)
 {
     long x = get_global_id(0), y = get_global_id(1);
@@ -116,28 +125,29 @@ __kernel void gb_blur_interpolate_add(__global const gb_source *frame0,
                                        relative, absolute_px2);
     int trust_b = gb_interp_consistent(flow_fw, flow_bw, sx0, sy0, sw, full_w, full_h, gx, gy,
                                        relative, absolute_px2);
-    real a[3], b[3];
+    real a[3], b[3], sat_a[3], sat_b[3];
     gb_interp_sample_rgb(frame0, sx0, sy0, sw, full_w, full_h, (gb_pos)gx + t * bwx,
-                         (gb_pos)gy + t * bwy, a);
+                         (gb_pos)gy + t * bwy, a, sat_a);
     gb_interp_sample_rgb(frame1, sx0, sy0, sw, full_w, full_h, (gb_pos)gx + (1 - t) * fwx,
-                         (gb_pos)gy + (1 - t) * fwy, b);
+                         (gb_pos)gy + (1 - t) * fwy, b, sat_b);
     real wa = (real)(1 - t), wb = (real)t;
     long od = 3 * (y * dw + x);
     for (int c = 0; c < 3; ++c) {
         real v = trust_a == trust_b ? wa * a[c] + wb * b[c] : (trust_a ? a[c] : b[c]);
-        real lin = gb_srgb_to_linear(v);
-        gb_add_compensated(sum, compensation, od + c, lin);
-        saturated[od + c] += lin >= GB_REAL(1.0) ? 1u : 0u;
+        real s = trust_a == trust_b ? wa * sat_a[c] + wb * sat_b[c]
+                                    : (trust_a ? sat_a[c] : sat_b[c]);
+        gb_add_compensated(sum, compensation, od + c, gb_srgb_to_linear(v));
+        saturated[od + c] += s;
     }
 }
 
 /* blur, variant average with interpolation: add an original frame, linearized, to the sums and
- * count its saturated channels, as gb_blur_interpolate_add adds an intermediate. frame is a
+ * its saturated channels (1 where the linear value is >= 1) to saturated. frame is a
  * view (first pixel (sx0, sy0), width sw) holding the output region (dx0, dy0, dw, dh). */
 __kernel void gb_blur_interpolate_add_frame(__global const gb_source *frame, long sx0, long sy0,
                                             long sw, __global real *sum,
                                             __global real *compensation,
-                                            __global uint *saturated, long dx0, long dy0,
+                                            __global real *saturated, long dx0, long dy0,
                                             long dw, long dh)
 {
     long x = get_global_id(0), y = get_global_id(1);
@@ -147,18 +157,18 @@ __kernel void gb_blur_interpolate_add_frame(__global const gb_source *frame, lon
     for (int c = 0; c < 3; ++c) {
         real lin = gb_srgb_to_linear(GB_FRAME_VALUE(frame, o + c));
         gb_add_compensated(sum, compensation, od + c, lin);
-        saturated[od + c] += lin >= GB_REAL(1.0) ? 1u : 0u;
+        saturated[od + c] += lin >= GB_REAL(1.0) ? GB_REAL(1.0) : GB_REAL(0.0);
     }
 }
 
 /* blur, variant average with interpolation: the mean of the count frames (the compensated total
- * over the count) and the fraction of them saturated, per channel. */
+ * over the count) and the mean of their saturated fractions, per channel. */
 __kernel void gb_blur_interpolate_finish(__global const real *sum,
                                          __global const real *compensation,
-                                         __global const uint *saturated, uint count,
+                                         __global const real *saturated, uint count,
                                          __global real *linear, __global real *mask)
 {
     size_t i = get_global_id(0);
     linear[i] = (sum[i] + compensation[i]) / (real)count;
-    mask[i] = (real)saturated[i] / (real)count;
+    mask[i] = saturated[i] / (real)count;
 }
