@@ -238,6 +238,7 @@ class OpenCLBackend:
         self._staging: dict = {}  # slot -> (pinned buffer, its mapped host array)
         self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
         self._constants: dict = {}  # (bytes, dtype) -> buffer of a small constant
+        self._code_tables: dict = {}  # accumulate.cl's defines -> its 8-bit linear table
 
     # -- building ----------------------------------------------------------------------------
     def program(self, source: str, defines: dict[str, str]):
@@ -384,6 +385,24 @@ class OpenCLBackend:
         return held[1]
 
     # -- pass 1: accumulate ------------------------------------------------------------------
+    def _code_table(self, prg, defines: dict[str, str]) -> cl.Buffer:
+        """The linear value of every 8-bit code, from this build's own ``gb_linearize``.
+
+        ``gb_blur_average_add`` gathers from it instead of evaluating the EOTF per value: the
+        same function of the same 256 codes, so the same bits. Made once per build; a
+        one-value placeholder when the frames are not 8-bit codes (the kernel does not read it).
+        """
+        key = tuple(sorted(defines.items()))
+        if key not in self._code_tables:
+            count = 256 if defines["GB_SOURCE_BITS"] == "8" else 1
+            table, indicator = self._empty(count), self._empty(count)
+            if count == 256:
+                codes = self._upload(np.arange(256), np.uint8)
+                with self._kernels():
+                    prg.gb_linearize(self.queue, (count,), None, codes, table, indicator)
+            self._code_tables[key] = table
+        return self._code_tables[key]
+
     def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
                    mask: np.ndarray | None, region: Region) -> tuple[OnDevice, OnDevice]:
         """Linearize and blur on the device; (linear, mask) over ``region``, on the device."""
@@ -403,6 +422,7 @@ class OpenCLBackend:
             sums = ((self._empty(n), self._empty(n), self._empty(n, np.uint32))
                     if len(frames) > FRAMES_PER_LAUNCH
                     else (linear, sat_mask, self._empty(1, np.uint32)))
+            table = self._code_table(prg, defines)
             done, stacks = 0, self._frame_stacks(frames, region)
             stack, count, uploaded = next(stacks)
             while True:
@@ -411,7 +431,7 @@ class OpenCLBackend:
                     launched = prg.gb_blur_average_add(
                         self.queue, (n,), None, stack, np.uint32(count), np.int64(n), *sums,
                         np.int32(done == 0), np.uint32(len(frames) if last else 0), linear,
-                        sat_mask, wait_for=[uploaded] if uploaded else None)
+                        sat_mask, table, wait_for=[uploaded] if uploaded else None)
                 done += count
                 if last:
                     stacks.close()

@@ -107,6 +107,7 @@ class WarpBackend:
         self._staging: dict = {}  # slot -> pinned host buffer (kept across samples)
         self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
         self._constants: dict = {}  # (bytes, dtype) -> device array of a small constant
+        self._code_tables: dict = {}  # (compute type, source type) -> 8-bit linear table
         self.sync_passes = True
         self._prefetch_turn = 0
         self._prefetch_stacks: dict = {}  # slot -> device stack of prefetched frames
@@ -267,6 +268,25 @@ class WarpBackend:
         return values.data.reshape(values.shape)
 
     # -- pass 1: accumulate ------------------------------------------------------------------
+    def _code_table(self, k: dict, source) -> wp.array:
+        """The linear value of every 8-bit code, from these kernels' own ``linearize``.
+
+        ``blur_average_add`` gathers from it instead of evaluating the EOTF per value: the
+        same function of the same 256 codes, so the same bits. Made once per kernel set (so
+        never inside a captured graph after a first run); a one-value placeholder when the
+        frames are not 8-bit codes (the kernel does not read it).
+        """
+        key = (self.real, source)
+        if key not in self._code_tables:
+            count = 256 if source == wp.uint8 else 1
+            table, indicator = self._empty(count), self._empty(count)
+            if count == 256:
+                codes = self._array(np.arange(256), np.uint8)
+                with self._kernels():
+                    self._launch(k["linearize"], count, codes, table, indicator)
+            self._code_tables[key] = table
+        return self._code_tables[key]
+
     def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
                    mask: np.ndarray | None, region: Region) -> tuple[OnDevice, OnDevice]:
         """Linearize and blur on the device; (linear, mask) over ``region``, on the device."""
@@ -278,8 +298,8 @@ class WarpBackend:
                 wp.get_stream(self.wp_device).wait_event(prefetched.ready)
             frames = prefetched.frames
         stacked = isinstance(frames, wp.array)
-        k = accumulate_kernels(self.real, frames.dtype if stacked
-                               else self._source(frames[0])[1])
+        source = frames.dtype if stacked else self._source(frames[0])[1]
+        k = accumulate_kernels(self.real, source)
         mode = plan.variant("blur") or "none"
         n = region.h * region.w * 3
         shape = (region.h, region.w, 3)
@@ -288,7 +308,8 @@ class WarpBackend:
             self._interpolated_average(plan, params, frames, region, linear, sat_mask)
             return self._linear_out(linear, sat_mask, shape, region)
         if stacked:
-            self._average_stack(k, plan, frames, region, linear, sat_mask)
+            self._average_stack(k, plan, frames, region, linear, sat_mask,
+                                self._code_table(k, source))
             if prefetched is not None and prefetched.slot is not None:  # the stack is free
                 self._prefetch_read[prefetched.slot] = wp.get_stream(
                     self.wp_device).record_event()
@@ -299,12 +320,13 @@ class WarpBackend:
             sums = ((self._empty(n), self._empty(n), self._empty(n, wp.uint32))
                     if len(frames) > FRAMES_PER_LAUNCH
                     else (linear, sat_mask, self._empty(1, wp.uint32)))
-            done = 0
+            done, table = 0, self._code_table(k, source)
             for stack, count in self._frame_stacks(frames, region):
                 last = done + count == len(frames)
                 with self._kernels(sync=last):
                     self._launch(k["blur_average_add"], n, stack, count, n, *sums,
-                                 int(done == 0), len(frames) if last else 0, linear, sat_mask)
+                                 int(done == 0), len(frames) if last else 0, linear, sat_mask,
+                                 table)
                 done += count
             return self._linear_out(linear, sat_mask, shape, region)
         if mode == "none":
@@ -346,7 +368,7 @@ class WarpBackend:
         return self._linear_out(linear, sat_mask, shape, region)
 
     def _average_stack(self, k, plan: Plan, frames: wp.array, region: Region, linear,
-                       sat_mask) -> None:
+                       sat_mask, table: wp.array) -> None:
         """Mode average over frames already in memory Warp reaches: one launch for them all.
 
         ``frames`` is an ``n x H x W x 3`` ``wp.array`` (uint8, uint16 or the compute type)
@@ -374,7 +396,7 @@ class WarpBackend:
         spare = self._empty(1, wp.uint32)
         with self._kernels():
             self._launch(k["blur_average_add"], values, stack, count, values, linear, sat_mask,
-                         spare, 1, count, linear, sat_mask)
+                         spare, 1, count, linear, sat_mask, table)
 
     def _interpolated_average(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
                               region: Region, linear, sat_mask) -> None:

@@ -75,6 +75,15 @@ def accumulate_kernels(real, source=None) -> dict:
     """
     source = real if source is None else source
     source_value = source_value_func(real, source)
+    coded8 = source == wp.uint8
+
+    @wp.func
+    def frame_linear(frames: wp.array(dtype=source), i: int, table: wp.array(dtype=real)) -> real:
+        # 8-bit codes: a gather from ``table``, the linear value of each code that ``linearize``
+        # computed from codes 0..255 (the same function, so the same bits, without a pow)
+        if wp.static(coded8):
+            return table[int(frames[i])]
+        return pixel.srgb_to_linear(source_value(frames[i]))
 
     @wp.kernel(module="unique")
     def linearize(srgb: wp.array(dtype=source), linear: wp.array(dtype=real),
@@ -90,11 +99,13 @@ def accumulate_kernels(real, source=None) -> dict:
     def blur_average_add(frames: wp.array(dtype=source), count: int, stride: int,
                          total: wp.array(dtype=real), compensation: wp.array(dtype=real),
                          saturated: wp.array(dtype=wp.uint32), first: int, mean_of: int,
-                         linear: wp.array(dtype=real), mask: wp.array(dtype=real)):
+                         linear: wp.array(dtype=real), mask: wp.array(dtype=real),
+                         table: wp.array(dtype=real)):
         # frames k = 0..count-1 of a device stack (frame k at k * stride) join the running
         # compensated sum in registers (Neumaier, as add_compensated); ``first`` starts from
         # zero, ``mean_of`` > 0 ends the average: linear and mask get the means over that many
-        # frames instead of the running state going back to total/compensation/saturated
+        # frames instead of the running state going back to total/compensation/saturated;
+        # ``table``: the linear value of each 8-bit code (frame_linear), else unread
         i = wp.tid()
         s = real(0.0)
         c = real(0.0)
@@ -104,7 +115,7 @@ def accumulate_kernels(real, source=None) -> dict:
             c = compensation[i]
             n = saturated[i]
         for k in range(count):
-            v = pixel.srgb_to_linear(source_value(frames[k * stride + i]))
+            v = frame_linear(frames, k * stride + i, table)
             t = s + v
             if wp.abs(s) >= wp.abs(v):
                 c = c + ((s - t) + v)

@@ -20,16 +20,27 @@ __kernel void gb_linearize(__global const gb_source *srgb, __global real *linear
     indicator[i] = v >= GB_REAL(1.0) ? GB_REAL(1.0) : GB_REAL(0.0);
 }
 
+/* The linear value of a stored frame value at frames[i]. 8-bit codes: a gather from `table`,
+ * the value of each code that gb_linearize computed from codes 0..255 (the same function, so
+ * the same bits, without a pow per value); other sources: the sRGB EOTF. */
+#if GB_SOURCE_BITS == 8
+#define GB_FRAME_LINEAR(frames, i, table) ((table)[(frames)[i]])
+#else
+#define GB_FRAME_LINEAR(frames, i, table) gb_srgb_to_linear(gb_source_value((frames)[i]))
+#endif
+
 /* blur, variant average: frames k = 0..count-1 of a device stack (frame k at k * stride, each
  * covering the region of the sums), linearized on the fly, join the running compensated sum in
  * registers (the same operations as gb_add_compensated) and the saturation counts. `first`
  * starts from zero instead of the state in sum/compensation/saturated; `mean_of` > 0 ends the
  * average: linear and mask get the mean over that many frames and the fraction of them
- * saturated, instead of the state going back. */
+ * saturated, instead of the state going back. table: see GB_FRAME_LINEAR (unread unless the
+ * frames are 8-bit codes). */
 __kernel void gb_blur_average_add(__global const gb_source *frames, uint count, long stride,
                                   __global real *sum, __global real *compensation,
                                   __global uint *saturated, int first, uint mean_of,
-                                  __global real *linear, __global real *mask)
+                                  __global real *linear, __global real *mask,
+                                  __global const real *table)
 {
 #pragma OPENCL FP_CONTRACT OFF
     size_t i = get_global_id(0);
@@ -41,7 +52,7 @@ __kernel void gb_blur_average_add(__global const gb_source *frames, uint count, 
         n = saturated[i];
     }
     for (uint k = 0; k < count; ++k) {
-        real v = gb_srgb_to_linear(gb_source_value(frames[k * stride + i]));
+        real v = GB_FRAME_LINEAR(frames, k * stride + i, table);
         real t = s + v;
         c += fabs(s) >= fabs(v) ? (s - t) + v : (v - t) + s;
         s = t;
