@@ -335,12 +335,13 @@ def measurement_key(spec: str, setting: Setting) -> str:
     return json.dumps([spec, scene, tile], sort_keys=True, default=str)
 
 
-def median_time(run: Callable[[], object], runs: int) -> tuple[list[float], object]:
-    """Seconds of ``runs`` calls of ``run`` after one warm-up call, and the last result.
+def median_time(run: Callable[[], object], runs: int,
+                warm_up: bool = True) -> tuple[list[float], object]:
+    """Seconds of ``runs`` calls of ``run`` (after one warm-up call), and the last result.
 
     ``run`` must return only once its device work is done (host results).
     """
-    times, result = [], run()
+    times, result = [], run() if warm_up else None
     for _ in range(runs):
         start = time.perf_counter()
         result = run()
@@ -349,7 +350,7 @@ def median_time(run: Callable[[], object], runs: int) -> tuple[list[float], obje
 
 
 def measure(spec: str, frames: Sequence[np.ndarray], setting: Setting,
-            runs: int) -> Measurement:
+            runs: int, warm_up: bool = True) -> Measurement:
     """Time a setting on a backend and keep its final images with and without noise.
 
     A scene the setting makes is validated first (a SceneError propagates); a failure of the
@@ -364,7 +365,7 @@ def measure(spec: str, frames: Sequence[np.ndarray], setting: Setting,
                                    backend=spec, tile=setting.tile).blurred
 
     try:
-        times, noisy = median_time(lambda: run(scene), runs)
+        times, noisy = median_time(lambda: run(scene), runs, warm_up)
         clean = run(quiet)
     except (ValueError, RuntimeError, NotImplementedError) as e:
         return Measurement([], problem=f"{type(e).__name__}: {str(e).splitlines()[0]}")
@@ -413,11 +414,15 @@ class Runner:
         knobs: the settings to run.
         runs: timed runs per measurement (>= :data:`MIN_RUNS`).
         log: called with one line per row as it is measured.
+        reference_runs: timed runs of numpy (default ``runs``); fewer than
+            :data:`MIN_RUNS` skip its warm-up (see :func:`run_benchmark`).
     """
 
     def __init__(self, frames, backends: dict[str, dict], knobs: Sequence[Setting],
-                 runs: int, log: Callable[[str], None] = print):
+                 runs: int, log: Callable[[str], None] = print,
+                 reference_runs: int | None = None):
         self.frames, self.backends, self.knobs, self.runs = frames, backends, knobs, runs
+        self.reference_runs = runs if reference_runs is None else reference_runs
         self.log = log
         self.megapixels = frames[0].shape[0] * frames[0].shape[1] / 1e6
         self._cache: dict[str, Measurement] = {}
@@ -430,7 +435,8 @@ class Runner:
         key = measurement_key(spec, setting)
         held = self._cache.get(key)
         if held is None or (held.clean is None and not held.problem):
-            held = measure(spec, self.frames, setting, self.runs)
+            runs = self.reference_runs if spec == "numpy" else self.runs
+            held = measure(spec, self.frames, setting, runs, warm_up=runs >= MIN_RUNS)
             self._cache[key] = held
         return held
 
@@ -872,7 +878,11 @@ def markdown(report: dict) -> str:
         + "; ".join(f"`{k}` {v}" for k, v in report["devices"].items()) + ".",
         "",
         "Base scene (RSBlur-like): " + json.dumps(report["base_scene"]) + ". Times: median of "
-        f"{report['runs']} runs after a warm-up, frames in host memory, result back on the "
+        f"{report['runs']} runs after a warm-up"
+        + (f" (numpy: {report['reference_runs']} run, no warm-up: here it only makes the "
+           "reference images; its medians are in the CPU run)"
+           if report.get("reference_runs", report["runs"]) < MIN_RUNS else "")
+        + ", frames in host memory, result back on the "
         "host, per megapixel of output. Errors: the final image without noise (RAW round "
         "trip kept, float output) against the numpy float64 run of the knob's accurate "
         "setting (*); residual KL: D(reference || run) of the noise residuals (final with "
@@ -931,7 +941,8 @@ def markdown(report: dict) -> str:
 def run_benchmark(size: tuple[int, int] = DEFAULT_SIZE, backends: Sequence[str] | None = None,
                   quick: bool = False, runs: int = MIN_RUNS,
                   knobs: Sequence[Setting] | None = None,
-                  log: Callable[[str], None] = print) -> dict:
+                  log: Callable[[str], None] = print,
+                  reference_runs: int | None = None) -> dict:
     """Run the benchmark and return its report (what the JSON file holds).
 
     Args:
@@ -941,6 +952,10 @@ def run_benchmark(size: tuple[int, int] = DEFAULT_SIZE, backends: Sequence[str] 
         runs: timed runs per measurement, >= :data:`MIN_RUNS`.
         knobs: the settings (default :data:`KNOBS`).
         log: called with a line per measured row.
+        reference_runs: timed runs of the numpy reference, >= 1 (default ``runs``). Fewer
+            than :data:`MIN_RUNS` (no warm-up) serve a GPU machine's run, where numpy is only
+            the source of the reference images: its times there are single runs, and its
+            medians come from a CPU run.
 
     Raises:
         ValueError: bad size, runs or backend names.
@@ -953,13 +968,16 @@ def run_benchmark(size: tuple[int, int] = DEFAULT_SIZE, backends: Sequence[str] 
                          "(e.g. --size 480x300)")
     if runs < MIN_RUNS:
         raise ValueError(f"runs = {runs}: the medians need at least {MIN_RUNS} timed runs")
+    reference_runs = runs if reference_runs is None else reference_runs
+    if reference_runs < 1:
+        raise ValueError(f"reference runs = {reference_runs}: numpy needs at least one run")
     chosen = choose_backends(backends)
     settings = list(KNOBS if knobs is None else knobs)
     if quick:
         settings = quick_knobs(settings)
     frames = make_frames(width, height)
     load_before = _load_average()
-    runner = Runner(frames, chosen, settings, runs, log)
+    runner = Runner(frames, chosen, settings, runs, log, reference_runs)
     rows = runner.rows()
     middle = frames[len(frames) // 2]
     side_by_side = {
@@ -976,7 +994,8 @@ def run_benchmark(size: tuple[int, int] = DEFAULT_SIZE, backends: Sequence[str] 
         "gpu_blur": gpu_blur.__version__, "source": source_commit(),
         "devices": {spec: b["device"] for spec, b in chosen.items()},
         "size": [width, height], "frames": FRAMES, "pan_px_per_frame": PAN_PX,
-        "megapixels": runner.megapixels, "runs": runs, "seed": SEED,
+        "megapixels": runner.megapixels, "runs": runs, "reference_runs": reference_runs,
+        "seed": SEED,
         "sample_index": SAMPLE_INDEX, "base_scene": BASE_SCENE, "noise_free": NOISE_FREE,
         "quick": quick,
         # other work on the host slows the runs: its 1-minute load average, start and end
@@ -1026,6 +1045,9 @@ def add_arguments(p: argparse.ArgumentParser, default_output: Path = Path(".")) 
                    "one and one other)")
     p.add_argument("--runs", type=int, default=MIN_RUNS, help=f"timed runs per measurement "
                    f"after a warm-up, >= {MIN_RUNS} (default {MIN_RUNS})")
+    p.add_argument("--reference-runs", type=int, metavar="N", help="timed runs of the numpy "
+                   "reference (default: --runs); 1 on a GPU machine, where numpy only makes the "
+                   "reference images and its medians come from a CPU run")
     p.add_argument("--output", type=Path, default=default_output, metavar="DIR",
                    help=f"folder for accuracy_vs_time_<tag>.json/.md/.png (default "
                    f"{default_output})")
@@ -1035,7 +1057,8 @@ def add_arguments(p: argparse.ArgumentParser, default_output: Path = Path(".")) 
 def run_from_args(args: argparse.Namespace) -> int:
     """Run ``gpu-blur bench`` with parsed options; returns the exit status."""
     report = run_benchmark(tuple(args.size), args.backends, args.quick, args.runs,
-                           log=lambda line: print(line, flush=True))
+                           log=lambda line: print(line, flush=True),
+                           reference_runs=args.reference_runs)
     tag = args.tag or device_tag(choose_backends(list(report["devices"])))
     for path in write_report(report, args.output, tag):
         print(f"wrote {path}")
