@@ -166,6 +166,21 @@ def quick_knobs(knobs: Sequence[Setting] = KNOBS) -> list[Setting]:
     return kept
 
 
+def select_knobs(names: Sequence[str], knobs: Sequence[Setting] = KNOBS) -> list[Setting]:
+    """The settings of the named knobs (names as in the table, any case).
+
+    Raises:
+        ValueError: naming an unknown knob and the known ones.
+    """
+    known = {s.knob.lower(): s.knob for s in knobs}
+    unknown = [n for n in names if n.lower() not in known]
+    if unknown or not names:
+        raise ValueError(f"--knobs: {', '.join(unknown) or 'none given'}; known: "
+                         f"{', '.join(dict.fromkeys(known.values()))}")
+    wanted = {known[n.lower()] for n in names}
+    return [s for s in knobs if s.knob in wanted]
+
+
 def merge(*layers: dict) -> dict:
     """Scene dicts merged section by section, later layers winning."""
     out: dict = {}
@@ -997,7 +1012,7 @@ def run_benchmark(size: tuple[int, int] = DEFAULT_SIZE, backends: Sequence[str] 
         "megapixels": runner.megapixels, "runs": runs, "reference_runs": reference_runs,
         "seed": SEED,
         "sample_index": SAMPLE_INDEX, "base_scene": BASE_SCENE, "noise_free": NOISE_FREE,
-        "quick": quick,
+        "quick": quick, "knobs": list(dict.fromkeys(s.knob for s in settings)),
         # other work on the host slows the runs: its 1-minute load average, start and end
         "load_average": [load_before, _load_average()],
         "rows": rows, "side_by_side": side_by_side,
@@ -1043,6 +1058,9 @@ def add_arguments(p: argparse.ArgumentParser, default_output: Path = Path(".")) 
                    "device; see gpu-blur devices)")
     p.add_argument("--quick", action="store_true", help="two settings per knob (its accurate "
                    "one and one other)")
+    p.add_argument("--knobs", metavar="LIST", type=lambda s: [x.strip() for x in s.split(",")
+                   if x.strip()], help="comma list of the knobs to run, e.g. motion or "
+                   "\"precision,CRF table\" (default: all; names as in the table)")
     p.add_argument("--runs", type=int, default=MIN_RUNS, help=f"timed runs per measurement "
                    f"after a warm-up, >= {MIN_RUNS} (default {MIN_RUNS})")
     p.add_argument("--reference-runs", type=int, metavar="N", help="timed runs of the numpy "
@@ -1056,7 +1074,8 @@ def add_arguments(p: argparse.ArgumentParser, default_output: Path = Path(".")) 
 
 def run_from_args(args: argparse.Namespace) -> int:
     """Run ``gpu-blur bench`` with parsed options; returns the exit status."""
-    report = run_benchmark(tuple(args.size), args.backends, args.quick, args.runs,
+    knobs = select_knobs(args.knobs) if args.knobs is not None else None
+    report = run_benchmark(tuple(args.size), args.backends, args.quick, args.runs, knobs=knobs,
                            log=lambda line: print(line, flush=True),
                            reference_runs=args.reference_runs)
     tag = args.tag or device_tag(choose_backends(list(report["devices"])))

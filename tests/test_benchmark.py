@@ -122,6 +122,12 @@ def test_a_knob_the_scene_does_not_know_is_reported_not_available():
     assert missing[0]["ms_per_megapixel"] is None and missing[0]["max_abs_error"] is None
 
 
+def test_knobs_are_chosen_by_name_in_any_case():
+    chosen = benchmark.select_knobs(["Motion", "tile"])
+    assert {s.knob for s in chosen} == {"motion", "tile"}
+    assert chosen == [s for s in benchmark.KNOBS if s.knob in ("motion", "tile")]
+
+
 def test_pareto_front_keeps_the_points_no_other_beats_in_time_and_error():
     points = [(1.0, 5.0), (2.0, 3.0), (2.5, 4.0), (3.0, 1.0), (0.5, 9.0), (3.0, 1.0)]
     assert benchmark.pareto_front(points) == [4, 0, 1, 3]
@@ -140,6 +146,7 @@ def test_plot_is_drawn_with_opencv_without_matplotlib(quick_report, tmp_path, mo
     (["--size", "63x48"], "63 x 48"),
     (["--size", "64x48", "--runs", "3"], "runs = 3"),
     (["--size", "64x48", "--reference-runs", "0"], "reference runs = 0"),
+    (["--size", "64x48", "--knobs", "precision,colour"], "--knobs: colour; known: precision"),
     (["--size", "64x48", "--backends", "numpy,opencl:9:9"], "opencl:9:9"),
 ])
 def test_bad_options_are_refused_naming_the_value(argv, message, capsys, tmp_path):
