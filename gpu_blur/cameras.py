@@ -13,8 +13,8 @@ Presets (values and sources in ``gpu_blur/data/rsblur.json``):
 * ``srgb``: identity colour (camera RGB is linear sRGB), unit gains, RSBlur noise levels.
 
 A custom camera is a TOML or JSON file; see :func:`load_camera` for its keys. Only a camera
-file carries a fitted response (``[response]``, from ``gpu-blur calibrate``); presets have
-none.
+file carries a fitted response (``[response]``, from ``gpu-blur calibrate``), which
+``output.crf = "camera"`` re-tones with; presets have none.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import numpy as np
 
 from gpu_blur.constants import rsblur_data
 from gpu_blur.reference.color import camera_to_linear_matrix, checked_inverse
-from gpu_blur.scene import toml_loads
+from gpu_blur.scene import FIELDS, toml_loads
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,6 +78,21 @@ class Camera:
     shot_noise_k: float
     read_noise_std: float
     response: np.ndarray | None = None
+
+    def fitted_response(self) -> np.ndarray:
+        """:attr:`response`, which ``output.crf = "camera"`` re-tones with.
+
+        Raises:
+            ValueError: naming the camera and the fix, when it has no fitted response.
+        """
+        if self.response is None:
+            others = ", ".join(c for c in FIELDS["output"]["crf"].choices if c != "camera")
+            raise ValueError(
+                f"camera {self.name!r} has no fitted response for output.crf = 'camera': run "
+                "gpu-blur calibrate with --crf-linear and --crf-rendered (it writes the "
+                "response into the camera file's [response] table) and name that file in "
+                f"camera.name, or pick another output.crf ({others})")
+        return self.response
 
 
 def _camera(name, source, cam_to_lin, wb, shot, read, response=None) -> Camera:
@@ -182,7 +197,8 @@ def load_camera(path: str | Path) -> Camera:
         polynomial = [c_0, c_1, ..., c_K]       # ascending powers, >= 2 finite numbers
 
     ``gpu-blur calibrate`` writes ``[response]`` when given ``--crf-linear`` and
-    ``--crf-rendered``; it is read into :attr:`Camera.response`. The table's other keys
+    ``--crf-rendered``; a scene with ``output.crf = "camera"`` then re-tones its output and
+    sharp reference with that polynomial (:attr:`Camera.response`). The table's other keys
     (``inverse_linear``, residuals) and ``[calibration]`` (the chart fit) are not read here
     (see :mod:`gpu_blur.calibrate`).
     """
