@@ -61,11 +61,13 @@ Output
 ------
 A camera file (TOML, or JSON when the name ends in ``.json``) that a scene names with
 ``camera.name = "my_camera.toml"``: ``[color] ccm_xyz`` (T), ``[white_balance]`` (the fixed
-gains), ``[noise]`` (given, else RSBlur's levels), plus two tables that ``load_camera`` does
-not read: ``[calibration]`` (alpha, residuals, condition numbers, inputs) and, with a
-response fit, ``[response]`` (``polynomial``: c_0 ... c_K ascending; ``inverse_linear``: the
-linear value at rendered = i / (n - 1)), which ``gpu_blur.calibrate.read_response`` reads
-back. The pipeline's ``output.crf`` does not use a fitted response yet.
+gains), ``[noise]`` (given, else RSBlur's levels), ``[calibration]`` (alpha, residuals,
+condition numbers, inputs; ``load_camera`` does not read it) and, with a response fit,
+``[response]`` (``polynomial``: c_0 ... c_K ascending; ``inverse_linear``: the linear value at
+rendered = i / (n - 1)), which ``gpu_blur.calibrate.read_response`` reads back. To synthesize
+with the fitted response, set ``output.crf = "camera"`` in the scene: output and sharp
+reference are re-toned as ``polynomial(srgb_to_linear(x))`` (``load_camera`` reads the
+polynomial into ``Camera.response``), so the pairs take this camera's tone curve.
 """
 
 from __future__ import annotations
