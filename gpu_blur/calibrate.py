@@ -61,11 +61,13 @@ Output
 ------
 A camera file (TOML, or JSON when the name ends in ``.json``) that a scene names with
 ``camera.name = "my_camera.toml"``: ``[color] ccm_xyz`` (T), ``[white_balance]`` (the fixed
-gains), ``[noise]`` (given, else RSBlur's levels), plus two tables that ``load_camera`` does
-not read: ``[calibration]`` (alpha, residuals, condition numbers, inputs) and, with a
-response fit, ``[response]`` (``polynomial``: c_0 ... c_K ascending; ``inverse_linear``: the
-linear value at rendered = i / (n - 1)), which ``gpu_blur.calibrate.read_response`` reads
-back. The pipeline's ``output.crf`` does not use a fitted response yet.
+gains), ``[noise]`` (given, else RSBlur's levels), ``[calibration]`` (alpha, residuals,
+condition numbers, inputs; ``load_camera`` does not read it) and, with a response fit,
+``[response]`` (``polynomial``: c_0 ... c_K ascending; ``inverse_linear``: the linear value at
+rendered = i / (n - 1)), which ``gpu_blur.calibrate.read_response`` reads back. To synthesize
+with the fitted response, set ``output.crf = "camera"`` in the scene: output and sharp
+reference are re-toned as ``polynomial(srgb_to_linear(x))`` (``load_camera`` reads the
+polynomial into ``Camera.response``), so the pairs take this camera's tone curve.
 """
 
 from __future__ import annotations
@@ -825,6 +827,9 @@ def inverse_response(rendered, table) -> np.ndarray:
 def read_response(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """The ``[response]`` table of a camera file that ``gpu-blur calibrate`` wrote.
 
+    The polynomial is read and checked as :func:`gpu_blur.cameras.load_camera` reads it
+    (:func:`gpu_blur.cameras.response_polynomial`).
+
     Returns:
         ``(coefficients, inverse_table)``: c_0 ... c_K ascending, and the linear values at
         rendered = i / (n - 1).
@@ -832,26 +837,25 @@ def read_response(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     Raises:
         ValueError: naming the file when it has no valid ``[response]``.
     """
-    from gpu_blur.scene import toml_loads
+    from gpu_blur.cameras import read_camera_spec, response_polynomial
 
     path = Path(path)
-    try:
-        text = path.read_text()
-        spec = json.loads(text) if path.suffix.lower() == ".json" else toml_loads(text)
-    except OSError as e:
-        raise ValueError(f"camera file {path}: cannot read it ({e.strerror})") from None
-    except ValueError as e:
-        raise ValueError(f"camera file {path}: not valid {path.suffix[1:].upper()}: {e}") from None
-    response = spec.get("response") if isinstance(spec, dict) else None
-    response = response if isinstance(response, dict) else {}
-    c = np.array(response.get("polynomial", []), dtype=np.float64)
-    table = np.array(response.get("inverse_linear", []), dtype=np.float64)
-    if c.ndim != 1 or c.size < 2 or table.ndim != 1 or table.size < 2 or np.any(
-            np.diff(table) < 0) or not (np.all(np.isfinite(c)) and np.all(np.isfinite(table))):
-        raise ValueError(f"camera file {path}: no valid [response] (polynomial: >= 2 numbers; "
-                         "inverse_linear: >= 2 non-decreasing numbers); run gpu-blur calibrate "
+    spec = read_camera_spec(path)
+    if not isinstance(spec.get("response"), dict):
+        raise ValueError(f"camera file {path}: no [response] table; run gpu-blur calibrate "
                          "with --crf-linear and --crf-rendered")
-    return c, table
+    c = response_polynomial(spec, path)
+    value = spec["response"].get("inverse_linear")
+    table = None
+    if isinstance(value, list) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        table = np.array(value, dtype=np.float64)
+    if (table is None or table.size < 2 or not np.all(np.isfinite(table))
+            or np.any(np.diff(table) < 0)):
+        raise ValueError(f"camera file {path}: response.inverse_linear = {value!r} is invalid; "
+                         "expected >= 2 non-decreasing finite numbers: rerun gpu-blur "
+                         "calibrate with --crf-linear and --crf-rendered")
+    return np.array(c), table
 
 
 # ---- the whole calibration and the camera file ----

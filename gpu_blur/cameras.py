@@ -12,7 +12,9 @@ Presets (values and sources in ``gpu_blur/data/rsblur.json``):
   K = 1e-4, sigma_r = 9.1504e-4 (RSBlur estimates).
 * ``srgb``: identity colour (camera RGB is linear sRGB), unit gains, RSBlur noise levels.
 
-A custom camera is a TOML or JSON file; see :func:`load_camera` for its keys.
+A custom camera is a TOML or JSON file; see :func:`load_camera` for its keys. Only a camera
+file carries a fitted response (``[response]``, from ``gpu-blur calibrate``), which
+``output.crf = "camera"`` re-tones with; presets have none.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import numpy as np
 
 from gpu_blur.constants import rsblur_data
 from gpu_blur.reference.color import camera_to_linear_matrix, checked_inverse
-from gpu_blur.scene import toml_loads
+from gpu_blur.scene import FIELDS, toml_loads
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,6 +65,9 @@ class Camera:
         white_balance: the per-sample gain distribution.
         shot_noise_k: Poisson gain K in units of the [0, 1] RAW signal (RSBlur's beta1).
         read_noise_std: read-noise standard deviation, same units (RSBlur's beta2, a std).
+        response: (K + 1,) float64, read-only: the fitted camera response c_0 ... c_K in
+            ascending powers (supplementary Eq. 6, ``[response] polynomial`` of a camera file
+            that ``gpu-blur calibrate`` wrote), or None (presets, files without one).
     """
 
     name: str
@@ -72,9 +77,25 @@ class Camera:
     white_balance: WhiteBalance
     shot_noise_k: float
     read_noise_std: float
+    response: np.ndarray | None = None
+
+    def fitted_response(self) -> np.ndarray:
+        """:attr:`response`, which ``output.crf = "camera"`` re-tones with.
+
+        Raises:
+            ValueError: naming the camera and the fix, when it has no fitted response.
+        """
+        if self.response is None:
+            others = ", ".join(c for c in FIELDS["output"]["crf"].choices if c != "camera")
+            raise ValueError(
+                f"camera {self.name!r} has no fitted response for output.crf = 'camera': run "
+                "gpu-blur calibrate with --crf-linear and --crf-rendered (it writes the "
+                "response into the camera file's [response] table) and name that file in "
+                f"camera.name, or pick another output.crf ({others})")
+        return self.response
 
 
-def _camera(name, source, cam_to_lin, wb, shot, read) -> Camera:
+def _camera(name, source, cam_to_lin, wb, shot, read, response=None) -> Camera:
     cam_to_lin = np.asarray(cam_to_lin, dtype=np.float64)
     lin_to_cam = checked_inverse(cam_to_lin, f"camera {name!r} camera_to_linear")
     for m in (cam_to_lin, lin_to_cam):
@@ -84,7 +105,7 @@ def _camera(name, source, cam_to_lin, wb, shot, read) -> Camera:
             f"camera {name!r}: shot_noise_k must be > 0 and read_noise_std >= 0, got "
             f"{shot!r} and {read!r}"
         )
-    return Camera(name, source, cam_to_lin, lin_to_cam, wb, float(shot), float(read))
+    return Camera(name, source, cam_to_lin, lin_to_cam, wb, float(shot), float(read), response)
 
 
 def _a7r3(name: str, wb: WhiteBalance, wb_source: str) -> Camera:
@@ -172,22 +193,17 @@ def load_camera(path: str | Path) -> Camera:
         [noise]
         shot_noise_k = 8.8915e-5
         read_noise_std = 2.9430e-5
+        [response]                      # optional: a fitted camera response (Eq. 6)
+        polynomial = [c_0, c_1, ..., c_K]       # ascending powers, >= 2 finite numbers
 
-    Other tables are not read: ``gpu-blur calibrate`` adds ``[calibration]`` (its fit) and
-    ``[response]`` (a fitted camera response; see :mod:`gpu_blur.calibrate`).
+    ``gpu-blur calibrate`` writes ``[response]`` when given ``--crf-linear`` and
+    ``--crf-rendered``; a scene with ``output.crf = "camera"`` then re-tones its output and
+    sharp reference with that polynomial (:attr:`Camera.response`). The table's other keys
+    (``inverse_linear``, residuals) and ``[calibration]`` (the chart fit) are not read here
+    (see :mod:`gpu_blur.calibrate`).
     """
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise ValueError(f"camera file {path}: cannot read it ({e.strerror})") from None
-    try:
-        if path.suffix.lower() == ".json":
-            spec = json.loads(text)
-        else:
-            spec = toml_loads(text)
-    except ValueError as e:
-        raise ValueError(f"camera file {path}: not valid {path.suffix[1:].upper()}: {e}") from None
+    spec = read_camera_spec(path)
 
     def fail(key, value, allowed):
         raise ValueError(f"camera file {path}: {key} = {value!r} is invalid; expected {allowed}")
@@ -233,10 +249,68 @@ def load_camera(path: str | Path) -> Camera:
             ranges.append((float(r[0]), float(r[1])))
         wb = WhiteBalance(*ranges)
 
+    response = response_polynomial(spec, path) if "response" in spec else None
     noise = spec.get("noise", {})
     try:
         return _camera(spec.get("name", path.stem), spec.get("source", str(path.name)),
                        cam_to_lin, wb, noise.get("shot_noise_k", 1e-4),
-                       noise.get("read_noise_std", 9.1504e-4))
+                       noise.get("read_noise_std", 9.1504e-4), response)
     except ValueError as e:
         raise ValueError(f"camera file {path}: {e}") from None
+
+
+def read_camera_spec(path: Path) -> dict:
+    """A camera file's tables, parsed as TOML, or JSON for a name ending in .json.
+
+    Raises:
+        ValueError: naming the file when it cannot be read, is not valid TOML/JSON, or is not
+            a table of keys.
+    """
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise ValueError(f"camera file {path}: cannot read it ({e.strerror})") from None
+    try:
+        spec = json.loads(text) if path.suffix.lower() == ".json" else toml_loads(text)
+    except ValueError as e:
+        raise ValueError(f"camera file {path}: not valid {path.suffix[1:].upper()}: {e}") from None
+    if not isinstance(spec, dict):
+        raise ValueError(f"camera file {path}: expected a table of keys ([color], [noise], ...), "
+                         f"got {type(spec).__name__}")
+    return spec
+
+
+def response_polynomial(spec: dict, path: Path) -> np.ndarray:
+    """The ``[response] polynomial`` of a parsed camera file, checked.
+
+    Args:
+        spec: the file's tables (:func:`read_camera_spec`).
+        path: the file, for messages.
+
+    Returns:
+        (K + 1,) read-only float64 coefficients c_0 ... c_K in ascending powers.
+
+    Raises:
+        ValueError: naming the file, the key and the value when the table or the polynomial
+            is missing or not >= 2 finite numbers, with the fix.
+    """
+    fix = ("rerun gpu-blur calibrate with --crf-linear and --crf-rendered, or remove the "
+           "[response] table")
+    response = spec.get("response")
+    if not isinstance(response, dict):
+        raise ValueError(f"camera file {path}: [response] = {response!r} is invalid; expected "
+                         f"a table with polynomial = [c_0, ..., c_K]: {fix}")
+    value = response.get("polynomial")
+    c = None
+    if isinstance(value, list) and len(value) >= 2 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        try:
+            c = np.array(value, dtype=np.float64)
+        except OverflowError:  # an integer beyond float64
+            c = None
+    if c is None or not np.all(np.isfinite(c)):
+        raise ValueError(
+            f"camera file {path}: response.polynomial = {value!r} is invalid; expected a list "
+            f"of >= 2 finite numbers c_0 ... c_K (ascending powers, supplementary Eq. 6): {fix}")
+    c.setflags(write=False)
+    return c

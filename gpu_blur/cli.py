@@ -199,7 +199,8 @@ def _calibrate_parser(sub) -> None:
         "  gpu-blur calibrate --chart chart_raw.tiff --boxes boxes.csv --output my_camera.toml "
         "\\\n      --crf-linear lin_a.tiff --crf-rendered jpeg_a.jpg \\\n"
         "      --crf-linear lin_b.tiff --crf-rendered jpeg_b.jpg\n"
-        "  then: scene.toml with [camera] name = \"my_camera.toml\", and\n"
+        "  then: scene.toml with [camera] name = \"my_camera.toml\" (and, to re-tone with "
+        "the fitted\n        response, [output] crf = \"camera\"), and\n"
         "        gpu-blur generate --scene scene.toml --output out\n\n"
         + help_text() + "\nexit status: 0 written; 2 bad input (the message names the file "
         "and line)")
@@ -242,7 +243,9 @@ def _calibrate(args) -> int:
     write_camera_file(args.output, result.camera)
     print(result.report())
     print(f"wrote {args.output}; a scene in the same folder uses it with [camera] name = "
-          f'"{args.output.name}"')
+          f'"{args.output.name}"'
+          + ('; add [output] crf = "camera" to re-tone with its fitted response'
+             if result.response is not None else ""))
     return 0
 
 

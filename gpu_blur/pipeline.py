@@ -83,13 +83,20 @@ def scene_camera(scene: Scene) -> Camera:
     """The scene's camera (a preset or a camera file next to the scene).
 
     Raises:
-        ValueError: naming the scene's ``camera.name`` and the cameras there are.
+        ValueError: naming the scene's ``camera.name`` and the cameras there are; or, for
+            ``output.crf = "camera"``, naming the camera when it has no fitted response.
     """
+    where = f"scene file {scene.path}" if scene.path else "scene"
     try:
-        return get_camera(scene.camera.name, scene.base_dir)
+        camera = get_camera(scene.camera.name, scene.base_dir)
     except ValueError as e:
-        where = f"scene file {scene.path}" if scene.path else "scene"
         raise ValueError(f"{where}: camera.name = {scene.camera.name!r}: {e}") from None
+    if scene.output.crf == "camera":
+        try:
+            camera.fitted_response()
+        except ValueError as e:
+            raise ValueError(f"{where}: camera.name = {scene.camera.name!r}: {e}") from None
+    return camera
 
 
 def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
@@ -181,7 +188,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         # (quantize(c / 255, 8) gives c back; float32 c / 255 is the float64 one rounded)
         sharp_out = sharp.astype(np.float32) / np.float32(255.0)
     else:
-        sharp_out = render_sharp(sample_plan, unit_values(sharp), runner)
+        sharp_out = render_sharp(sample_plan, camera, unit_values(sharp), runner)
         if sample_plan.kept("quantize"):
             sharp_out = quantize(sharp_out, scene.output.bits)
     crop = scene.output.crop
@@ -203,11 +210,19 @@ def _reaches_clip_level(frames, mask) -> bool:
     return any(bool(np.any(f >= top)) for f in frames)
 
 
-def render_sharp(sample_plan: Plan, sharp: np.ndarray, runner) -> np.ndarray:
-    """The sharp reference in the output's encoding (sRGB, linear, or re-toned)."""
+def render_sharp(sample_plan: Plan, camera: Camera, sharp: np.ndarray,
+                 runner) -> np.ndarray:
+    """The sharp reference in the output's encoding (sRGB, linear, or re-toned).
+
+    Args:
+        sample_plan: the sample's plan.
+        camera: its camera (``output.crf = "camera"`` re-tones with its fitted response).
+        sharp: sRGB image, H x W x 3 float64 in [0, 1].
+        runner: the backend (its host-side ``retone``).
+    """
     if not sample_plan.kept("tone"):
         return np.clip(transfer.srgb_to_linear(sharp), 0.0, 1.0)
-    return runner.retone(sample_plan, sharp)
+    return runner.retone(sample_plan, camera, sharp)
 
 
 def _gather(inputs, scene: Scene):

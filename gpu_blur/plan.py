@@ -17,7 +17,10 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
+
 from gpu_blur.constants import A7R3_CRF_TABLE_X255
+from gpu_blur.reference.transfer import RETONE_CURVES, retone_polynomial
 from gpu_blur.scene import Scene
 
 PASSES = ("accumulate", "to_raw", "finish")
@@ -86,6 +89,42 @@ class Plan:
         """
         options = self["poisson_gaussian_noise"].options
         return options["normal_above"] if options["sampler"] == "normal" else None
+
+    @property
+    def retone_curve(self) -> str:
+        """What the retone stage evaluates: ``"polynomial"``, ``"lookup"``, or ``""`` (skipped).
+
+        ``output.crf`` ``"a7r3"`` and ``"camera"`` are polynomials, ``"a7r3-lut"`` a table
+        (:data:`gpu_blur.reference.transfer.RETONE_CURVES`).
+        """
+        if not self.kept("retone"):
+            return ""
+        return RETONE_CURVES[self["retone"].options["crf"]]
+
+    def retone_coefficients(self, camera) -> np.ndarray | None:
+        """The camera's fitted response for ``output.crf = "camera"``, else None.
+
+        The ``coefficients`` argument of :func:`gpu_blur.reference.transfer.retone`.
+
+        Args:
+            camera: the sample's :class:`gpu_blur.cameras.Camera`.
+
+        Raises:
+            ValueError: naming the camera and the fix when it has no fitted response.
+        """
+        if self.kept("retone") and self["retone"].options["crf"] == "camera":
+            return camera.fitted_response()
+        return None
+
+    def retone_polynomial(self, camera) -> np.ndarray | None:
+        """c_0 ... c_K of the polynomial the retone stage evaluates, or None (no polynomial).
+
+        The A7R3 fit for ``output.crf = "a7r3"``, the camera's fitted response for
+        ``"camera"``: what kernel backends upload.
+        """
+        if self.retone_curve != "polynomial":
+            return None
+        return retone_polynomial(self["retone"].options["crf"], self.retone_coefficients(camera))
 
     def __str__(self) -> str:
         width = max(len(s.name) for s in self.stages)
@@ -182,11 +221,14 @@ def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
         "sRGB Gaussian noise, then clip" if n.model == "gaussian" else f"noise.model = {n.model}")
     add("restore_saturated", "finish", sat,
         "channels saturated after synthesis set to exactly 1" if sat else "no saturation stage")
-    retone = out.crf in ("a7r3", "a7r3-lut")
+    retone = out.crf in RETONE_CURVES
     nodes = out.crf_table_size or A7R3_CRF_TABLE_X255.size
-    curve = (f"lookup table ({nodes} nodes)" if out.crf == "a7r3-lut" else "polynomial")
+    curve = {"a7r3": "the A7R3 polynomial",
+             "a7r3-lut": f"the A7R3 lookup table ({nodes} nodes)",
+             "camera": f"the fitted response (Eq. 6 polynomial, [response] of gpu-blur "
+                       f"calibrate) of camera {scene.camera.name}"}.get(out.crf)
     add("retone", "finish", retone,
-        f"output and sharp re-toned with the A7R3 {curve}" if retone
+        f"output and sharp re-toned with {curve}" if retone
         else f"output.crf = {out.crf}: no re-toning",
         (out.crf + (f", {out.crf_table_size} nodes" if out.crf_table_size else ""))
         if retone else "",

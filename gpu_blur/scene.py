@@ -109,8 +109,10 @@ FIELDS: dict[str, dict[str, Field]] = {
     },
     "output": {
         "crf": Field("srgb", "final tone: 'srgb' (the ISP's sRGB curve), 'a7r3' (re-tone with "
-                     "the A7R3 polynomial), 'a7r3-lut' (its lookup table), 'none' (linear)",
-                     choices=("srgb", "a7r3", "a7r3-lut", "none")),
+                     "the A7R3 polynomial), 'a7r3-lut' (its lookup table), 'camera' (re-tone "
+                     "with the camera file's fitted response, its [response] polynomial from "
+                     "gpu-blur calibrate --crf-linear/--crf-rendered), 'none' (linear)",
+                     choices=("srgb", "a7r3", "a7r3-lut", "camera", "none")),
         "bits": Field(8, "quantize to 8 or 16 bits (round half up), or 0 to keep float",
                       choices=(0, 8, 16)),
         "crop": Field(0, "pixels cropped from every side of both outputs (RSBlur: 4)",

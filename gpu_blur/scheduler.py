@@ -80,7 +80,8 @@ pass runs once per sample, on the whole image):
   step on about 4e-5 of values, by one count or a flipped PTRS rejection); beyond those at
   most the ``to_raw_noisy_outliers`` fraction may lie outside. The saturated image against
   ``saturate``;
-* finish: against ``finish`` (``finish_crf_polynomial`` with the A7R3 polynomial); a
+* finish: against ``finish`` (``finish_crf_polynomial`` when re-toning with a polynomial:
+  A7R3's or the camera's fitted response); a
   quantized value may differ by one code exactly where the reference's value before
   rounding lies within that row's tolerance of the rounding boundary.
 """
@@ -512,8 +513,7 @@ class _SpotCheck:
         compare("to_raw pass's saturated image", "saturate", saturated, ref_sat)
         unquantized = ref.finish(_without(p, "quantize"), self.params, self.camera, image,
                                  saturated, view, region, **kw)
-        stage = ("finish_crf_polynomial" if p.kept("retone")
-                 and p["retone"].options["crf"] == "a7r3" else "finish")
+        stage = "finish_crf_polynomial" if p.retone_curve == "polynomial" else "finish"
         if not p.kept("quantize"):
             compare("finish pass's image", stage, result, unquantized)
             return

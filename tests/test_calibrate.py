@@ -14,7 +14,7 @@ from gpu_blur.cameras import get_camera, load_camera
 from gpu_blur.cli import main
 from gpu_blur.constants import A7R3_CRF_POLYNOMIAL, SRGB_TO_XYZ, XYZ_TO_SRGB
 from gpu_blur.reference.color import camera_to_linear_matrix
-from gpu_blur.reference.transfer import linear_to_srgb, polynomial_crf
+from gpu_blur.reference.transfer import linear_to_srgb, polynomial_crf, srgb_to_linear
 from gpu_blur.scene import scene_from_dict
 from gpu_blur.testing import assert_close
 
@@ -419,6 +419,28 @@ def test_cli_fits_response_and_alignment_into_the_camera_file(tmp_path, capsys, 
     assert np.array_equal(coefficients,
                           cal.fit_response(linear, linear_to_srgb(linear)).coefficients)
     assert table.size == cal.INVERSE_TABLE_NODES and load_camera(out).name == "cam"
+    assert np.array_equal(load_camera(out).response, coefficients)
+    assert 'add [output] crf = "camera" to re-tone with its fitted response' in printed
+    # the loop: generate a set with the fitted response, as gpu-blur compare would score it
+    photo = np.random.default_rng(3).integers(0, 256, (24, 32, 3), dtype=np.uint8)
+    (tmp_path / "photos").mkdir()
+    cv2.imwrite(str(tmp_path / "photos" / "p.png"), cv2.cvtColor(photo, cv2.COLOR_RGB2BGR))
+    scene_file = tmp_path / "scene.toml"
+    scene_file.write_text('[camera]\nname = "cam.json"\n[blur]\nsteps = 3\n'
+                          '[output]\ncrf = "camera"\n')
+    assert main(["generate", "--input", str(tmp_path / "photos"), "--output",
+                 str(tmp_path / "set"), "--scene", str(scene_file), "--quiet"]) == 0
+    (line,) = [json.loads(x) for x in (tmp_path / "set" / "manifest.jsonl").read_text()
+               .splitlines()]
+    assert "retone" in line["stages"] and line["status"] == "ok"
+
+    def codes(name):
+        return cv2.cvtColor(cv2.imread(str(tmp_path / "set" / line[name])), cv2.COLOR_BGR2RGB)
+
+    toned = polynomial_crf(srgb_to_linear(photo / 255.0), coefficients)
+    assert np.array_equal(codes("sharp"), np.floor(toned * 255 + 0.5).astype(np.uint8))
+    blurred = gpu_blur.synthesize([photo], scene_file, seed=0, sample_index=line["index"])
+    assert np.array_equal(codes("blurred"), np.rint(blurred.blurred * 255).astype(np.uint8))
 
 
 def test_cli_errors_name_the_file_and_exit_2(tmp_path, capsys, chart):

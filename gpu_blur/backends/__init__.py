@@ -9,7 +9,8 @@ on a region (a tile with its halo):
   -> (image, saturated)``: saturation to the noisy white-balanced RAW mosaic;
 * ``finish(plan, params, camera, image, saturated, view, out, *, seed, sample_index)
   -> rgb``: demosaic to the final (quantized) image over the ``out`` region;
-* ``retone(plan, image)``: the output tone curve, also applied to the sharp reference.
+* ``retone(plan, camera, image)``: the output tone curve, also applied to the sharp
+  reference.
 
 Frames come as stored (:func:`gpu_blur.imageio.check_image`: uint8/uint16 codes or float64 in
 [0, 1]). Kernel backends return their outputs as :class:`OnDevice` arrays, which the next pass

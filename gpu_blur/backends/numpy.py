@@ -154,14 +154,21 @@ class NumpyBackend:
                 origin=out.origin), 0.0, 1.0)
         if plan.kept("restore_saturated"):
             image = restore_saturated(image, saturated)
-        image = self.retone(plan, image)
+        image = self.retone(plan, camera, image)
         if plan.kept("quantize"):
             image = quantize(image, plan["quantize"].options["bits"])
         return image
 
-    def retone(self, plan: Plan, image: np.ndarray) -> np.ndarray:
-        """The final re-toning with the A7R3 response, when the plan keeps it."""
+    def retone(self, plan: Plan, camera: Camera, image: np.ndarray) -> np.ndarray:
+        """The final re-toning (A7R3 or the camera's fitted response), when the plan keeps it.
+
+        Args:
+            plan: the sample's plan.
+            camera: its camera (``output.crf = "camera"`` re-tones with its response).
+            image: sRGB values in [0, 1], any shape.
+        """
         if plan.kept("retone"):
             options = plan["retone"].options
-            return transfer.retone(image, options["crf"], options["table_size"])
+            return transfer.retone(image, options["crf"], options["table_size"],
+                                   plan.retone_coefficients(camera))
         return image

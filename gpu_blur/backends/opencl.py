@@ -198,7 +198,7 @@ def pass_defines(plan: Plan, pass_: str) -> dict[str, str]:
             if options["clip"]:
                 defines["GB_CLIP_DEMOSAIC"] = "1"
             defines["GB_ZERO_BORDER"] = "1" if options["border"] == "zero" else "0"
-        if plan.kept("retone") and plan["retone"].options["crf"] == "a7r3-lut":
+        if plan.retone_curve == "lookup":
             defines["GB_RETONE_LOOKUP"] = "1"
         if plan.kept("quantize"):
             defines["GB_QUANTIZE_BITS"] = str(plan["quantize"].options["bits"])
@@ -566,16 +566,17 @@ class OpenCLBackend:
     def finish(self, plan: Plan, params: dict, camera: Camera, image, saturated, view: Region,
                out: Region, *, seed: int, sample_index: int) -> OnDevice:
         """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
-        from gpu_blur.constants import A7R3_CRF_POLYNOMIAL
-
         prg = self.kernels("finish.cl", pass_defines(plan, "finish"))
+        # the kernel takes both curves; the one the plan does not use is never read
+        polynomial = plan.retone_polynomial(camera)
+        polynomial = np.zeros(1) if polynomial is None else polynomial
         table = a7r3_lookup_table(plan["retone"].options["table_size"]) / 255.0
         raw = image if plan.raw_round_trip else np.zeros(1)
         result = self._empty(out.h * out.w * 3)
         key = key_from_seed(seed)
         raw_buf, sat_buf = self._upload(raw), self._upload(saturated)
-        matrix, polynomial = (self._constant(camera.camera_to_linear),
-                              self._constant(A7R3_CRF_POLYNOMIAL))
+        matrix, polynomial_buf = (self._constant(camera.camera_to_linear),
+                                  self._constant(polynomial))
         table_buf = self._constant(table)
         with self._kernels():
             prg.gb_finish(
@@ -584,16 +585,16 @@ class OpenCLBackend:
                 np.int64(view.full_h), np.int64(out.x0), np.int64(out.y0), np.int64(out.w),
                 np.int64(out.h), np.int32(cfa_bits(params.get("pattern"))), matrix,
                 self.real(params.get("gaussian_std", 0.0)), np.uint32(key[0]),
-                np.uint32(key[1]), np.uint32(sample_index), polynomial,
-                np.int32(A7R3_CRF_POLYNOMIAL.size), table_buf, np.int32(table.size), result)
+                np.uint32(key[1]), np.uint32(sample_index), polynomial_buf,
+                np.int32(polynomial.size), table_buf, np.int32(table.size), result)
         del raw_buf, sat_buf
         return self._out(result, (out.h, out.w, 3), "finish", out.origin)
 
-    def retone(self, plan: Plan, image: np.ndarray) -> np.ndarray:
+    def retone(self, plan: Plan, camera: Camera, image: np.ndarray) -> np.ndarray:
         """The output tone curve for the sharp reference (host side, float64)."""
         from gpu_blur.backends.numpy import NumpyBackend
 
-        return NumpyBackend().retone(plan, image)
+        return NumpyBackend().retone(plan, camera, image)
 
 
 class _Kernels:

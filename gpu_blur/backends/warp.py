@@ -483,7 +483,6 @@ class WarpBackend:
     def finish(self, plan: Plan, params: dict, camera: Camera, image, saturated, view: Region,
                out: Region, *, seed: int, sample_index: int) -> OnDevice:
         """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
-        from gpu_blur.constants import A7R3_CRF_POLYNOMIAL
         from gpu_blur.warp_kernels.passes import finish_kernel
 
         demosaic = plan["demosaic"].options if plan.raw_round_trip else None
@@ -491,14 +490,16 @@ class WarpBackend:
             self.real, demosaic["method"] if demosaic else "",
             bool(demosaic and demosaic["border"] == "zero"), bool(demosaic and demosaic["clip"]),
             plan.kept("tone"), plan.kept("gaussian_noise"), plan.kept("restore_saturated"),
-            plan["retone"].options["crf"] if plan.kept("retone") else "",
+            plan.retone_curve,
             plan["quantize"].options["bits"] if plan.kept("quantize") else 0, plan.fast_math)
         result = self._empty(out.h * out.w * 3)
         key = key_from_seed(seed)
         raw = image if plan.raw_round_trip else np.zeros(1)
         inputs = (self._array(raw), self._array(saturated))
+        # the kernel takes both curves; the one the plan does not use is never read
+        polynomial = plan.retone_polynomial(camera)
         constants = (self._constant(camera.camera_to_linear),
-                     self._constant(A7R3_CRF_POLYNOMIAL),
+                     self._constant(np.zeros(1) if polynomial is None else polynomial),
                      self._constant(a7r3_lookup_table(plan["retone"].options["table_size"])
                                     / 255.0))
         with self._kernels():
@@ -510,9 +511,9 @@ class WarpBackend:
                 constants[1], constants[2], result)
         return self._out(result, (out.h, out.w, 3), "finish", out.origin)
 
-    def retone(self, plan: Plan, image: np.ndarray) -> np.ndarray:
+    def retone(self, plan: Plan, camera: Camera, image: np.ndarray) -> np.ndarray:
         """The output tone curve for the sharp reference (host side, float64)."""
         from gpu_blur.backends.numpy import NumpyBackend
 
-        return NumpyBackend().retone(plan, image)
+        return NumpyBackend().retone(plan, camera, image)
 

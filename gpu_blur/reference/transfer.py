@@ -5,7 +5,8 @@ All functions take and return float64 arrays of any shape (values are per channe
 sRGB constants are those of IEC 61966-2-1 as the RSBlur code uses them (MATLAB ``rgb2lin`` /
 ``lin2rgb`` clones in ``Uformer-RSBlur/ISP/utils.py``): odd extension for negative inputs, no
 clipping inside. The A7R3 camera response (a degree-7 polynomial and its 2,551-entry table) is
-camera data and lives in :mod:`gpu_blur.cameras`; these functions take it as an argument.
+camera data and lives in :mod:`gpu_blur.constants`; a calibrated camera's fitted response is in
+its camera file (:mod:`gpu_blur.cameras`); these functions take them as arguments.
 """
 
 from __future__ import annotations
@@ -181,26 +182,71 @@ def inverse_lookup_crf(encoded, rendered_x255) -> np.ndarray:
     return np.clip(np.interp(x, rendered, nodes), 0.0, 1.0)
 
 
-def retone(encoded, crf: str, table_size: int = 0) -> np.ndarray:
-    """Re-tone an sRGB image with the A7R3 response: ``crf(srgb_to_linear(x))``.
+#: The curve each re-toning ``output.crf`` evaluates: an Eq. 6 polynomial or a lookup table.
+RETONE_CURVES = {"a7r3": "polynomial", "camera": "polynomial", "a7r3-lut": "lookup"}
 
-    The RSBlur PyTorch pipeline does this to both the synthetic input and its ground truth so
-    that they look like RealBlur-J's camera JPEGs (pipeline note, Sec. 3 step 18).
+
+def retone_polynomial(crf: str, coefficients=None) -> np.ndarray:
+    """The polynomial a polynomial ``crf`` re-tones with, c_0 ... c_K in ascending powers.
 
     Args:
-        encoded: sRGB image in [0, 1]; any shape.
-        crf: ``"a7r3"`` (the polynomial) or ``"a7r3-lut"`` (its lookup table).
-        table_size: ``"a7r3-lut"`` only: 0 for the authors' 2,551-node table, else the nodes
-            of :func:`a7r3_lookup_table` (``output.crf_table_size``).
+        crf: ``"a7r3"`` (the A7R3 fit, :data:`gpu_blur.constants.A7R3_CRF_POLYNOMIAL`) or
+            ``"camera"`` (a calibrated camera's fitted response).
+        coefficients: ``"camera"`` only, and required there: the camera's fitted response
+            (:attr:`gpu_blur.cameras.Camera.response`).
+
+    Returns:
+        float64 coefficients, (K + 1,).
     """
     from gpu_blur.constants import A7R3_CRF_POLYNOMIAL
 
-    linear = srgb_to_linear(encoded)
+    if crf == "camera":
+        if coefficients is None:
+            raise ValueError("crf 'camera' needs the camera's fitted response: pass its "
+                             "coefficients (c_0 ... c_K, ascending powers)")
+        c = np.asarray(coefficients, dtype=np.float64)
+        if c.ndim != 1 or c.size < 2 or not np.all(np.isfinite(c)):
+            raise ValueError(f"crf 'camera': coefficients must be >= 2 finite numbers in a 1-D "
+                             f"array, got {coefficients!r}")
+        return c
+    if coefficients is not None:
+        raise ValueError(f"coefficients are for crf 'camera'; crf {crf!r} has its own curve "
+                         "(pass coefficients=None)")
     if crf == "a7r3":
+        return A7R3_CRF_POLYNOMIAL
+    raise ValueError(f"crf {crf!r} is not a polynomial; polynomial crfs: "
+                     f"{', '.join(k for k, v in RETONE_CURVES.items() if v == 'polynomial')}")
+
+
+def retone(encoded, crf: str, table_size: int = 0, coefficients=None) -> np.ndarray:
+    """Re-tone an sRGB image with a camera response: ``crf(srgb_to_linear(x))``.
+
+    The RSBlur PyTorch pipeline does this to both the synthetic input and its ground truth with
+    the A7R3 response, so that they look like RealBlur-J's camera JPEGs (pipeline note, Sec. 3
+    step 18); ``"camera"`` does the same with a calibrated camera's fitted response.
+
+    Args:
+        encoded: sRGB image in [0, 1]; any shape.
+        crf: ``"a7r3"`` (the A7R3 polynomial), ``"a7r3-lut"`` (its lookup table) or
+            ``"camera"`` (the polynomial ``coefficients``); see :data:`RETONE_CURVES`.
+        table_size: ``"a7r3-lut"`` only: 0 for the authors' 2,551-node table, else the nodes
+            of :func:`a7r3_lookup_table` (``output.crf_table_size``).
+        coefficients: ``"camera"`` only, and required there: c_0 ... c_K in ascending powers
+            (:attr:`gpu_blur.cameras.Camera.response`).
+
+    Returns:
+        Re-toned values in [0, 1], float64, same shape.
+    """
+    curve = RETONE_CURVES.get(crf)
+    if curve is None:
+        raise ValueError(f"crf must be one of {', '.join(map(repr, RETONE_CURVES))}, "
+                         f"got {crf!r}")
+    if curve == "polynomial":
         if table_size != 0:
-            raise ValueError(f"table_size = {table_size!r} needs crf 'a7r3-lut'; the 'a7r3' "
+            raise ValueError(f"table_size = {table_size!r} needs crf 'a7r3-lut'; the {crf!r} "
                              "polynomial has no table (use table_size 0)")
-        return polynomial_crf(linear, A7R3_CRF_POLYNOMIAL)
-    if crf == "a7r3-lut":
-        return lookup_crf(linear, a7r3_lookup_table(table_size))
-    raise ValueError(f"crf must be 'a7r3' or 'a7r3-lut', got {crf!r}")
+        return polynomial_crf(srgb_to_linear(encoded), retone_polynomial(crf, coefficients))
+    if coefficients is not None:
+        raise ValueError(f"coefficients are for crf 'camera'; crf {crf!r} is a lookup table "
+                         "(pass coefficients=None)")
+    return lookup_crf(srgb_to_linear(encoded), a7r3_lookup_table(table_size))

@@ -298,9 +298,11 @@ def finish_kernel(real, demosaic: str, zero_border: bool, clip_demosaic: bool, t
     """Pass 3, with the kept stages as flags.
 
     Stages: demosaic ("" when there is no RAW round trip), camera_to_linear, tone,
-    gaussian_noise, restore_saturated, retone ("" / "a7r3" / "a7r3-lut", the table any size
-    the host passes), quantize (bits 0: none). ``fast_math`` (float32 only) builds the module
-    with Warp's fast_math option and draws the sRGB noise with random.pixel_normal_fast.
+    gaussian_noise, restore_saturated, retone (the plan's ``retone_curve``: "", "polynomial"
+    with the coefficients the host passes, A7R3's or a camera's fitted response, or "lookup"
+    with the table any size the host passes), quantize (bits 0: none). ``fast_math`` (float32
+    only) builds the module with Warp's fast_math option and draws the sRGB noise with
+    random.pixel_normal_fast.
     """
     vec3 = wp.types.vector(length=3, dtype=real)
     border = 1 if zero_border else 0
@@ -349,10 +351,10 @@ def finish_kernel(real, demosaic: str, zero_border: bool, clip_demosaic: bool, t
             if wp.static(restore):
                 if saturated[v + c] >= real(1.0):
                     p = real(1.0)
-            if wp.static(retone == "a7r3"):
+            if wp.static(retone == "polynomial"):
                 p = pixel.polynomial_crf(pixel.srgb_to_linear(p), crf_polynomial,
                                          crf_polynomial.shape[0])
-            if wp.static(retone == "a7r3-lut"):
+            if wp.static(retone == "lookup"):
                 p = pixel.lookup_crf(pixel.srgb_to_linear(p), crf_table, crf_table.shape[0])
             if wp.static(bits > 0):
                 p = pixel.quantize(p, bits)
