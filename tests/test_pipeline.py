@@ -282,7 +282,7 @@ def test_sharp_reference_from_codes_is_the_curve_of_every_pixel_bitwise(crf, dty
     scene = scene_from_dict({"output": {"crf": crf}})
     top = np.iinfo(dtype).max
     codes = np.random.default_rng(5).integers(0, top + 1, (24, 32, 3), dtype=dtype)
-    codes[0, :2] = (0, top)  # both ends of the table
+    codes[0, :2] = ((0,), (top,))  # both ends of the table
     p, camera, runner = plan(scene), scene_camera(scene), NumpyBackend()
     got = render_sharp(p, camera, codes, runner)
     expected = _render_values(p, camera, unit_values(codes), runner)
