@@ -552,9 +552,10 @@ class _SpotCheck:
         delta = atol + rtol * np.abs(raw)
         accepted = np.zeros(image.shape, dtype=bool)
         for sign in (-1.0, 1.0):
-            drawn = noise.add_poisson_gaussian(np.maximum(raw + sign * delta, 0.0),
-                                               params["shot_noise_k"], params["read_noise_std"],
-                                               origin=origin, **kw)
+            drawn = noise.add_poisson_gaussian(
+                np.maximum(raw + sign * delta, 0.0), params["shot_noise_k"],
+                params["read_noise_std"], origin=origin,
+                poisson_normal_above=self.plan.poisson_normal_above, **kw)
             drawn = bayer.white_balance(drawn, pattern, *gains, origin=origin)
             accepted |= np.abs(image - drawn) <= atol + rtol * np.abs(drawn)
         return accepted

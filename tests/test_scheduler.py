@@ -167,12 +167,14 @@ def test_spot_checks_pass_clean_runs(spec, case, small):
 
 
 @pytest.mark.parametrize("spec", [s for s in KERNEL_BACKEND_SPECS if s.endswith("float32")])
-def test_spot_checks_accept_poisson_counts_moved_by_float32_rates(spec, small):
+@pytest.mark.parametrize("sampler", [{}, {"poisson": "normal", "normal_above": 10.0}],
+                         ids=["exact", "normal"])
+def test_spot_checks_accept_poisson_counts_moved_by_float32_rates(spec, sampler, small):
     # float32 rates land on the other side of a Poisson count's step now and then (one count,
-    # or a PTRS rejection decision); the check accepts exactly what the reference draws for a
-    # rate within the to_raw row
+    # or a PTRS rejection decision); the check accepts exactly what the reference draws, with
+    # the plan's sampler, for a rate within the to_raw row
     frames = [small, small[:, ::-1].copy()]
-    scene = scene_for(spec, blur={"mode": "average", "frames": 2})
+    scene = scene_for(spec, blur={"mode": "average", "frames": 2}, noise=sampler)
     device, reference = make_backend(spec), NumpyBackend()
     moved = 0
     for seed in range(4):
