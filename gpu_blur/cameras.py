@@ -95,6 +95,30 @@ class Camera:
         return self.response
 
 
+#: Largest sum of |c_k| of a fitted response that float32 kernels may evaluate. Horner's
+#: rounding error in float32 grows about as 2^-24 sum |c_k| (measured 0.3 to 0.45 of it on
+#: OpenCL and Warp CPU: the A7R3 polynomial, sum 1,178, within 2.4e-5; an order-7 sRGB fit,
+#: sum 764, 1.5e-5; order 9, sum 13,628, 3.6e-4; order 12, sum 1.25e6, 0.043), and the
+#: kernels are checked to 3e-5 (TOLERANCES row finish_crf_polynomial): above this sum the
+#: float32 result would leave that row.
+FLOAT32_RESPONSE_MAX_ABS_SUM = 1500.0
+
+
+def check_float32_response(camera: Camera) -> None:
+    """Refuse a fitted response too large for float32 kernels (see the constant above).
+
+    Raises:
+        ValueError: naming the camera, the sum, the expected error and the two fixes.
+    """
+    total = float(np.abs(camera.fitted_response()).sum())
+    if total > FLOAT32_RESPONSE_MAX_ABS_SUM:
+        raise ValueError(
+            f"camera {camera.name!r}: its fitted response's coefficients sum to {total:.4g} in "
+            f"magnitude (at most {FLOAT32_RESPONSE_MAX_ABS_SUM:g} in float32): float32 kernels "
+            f"would evaluate it with errors near {0.45 * total * 2**-24:.2g}; set "
+            "output.precision = 'float64', or refit with a lower --crf-order (7, the default)")
+
+
 def _camera(name, source, cam_to_lin, wb, shot, read, response=None) -> Camera:
     cam_to_lin = np.asarray(cam_to_lin, dtype=np.float64)
     lin_to_cam = checked_inverse(cam_to_lin, f"camera {name!r} camera_to_linear")

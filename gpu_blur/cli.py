@@ -275,7 +275,8 @@ def _check_setup(args, scene) -> None:
         numpy = args.backend.split(":")[0] == "numpy"
         check_budget(args.max_device_memory, plan(scene),
                      "float64" if numpy else scene.output.precision)
-    scene_camera(scene)  # an unknown camera name or a bad camera file
+    # an unknown camera name, a bad camera file, a response float32 kernels cannot evaluate
+    scene_camera(scene, args.backend.split(":")[0])
     if scene.blur.mode == "kernel" and scene.blur.kernel:
         path = Path(scene.blur.kernel)
         if not path.is_absolute() and scene.base_dir is not None:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from gpu_blur.backends import get_backend, to_host
-from gpu_blur.cameras import Camera, get_camera
+from gpu_blur.cameras import Camera, check_float32_response, get_camera
 from gpu_blur.imageio import check_image, read_image, unit_values
 from gpu_blur.params import draw_params
 from gpu_blur.plan import Plan, plan
@@ -79,12 +79,19 @@ def _name(item, what: str) -> str:
     return str(item) if isinstance(item, (str, Path)) else what
 
 
-def scene_camera(scene: Scene) -> Camera:
+def scene_camera(scene: Scene, backend: str = "numpy") -> Camera:
     """The scene's camera (a preset or a camera file next to the scene).
+
+    Args:
+        scene: the scene.
+        backend: the backend's name (``numpy``, ``opencl``, ``warp``): float32 kernels refuse a
+            fitted response they cannot evaluate within tolerance
+            (:func:`gpu_blur.cameras.check_float32_response`).
 
     Raises:
         ValueError: naming the scene's ``camera.name`` and the cameras there are; or, for
-            ``output.crf = "camera"``, naming the camera when it has no fitted response.
+            ``output.crf = "camera"``, naming the camera when it has no fitted response or
+            one too large for float32 kernels.
     """
     where = f"scene file {scene.path}" if scene.path else "scene"
     try:
@@ -94,6 +101,8 @@ def scene_camera(scene: Scene) -> Camera:
     if scene.output.crf == "camera":
         try:
             camera.fitted_response()
+            if backend != "numpy" and scene.output.precision == "float32":
+                check_float32_response(camera)
         except ValueError as e:
             raise ValueError(f"{where}: camera.name = {scene.camera.name!r}: {e}") from None
     return camera
@@ -152,7 +161,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
     scene = _as_scene(scene)
     runner = (get_backend(backend, scene.output.precision) if isinstance(backend, str)
               else backend)
-    camera = scene_camera(scene)
+    camera = scene_camera(scene, getattr(runner, "name", ""))
     with timer("reading"):
         frames, mask, sharp = _gather(inputs, scene)
 

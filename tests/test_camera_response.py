@@ -252,3 +252,27 @@ def test_kernel_synthesis_with_a_camera_response_tones_sharp_on_the_host_and_pas
                                   seed=SEED, sample_index=SAMPLE, backend=backend,
                                   tile=(16, 24), verify=1.0)
     assert checked.tiles == 4 and checked.spot_checks == 4
+
+
+#: A response whose coefficients sum to 1,999 in magnitude (an order-9 fit's size): too large
+#: for float32 kernels (gpu_blur.cameras.FLOAT32_RESPONSE_MAX_ABS_SUM).
+STEEP = np.array([0.0, 1000.0, -999.0])
+
+
+@pytest.mark.parametrize("spec", [s for s in KERNEL_BACKEND_SPECS if s.endswith("float32")])
+def test_float32_kernels_refuse_a_response_too_large_for_float32(tmp_path, photo, spec, capsys):
+    camera_file(tmp_path / "cam.toml", STEEP)
+    (tmp_path / "scene.toml").write_text('[camera]\nname = "cam.toml"\n[output]\ncrf = "camera"\n')
+    backend = spec.split("/")[0]
+    with pytest.raises(ValueError) as e:
+        gpu_blur.synthesize([photo], scene(tmp_path, "camera"), backend=backend)
+    message = str(e.value)
+    assert "sum to 1999" in message and "output.precision = 'float64'" in message
+    assert "--crf-order" in message
+    out = tmp_path / "set"
+    assert main(["generate", "--output", str(out), "--scene", str(tmp_path / "scene.toml"),
+                 "--backend", backend, "--limit", "1", "--quiet"]) == 2
+    assert "sum to 1999" in capsys.readouterr().err and not out.exists()
+    # float64 kernels and numpy evaluate it: no refusal
+    gpu_blur.synthesize([photo], scene(tmp_path, "camera", precision="float64"), backend=backend)
+    gpu_blur.synthesize([photo], scene(tmp_path, "camera"), backend="numpy")
