@@ -191,22 +191,13 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
     # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
     tiled = run(runner, sample_plan, params, camera, frames, mask, schedule, seed=seed,
                 sample_index=sample_index, on_device=on_device)
-    if (sharp.dtype == np.uint8 and scene.output.bits == 8 and sample_plan.kept("quantize")
-            and sample_plan.kept("tone") and not sample_plan.kept("retone")):
-        # 8-bit sRGB in and out, no re-toning: the sharp reference is its own codes, c / 255
-        # (quantize(c / 255, 8) gives c back; float32 c / 255 is the float64 one rounded)
-        sharp_out = sharp.astype(np.float32) / np.float32(255.0)
-    else:
-        sharp_out = render_sharp(sample_plan, camera, sharp, runner)
-        if sample_plan.kept("quantize"):
-            sharp_out = quantize(sharp_out, scene.output.bits)
     crop = scene.output.crop
-    sharp_out = crop_border(sharp_out, crop)
+    sharp_out = render_sharp(sample_plan, camera, crop_border(sharp, crop), runner)
     out = tiled.blurred if on_device else crop_border(tiled.blurred, crop)
     sat_mask = tiled.mask  # a backend's device array is fetched (and cropped) on first use
     if isinstance(sat_mask, np.ndarray):
         sat_mask = crop_border(sat_mask, crop).astype(np.float32, copy=False)
-    return Synthesis(out, sharp_out.astype(np.float32, copy=False), sat_mask, params,
+    return Synthesis(out, sharp_out, sat_mask, params,
                      sample_plan, since(before, time.perf_counter() - start), tiled.tiles,
                      tiled.checked, crop)
 
@@ -221,12 +212,15 @@ def _reaches_clip_level(frames, mask) -> bool:
 
 def render_sharp(sample_plan: Plan, camera: Camera, sharp: np.ndarray,
                  runner) -> np.ndarray:
-    """The sharp reference in the output's encoding (sRGB, linear, or re-toned), float64.
+    """The sharp reference as the output holds it: float32, quantized when the plan quantizes.
 
-    The curves are pointwise, so 8- and 16-bit codes are rendered through a table: the curve
-    evaluated once per code (256 or 65,536 values instead of one per pixel) and gathered, the
-    same float64 values bit for bit (1920 x 1200 re-toned with the A7R3 polynomial on a 2-core
-    CPU: about 0.2 s directly, 13 ms by table).
+    In the output's encoding: sRGB, linear, or re-toned.
+
+    Every step is pointwise, so 8- and 16-bit codes are rendered through a table: the float64
+    curve (and quantization) evaluated once per code (256 or 65,536 values instead of one per
+    pixel) and gathered, the same values bit for bit (1920 x 1200 re-toned with the A7R3
+    polynomial on a 2-core CPU: about 0.2 s directly, 13 ms by table). 8-bit sRGB in and out
+    gives the codes themselves, ``c / 255``.
 
     Args:
         sample_plan: the sample's plan.
@@ -238,6 +232,9 @@ def render_sharp(sample_plan: Plan, camera: Camera, sharp: np.ndarray,
     values = unit_values(np.arange(np.iinfo(sharp.dtype).max + 1, dtype=sharp.dtype)
                          if coded else sharp)
     rendered = _render_values(sample_plan, camera, values, runner)
+    if sample_plan.kept("quantize"):
+        rendered = quantize(rendered, sample_plan["quantize"].options["bits"])
+    rendered = rendered.astype(np.float32)
     return rendered[sharp] if coded else rendered
 
 

@@ -272,19 +272,24 @@ def test_8_bit_frames_give_the_sharp_reference_of_their_float_values(retone, cof
 
 @pytest.mark.parametrize("crf", ["a7r3", "a7r3-lut", "srgb", "none"])
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
-def test_sharp_reference_from_codes_is_the_curve_of_every_pixel_bitwise(crf, dtype):
-    """render_sharp evaluates the curve once per code and gathers: the same float64 values."""
+@pytest.mark.parametrize("bits", [0, 8, 16])
+def test_sharp_reference_from_codes_is_the_curve_of_every_pixel_bitwise(crf, dtype, bits):
+    """render_sharp evaluates the curve once per code and gathers: the same values."""
     from gpu_blur.backends.numpy import NumpyBackend
     from gpu_blur.imageio import unit_values
     from gpu_blur.pipeline import _render_values, render_sharp, scene_camera
     from gpu_blur.plan import plan
+    from gpu_blur.reference.output import quantize
 
-    scene = scene_from_dict({"output": {"crf": crf}})
+    scene = scene_from_dict({"output": {"crf": crf, "bits": bits}})
     top = np.iinfo(dtype).max
     codes = np.random.default_rng(5).integers(0, top + 1, (24, 32, 3), dtype=dtype)
     codes[0, :2] = ((0,), (top,))  # both ends of the table
     p, camera, runner = plan(scene), scene_camera(scene), NumpyBackend()
     got = render_sharp(p, camera, codes, runner)
     expected = _render_values(p, camera, unit_values(codes), runner)
-    assert got.dtype == np.float64 and got.shape == codes.shape
+    expected = (quantize(expected, bits) if bits else expected).astype(np.float32)
+    assert got.dtype == np.float32 and got.shape == codes.shape
     assert np.array_equal(got, expected)
+    if crf == "srgb" and bits == 8 and dtype is np.uint8:  # 8-bit sRGB in and out: c / 255
+        assert np.array_equal(got, codes.astype(np.float32) / np.float32(255))
