@@ -467,6 +467,8 @@ class _SpotCheck:
         self.reference = NumpyBackend()
         self.backend = getattr(runner, "name", "numpy")
         self.dtype = getattr(runner, "precision", "float64")
+        if sample_plan.fast_math and self.dtype == "float32":
+            self.dtype = "float32-fast"  # the rows of fast maths (gpu_blur.testing)
         self._accumulated = None
 
     def _whole_accumulate(self):

@@ -167,6 +167,17 @@ def test_spot_checks_pass_clean_runs(spec, case, small):
 
 
 @pytest.mark.parametrize("spec", [s for s in KERNEL_BACKEND_SPECS if s.endswith("float32")])
+def test_spot_checks_of_fast_maths_use_its_wider_rows(spec, small):
+    # fast sRGB curves move the linear image by up to 3.3e-6 (Intel's OpenCL), over the float32
+    # accumulate row (1e-6): a clean fast-maths run must still pass its checks
+    scene = scene_for(spec, blur={"mode": "average", "frames": 1},
+                      output={"fast_math": True, "crf": "a7r3", "bits": 0})
+    result = gpu_blur.synthesize([small], scene, seed=SEED, sample_index=SAMPLE,
+                                 backend=spec.split("/")[0], tile=(24, 32), verify=1.0)
+    assert result.tiles == result.spot_checks == 4
+
+
+@pytest.mark.parametrize("spec", [s for s in KERNEL_BACKEND_SPECS if s.endswith("float32")])
 @pytest.mark.parametrize("sampler", [{}, {"poisson": "normal", "normal_above": 10.0}],
                          ids=["exact", "normal"])
 def test_spot_checks_accept_poisson_counts_moved_by_float32_rates(spec, sampler, small):
