@@ -341,8 +341,9 @@ def _generate(args) -> int:
             else:
                 totals.add(result.timings)
                 try:
-                    with timer("writing"):
-                        writer.write(spec, result, record)
+                    with timer("writing"):  # the device of the worker that made it
+                        writer.write(spec, result, {**record,
+                                                    "device": result.device or record["device"]})
                 except OSError as e:
                     raise OSError(f"sample {spec.index} ({spec.name}): {e}; the samples "
                                   "finished so far are kept: fix the output folder and run the "

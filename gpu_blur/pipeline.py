@@ -38,6 +38,7 @@ class Synthesis:
             copies, kernels, checks; writing is 0 here), plus ``other`` and ``total``.
         tiles: how many tiles the image ran in.
         spot_checks: how many of them were checked against the numpy reference.
+        device: the device that made it, in words (the backend's ``device``).
     """
 
     blurred: np.ndarray
@@ -49,6 +50,7 @@ class Synthesis:
     tiles: int = 1
     spot_checks: int = 0
     crop: int = 0
+    device: str = ""
 
     @property
     def mask(self) -> np.ndarray:
@@ -199,7 +201,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         sat_mask = crop_border(sat_mask, crop).astype(np.float32, copy=False)
     return Synthesis(out, sharp_out, sat_mask, params,
                      sample_plan, since(before, time.perf_counter() - start), tiled.tiles,
-                     tiled.checked, crop)
+                     tiled.checked, crop, str(getattr(runner, "device", "")))
 
 
 def _reaches_clip_level(frames, mask) -> bool:

@@ -31,6 +31,37 @@ def test_generate_on_the_built_in_photo_writes_pairs_and_a_manifest(tmp_path, ca
     assert "wrote 2 samples" in capsys.readouterr().out
 
 
+def test_manifest_names_the_device_that_made_each_sample(tmp_path, monkeypatch):
+    # with --devices, workers hold other devices than the driver's backend: each line says the
+    # device of the sample's own Synthesis (here a stand-in executor renames it)
+    import dataclasses
+
+    import gpu_blur
+    from gpu_blur import distributed
+
+    real = distributed.pick_executor
+
+    def renaming(args, precision):
+        executor = real(args, precision)
+
+        def run(job, specs):
+            for spec, result, error in executor(job, specs):
+                yield spec, dataclasses.replace(result, device=f"worker {spec.index}"), error
+        return run
+
+    monkeypatch.setattr(distributed, "pick_executor", renaming)
+    out = tmp_path / "set"
+    assert main(["generate", "--output", str(out), "--limit", "2", "--quiet"]) == 0
+    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    assert [x["device"] for x in lines] == ["worker 0", "worker 1"]
+    # and a sample made here names this process's device
+    from gpu_blur.backends import get_backend
+    from gpu_blur.scene import scene_from_dict
+
+    alone = gpu_blur.synthesize([np.zeros((8, 8, 3))], scene_from_dict({}), backend="numpy")
+    assert alone.device == get_backend("numpy").device != ""
+
+
 def test_generate_is_reproducible_for_a_seed(tmp_path):
     for name in ("a", "b"):
         assert main(["generate", "--output", str(tmp_path / name), "--limit", "1", "--quiet",
