@@ -251,6 +251,25 @@ def source_commit() -> str | None:
     return commit + ("+modified" if modified else "")
 
 
+def source_digest() -> str:
+    """SHA-256 of the code that runs: every file under gpu_blur/ and kernels/, by path.
+
+    A commit names the code only where the checkout's git metadata is its own (a copy of the
+    tree on another machine may carry stale metadata); the digest of the files themselves can
+    be checked against any commit (``git worktree add``, then this function there).
+    """
+    import hashlib
+
+    root = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256()
+    for folder in ("gpu_blur", "kernels"):
+        for path in sorted((root / folder).rglob("*")):
+            if path.is_file() and "__pycache__" not in path.parts:
+                digest.update(path.relative_to(root).as_posix().encode() + b"\0")
+                digest.update(path.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
 def available_backends() -> dict[str, dict]:
     """Every backend of this host that can run: spec -> {device, kind, fp64}.
 
@@ -889,7 +908,8 @@ def markdown(report: dict) -> str:
         "",
         f"Host: {report['cpu']}, 1-minute load average {report['load_average'][0]} at the "
         f"start and {report['load_average'][1]} at the end (other work slows the runs). "
-        f"Source: {report['source']}. Devices: "
+        f"Source: {report['source']} (files' SHA-256 "
+        f"{str(report.get('source_digest'))[:16]}...). Devices: "
         + "; ".join(f"`{k}` {v}" for k, v in report["devices"].items()) + ".",
         "",
         "Base scene (RSBlur-like): " + json.dumps(report["base_scene"]) + ". Times: median of "
@@ -1007,6 +1027,7 @@ def run_benchmark(size: tuple[int, int] = DEFAULT_SIZE, backends: Sequence[str] 
                 "(gpu_blur/benchmark.py)",
         "host": platform.node(), "cpu": cpu_name(), "python": platform.python_version(),
         "gpu_blur": gpu_blur.__version__, "source": source_commit(),
+        "source_digest": source_digest(),
         "devices": {spec: b["device"] for spec, b in chosen.items()},
         "size": [width, height], "frames": FRAMES, "pan_px_per_frame": PAN_PX,
         "megapixels": runner.megapixels, "runs": runs, "reference_runs": reference_runs,

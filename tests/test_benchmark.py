@@ -64,6 +64,13 @@ def test_quick_run_has_two_settings_of_every_knob_on_both_backends(quick_report)
             assert backends in ({"numpy", KERNEL_BACKEND}, {"-"}), setting
 
 
+def test_report_names_the_code_that_ran_by_commit_and_file_digest(quick_report):
+    report, out = quick_report
+    assert report["source_digest"] == benchmark.source_digest()
+    assert len(report["source_digest"]) == 64 and int(report["source_digest"], 16) >= 0
+    assert report["source_digest"][:16] in (out / "accuracy_vs_time_test.md").read_text()
+
+
 def test_reference_runs_time_numpy_alone_and_the_table_says_so(quick_report):
     report, out = quick_report
     runs = {r["backend"]: len(r["runs_s"]) for r in report["rows"] if r["runs_s"]}
