@@ -244,8 +244,9 @@ class FrameAccumulator:
         """Return ``(blurred, saturation_mask)``, both ``H x W x C`` float64.
 
         ``blurred`` is the mean of the frames; ``saturation_mask`` is, per pixel and channel,
-        the fraction of frames at or above :data:`SATURATION_LEVEL` (multiples of ``1 / n``
-        when every frame was tested by its value).
+        the mean of the frames' saturated fractions: the fraction of frames at or above
+        :data:`SATURATION_LEVEL` (multiples of ``1 / n``) when every frame was tested by its
+        value.
 
         Raises:
             ValueError: if no frame was added.
