@@ -23,7 +23,7 @@ from conftest import KERNEL_BACKEND_SPECS, make_backend, spec_backend, spec_dtyp
 import gpu_blur
 from gpu_blur.backends.flows import with_flows
 from gpu_blur.plan import plan
-from gpu_blur.reference.blur import average_frames, blur_halo
+from gpu_blur.reference.blur import FrameAccumulator, average_frames, blur_halo
 from gpu_blur.reference.interpolate import (
     CONSISTENCY_ABSOLUTE_PX2,
     CONSISTENCY_RELATIVE,
@@ -100,6 +100,21 @@ def test_translation_average_is_the_mean_of_exactly_shifted_frames(rocket_rgb):
     margin = (n - 1) * interpolation_halo(flows)
     assert_close(interior(blurred, margin), interior(expected, margin), "interpolate_translation")
     assert np.array_equal(interior(mask, margin), interior(expected_mask, margin))
+
+
+def test_average_is_the_accumulated_intermediate_frames_bitwise(pair):
+    """interpolated_average tests each gap's flows once for all its times: the same frames."""
+    frame0, frame1, fw, bw = pair
+    flows = np.stack([fw, bw])[None]
+    blurred, mask = interpolated_average([frame0, frame1], 4, flows)
+    acc = FrameAccumulator(*frame0.shape)
+    acc.add(srgb_to_linear(frame0))
+    for t in interpolation_times(4):
+        values, saturated = interpolate_frame(frame0, frame1, fw, bw, t, saturation=True)
+        acc.add(srgb_to_linear(values), saturated)
+    acc.add(srgb_to_linear(frame1))
+    expected, expected_mask = acc.result()
+    assert np.array_equal(blurred, expected) and np.array_equal(mask, expected_mask)
 
 
 def test_factor_1_is_plain_averaging_bitwise(coffee_rgb):

@@ -226,21 +226,42 @@ def flow_consistent(flow, reverse) -> np.ndarray:
     return ex * ex + ey * ey <= CONSISTENCY_RELATIVE * norms + CONSISTENCY_ABSOLUTE_PX2
 
 
-def _interpolate(f0: np.ndarray, f1: np.ndarray, fw: np.ndarray, bw: np.ndarray,
-                 t: float) -> np.ndarray:
+def _trust(fw: np.ndarray, bw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Module step 3's decisions for one gap, ``H x W x 1`` bool each.
+
+    frame0's sample (carried by ``F_bw``) and frame1's (by ``F_fw``). They do not depend on
+    ``t``: one test serves every time of the gap.
+    """
+    return flow_consistent(bw, fw)[:, :, None], flow_consistent(fw, bw)[:, :, None]
+
+
+def _interpolate(f0: np.ndarray, f1: np.ndarray, fw: np.ndarray, bw: np.ndarray, t: float,
+                 trust: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """Module steps 2 and 3 on checked float64 images: the blend of the two warped samples.
 
     ``f0`` and ``f1`` may carry any channels (values, indicators); each is sampled at the same
-    positions and blended with the same trust decisions.
+    positions and blended with the same trust decisions (:func:`_trust`).
     """
     h, w = f0.shape[:2]
     xs, ys = _grid(h, w)
     a = _sample(f0, xs + t * bw[:, :, 0], ys + t * bw[:, :, 1])
     b = _sample(f1, xs + (1.0 - t) * fw[:, :, 0], ys + (1.0 - t) * fw[:, :, 1])
-    trust_a = flow_consistent(bw, fw)[:, :, None]
-    trust_b = flow_consistent(fw, bw)[:, :, None]
+    trust_a, trust_b = trust
     blend = (1.0 - t) * a + t * b
     return np.where(trust_a == trust_b, blend, np.where(trust_a, a, b))
+
+
+def _frame_with_saturation(f0: np.ndarray, f1: np.ndarray, fw: np.ndarray, bw: np.ndarray,
+                           t: float, trust) -> tuple[np.ndarray, np.ndarray]:
+    """Values and saturated fractions of the frame at ``t`` (checked float64 inputs).
+
+    Values and indicators ``[frame >= 1]`` go side by side through one sampling and one set of
+    trust decisions (module step 4).
+    """
+    c = f0.shape[2]
+    both = _interpolate(np.concatenate([f0, f0 >= SATURATION_LEVEL], axis=2),
+                        np.concatenate([f1, f1 >= SATURATION_LEVEL], axis=2), fw, bw, t, trust)
+    return both[:, :, :c], both[:, :, c:]
 
 
 def interpolate_frame(frame0, frame1, flow_fw, flow_bw, t: float,
@@ -271,15 +292,12 @@ def interpolate_frame(frame0, frame1, flow_fw, flow_bw, t: float,
         raise ValueError(f"frame0 and frame1 must have one shape; got {f0.shape} and {f1.shape}")
     if not 0.0 < t < 1.0:
         raise ValueError(f"t must lie in the open interval (0, 1); got {t!r}")
-    h, w, c = f0.shape
+    h, w = f0.shape[:2]
     fw = _check_flow(flow_fw, (h, w), "flow_fw")
     bw = _check_flow(flow_bw, (h, w), "flow_bw")
-    if not saturation:
-        return _interpolate(f0, f1, fw, bw, t)
-    # values and indicators side by side: one sampling, one set of trust decisions
-    both = _interpolate(np.concatenate([f0, f0 >= SATURATION_LEVEL], axis=2),
-                        np.concatenate([f1, f1 >= SATURATION_LEVEL], axis=2), fw, bw, t)
-    return both[:, :, :c], both[:, :, c:]
+    if saturation:
+        return _frame_with_saturation(f0, f1, fw, bw, t, _trust(fw, bw))
+    return _interpolate(f0, f1, fw, bw, t, _trust(fw, bw))
 
 
 def interpolation_times(factor: int) -> tuple[float, ...]:
@@ -321,9 +339,12 @@ def interpolated_average(frames: Sequence, factor: int, flows=None,
     acc.add(srgb_to_linear(current))
     for i in range(1, len(frames)):
         previous, current = current, _check_frame(frames[i], f"frame {i}")
+        if times:  # the gap's trust decisions serve all its times
+            fw = _check_flow(flows[i - 1, 0], current.shape[:2], "flow_fw")
+            bw = _check_flow(flows[i - 1, 1], current.shape[:2], "flow_bw")
+            trust = _trust(fw, bw)
         for t in times:
-            values, saturated = interpolate_frame(previous, current, flows[i - 1, 0],
-                                                  flows[i - 1, 1], t, saturation=True)
+            values, saturated = _frame_with_saturation(previous, current, fw, bw, t, trust)
             acc.add(srgb_to_linear(values), saturated)
         acc.add(srgb_to_linear(current))
     return acc.result()
