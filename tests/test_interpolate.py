@@ -13,6 +13,7 @@ tiled and budgeted runs equal to whole-image runs bit for bit (with spot checks)
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from pathlib import Path
 
@@ -335,11 +336,66 @@ def expected_add(pair, t, real):
 #: Output region of the tile test (rows y0:y1, columns x0:x1) inside the kernel frames.
 TILE = (9, 27, 14, 40)
 
+
+@dataclasses.dataclass(frozen=True)
+class HaloView:
+    """A kernel launch's geometry: the output region and the view holding it and its halo.
+
+    Attributes:
+        view: (rows, columns) slices of the frames and flows to upload.
+        vx0, vy0, vw: the view's first pixel and width.
+        x0, y0, dw, dh: the output region's first pixel and size.
+        full_w, full_h: the whole frame's size.
+    """
+
+    view: tuple[slice, slice]
+    vx0: int
+    vy0: int
+    vw: int
+    x0: int
+    y0: int
+    dw: int
+    dh: int
+    full_w: int
+    full_h: int
+
+    @classmethod
+    def of(cls, pair, region=None) -> HaloView:
+        """Region (y0, y1, x0, x1) of the pair (whole when None) with the flows' halo."""
+        frame0, _, fw, bw = pair
+        h, w = frame0.shape[:2]
+        y0, y1, x0, x1 = region or (0, h, 0, w)
+        halo = interpolation_halo(np.stack([fw, bw]))
+        vy0, vy1 = max(y0 - halo, 0), min(y1 + halo, h)
+        vx0, vx1 = max(x0 - halo, 0), min(x1 + halo, w)
+        return cls((slice(vy0, vy1), slice(vx0, vx1)), vx0, vy0, vx1 - vx0, x0, y0, x1 - x0,
+                   y1 - y0, w, h)
+
+
+def check_add_is_the_reference_frame(k, pair, t):
+    """A kernel's sums after one intermediate frame equal the reference's frame at t."""
+    total, comp, saturated = k.add(pair, t)
+    linear, indicator = expected_add(pair, t, k.real)
+    assert_close(total.astype(np.float64) + comp, linear, "interpolate", k.backend, k.dtype)
+    assert_close(saturated, indicator, "interpolate", k.backend, k.dtype)
+    assert (indicator == 1).any() and ((indicator > 0) & (indicator < 1)).any()
+
+
+def check_tile_equals_whole_image(k, pair):
+    """A tile with its halo gives the whole image's sums there, bit for bit."""
+    y0, y1, x0, x1 = TILE
+    whole = k.add(pair, 0.25)
+    tile = k.add(pair, 0.25, TILE)
+    for a, b in zip(tile, whole, strict=True):
+        assert np.array_equal(a, b[y0:y1, x0:x1])
+
 OPENCL_DIR = Path(__file__).resolve().parents[1] / "kernels" / "opencl"
 
 
 class OpenCLInterpolate:
     """interpolate.cl built for one precision on the tests' OpenCL device."""
+
+    backend = "opencl"
 
     def __init__(self, cl, context, queue, dtype: str):
         self.cl, self.context, self.queue, self.dtype = cl, context, queue, dtype
@@ -363,23 +419,17 @@ class OpenCLInterpolate:
     def add(self, pair, t, region=None):
         """Sums after adding the frame at t over region (y0, y1, x0, x1), from its halo view."""
         frame0, frame1, fw, bw = pair
-        h, w = frame0.shape[:2]
-        y0, y1, x0, x1 = region or (0, h, 0, w)
-        halo = interpolation_halo(np.stack([fw, bw]))
-        vy0, vy1 = max(y0 - halo, 0), min(y1 + halo, h)
-        vx0, vx1 = max(x0 - halo, 0), min(x1 + halo, w)
-        view = (slice(vy0, vy1), slice(vx0, vx1))
-        dh, dw = y1 - y0, x1 - x0
-        total = self.buffer(np.zeros((dh, dw, 3)), self.real)
-        comp = self.buffer(np.zeros((dh, dw, 3)), self.real)
-        saturated = self.buffer(np.zeros((dh, dw, 3)), self.real)
+        g = HaloView.of(pair, region)
+        view, dh, dw = g.view, g.dh, g.dw
+        total, comp, saturated = (self.buffer(np.zeros((dh, dw, 3)), self.real)
+                                  for _ in range(3))
         i64, pos = np.int64, self.pos
         self.kernel(self.queue, (dw, dh), None,
                     self.buffer(frame0[view], self.real), self.buffer(frame1[view], self.real),
                     self.buffer(fw[view], np.float32), self.buffer(bw[view], np.float32),
-                    i64(vx0), i64(vy0), i64(vx1 - vx0), i64(w), i64(h), pos(t),
+                    i64(g.vx0), i64(g.vy0), i64(g.vw), i64(g.full_w), i64(g.full_h), pos(t),
                     pos(CONSISTENCY_RELATIVE), pos(CONSISTENCY_ABSOLUTE_PX2), total, comp,
-                    saturated, i64(x0), i64(y0), i64(dw), i64(dh))  # fmt: skip
+                    saturated, i64(g.x0), i64(g.y0), i64(dw), i64(dh))  # fmt: skip
         out = [np.empty((dh, dw, 3), self.real) for _ in range(3)]
         for host, buf in zip(out, (total, comp, saturated), strict=True):
             self.cl.enqueue_copy(self.queue, host, buf)
@@ -397,24 +447,17 @@ def opencl_interpolate(request, opencl_queue):
 
 @pytest.mark.parametrize("t", [0.125, 0.5, 0.75])
 def test_opencl_interpolate_add_is_the_reference_frame(opencl_interpolate, pair, t):
-    k = opencl_interpolate
-    total, comp, saturated = k.add(pair, t)
-    linear, indicator = expected_add(pair, t, k.real)
-    assert_close(total.astype(np.float64) + comp, linear, "interpolate", "opencl", k.dtype)
-    assert_close(saturated, indicator, "interpolate", "opencl", k.dtype)
-    assert (indicator == 1).any() and ((indicator > 0) & (indicator < 1)).any()
+    check_add_is_the_reference_frame(opencl_interpolate, pair, t)
 
 
 def test_opencl_interpolate_tile_equals_whole_image(opencl_interpolate, pair):
-    y0, y1, x0, x1 = TILE
-    whole = opencl_interpolate.add(pair, 0.25)
-    tile = opencl_interpolate.add(pair, 0.25, TILE)
-    for a, b in zip(tile, whole, strict=True):
-        assert np.array_equal(a, b[y0:y1, x0:x1])
+    check_tile_equals_whole_image(opencl_interpolate, pair)
 
 
 class WarpInterpolate:
     """gpu_blur.warp_kernels.interpolate for one precision on one Warp device."""
+
+    backend = "warp"
 
     def __init__(self, device: str, dtype: str):
         import warp as wp
@@ -434,21 +477,14 @@ class WarpInterpolate:
     def add(self, pair, t, region=None):
         """Sums after adding the frame at t over region (y0, y1, x0, x1), from its halo view."""
         frame0, frame1, fw, bw = pair
-        h, w = frame0.shape[:2]
-        y0, y1, x0, x1 = region or (0, h, 0, w)
-        halo = interpolation_halo(np.stack([fw, bw]))
-        vy0, vy1 = max(y0 - halo, 0), min(y1 + halo, h)
-        vx0, vx1 = max(x0 - halo, 0), min(x1 + halo, w)
-        view = (slice(vy0, vy1), slice(vx0, vx1))
-        dh, dw = y1 - y0, x1 - x0
-        out = [self.array(np.zeros((dh, dw, 3)), self.real),
-               self.array(np.zeros((dh, dw, 3)), self.real),
-               self.array(np.zeros((dh, dw, 3)), self.real)]
+        g = HaloView.of(pair, region)
+        view, dh, dw = g.view, g.dh, g.dw
+        out = [self.array(np.zeros((dh, dw, 3)), self.real) for _ in range(3)]
         self.wp.launch(self.kernel, dim=(dh, dw), device=self.device, inputs=[
             self.array(frame0[view], self.real), self.array(frame1[view], self.real),
             self.array(fw[view], np.float32), self.array(bw[view], np.float32),
-            vx0, vy0, vx1 - vx0, w, h, t, CONSISTENCY_RELATIVE, CONSISTENCY_ABSOLUTE_PX2,
-            *out, x0, y0, dw])
+            g.vx0, g.vy0, g.vw, g.full_w, g.full_h, t, CONSISTENCY_RELATIVE,
+            CONSISTENCY_ABSOLUTE_PX2, *out, g.x0, g.y0, dw])
         return [a.numpy().reshape(dh, dw, 3) for a in out]
 
 
@@ -473,20 +509,11 @@ def warp_interpolate(request):
 
 @pytest.mark.parametrize("t", [0.125, 0.5, 0.75])
 def test_warp_interpolate_add_is_the_reference_frame(warp_interpolate, pair, t):
-    k = warp_interpolate
-    total, comp, saturated = k.add(pair, t)
-    linear, indicator = expected_add(pair, t, k.real)
-    assert_close(total.astype(np.float64) + comp, linear, "interpolate", "warp", k.dtype)
-    assert_close(saturated, indicator, "interpolate", "warp", k.dtype)
-    assert (indicator == 1).any() and ((indicator > 0) & (indicator < 1)).any()
+    check_add_is_the_reference_frame(warp_interpolate, pair, t)
 
 
 def test_warp_interpolate_tile_equals_whole_image(warp_interpolate, pair):
-    y0, y1, x0, x1 = TILE
-    whole = warp_interpolate.add(pair, 0.25)
-    tile = warp_interpolate.add(pair, 0.25, TILE)
-    for a, b in zip(tile, whole, strict=True):
-        assert np.array_equal(a, b[y0:y1, x0:x1])
+    check_tile_equals_whole_image(warp_interpolate, pair)
 
 
 # -- backends: the accumulate pass, tiles, budgets, the command line --------------------------
