@@ -20,19 +20,10 @@ from pathlib import Path
 import numpy as np
 
 import gpu_blur
+from gpu_blur.benchmark import cpu_name
 from gpu_blur.scene import scene_from_dict
 
 H, W, FRAMES, RUNS = 1200, 1920, 9, 5
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor()
 
 
 def time_backend(backend: str, precision: str, frames, scene) -> dict:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import gpu_blur
+from gpu_blur.benchmark import cpu_name
 from gpu_blur.cameras import get_camera
 from gpu_blur.reference import bayer, blur, demosaic, noise, rng, transfer
 from gpu_blur.reference.color import apply_matrix
@@ -35,13 +36,6 @@ def median_time(fn, runs: int = 3) -> float:
         fn()
         times.append(time.perf_counter() - t)
     return statistics.median(times)
-
-
-def cpu_name() -> str:
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return platform.processor()
 
 
 def main() -> None:
