@@ -221,6 +221,27 @@ def box_muller(u1: wp.float64, u2: wp.float64) -> wp.vec2d:
 
 
 @wp.func
+def normal_words(
+    key0: wp.uint32,
+    key1: wp.uint32,
+    sample_index: wp.uint32,
+    stream: wp.uint32,
+    x: wp.uint32,
+    y: wp.uint32,
+    index: wp.uint32,
+) -> wp.vec2ui:
+    """The two words Box-Muller turns into normal ``index`` of pixel ``(x, y)`` (and its pair).
+
+    Round ``index // 4``; normals 0, 1 of a round come from words (0, 1), normals 2, 3 from
+    words (2, 3); the normal is the cos (even ``index``) or sin (odd) of the pair.
+    """
+    bits = pixel_bits(key0, key1, sample_index, stream, x, y, index >> wp.uint32(2))
+    if (index & wp.uint32(3)) >= wp.uint32(2):
+        return wp.vec2ui(bits[2], bits[3])
+    return wp.vec2ui(bits[0], bits[1])
+
+
+@wp.func
 def pixel_normal(
     key0: wp.uint32,
     key1: wp.uint32,
@@ -235,15 +256,9 @@ def pixel_normal(
     Round ``index // 4``; within it normals 0, 1 are Box-Muller (cos, sin) of words (0, 1) and
     normals 2, 3 of words (2, 3).
     """
-    bits = pixel_bits(key0, key1, sample_index, stream, x, y, index >> wp.uint32(2))
-    j = index & wp.uint32(3)
-    w1 = bits[0]
-    w2 = bits[1]
-    if j >= wp.uint32(2):
-        w1 = bits[2]
-        w2 = bits[3]
-    z = box_muller(uniform(w1), uniform(w2))
-    return z[wp.int32(j & wp.uint32(1))]
+    w = normal_words(key0, key1, sample_index, stream, x, y, index)
+    z = box_muller(uniform(w[0]), uniform(w[1]))
+    return z[wp.int32(index & wp.uint32(1))]
 
 
 @wp.func
@@ -275,15 +290,9 @@ def pixel_normal_fast(
 
     The uniforms are exact in float32 (:func:`uniform`), so only the fast Box-Muller differs.
     """
-    bits = pixel_bits(key0, key1, sample_index, stream, x, y, index >> wp.uint32(2))
-    j = index & wp.uint32(3)
-    w1 = bits[0]
-    w2 = bits[1]
-    if j >= wp.uint32(2):
-        w1 = bits[2]
-        w2 = bits[3]
-    z = box_muller_fast(wp.float32(uniform(w1)), wp.float32(uniform(w2)))
-    return z[wp.int32(j & wp.uint32(1))]
+    w = normal_words(key0, key1, sample_index, stream, x, y, index)
+    z = box_muller_fast(wp.float32(uniform(w[0])), wp.float32(uniform(w[1])))
+    return z[wp.int32(index & wp.uint32(1))]
 
 
 # ------------------------------------------------------------------------------------------------
