@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import opencl_key_arg as key_arg
+from conftest import report
 
 from gpu_blur.reference import rng, transfer
 from gpu_blur.reference.rng import Stream
@@ -122,16 +124,6 @@ def program_for(build: str, opencl_queue) -> Program:
     if build not in _PROGRAMS:
         _PROGRAMS[build] = Program(context, queue, build)
     return _PROGRAMS[build]
-
-
-def key_arg(seed: int):
-    key = rng.key_from_seed(seed)
-    return cl.cltypes.make_uint2(int(key[0]), int(key[1]))
-
-
-def report(record_property, name: str, value) -> None:
-    record_property(name, value)
-    print(f"{name} = {value}")
 
 
 def device_counts(program, kernel, rates, ys, xs, sample_index, *threshold):

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import opencl_key_arg as key_arg
+from conftest import report
 
 from gpu_blur.reference import rng
 from gpu_blur.reference.rng import Stream
@@ -146,16 +148,6 @@ def program(request, opencl_context):
     if BUILDS[build][2] and "cl_khr_fp64" not in device.extensions:
         pytest.skip(f"{device.name} has no cl_khr_fp64; the float32-nofp64 build covers it")
     return Program(context, queue, build)
-
-
-def key_arg(seed: int):
-    key = rng.key_from_seed(seed)
-    return cl.cltypes.make_uint2(int(key[0]), int(key[1]))
-
-
-def report(record_property, name: str, value) -> None:
-    record_property(name, value)
-    print(f"{name} = {value}")
 
 
 # --------------------------------------------------------------------------------------------

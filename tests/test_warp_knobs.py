@@ -16,6 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import report
+from conftest import warp_key_args as key_args
+from conftest import warp_launch as launch
 
 from gpu_blur.reference import rng, transfer
 from gpu_blur.reference.rng import Stream
@@ -107,27 +110,6 @@ T_SRGB = srgb_kernel({"enable_backward": False})
 @pytest.fixture(scope="module", params=DEVICES)
 def device(request):
     return request.param
-
-
-def launch(kernel, device, n, scalars, arrays, outputs):
-    """Run ``kernel`` over ``n`` items: ``arrays`` are (numpy array, warp dtype) pairs, ``outputs``
-    (shape, warp dtype) pairs; returns the outputs as numpy arrays."""
-    inputs = list(scalars)
-    for values, dtype in arrays:
-        inputs.append(wp.array(np.ascontiguousarray(values), dtype=dtype, device=device))
-    outs = [wp.empty(shape, dtype=dtype, device=device) for shape, dtype in outputs]
-    wp.launch(kernel, dim=n, inputs=inputs + outs, device=device)
-    return [o.numpy() for o in outs]
-
-
-def key_args(seed: int) -> list:
-    key0, key1 = (int(v) for v in rng.key_from_seed(seed))
-    return [wp.uint32(key0), wp.uint32(key1)]
-
-
-def report(record_property, name: str, value) -> None:
-    record_property(name, value)
-    print(f"{name} = {value}")
 
 
 def device_counts(device, kernel, rates, ys, xs, sample_index, *threshold):
