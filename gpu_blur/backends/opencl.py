@@ -12,10 +12,12 @@ Random draws use Random123's Philox through pyopencl's bundled header and match
 
 from __future__ import annotations
 
+import atexit
 import dataclasses
 import functools
-import hashlib
 import os
+import shutil
+import stat
 import sys
 import tempfile
 import warnings
@@ -66,6 +68,24 @@ def kernel_dir() -> Path:
     raise OpenCLError(f"OpenCL kernel sources not found near {here}; reinstall gpu_blur")
 
 
+#: Set beside ``OCL_ICD_VENDORS`` when gpu_blur made the vendor folder, so a child process
+#: that inherits both can tell the folder is ours and check it before trusting it.
+ICD_FOLDER_ENV = "GPU_BLUR_ICD_FOLDER"
+
+
+def private_folder(path: Path) -> bool:
+    """Whether ``path`` is a real folder (no symlink) owned by this user, closed to others.
+
+    What a loader path must be before gpu_blur points the OpenCL ICD loader at it: anyone who
+    can add a file there can have their library loaded into this process.
+    """
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return False
+    return stat.S_ISDIR(st.st_mode) and st.st_uid == os.getuid() and not st.st_mode & 0o077
+
+
 def register_cpu_runtimes() -> None:
     """Let pyopencl's ICD loader see a CPU runtime installed from PyPI.
 
@@ -73,26 +93,32 @@ def register_cpu_runtimes() -> None:
     usable vendor file. When ``OCL_ICD_VENDORS`` is not set and that library exists, write a
     vendor folder naming it (plus the system's ``/etc/OpenCL/vendors``) and point the loader
     at it. Must run before the process first asks for platforms; importing this module does.
+
+    The folder is made by :func:`tempfile.mkdtemp` (a fresh, unpredictable name, mode 0700,
+    owned by this user) and removed when the process exits. A child process inherits it
+    (spawned workers); it is used only while :func:`private_folder` holds, else the child
+    makes its own. Nothing is ever loaded from a folder another user could write.
     """
-    if os.environ.get("OCL_ICD_VENDORS"):
-        return
+    inherited = os.environ.get(ICD_FOLDER_ENV)
+    vendors = os.environ.get("OCL_ICD_VENDORS")
+    if vendors and not (inherited and vendors == inherited):
+        return  # the user's own choice of loader path
+    if vendors and private_folder(Path(vendors)):
+        return  # made by the process that started this one, still private
     lib = Path(sys.prefix) / "lib" / "libintelocl.so"
     if not lib.is_file():
+        for name in ("OCL_ICD_VENDORS", ICD_FOLDER_ENV):
+            os.environ.pop(name, None)  # an inherited folder that is gone or not private
         return
-    prefix_id = hashlib.sha256(sys.prefix.encode()).hexdigest()[:12]  # stable across processes
-    folder = Path(tempfile.gettempdir()) / f"gpu_blur-icd-{os.getuid()}-{prefix_id}"
-    folder.mkdir(exist_ok=True)
+    folder = Path(tempfile.mkdtemp(prefix="gpu_blur-icd-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
     entries = {"gpu_blur-intel-cpu.icd": f"{lib}\n"}
     system = Path("/etc/OpenCL/vendors")
     if system.is_dir():
         entries.update({p.name: p.read_text() for p in system.glob("*.icd")})
     for name, text in entries.items():
-        path = folder / name
-        if not path.is_file() or path.read_text() != text:
-            tmp = folder / f".{name}.{os.getpid()}"
-            tmp.write_text(text)
-            tmp.replace(path)
-    os.environ["OCL_ICD_VENDORS"] = str(folder)
+        (folder / name).write_text(text)
+    os.environ["OCL_ICD_VENDORS"] = os.environ[ICD_FOLDER_ENV] = str(folder)
 
 
 register_cpu_runtimes()
