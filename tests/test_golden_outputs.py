@@ -1,0 +1,31 @@
+"""Whole-pipeline outputs are bit for bit what tests/data/golden_outputs.json recorded.
+
+The record holds one digest per case, backend spec and device (see tests/golden.py). CI runs
+the example scenes; ``GPU_BLUR_HEAVY=1`` runs every case and the tiled runs.
+"""
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+from conftest import BACKEND_SPECS
+from golden import CASES, TILED, run_case
+
+RECORD = json.loads((Path(__file__).parent / "data" / "golden_outputs.json").read_text())
+HEAVY = os.environ.get("GPU_BLUR_HEAVY") == "1"
+RUNS = [(c, None) for c in (CASES if HEAVY else ("minimal", "rsblur", "realblur_j"))]
+RUNS += list(TILED.items()) if HEAVY else []
+
+
+@pytest.mark.parametrize("spec", [s for s in BACKEND_SPECS if s in RECORD])
+@pytest.mark.parametrize("case,tile", RUNS)
+def test_outputs_match_the_recorded_digests(spec, case, tile):
+    got = run_case(case, spec, tile)
+    if got is None:
+        return  # the case does not exist at this precision (fast_math in float64)
+    digest, device = got
+    if device != RECORD[spec]["device"]:
+        pytest.skip(f"{spec} is {device} here; the record was made on {RECORD[spec]['device']}")
+    key = case if tile is None else f"{case}@{tile[0]}x{tile[1]}"
+    assert digest == RECORD[spec][key], f"{spec} {key}: the output changed"
