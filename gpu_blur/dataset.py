@@ -3,19 +3,33 @@
 from __future__ import annotations
 
 import dataclasses
+import errno
+import fcntl
 import json
+import os
+import re
+import socket
+import time
 import zipfile
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.imageio import write_image
+from gpu_blur.imageio import temporary_path, write_image
 from gpu_blur.params import ARRAY_PARAMS
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 MANIFEST = "manifest.jsonl"
 RUN = "run.json"
+#: The lock file a run holds (``fcntl.flock``) while it writes its output folder.
+LOCK = ".gpu_blur.lock"
+_PROBE = "gpu_blur_write_test"
+#: Temporary files (:func:`gpu_blur.imageio.temporary_path`) a killed run may leave in the set's
+#: folders: ``.<final name>[.<pid>].part[.<suffix>]`` of a sample file, the manifest, run.json
+#: or the write probe (names before the pid was added included). Nothing else is removed.
+_TEMPORARY = re.compile(rf"\.(\d{{6,}}.*|{re.escape(MANIFEST)}|{re.escape(RUN)}|{_PROBE})"
+                        r"(\.\d+)?\.part(\.[a-z]+)?")
 #: run.json keys a resumed run must share with the set it finishes, with the option that sets
 #: each (everything that decides a sample's inputs, draws or pixels; not --tile or --limit).
 RESUME_KEYS = {"seed": "--seed", "scene": "--scene", "backend": "--backend",
@@ -201,7 +215,7 @@ def _plain(value):
 
 def _write_text(path: Path, text: str) -> None:
     """Write a text file that appears complete or not at all."""
-    tmp = path.with_name(f".{path.name}.part")
+    tmp = temporary_path(path)
     tmp.write_text(text)
     tmp.replace(path)
 
@@ -211,7 +225,7 @@ def save_arrays(path: Path, arrays: dict) -> None:
 
     The file appears complete or not at all (written to a temporary name, then renamed).
     """
-    tmp = path.with_name(f".{path.stem}.part.npz")
+    tmp = temporary_path(path)
     with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as z:
         for name, value in arrays.items():
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
@@ -263,6 +277,15 @@ class DatasetWriter:
         self.done: dict[int, dict] = {}
         self.retry = 0  # failed samples whose lines were dropped, to be tried again
         self.torn = 0  # manifest lines that were not whole JSON (cut by a kill)
+        self._lock = self._take_lock()
+        try:
+            self._open(run, overwrite, resume, specs)
+        except BaseException:
+            os.close(self._lock)
+            raise
+
+    def _open(self, run, overwrite, resume, specs) -> None:
+        out = self.out
         exists = self.manifest_path.is_file() and self.manifest_path.stat().st_size > 0
         if exists and not (overwrite or resume):
             raise ValueError(f"{self.manifest_path} already exists; choose another --output, "
@@ -274,11 +297,10 @@ class DatasetWriter:
             kept = self._read_manifest()
             self._check_inputs(specs or [])
         self._make_folders()
-        for sub in ("blur", "sharp", "params"):
-            for part in (out / sub).glob(".*.part*") if (out / sub).is_dir() else ():
-                part.unlink()  # left by a killed run; no final file is ever a .part
-        for name in (MANIFEST, RUN):
-            (out / f".{name}.part").unlink(missing_ok=True)
+        for folder in (out, out / "blur", out / "sharp", out / "params"):
+            for entry in folder.iterdir() if folder.is_dir() else ():
+                if _TEMPORARY.fullmatch(entry.name):
+                    entry.unlink()  # left by a killed run (the lock keeps live runs out)
         if kept is not None:
             _write_text(self.manifest_path, "".join(kept))
         elif run is not None:
@@ -290,19 +312,50 @@ class DatasetWriter:
         """Whether finished samples were found (and are kept)."""
         return bool(self.done)
 
+    def _unwritable(self, e: OSError) -> OSError:
+        reason = e.strerror or str(e)
+        return OSError(f"--output {self.out}: cannot create or write the folder ({reason}"
+                       f"{': ' + str(e.filename) if e.filename else ''}); choose another "
+                       "--output, or make it a writable folder")
+
+    def _take_lock(self) -> int:
+        """Create the folder and lock it for this process; returns the lock file's descriptor.
+
+        ``flock`` locks belong to the open file, so the lock ends with :meth:`close` or with
+        the process (a killed run's lock file blocks nothing); the file itself stays.
+        """
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.out / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise self._unwritable(e) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as e:
+            holder = os.read(fd, 4096).decode(errors="replace").strip()
+            os.close(fd)
+            if e.errno not in (errno.EAGAIN, errno.EACCES):
+                raise self._unwritable(e) from None
+            raise ValueError(
+                f"--output {self.out}: another gpu-blur run is writing this folder (its lock "
+                f"file {self.out / LOCK} says: {holder or 'nothing yet'}); wait for that run "
+                "to end, or choose another --output") from None
+        os.ftruncate(fd, 0)
+        started = time.strftime("%Y-%m-%d %H:%M:%S %z")
+        os.write(fd, f"pid {os.getpid()} on {socket.gethostname()}, started {started}\n"
+                 .encode())
+        return fd
+
     def _make_folders(self) -> None:
         try:
             for sub in ("blur", "sharp"):
-                (self.out / sub).mkdir(parents=True, exist_ok=True)
+                (self.out / sub).mkdir(exist_ok=True)
             for folder in (self.out, self.out / "blur", self.out / "sharp"):
-                probe = folder / ".gpu_blur_write_test.part"
+                probe = temporary_path(folder / _PROBE)
                 probe.write_bytes(b"")
                 probe.unlink()
         except OSError as e:
-            reason = e.strerror or str(e)
-            raise OSError(f"--output {self.out}: cannot create or write the folder ({reason}"
-                          f"{': ' + str(e.filename) if e.filename else ''}); choose another "
-                          "--output, or make it a writable folder") from None
+            raise self._unwritable(e) from None
 
     def _check_run(self, run: dict) -> None:
         path = self.out / RUN
@@ -406,5 +459,10 @@ class DatasetWriter:
         return line
 
     def close(self) -> None:
-        """Close the manifest."""
-        self.manifest.close()
+        """Close the manifest and release the output folder's lock."""
+        try:
+            self.manifest.close()
+        finally:
+            if self._lock is not None:
+                os.close(self._lock)
+                self._lock = None

@@ -1,0 +1,87 @@
+"""The output folder of ``gpu-blur generate`` belongs to one run at a time, and holds only the
+set's own files (issue 13)."""
+
+import os
+import subprocess
+import sys
+import time
+
+import cv2
+import numpy as np
+import pytest
+from conftest import files, manifest_lines
+
+from gpu_blur.cli import TEST_SLEEP_AFTER, main
+from gpu_blur import dataset
+from gpu_blur.imageio import write_image
+
+
+@pytest.fixture
+def photos(tmp_path):
+    """Two small photos and a fast scene: 4 samples with --samples-per-photo 2."""
+    folder = tmp_path / "in"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for name in ("a", "b"):
+        cv2.imwrite(str(folder / f"{name}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    scene = tmp_path / "s.toml"
+    scene.write_text("[blur]\nsteps = 3\n")
+    return folder, scene
+
+
+def args(photos, out, *extra):
+    folder, scene = photos
+    return ["generate", "--input", str(folder), "--output", str(out), "--scene", str(scene),
+            "--samples-per-photo", "2", "--quiet", *extra]
+
+
+def test_a_second_run_on_a_folder_being_written_stops_at_once_naming_the_holder(
+        tmp_path, photos, capsys):
+    out = tmp_path / "out"
+    env = {**os.environ, TEST_SLEEP_AFTER: "0"}  # holds the folder, asleep after sample 0
+    first = subprocess.Popen([sys.executable, "-m", "gpu_blur.cli", *args(photos, out)],
+                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while not (out / "manifest.jsonl").is_file() or not (
+                out / "manifest.jsonl").read_text().endswith("\n"):
+            assert first.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        text = (out / "manifest.jsonl").read_text()
+        for again in ([], ["--resume"], ["--overwrite"]):
+            assert main(args(photos, out, *again)) == 2
+            err = capsys.readouterr().err
+            assert f"--output {out}: another gpu-blur run is writing this folder" in err
+            assert f"pid {first.pid} on " in err
+        assert (out / "manifest.jsonl").read_text() == text  # nothing touched
+    finally:
+        first.kill()  # SIGKILL: its lock file stays, but locks nothing
+        first.wait()
+    assert (out / dataset.LOCK).is_file()
+    assert main(args(photos, out, "--resume")) == 0
+    reference = tmp_path / "reference"
+    assert main(args(photos, reference)) == 0
+    assert files(out) == files(reference) and manifest_lines(out) == manifest_lines(reference)
+
+
+def test_temporary_names_hold_the_process_id(tmp_path, monkeypatch):
+    written = []
+    real = cv2.imwrite
+    monkeypatch.setattr(cv2, "imwrite", lambda name, data: written.append(name)
+                        or real(name, data))
+    write_image(tmp_path / "x.png", np.zeros((2, 2, 3)), 8)
+    assert written == [str(tmp_path / f".x.png.{os.getpid()}.part.png")]
+    assert [p.name for p in tmp_path.iterdir()] == ["x.png"]
+
+
+def test_resume_removes_only_temporary_files_of_its_own_naming(tmp_path, photos):
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--limit", "2")) == 0
+    ours = [out / "blur" / ".000002_b_0.png.4242.part.png", out / ".manifest.jsonl.17.part",
+            out / "params" / ".000003_b_1.npz.9.part.npz"]
+    theirs = [out / ".notes.part", out / "sharp" / ".x.part.txt", out / "draft.part"]
+    for path in ours + theirs:
+        path.write_bytes(b"x")
+    assert main(args(photos, out, "--resume", "--limit", "2")) == 0
+    assert not any(p.exists() for p in ours)
+    assert all(p.exists() for p in theirs)
