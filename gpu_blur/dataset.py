@@ -24,6 +24,11 @@ MANIFEST = "manifest.jsonl"
 RUN = "run.json"
 #: The lock file a run holds (``fcntl.flock``) while it writes its output folder.
 LOCK = ".gpu_blur.lock"
+#: The set's folders; they hold only files named as DatasetWriter.write names them.
+SUBFOLDERS = ("blur", "sharp", "params")
+#: A sample's files, as manifest keys (paths relative to the set's folder).
+PATHS = ("blurred", "sharp", "arrays")
+_SAMPLE_FILE = re.compile(r"\d{6,}_.*\.(png|tiff|npz)")
 _PROBE = "gpu_blur_write_test"
 #: Temporary files (:func:`gpu_blur.imageio.temporary_path`) a killed run may leave in the set's
 #: folders: ``.<final name>[.<pid>].part[.<suffix>]`` of a sample file, the manifest, run.json
@@ -286,26 +291,67 @@ class DatasetWriter:
 
     def _open(self, run, overwrite, resume, specs) -> None:
         out = self.out
-        exists = self.manifest_path.is_file() and self.manifest_path.stat().st_size > 0
-        if exists and not (overwrite or resume):
-            raise ValueError(f"{self.manifest_path} already exists; choose another --output, "
-                             "pass --resume to finish that set (retrying failed samples), or "
-                             "--overwrite to replace it")
+        files = self._sample_files()
+        found = [str(p) for p in (self.manifest_path, out / RUN) if p.exists()]
+        if files:
+            found.append(f"{len(files)} sample file(s) in {', '.join(SUBFOLDERS)}")
+        if found and not (overwrite or resume):
+            raise ValueError(f"--output {out} holds a set already ({'; '.join(found)}); choose "
+                             "another --output, pass --resume to finish that set (retrying "
+                             "failed samples), or --overwrite to replace it")
         kept = None
-        if resume and (exists or (out / RUN).exists()):
+        if resume and found:
             self._check_run(run or {})
             kept = self._read_manifest()
             self._check_inputs(specs or [])
+        # nothing is changed above this line
         self._make_folders()
-        for folder in (out, out / "blur", out / "sharp", out / "params"):
-            for entry in folder.iterdir() if folder.is_dir() else ():
-                if _TEMPORARY.fullmatch(entry.name):
-                    entry.unlink()  # left by a killed run (the lock keeps live runs out)
-        if kept is not None:
+        if kept is None:  # a new set: first forget the old one, so no state lists lost files
+            self.manifest_path.unlink(missing_ok=True)
+            (out / RUN).unlink(missing_ok=True)
+        else:
             _write_text(self.manifest_path, "".join(kept))
-        elif run is not None:
+        listed = {out / line[k] for line in self.done.values() for k in PATHS if k in line}
+        for path in files:
+            if path not in listed:
+                path.unlink()  # of the set replaced, or of a sample not finished
+        for folder in (out, *(out / sub for sub in SUBFOLDERS)):
+            for entry in folder.iterdir() if folder.is_dir() else ():
+                if _TEMPORARY.fullmatch(entry.name) and not entry.is_dir():
+                    entry.unlink()  # left by a killed run (the lock keeps live runs out)
+        if kept is None and run is not None:
             _write_text(out / RUN, json.dumps(run, indent=1) + "\n")
-        self.manifest = open(self.manifest_path, "a" if kept is not None else "w")
+        self.manifest = open(self.manifest_path, "a")
+
+    def _sample_files(self) -> list[Path]:
+        """The sample files in ``blur/``, ``sharp/`` and ``params/`` (named as :meth:`write` does).
+
+        Raises:
+            ValueError: naming anything else there but temporary files, since those folders
+                are the set's: a new set, ``overwrite`` and ``resume`` remove sample files
+                no manifest line lists.
+        """
+        ours, others = [], []
+        for sub in SUBFOLDERS:
+            folder = self.out / sub
+            if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
+                others.append(folder)
+                continue
+            for entry in sorted(folder.iterdir()) if folder.is_dir() else ():
+                if entry.is_symlink() or not entry.is_file():
+                    others.append(entry)
+                elif _SAMPLE_FILE.fullmatch(entry.name):
+                    ours.append(entry)
+                elif not _TEMPORARY.fullmatch(entry.name):
+                    others.append(entry)
+        if others:
+            more = f" and {len(others) - 5} more" if len(others) > 5 else ""
+            raise ValueError(
+                f"--output {self.out}: {', '.join(map(str, others[:5]))}{more}: not a file "
+                f"gpu-blur wrote; {', '.join(SUBFOLDERS)} hold only a set's own files "
+                "(gpu-blur replaces and removes those), so move these out, or choose another "
+                "--output")
+        return ours
 
     @property
     def resumed(self) -> bool:
@@ -397,7 +443,7 @@ class DatasetWriter:
             if line.get("status") != "ok":
                 self.retry += 1
                 continue
-            files = [line.get(k) for k in ("blurred", "sharp", "arrays") if k in line]
+            files = [line.get(k) for k in PATHS if k in line]
             if line["index"] in self.done or not all(
                     isinstance(f, str) and (self.out / f).is_file() for f in files):
                 continue  # a repeat, or its files are gone: made again

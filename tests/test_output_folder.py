@@ -79,9 +79,60 @@ def test_resume_removes_only_temporary_files_of_its_own_naming(tmp_path, photos)
     assert main(args(photos, out, "--limit", "2")) == 0
     ours = [out / "blur" / ".000002_b_0.png.4242.part.png", out / ".manifest.jsonl.17.part",
             out / "params" / ".000003_b_1.npz.9.part.npz"]
-    theirs = [out / ".notes.part", out / "sharp" / ".x.part.txt", out / "draft.part"]
+    theirs = [out / ".notes.part", out / ".run.json.bak.part", out / "draft.part"]
     for path in ours + theirs:
         path.write_bytes(b"x")
     assert main(args(photos, out, "--resume", "--limit", "2")) == 0
     assert not any(p.exists() for p in ours)
     assert all(p.exists() for p in theirs)
+
+
+def test_overwrite_replaces_the_whole_older_set(tmp_path, photos):
+    out = tmp_path / "out"
+    assert main(args(photos, out)) == 0
+    assert len(list((out / "blur").iterdir())) == 4
+    assert main(args(photos, out, "--overwrite", "--limit", "1")) == 0
+    reference = tmp_path / "reference"
+    assert main(args(photos, reference, "--limit", "1")) == 0
+    assert files(out) == files(reference)  # no image of the older, longer set is left
+    assert (out / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
+
+
+def test_resume_removes_sample_files_no_manifest_line_lists(tmp_path, photos):
+    out = tmp_path / "out"
+    assert main(args(photos, out)) == 0
+    lines = (out / "manifest.jsonl").read_text().splitlines(keepends=True)
+    (out / "manifest.jsonl").write_text("".join(lines[:2]))  # as if killed after sample 1
+    assert main(args(photos, out, "--resume", "--limit", "2")) == 0
+    reference = tmp_path / "reference"
+    assert main(args(photos, reference, "--limit", "2")) == 0
+    assert files(out) == files(reference)
+
+
+@pytest.mark.parametrize("again", [[], ["--resume"], ["--overwrite"]])
+def test_files_gpu_blur_did_not_write_in_the_sets_folders_are_never_removed(
+        tmp_path, photos, capsys, again):
+    out = tmp_path / "out"
+    assert main(args(photos, out)) == 0
+    before = files(out)
+    (out / "blur" / "notes.txt").write_text("mine")
+    (out / "sharp" / "holiday.png").write_bytes(b"mine")
+    capsys.readouterr()
+    assert main(args(photos, out, *again)) == 2
+    err = capsys.readouterr().err
+    assert f"{out / 'blur' / 'notes.txt'}, {out / 'sharp' / 'holiday.png'}: not a file " \
+           "gpu-blur wrote" in err and "move these out, or choose another --output" in err
+    assert files(out) == {**before, "blur/notes.txt": b"mine", "sharp/holiday.png": b"mine"}
+
+
+def test_a_folder_with_sample_files_but_no_manifest_needs_resume_or_overwrite(
+        tmp_path, photos, capsys):
+    out = tmp_path / "out"
+    assert main(args(photos, out)) == 0
+    (out / "manifest.jsonl").unlink()
+    (out / "run.json").unlink()
+    assert main(args(photos, out)) == 2
+    err = capsys.readouterr().err
+    assert f"--output {out} holds a set already (12 sample file(s) in blur, sharp, params)" in err
+    assert main(args(photos, out, "--overwrite", "--limit", "1")) == 0
+    assert len(list((out / "blur").iterdir())) == 1
