@@ -305,6 +305,7 @@ def _generate(args) -> int:
     per_photo = args.samples_per_photo or (1 if args.input else 4)
     specs = discover(args.input, scene.blur.mode, scene.blur.frames, per_photo,
                      args.samples_per_sequence)
+    total = len(specs)
     specs = specs[:args.limit] if args.limit else specs
     run = {"gpu_blur": __version__, "seed": args.seed, "backend": args.backend,
            "device": backend.device,
@@ -312,7 +313,7 @@ def _generate(args) -> int:
            "samples_per_photo": per_photo, "samples_per_sequence": args.samples_per_sequence,
            "scene_file": str(args.scene) if args.scene else None, "scene": scene.to_dict()}
     writer = DatasetWriter(args.output, scene.output.bits, run, overwrite=args.overwrite,
-                           resume=args.resume, specs=specs)
+                           resume=args.resume, specs=specs, total=total)
     todo = [s for s in specs if s.index not in writer.done]
     if args.resume:
         print(f"resuming {args.output}: {len(writer.done)} of {len(specs)} samples done, "

@@ -6,6 +6,7 @@ import dataclasses
 import errno
 import fcntl
 import json
+import math
 import os
 import re
 import socket
@@ -273,7 +274,7 @@ class DatasetWriter:
 
     def __init__(self, out: Path, bits: int, run: dict | None = None, *,
                  overwrite: bool = False, resume: bool = False,
-                 specs: list[SampleSpec] | None = None):
+                 specs: list[SampleSpec] | None = None, total: int | None = None):
         if overwrite and resume:
             raise ValueError("--overwrite and --resume exclude each other: --resume finishes "
                              "an interrupted set, --overwrite starts it again")
@@ -284,12 +285,13 @@ class DatasetWriter:
         self.torn = 0  # manifest lines that were not whole JSON (cut by a kill)
         self._lock = self._take_lock()
         try:
-            self._open(run, overwrite, resume, specs)
+            self._open(run, overwrite, resume, specs,
+                       len(specs) if total is None and specs is not None else total)
         except BaseException:
             os.close(self._lock)
             raise
 
-    def _open(self, run, overwrite, resume, specs) -> None:
+    def _open(self, run, overwrite, resume, specs, total) -> None:
         out = self.out
         files = self._sample_files()
         found = [str(p) for p in (self.manifest_path, out / RUN) if p.exists()]
@@ -302,7 +304,7 @@ class DatasetWriter:
         kept = None
         if resume and found:
             self._check_run(run or {})
-            kept = self._read_manifest()
+            kept = self._read_manifest(total)
             self._check_inputs(specs or [])
         # nothing is changed above this line
         self._make_folders()
@@ -426,8 +428,14 @@ class DatasetWriter:
                     f"resume with the settings in {path}, or start a new set with --overwrite "
                     "or another --output")
 
-    def _read_manifest(self) -> list[str]:
-        """The manifest lines to keep (finished samples whose files exist), filling ``done``."""
+    def _read_manifest(self, total: int | None) -> list[str]:
+        """The manifest lines to keep (finished samples whose files exist), filling ``done``.
+
+        A line is trusted only as far as it is checked: its index an int in ``[0, total)``,
+        its name and inputs strings, and its files exactly the names :meth:`write` gives that
+        index and name, present as regular files (not links). Other lines are dropped (their
+        samples made again), so no path in a manifest is ever read or removed.
+        """
         if not self.manifest_path.is_file():
             return []
         kept = []
@@ -435,21 +443,32 @@ class DatasetWriter:
             try:
                 line = json.loads(text)
             except ValueError:
-                self.torn += 1  # cut by a kill: that sample is made again
-                continue
-            if not isinstance(line, dict) or not isinstance(line.get("index"), int):
+                line = None  # cut by a kill: that sample is made again
+            if not (isinstance(line, dict) and type(line.get("index")) is int
+                    and 0 <= line["index"] < (total if total is not None else math.inf)
+                    and isinstance(line.get("name"), str) and isinstance(line.get("inputs"), list)
+                    and all(isinstance(p, str) for p in line["inputs"])):
                 self.torn += 1
                 continue
             if line.get("status") != "ok":
                 self.retry += 1
                 continue
-            files = [line.get(k) for k in PATHS if k in line]
-            if line["index"] in self.done or not all(
-                    isinstance(f, str) and (self.out / f).is_file() for f in files):
-                continue  # a repeat, or its files are gone: made again
+            paths = self._paths(line["index"], line["name"])
+            keys = [k for k in PATHS if k in line]
+            if line["index"] in self.done or keys[:2] != ["blurred", "sharp"] or any(
+                    line[k] != paths[k] or (self.out / paths[k]).is_symlink()
+                    or not (self.out / paths[k]).is_file() for k in keys):
+                continue  # a repeat, files named otherwise, or files gone: made again
             self.done[line["index"]] = line
             kept.append(text if text.endswith("\n") else text + "\n")
         return kept
+
+    def _paths(self, index: int, name: str) -> dict[str, str]:
+        """The files of sample ``index`` named ``name``, relative to the set's folder."""
+        stem = f"{index:06d}_{name.replace('/', '_')}"
+        ext = ".png" if self.bits else ".tiff"
+        return {"blurred": f"blur/{stem}{ext}", "sharp": f"sharp/{stem}{ext}",
+                "arrays": f"params/{stem}.npz"}
 
     def _check_inputs(self, specs: list[SampleSpec]) -> None:
         for spec in specs:
@@ -471,19 +490,16 @@ class DatasetWriter:
 
     def write(self, spec: SampleSpec, result, record: dict) -> dict:
         """Write one sample, then its manifest line (``status`` "ok"); returns the line."""
-        ext = ".png" if self.bits else ".tiff"
-        stem = spec.name.replace("/", "_")
-        blurred = Path("blur") / f"{spec.index:06d}_{stem}{ext}"
-        sharp = Path("sharp") / f"{spec.index:06d}_{stem}{ext}"
-        write_image(self.out / blurred, result.blurred, self.bits)
-        write_image(self.out / sharp, result.sharp, self.bits)
+        paths = self._paths(spec.index, spec.name)
+        write_image(self.out / paths["blurred"], result.blurred, self.bits)
+        write_image(self.out / paths["sharp"], result.sharp, self.bits)
         arrays = {k: result.params[k] for k in ARRAY_PARAMS if k in result.params}
         line = {
             "index": spec.index,
             "name": spec.name,
             "inputs": [str(p) for p in spec.inputs],
-            "blurred": blurred.as_posix(),
-            "sharp": sharp.as_posix(),
+            "blurred": paths["blurred"],
+            "sharp": paths["sharp"],
             **record,
             "status": "ok",
             "params": {k: _jsonable(v) for k, v in result.params.items() if k not in arrays},
@@ -491,9 +507,8 @@ class DatasetWriter:
         }
         if arrays:
             (self.out / "params").mkdir(exist_ok=True)
-            rel = Path("params") / f"{spec.index:06d}_{stem}.npz"
-            save_arrays(self.out / rel, arrays)
-            line["arrays"] = rel.as_posix()
+            save_arrays(self.out / paths["arrays"], arrays)
+            line["arrays"] = paths["arrays"]
         self._append(line)
         return line
 

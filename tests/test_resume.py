@@ -182,3 +182,27 @@ def test_an_existing_set_needs_resume_or_overwrite(tmp_path, photos, capsys):
     assert "run.json is missing" in capsys.readouterr().err
     with pytest.raises(SystemExit):  # argparse: not allowed together
         main(args(photos, out, "--resume", "--overwrite"))
+
+
+def test_resume_trusts_no_manifest_line_that_names_other_files_or_indices(tmp_path, photos,
+                                                                           capsys):
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--limit", "4")) == 0
+    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    outside = tmp_path / "outside.png"
+    outside.write_bytes((out / lines[0]["blurred"]).read_bytes())
+    lines[0]["blurred"] = "../outside.png"  # exists, but outside the set
+    lines[1]["sharp"] = str(outside)  # absolute
+    lines[2]["arrays"] = lines[3]["arrays"]  # another sample's file
+    forged = [{**lines[3], "index": i} for i in (-1, True, 10**30, 8)]  # 8 samples: 0 to 7
+    (out / "manifest.jsonl").write_text(
+        "".join(json.dumps(x) + "\n" for x in [*lines, *forged]))
+    capsys.readouterr()
+    assert main(args(photos, out, "--resume", "--limit", "4")) == 0
+    assert "1 of 4 samples done, 3 to make (0 failed before, to retry; 4 torn" in (
+        capsys.readouterr().out)
+    assert outside.exists()  # neither trusted nor removed
+    reference = tmp_path / "reference"
+    assert main(args(photos, reference, "--limit", "4")) == 0
+    assert manifest_lines(out) == manifest_lines(reference)
+    assert files(out) == files(reference)
