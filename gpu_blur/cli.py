@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import sys
 import time
@@ -277,21 +278,31 @@ def _check_setup(args, scene) -> None:
                      "float64" if numpy else scene.output.precision)
     # an unknown camera name, a bad camera file, a response float32 kernels cannot evaluate
     scene_camera(scene, args.backend.split(":")[0])
-    if scene.blur.mode == "kernel" and scene.blur.kernel:
-        path = Path(scene.blur.kernel)
-        if not path.is_absolute() and scene.base_dir is not None:
-            path = scene.base_dir / path
+    kernel = _scene_files(scene).get("blur.kernel")
+    if kernel is not None:
         try:
-            read_kernel(path)
+            read_kernel(kernel)
         except ValueError as e:
             raise ValueError(f"scene file {scene.path}: {e}" if scene.path else str(e)) from None
+
+
+def _scene_files(scene) -> dict[str, Path]:
+    """The files a scene reads, by key: a camera file (``camera.name`` ending in .toml or .json)
+    and ``blur.kernel`` (mode "kernel"); a relative path is taken from the scene file's folder."""
+    named = {}
+    if Path(scene.camera.name).suffix.lower() in (".toml", ".json"):
+        named["camera.name"] = Path(scene.camera.name)
+    if scene.blur.mode == "kernel" and scene.blur.kernel:
+        named["blur.kernel"] = Path(scene.blur.kernel)
+    return {key: path if path.is_absolute() or scene.base_dir is None else scene.base_dir / path
+            for key, path in named.items()}
 
 
 def _generate(args) -> int:
     from tqdm import tqdm
 
     from gpu_blur.backends import get_backend
-    from gpu_blur.dataset import DatasetWriter, discover
+    from gpu_blur.dataset import DatasetWriter, discover, library_versions
     from gpu_blur.distributed import pick_executor
     from gpu_blur.generate import Job
     from gpu_blur.scene import load_scene
@@ -307,11 +318,13 @@ def _generate(args) -> int:
                      args.samples_per_sequence)
     total = len(specs)
     specs = specs[:args.limit] if args.limit else specs
-    run = {"gpu_blur": __version__, "seed": args.seed, "backend": args.backend,
-           "device": backend.device,
+    run = {"seed": args.seed, "backend": args.backend, "device": backend.device,
            "input": str(args.input) if args.input else "built-in: coffee.png",
            "samples_per_photo": per_photo, "samples_per_sequence": args.samples_per_sequence,
-           "scene_file": str(args.scene) if args.scene else None, "scene": scene.to_dict()}
+           "scene_file": str(args.scene) if args.scene else None, "scene": scene.to_dict(),
+           "files": {key: hashlib.sha256(path.read_bytes()).hexdigest()
+                     for key, path in _scene_files(scene).items()},
+           "libraries": library_versions(args.backend)}
     writer = DatasetWriter(args.output, scene.output.bits, run, overwrite=args.overwrite,
                            resume=args.resume, specs=specs, total=total)
     todo = [s for s in specs if s.index not in writer.done]

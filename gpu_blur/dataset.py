@@ -36,11 +36,16 @@ _PROBE = "gpu_blur_write_test"
 #: or the write probe (names before the pid was added included). Nothing else is removed.
 _TEMPORARY = re.compile(rf"\.(\d{{6,}}.*|{re.escape(MANIFEST)}|{re.escape(RUN)}|{_PROBE})"
                         r"(\.\d+)?\.part(\.[a-z]+)?")
-#: run.json keys a resumed run must share with the set it finishes, with the option that sets
-#: each (everything that decides a sample's inputs, draws or pixels; not --tile or --limit).
+#: run.json keys a resumed run must share with the set it finishes, with what sets each:
+#: everything that decides a sample's inputs, draws or pixels (not --tile or --limit). "files"
+#: holds the sha256 of each file the scene names (camera.name, blur.kernel), "device" the
+#: backend's device (OpenCL platform numbers change when a runtime is installed),
+#: "libraries" the versions of the libraries that compute the pixels (library_versions).
 RESUME_KEYS = {"seed": "--seed", "scene": "--scene", "backend": "--backend",
-               "input": "--input", "samples_per_photo": "--samples-per-photo",
-               "samples_per_sequence": "--samples-per-sequence"}
+               "device": "device behind --backend", "input": "--input",
+               "samples_per_photo": "--samples-per-photo",
+               "samples_per_sequence": "--samples-per-sequence",
+               "files": "camera or kernel file contents", "libraries": "library version"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -240,15 +245,37 @@ def save_arrays(path: Path, arrays: dict) -> None:
     tmp.replace(path)
 
 
-def _scene_difference(old, new) -> str:
-    """The first scene key whose value differs, as ``section.key = old (this run: new)``."""
-    old, new = old if isinstance(old, dict) else {}, new if isinstance(new, dict) else {}
-    for section in sorted(set(old) | set(new)):
-        a, b = old.get(section) or {}, new.get(section) or {}
-        for key in sorted(set(a) | set(b)):
-            if a.get(key) != b.get(key):
-                return f"{section}.{key} = {a.get(key)!r} (this run: {b.get(key)!r})"
-    return "the scene"  # pragma: no cover (called only when the scenes differ)
+def library_versions(backend: str) -> dict[str, str]:
+    """The versions of the libraries a sample's pixels depend on with ``backend``.
+
+    gpu_blur, numpy and OpenCV (image decoding and encoding, resampling) always; pyopencl or
+    Warp with their backends.
+    """
+    import cv2
+
+    from gpu_blur import __version__
+
+    versions = {"gpu_blur": __version__, "numpy": np.__version__, "opencv": cv2.__version__}
+    family = backend.split(":", 1)[0]
+    if family == "opencl":
+        import pyopencl
+
+        versions["pyopencl"] = pyopencl.VERSION_TEXT
+    elif family == "warp":
+        import warp
+
+        versions["warp"] = warp.config.version
+    return versions
+
+
+def _difference(name: str, old, new) -> str:
+    """Where two JSON values first differ, as ``name.key = old (this run: new)``."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        for key in sorted(set(old) | set(new)):
+            if old.get(key) != new.get(key):
+                return _difference(f"{name}.{key}", old.get(key), new.get(key))
+    shown = [repr(v) if len(repr(v)) <= 80 else repr(v)[:77] + "..." for v in (old, new)]
+    return f"{name} = {shown[0]} (this run: {shown[1]})"
 
 
 class DatasetWriter:
@@ -417,16 +444,17 @@ class DatasetWriter:
             raise ValueError(f"--resume: cannot read {path} ({e}); start the set again with "
                              "--overwrite, or use another --output") from None
         if not isinstance(old, dict):
-            old = {}
+            raise ValueError(f"--resume: {path} holds a JSON {type(old).__name__}, not the "
+                             "object gpu-blur writes; start the set again with --overwrite, or "
+                             "use another --output")
         for key, option in RESUME_KEYS.items():
             was, now = _plain(old.get(key)), _plain(run.get(key))
             if was != now:
-                what = (f"scene key {_scene_difference(was, now)}" if key == "scene"
-                        else f"{key} = {was!r} (this run: {now!r})")
                 raise ValueError(
-                    f"--resume: the set in {self.out} was made with another {option}: {what}; "
-                    f"resume with the settings in {path}, or start a new set with --overwrite "
-                    "or another --output")
+                    f"--resume: the set in {self.out} was made with another {option}: "
+                    f"{_difference(key, was, now)}; resume with what {path} records (options, "
+                    "device, library versions, camera and kernel files), or start a new set "
+                    "with --overwrite or another --output")
 
     def _read_manifest(self, total: int | None) -> list[str]:
         """The manifest lines to keep (finished samples whose files exist), filling ``done``.
