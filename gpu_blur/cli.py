@@ -264,6 +264,11 @@ def _check_setup(args, scene) -> None:
         raise ValueError("--samples-per-photo and --limit must be >= 1")
     if args.samples_per_sequence is not None and args.samples_per_sequence < 1:
         raise ValueError(f"--samples-per-sequence {args.samples_per_sequence}: must be >= 1")
+    if args.input is not None and args.input.resolve().is_relative_to(args.output.resolve()):
+        raise ValueError(f"--input {args.input} is --output {args.output} or lies inside it, "
+                         "where generate writes and removes the set's files; give an --output "
+                         "outside the input (one inside it is fine: it is left out of the "
+                         "input)")
     if not 0.0 <= args.verify <= 1.0:
         raise ValueError(f"--verify {args.verify}: the fraction of tiles to check, 0 to 1")
     if args.strict and not args.verify:
@@ -302,7 +307,7 @@ def _generate(args) -> int:
     from tqdm import tqdm
 
     from gpu_blur.backends import get_backend
-    from gpu_blur.dataset import DatasetWriter, discover, library_versions
+    from gpu_blur.dataset import DatasetWriter, find_samples, library_versions
     from gpu_blur.distributed import pick_executor
     from gpu_blur.generate import Job
     from gpu_blur.scene import load_scene
@@ -314,10 +319,9 @@ def _generate(args) -> int:
     _check_setup(args, scene)
     executor = pick_executor(args, scene.output.precision)  # serial, --devices or --ray
     per_photo = args.samples_per_photo or (1 if args.input else 4)
-    specs = discover(args.input, scene.blur.mode, scene.blur.frames, per_photo,
-                     args.samples_per_sequence)
-    total = len(specs)
-    specs = specs[:args.limit] if args.limit else specs
+    found = find_samples(args.input, scene.blur.mode, scene.blur.frames, per_photo,
+                         args.samples_per_sequence, exclude=args.output)
+    specs = found.take(args.limit)
     run = {"seed": args.seed, "backend": args.backend, "device": backend.device,
            "input": str(args.input) if args.input else "built-in: coffee.png",
            "samples_per_photo": per_photo, "samples_per_sequence": args.samples_per_sequence,
@@ -326,12 +330,13 @@ def _generate(args) -> int:
                      for key, path in _scene_files(scene).items()},
            "libraries": library_versions(args.backend)}
     writer = DatasetWriter(args.output, scene.output.bits, run, overwrite=args.overwrite,
-                           resume=args.resume, specs=specs, total=total)
+                           resume=args.resume, specs=specs, total=found.total)
     todo = [s for s in specs if s.index not in writer.done]
+    done = len(specs) - len(todo)
     if args.resume:
-        print(f"resuming {args.output}: {len(writer.done)} of {len(specs)} samples done, "
-              f"{len(todo)} to make ({writer.retry} failed before, to retry; {writer.torn} "
-              "torn manifest line(s) ignored)")
+        print(f"resuming {args.output}: {done} of {len(specs)} samples done, {len(todo)} to "
+              f"make ({writer.retry} failed before, to retry; {writer.torn} torn or invalid "
+              "manifest line(s) ignored)")
     record = {"seed": args.seed, "backend": args.backend, "device": backend.device}
     sleep_after = os.environ.get(TEST_SLEEP_AFTER)
     failed, made = [], 0
@@ -372,9 +377,9 @@ def _generate(args) -> int:
     finally:
         writer.close()
     took = time.perf_counter() - start
-    done = f", {len(writer.done)} were done before" if writer.done else ""
+    before = f", {done} were done before" if done else ""
     print(f"wrote {made} samples ({len(failed)} failed) to {args.output} in {took:.1f} s "
-          f"({made / max(took, 1e-9):.2f} samples/s){done}; manifest: {writer.manifest_path}")
+          f"({made / max(took, 1e-9):.2f} samples/s){before}; manifest: {writer.manifest_path}")
     totals.add({"writing": current().seconds["writing"] - writing})
     print("\n".join(totals.summary(took)))
     if not failed:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import errno
 import fcntl
+import itertools
 import json
 import math
 import os
@@ -12,6 +13,7 @@ import re
 import socket
 import time
 import zipfile
+from collections.abc import Callable, Iterator
 from importlib import resources
 from pathlib import Path
 
@@ -23,6 +25,10 @@ from gpu_blur.params import ARRAY_PARAMS
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 MANIFEST = "manifest.jsonl"
 RUN = "run.json"
+#: The most samples one run makes. Each waits in memory until made (a SampleSpec with its
+#: input paths, about 0.3 KB) and adds a manifest line (about 1 KB): 10 million samples hold
+#: some 3 GB of list and write 10 GB of manifest, and take days on a fast GPU.
+MAX_SAMPLES = 10_000_000
 #: The lock file a run holds (``fcntl.flock``) while it writes its output folder.
 LOCK = ".gpu_blur.lock"
 #: The set's folders; they hold only files named as DatasetWriter.write names them.
@@ -70,8 +76,45 @@ def default_photo() -> Path:
     return Path(str(resources.files("gpu_blur").joinpath("data/coffee.png")))
 
 
+def _natural(name: str) -> tuple:
+    """Sort key comparing runs of digits as numbers (``2.png`` before ``10.png``); names that
+    tie as numbers (``01.png``, ``1.png``) fall back to the plain text."""
+    parts = re.split(r"(\d+)", name)
+    return tuple(int(p) if i % 2 else p for i, p in enumerate(parts)), name
+
+
+def _identity(path: Path | None) -> tuple[int, int] | None:
+    """(device, inode) of an existing folder, else None."""
+    try:
+        st = os.stat(path) if path is not None else None
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino) if st is not None else None
+
+
+def _walk(folder: Path, skip: tuple[int, int] | None) -> Iterator[tuple[Path, bool]]:
+    """(path, is a folder) of every entry under ``folder``, depth first, each folder's entries
+    in natural order; the folder whose :func:`_identity` is ``skip`` is left out with all it
+    holds. Linked folders are listed but not entered, and unreadable ones skipped, as
+    ``Path.rglob`` does."""
+    try:
+        with os.scandir(folder) as it:
+            entries = sorted(it, key=lambda e: _natural(e.name))
+    except PermissionError:
+        return
+    for entry in entries:
+        is_dir = entry.is_dir()
+        if is_dir and skip is not None and (entry.stat().st_dev, entry.stat().st_ino) == skip:
+            continue
+        yield Path(entry.path), is_dir
+        if is_dir and not entry.is_symlink():
+            yield from _walk(Path(entry.path), skip)
+
+
 def _images(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    """The images directly in ``folder``, in natural order."""
+    return sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
+                  key=lambda p: _natural(p.name))
 
 
 def _sequence_name(folder: Path, root: Path) -> str:
@@ -84,8 +127,8 @@ def _is_rsblur_sample(folder: Path) -> bool:
     return folder.name.isdigit() and folder.parent.name.isdigit()
 
 
-def find_sequences(root: Path) -> list[tuple[str, list[Path]]]:
-    """Frame sequences under ``root``, GoPro-style and RSBlur-style, sorted by name.
+def find_sequences(root: Path, exclude: Path | None = None) -> list[tuple[str, list[Path]]]:
+    """Frame sequences under ``root``, GoPro-style and RSBlur-style, in natural order.
 
     * GoPro-style: every ``.../<seq>/sharp/`` folder; its images are the sequence
       (``GOPRO_Large/train/GOPR0372_07_00/sharp/000047.png``); named ``<seq>``.
@@ -96,39 +139,93 @@ def find_sequences(root: Path) -> list[tuple[str, list[Path]]]:
       frames and are never read; named ``<session>/<id>``. ``root`` itself counts when it
       is such a folder.
 
+    Natural order compares runs of digits as numbers: frames ``0.png, 1.png, ..., 9.png,
+    10.png`` in that order, and sequences likewise by their folders' names.
+
+    Args:
+        root: the input folder.
+        exclude: a folder under ``root`` left out with all it holds (the output folder).
+
     Returns:
-        (sequence name relative to root, its frames sorted by file name) pairs.
+        (sequence name relative to root, its frames) pairs.
     """
-    seqs = {}  # the frames' folder (which orders the sequences) -> (name, frames)
-    named = set()
-    for sharp in sorted(root.rglob("sharp")):
-        if sharp.is_dir():
-            frames = _images(sharp)
-            if frames:
-                named.add(sharp.parent)
-                seqs[sharp] = _sequence_name(sharp.parent, root), frames
-    for folder in [root, *sorted(root.rglob("*"))]:
-        if folder not in named and folder.is_dir() and _is_rsblur_sample(folder):
+    folders = [root] + [p for p, is_dir in _walk(root, _identity(exclude)) if is_dir]
+    sharp = {f: _images(f) for f in folders[1:] if f.name == "sharp"}
+    named = {f.parent for f, frames in sharp.items() if frames}
+    seqs = []
+    for folder in folders:
+        if sharp.get(folder):
+            seqs.append((_sequence_name(folder.parent, root), sharp[folder]))
+        elif folder not in named and _is_rsblur_sample(folder):
             frames = _images(folder)
             if frames:
-                seqs[folder] = _sequence_name(folder, root), frames
-    return [seqs[k] for k in sorted(seqs)]
+                seqs.append((_sequence_name(folder, root), frames))
+    return seqs
 
 
-def _windows(count: int, size: int, per_sequence: int | None) -> list[int]:
-    """First frames of a sequence's windows (see :func:`discover`)."""
+def _windows(count: int, size: int, per_sequence: int | None) -> Iterator[int]:
+    """First frames of a sequence's windows, in order (see :func:`find_samples`)."""
     if per_sequence is None:
-        return list(range(0, count - size + 1, size))
-    last = count - size
+        return iter(range(0, count - size + 1, size))
     if per_sequence == 1:
-        return [0]
-    return [round(j * last / (per_sequence - 1)) for j in range(per_sequence)]
+        return iter([0])
+    last = count - size
+    return (round(j * last / (per_sequence - 1)) for j in range(per_sequence))
 
 
-def discover(root: Path | None, mode: str, frames_per_sample: int,
-             samples_per_photo: int = 1,
-             samples_per_sequence: int | None = None) -> list[SampleSpec]:
-    """The samples a folder yields for a blur mode.
+def _sequence_samples(sequences, size: int, per_sequence: int | None) -> Iterator[SampleSpec]:
+    index = 0
+    for name, frames in sequences:
+        if len(frames) < size:
+            yield SampleSpec(index, f"{name}/{frames[0].stem}", tuple(frames),
+                             f"sequence {name} has {len(frames)} frame(s) in {frames[0].parent}, "
+                             f"fewer than blur.frames = {size}; add frames, lower blur.frames "
+                             "in the scene, or remove the sequence")
+            index += 1
+            continue
+        previous = None  # starts never decrease, so a repeat follows its first
+        for j, start in enumerate(_windows(len(frames), size, per_sequence)):
+            window = tuple(frames[start:start + size])
+            repeat = f"_{j}" if start == previous else ""
+            previous = start
+            yield SampleSpec(index, f"{name}/{window[0].stem}{repeat}", window)
+            index += 1
+
+
+def _photo_samples(photos, per_photo: int) -> Iterator[SampleSpec]:
+    for i, (name, path) in enumerate(photos):
+        for k in range(per_photo):
+            suffix = f"_{k}" if per_photo > 1 else ""
+            yield SampleSpec(i * per_photo + k, f"{name}{suffix}", (path,))
+
+
+@dataclasses.dataclass(frozen=True)
+class Samples:
+    """The samples an input gives: how many (``total``), each made only when taken."""
+
+    total: int
+    make: Callable[[], Iterator[SampleSpec]]
+
+    def take(self, limit: int | None = None) -> list[SampleSpec]:
+        """The first ``limit`` samples (all without one), in index order.
+
+        Raises:
+            ValueError: when that is more than :data:`MAX_SAMPLES`, saying why.
+        """
+        count = self.total if limit is None else min(limit, self.total)
+        if count > MAX_SAMPLES:
+            raise ValueError(
+                f"the input gives {self.total:,} samples, more than the {MAX_SAMPLES:,} one run "
+                "makes: each waits in memory until it is made and adds a manifest line (about "
+                "1 KB); lower --samples-per-photo or --samples-per-sequence, or pass --limit "
+                f"(at most {MAX_SAMPLES:,})")
+        return list(itertools.islice(self.make(), count))
+
+
+def find_samples(root: Path | None, mode: str, frames_per_sample: int,
+                 samples_per_photo: int = 1, samples_per_sequence: int | None = None,
+                 exclude: Path | None = None) -> Samples:
+    """The samples a folder yields for a blur mode, counted at once and made when taken.
 
     Args:
         root: input folder, or None for the built-in photo.
@@ -136,8 +233,9 @@ def discover(root: Path | None, mode: str, frames_per_sample: int,
             sequence :func:`find_sequences` finds: GoPro-style ``<seq>/sharp/*.png`` and
             RSBlur-style ``<session>/<id>/*.png`` (digit names, the sharp frames of one real
             blurred image directly in the folder; ``avg*/``, ``gt/``, ``real_blur/`` and other
-            subfolders ignored). ``kernel`` and ``trajectory`` take every image under ``root``
-            (recursively) as a photo.
+            subfolders ignored), frames and sequences in natural order (``2.png`` before
+            ``10.png``). ``kernel`` and ``trajectory`` take every image under ``root``
+            (recursively, in the same natural order) as a photo.
         frames_per_sample: frames per window (mode ``average``).
         samples_per_photo: samples made from each photo (each with its own draws).
         samples_per_sequence: mode ``average``: None (default) takes every consecutive,
@@ -147,9 +245,12 @@ def discover(root: Path | None, mode: str, frames_per_sample: int,
             the first window): strided when ``K <= n // frames``, overlapping beyond, and the
             same window again (with its own draws) when ``K > n - frames + 1``. Windows are
             named by their first frame, plus ``_<j>`` for a repeat.
+        exclude: a folder under ``root`` whose images are never taken (the output folder:
+            a set written inside its input is not read back as input).
 
     A sequence with fewer than ``frames_per_sample`` frames gives one sample with its
-    ``problem`` set (reported as failed), unless no sequence is long enough.
+    ``problem`` set (reported as failed), unless no sequence is long enough. Samples are
+    numbered in order; taking the first N makes only those N.
 
     Raises:
         ValueError: naming the folder when it is missing, not a folder, or yields no sample.
@@ -174,43 +275,34 @@ def discover(root: Path | None, mode: str, frames_per_sample: int,
         if mode == "average":
             if samples_per_sequence is not None and samples_per_sequence < 1:
                 raise ValueError(f"--samples-per-sequence {samples_per_sequence}: must be >= 1")
-            specs = []
-            for name, frames in find_sequences(root):
-                if len(frames) < frames_per_sample:
-                    specs.append(SampleSpec(
-                        len(specs), f"{name}/{frames[0].stem}", tuple(frames),
-                        f"sequence {name} has {len(frames)} frame(s) in {frames[0].parent}, "
-                        f"fewer than blur.frames = {frames_per_sample}; add frames, lower "
-                        "blur.frames in the scene, or remove the sequence"))
-                    continue
-                seen = set()
-                for j, start in enumerate(_windows(len(frames), frames_per_sample,
-                                                   samples_per_sequence)):
-                    window = tuple(frames[start:start + frames_per_sample])
-                    repeat = f"_{j}" if start in seen else ""
-                    seen.add(start)
-                    specs.append(SampleSpec(len(specs), f"{name}/{window[0].stem}{repeat}",
-                                            window))
-            if all(s.problem for s in specs):
-                short = "".join(f"; {s.name.rsplit('/', 1)[0]} has {len(s.inputs)}"
-                                for s in specs[:5])
+            size = frames_per_sample
+            seqs = find_sequences(root, exclude)
+            if all(len(frames) < size for _, frames in seqs):
+                short = "".join(f"; {name} has {len(frames)}" for name, frames in seqs[:5])
                 raise ValueError(
-                    f"--input {root}: no <seq>/sharp/ folder with at least {frames_per_sample} "
+                    f"--input {root}: no <seq>/sharp/ folder with at least {size} "
                     f"images (blur.frames){short} (nor an RSBlur-style <session>/<id>/ folder "
                     "of frames); lower blur.frames, or for single photos use blur.mode = "
                     "trajectory or kernel")
-            return specs
+            total = sum(1 if len(frames) < size else samples_per_sequence or len(frames) // size
+                        for _, frames in seqs)
+            return Samples(total, lambda: _sequence_samples(seqs, size, samples_per_sequence))
         photos = [(p.relative_to(root).with_suffix("").as_posix(), p)
-                  for p in sorted(root.rglob("*")) if p.suffix.lower() in IMAGE_SUFFIXES]
+                  for p, is_dir in _walk(root, _identity(exclude))
+                  if not is_dir and p.suffix.lower() in IMAGE_SUFFIXES]
         if not photos:
             raise ValueError(f"--input {root}: no images ({', '.join(IMAGE_SUFFIXES)}) found "
                              "in it or its subfolders")
-    specs = []
-    for name, path in photos:
-        for k in range(samples_per_photo):
-            suffix = f"_{k}" if samples_per_photo > 1 else ""
-            specs.append(SampleSpec(len(specs), f"{name}{suffix}", (path,)))
-    return specs
+    return Samples(len(photos) * samples_per_photo,
+                   lambda: _photo_samples(photos, samples_per_photo))
+
+
+def discover(root: Path | None, mode: str, frames_per_sample: int,
+             samples_per_photo: int = 1, samples_per_sequence: int | None = None,
+             limit: int | None = None, exclude: Path | None = None) -> list[SampleSpec]:
+    """The first ``limit`` (default: all) samples of :func:`find_samples`, as a list."""
+    return find_samples(root, mode, frames_per_sample, samples_per_photo, samples_per_sequence,
+                        exclude).take(limit)
 
 
 def _jsonable(value):

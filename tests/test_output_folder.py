@@ -136,3 +136,25 @@ def test_a_folder_with_sample_files_but_no_manifest_needs_resume_or_overwrite(
     assert f"--output {out} holds a set already (12 sample file(s) in blur, sharp, params)" in err
     assert main(args(photos, out, "--overwrite", "--limit", "1")) == 0
     assert len(list((out / "blur").iterdir())) == 1
+
+
+def test_an_output_folder_inside_the_input_is_not_read_back_as_input(tmp_path, photos,
+                                                                     capsys):
+    folder, scene = photos
+    out = folder / "set"
+    assert main(args(photos, out)) == 0
+    assert main(args(photos, out, "--resume")) == 0
+    assert "4 of 4 samples done, 0 to make" in capsys.readouterr().out
+    assert {x["inputs"][0] for x in manifest_lines(out)} == {str(folder / "a.png"),
+                                                             str(folder / "b.png")}
+
+
+@pytest.mark.parametrize("inside", [False, True])
+def test_an_input_that_is_the_output_or_inside_it_is_refused(tmp_path, photos, capsys,
+                                                             inside):
+    folder, _ = photos
+    out = folder.parent if inside else folder
+    before = sorted(folder.iterdir())
+    assert main(args(photos, out)) == 2
+    assert f"--input {folder} is --output {out} or lies inside it" in capsys.readouterr().err
+    assert sorted(folder.iterdir()) == before and not (out / "blur").exists()
