@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import os
 import sys
@@ -350,24 +351,26 @@ def _generate(args) -> int:
         samples = executor(job, todo)
         for spec, result, error in tqdm(samples, total=len(todo), desc="samples",
                                         unit="sample", disable=args.quiet):
-            if error is not None:  # this sample's input: record it, go on
-                failed.append(writer.fail(spec, error, record))
-                if args.strict and error.startswith(SPOT_CHECK_FAILED):
-                    print(f"gpu-blur: error: --strict: sample {spec.index} ({spec.name}): "
-                          f"{error}; the run stopped (samples made so far are kept; --resume "
-                          "goes on)", file=sys.stderr)
-                    return 2
-            else:
-                totals.add(result.timings)
-                try:
+            try:
+                if error is not None:  # this sample's input: record it, go on
+                    failed.append(writer.fail(spec, error, record))
+                else:
                     with timer("writing"):  # the device of the worker that made it
                         writer.write(spec, result, {**record,
                                                     "device": result.device or record["device"]})
-                except OSError as e:
-                    raise OSError(f"sample {spec.index} ({spec.name}): {e}; the samples "
-                                  "finished so far are kept: fix the output folder and run the "
-                                  "same command with --resume") from None
+            except OSError as e:  # a full disk, a folder gone
+                raise OSError(f"--output {args.output}: cannot write sample {spec.index} "
+                              f"({spec.name}): {e}; the samples finished so far are kept: free "
+                              "space or fix the folder, then run the same command with "
+                              "--resume") from None
+            if error is None:
+                totals.add(result.timings)
                 made += 1
+            elif args.strict and error.startswith(SPOT_CHECK_FAILED):
+                print(f"gpu-blur: error: --strict: sample {spec.index} ({spec.name}): "
+                      f"{error}; the run stopped (samples made so far are kept; --resume "
+                      "goes on)", file=sys.stderr)
+                return 2
             if sleep_after is not None and str(spec.index) == sleep_after.strip():
                 time.sleep(3600)
     except KeyboardInterrupt:
@@ -375,7 +378,11 @@ def _generate(args) -> int:
               "--resume to finish the set", file=sys.stderr)
         return 130
     finally:
-        writer.close()
+        if sys.exc_info()[1] is None:
+            writer.close()
+        else:  # the error that stopped the run is the one to report, not a failing flush
+            with contextlib.suppress(OSError):
+                writer.close()
     took = time.perf_counter() - start
     before = f", {done} were done before" if done else ""
     print(f"wrote {made} samples ({len(failed)} failed) to {args.output} in {took:.1f} s "

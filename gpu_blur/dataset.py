@@ -640,9 +640,17 @@ class DatasetWriter:
         return line
 
     def close(self) -> None:
-        """Close the manifest and release the output folder's lock."""
+        """Close the manifest and release the output folder's lock.
+
+        Raises:
+            OSError: naming the manifest when its last lines cannot be written (a full disk).
+        """
         try:
             self.manifest.close()
+        except OSError as e:
+            raise OSError(f"{self.manifest_path}: cannot write its last lines ({e.strerror or e}); "
+                          "the samples it lists are kept: free space or fix the folder, then "
+                          "run the same command with --resume") from None
         finally:
             if self._lock is not None:
                 os.close(self._lock)

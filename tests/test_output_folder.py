@@ -1,6 +1,8 @@
 """The output folder of ``gpu-blur generate`` belongs to one run at a time, and holds only the
 set's own files (issue 13)."""
 
+import errno
+import io
 import os
 import subprocess
 import sys
@@ -13,6 +15,7 @@ from conftest import files, manifest_lines
 
 from gpu_blur.cli import TEST_SLEEP_AFTER, main
 from gpu_blur import dataset
+from gpu_blur.dataset import DatasetWriter
 from gpu_blur.imageio import write_image
 
 
@@ -158,3 +161,39 @@ def test_an_input_that_is_the_output_or_inside_it_is_refused(tmp_path, photos, c
     assert main(args(photos, out)) == 2
     assert f"--input {folder} is --output {out} or lies inside it" in capsys.readouterr().err
     assert sorted(folder.iterdir()) == before and not (out / "blur").exists()
+
+
+class FullDisk(io.StringIO):
+    """A manifest on a full disk: lines go into a buffer that can never be written out."""
+
+    def flush(self):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def close(self):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_a_full_disk_keeps_the_message_that_names_the_sample_and_the_way_out(
+        tmp_path, photos, capsys, monkeypatch):
+    opened = DatasetWriter.__init__
+
+    def on_a_full_disk(self, *a, **k):
+        opened(self, *a, **k)
+        self.manifest.close()
+        self.manifest = FullDisk()
+
+    monkeypatch.setattr(DatasetWriter, "__init__", on_a_full_disk)
+    out = tmp_path / "out"
+    assert main(args(photos, out)) == 2
+    err = capsys.readouterr().err
+    assert f"--output {out}: cannot write sample 0 (a_0): [Errno {errno.ENOSPC}] No space " \
+           "left on device; the samples finished so far are kept" in err
+    assert "run the same command with --resume" in err
+    monkeypatch.undo()
+    writer = DatasetWriter(out, 8, overwrite=True)  # and the folder's lock was released
+    writer.manifest.close()
+    writer.manifest = FullDisk()
+    with pytest.raises(OSError, match=f"{out / 'manifest.jsonl'}: cannot write its last lines "
+                                      r"\(No space left on device\); the samples it lists"):
+        writer.close()
+    DatasetWriter(out, 8, overwrite=True).close()  # released by the failing close too
