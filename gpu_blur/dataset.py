@@ -443,6 +443,8 @@ class DatasetWriter:
         if kept is None and run is not None:
             _write_text(out / RUN, json.dumps(run, indent=1) + "\n")
         self.manifest = open(self.manifest_path, "a")
+        self._specs, self._next = specs, 0  # lines go out in this order (see _append)
+        self._waiting: dict[int, str] = {}
 
     def _sample_files(self) -> list[Path]:
         """The sample files in ``blur/``, ``sharp/`` and ``params/`` (named as :meth:`write` does).
@@ -605,7 +607,28 @@ class DatasetWriter:
                     "or start a new set with --overwrite or another --output")
 
     def _append(self, line: dict) -> None:
-        self.manifest.write(json.dumps(line) + "\n")
+        """Write a sample's line, in the order of ``specs`` when given (finished ones skipped).
+
+        Executors (``--devices``, ``--ray``) hand samples back as they finish; a line waits
+        here until every earlier sample has its own, so the manifest is a serial run's, byte
+        for byte. What waits is small and bounded: lines (about 1 KB; the images and arrays
+        are on disk already) of samples finished while an earlier one is still being made,
+        and the executors hand out samples in order, only a few per worker ahead
+        (``DEVICE_DEPTH``, Ray's window). Lines still waiting at :meth:`close` (a run
+        stopped early) are dropped: a resume makes those samples again, in order.
+        """
+        text = json.dumps(line) + "\n"
+        if self._specs is None:
+            self.manifest.write(text)
+        else:
+            self._waiting[line["index"]] = text
+            while self._next < len(self._specs):
+                index = self._specs[self._next].index
+                if index not in self.done:
+                    if index not in self._waiting:
+                        break
+                    self.manifest.write(self._waiting.pop(index))
+                self._next += 1
         self.manifest.flush()
 
     def write(self, spec: SampleSpec, result, record: dict) -> dict:

@@ -3,6 +3,7 @@ set's own files (issue 13)."""
 
 import errno
 import io
+import json
 import os
 import subprocess
 import sys
@@ -15,7 +16,7 @@ from conftest import files, manifest_lines
 
 from gpu_blur.cli import TEST_SLEEP_AFTER, main
 from gpu_blur import dataset
-from gpu_blur.dataset import DatasetWriter
+from gpu_blur.dataset import DatasetWriter, SampleSpec
 from gpu_blur.imageio import write_image
 
 
@@ -197,3 +198,19 @@ def test_a_full_disk_keeps_the_message_that_names_the_sample_and_the_way_out(
                                       r"\(No space left on device\); the samples it lists"):
         writer.close()
     DatasetWriter(out, 8, overwrite=True).close()  # released by the failing close too
+
+
+def test_manifest_lines_are_written_in_sample_order_whatever_order_samples_finish(tmp_path):
+    specs = [SampleSpec(i, f"p{i}", (tmp_path / f"p{i}.png",)) for i in range(4)]
+    writer = DatasetWriter(tmp_path / "out", 8, specs=specs)
+    for i in (2, 0, 3):  # as workers finish them; sample 1 is still being made
+        writer.fail(specs[i], "bad input", {})
+    writer.close()  # a run stopped here: 2 and 3 wait for 1, so only 0 is listed
+    lines = (tmp_path / "out" / "manifest.jsonl").read_text().splitlines()
+    assert [json.loads(x)["index"] for x in lines] == [0]
+    writer = DatasetWriter(tmp_path / "out", 8, specs=specs, overwrite=True)
+    for i in (3, 1, 2, 0):
+        writer.fail(specs[i], "bad input", {})
+    writer.close()
+    lines = (tmp_path / "out" / "manifest.jsonl").read_text().splitlines()
+    assert [json.loads(x)["index"] for x in lines] == [0, 1, 2, 3]
