@@ -293,8 +293,11 @@ def _check_setup(args, scene) -> None:
 
 
 def _scene_files(scene) -> dict[str, Path]:
-    """The files a scene reads, by key: a camera file (``camera.name`` ending in .toml or .json)
-    and ``blur.kernel`` (mode "kernel"); a relative path is taken from the scene file's folder."""
+    """The files a scene reads, by scene key.
+
+    A camera file (``camera.name`` ending in .toml or .json) and ``blur.kernel`` (mode
+    "kernel"); a relative path is taken from the scene file's folder.
+    """
     named = {}
     if Path(scene.camera.name).suffix.lower() in (".toml", ".json"):
         named["camera.name"] = Path(scene.camera.name)

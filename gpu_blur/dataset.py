@@ -77,8 +77,10 @@ def default_photo() -> Path:
 
 
 def _natural(name: str) -> tuple:
-    """Sort key comparing runs of digits as numbers (``2.png`` before ``10.png``); names that
-    tie as numbers (``01.png``, ``1.png``) fall back to the plain text."""
+    """Sort key comparing runs of digits as numbers: ``2.png`` before ``10.png``.
+
+    Names that tie as numbers (``01.png``, ``1.png``) fall back to the plain text.
+    """
     parts = re.split(r"(\d+)", name)
     return tuple(int(p) if i % 2 else p for i, p in enumerate(parts)), name
 
@@ -93,10 +95,11 @@ def _identity(path: Path | None) -> tuple[int, int] | None:
 
 
 def _walk(folder: Path, skip: tuple[int, int] | None) -> Iterator[tuple[Path, bool]]:
-    """(path, is a folder) of every entry under ``folder``, depth first, each folder's entries
-    in natural order; the folder whose :func:`_identity` is ``skip`` is left out with all it
-    holds. Linked folders are listed but not entered, and unreadable ones skipped, as
-    ``Path.rglob`` does."""
+    """(path, is a folder) of every entry under ``folder``, depth first, in natural order.
+
+    The folder whose :func:`_identity` is ``skip`` is left out with all it holds. Linked
+    folders are listed but not entered, and unreadable ones skipped, as ``Path.rglob`` does.
+    """
     try:
         with os.scandir(folder) as it:
             entries = sorted(it, key=lambda e: _natural(e.name))
@@ -373,21 +376,44 @@ def _difference(name: str, old, new) -> str:
 class DatasetWriter:
     """Writes ``blur/`` and ``sharp/`` PNGs, array parameters, ``manifest.jsonl`` and ``run.json``.
 
-    Each sample's files are written completely (temporary name, then rename) before its
-    manifest line is appended and flushed, so the manifest only lists finished samples, and
-    a run killed at any point leaves no half-written file under a final name.
+    What it guarantees:
 
-    Three ways to open a folder: a new set (refused if the folder holds a manifest already),
-    ``overwrite`` (start the set again), or ``resume``: finish the set a previous run started.
-    Resuming checks that ``run`` has the same settings as the folder's ``run.json``
-    (:data:`RESUME_KEYS`) and that each finished sample's index still names the same inputs,
-    keeps the finished samples (``done``; their files are not touched), drops manifest lines
-    of failed samples (to be tried again) and a last line torn by a kill, and removes
-    temporary files left by a killed run.
+    * One writer per folder: it holds an advisory lock (``fcntl.flock`` on :data:`LOCK`, which
+      names its pid, host and start) from opening to :meth:`close`; another writer on the
+      folder is refused at once, naming the holder. The lock dies with its process.
+    * Nothing half-written under a final name: each file is written under a temporary name
+      unique to the process (:func:`gpu_blur.imageio.temporary_path`) and renamed, and a
+      sample's line is appended and flushed only after its files, so the manifest lists
+      only finished samples whatever moment a run is killed.
+    * The manifest in sample order: lines are written in the order of ``specs`` however the
+      samples finish (see :meth:`_append`), so any executor writes a serial run's bytes.
+    * The set's folders are the set's: ``blur/``, ``sharp/`` and ``params/`` hold only
+      sample files named as :meth:`write` names them (``NNNNNN_<name>.png``); anything else
+      there is refused, named, before any change, and is never removed. Opening a folder
+      removes the sample files no kept manifest line lists and the temporary files of a
+      killed run (their naming only).
+
+    Three ways to open a folder: a new set (refused if the folder holds a manifest, run.json
+    or sample files), ``overwrite`` (remove the old set's manifest, run.json and sample files,
+    then start again), or ``resume``: finish the set a previous run started. Resuming checks
+    that ``run`` matches the folder's ``run.json`` in every key of :data:`RESUME_KEYS`
+    (options, device, library versions, camera and kernel file contents) and that each
+    finished sample's index still names the same inputs, keeps the finished samples
+    (``done``; their files are not touched), and drops the other lines: failed samples (to
+    be tried again), a line torn by a kill, and any line it cannot verify (an index that is
+    not an int in ``[0, total)``, files not named as this writer names them, or missing).
+
+    Args:
+        out: the set's folder (created if needed).
+        bits: 8 or 16 (PNG), 0 (float TIFF).
+        run: what ``run.json`` records (``gpu-blur generate``'s settings).
+        specs: the samples this run makes, in index order: the order of the manifest.
+        total: how many samples the input gives (before ``--limit``); default ``len(specs)``.
 
     Raises:
-        ValueError: an existing set without ``overwrite``/``resume``, or a resume whose
-            settings or inputs differ, naming what differs and the way out.
+        ValueError: an existing set without ``overwrite``/``resume``, a folder another run
+            holds or that holds files not of a set, or a resume whose settings, files or
+            inputs differ, naming what differs and the way out.
         OSError: naming the folder when it cannot be created or written.
     """
 
@@ -401,7 +427,7 @@ class DatasetWriter:
         self.manifest_path = out / MANIFEST
         self.done: dict[int, dict] = {}
         self.retry = 0  # failed samples whose lines were dropped, to be tried again
-        self.torn = 0  # manifest lines that were not whole JSON (cut by a kill)
+        self.torn = 0  # manifest lines cut by a kill, or that could not be verified
         self._lock = self._take_lock()
         try:
             self._open(run, overwrite, resume, specs,

@@ -176,8 +176,11 @@ def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
 
 
 def temporary_path(path: Path) -> Path:
-    """Where ``path`` is written before it is renamed into place: ``.<name>.<pid>.part<suffix>``
-    beside it (the process id keeps two processes apart; the suffix keeps the format)."""
+    """Where ``path`` is written before it is renamed into place.
+
+    ``.<name>.<pid>.part<suffix>`` beside it: the process id keeps two processes apart, the
+    suffix keeps the format.
+    """
     return path.with_name(f".{path.name}.{os.getpid()}.part{path.suffix}")
 
 

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from conftest import files, manifest_lines
 
-from gpu_blur.cli import TEST_SLEEP_AFTER, main
 from gpu_blur import dataset
+from gpu_blur.cli import TEST_SLEEP_AFTER, main
 from gpu_blur.dataset import DatasetWriter, SampleSpec
 from gpu_blur.imageio import write_image
 
