@@ -107,7 +107,7 @@ def _walk(folder: Path, skip: tuple[int, int] | None) -> Iterator[tuple[Path, bo
         return
     for entry in entries:
         is_dir = entry.is_dir()
-        if is_dir and skip is not None and (entry.stat().st_dev, entry.stat().st_ino) == skip:
+        if is_dir and skip is not None and _identity(Path(entry.path)) == skip:
             continue
         yield Path(entry.path), is_dir
         if is_dir and not entry.is_symlink():
