@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import hashlib
 import os
 import sys
 import time
@@ -263,6 +265,11 @@ def _check_setup(args, scene) -> None:
         raise ValueError("--samples-per-photo and --limit must be >= 1")
     if args.samples_per_sequence is not None and args.samples_per_sequence < 1:
         raise ValueError(f"--samples-per-sequence {args.samples_per_sequence}: must be >= 1")
+    if args.input is not None and args.input.resolve().is_relative_to(args.output.resolve()):
+        raise ValueError(f"--input {args.input} is --output {args.output} or lies inside it, "
+                         "where generate writes and removes the set's files; give an --output "
+                         "outside the input (one inside it is fine: it is left out of the "
+                         "input)")
     if not 0.0 <= args.verify <= 1.0:
         raise ValueError(f"--verify {args.verify}: the fraction of tiles to check, 0 to 1")
     if args.strict and not args.verify:
@@ -277,21 +284,34 @@ def _check_setup(args, scene) -> None:
                      "float64" if numpy else scene.output.precision)
     # an unknown camera name, a bad camera file, a response float32 kernels cannot evaluate
     scene_camera(scene, args.backend.split(":")[0])
-    if scene.blur.mode == "kernel" and scene.blur.kernel:
-        path = Path(scene.blur.kernel)
-        if not path.is_absolute() and scene.base_dir is not None:
-            path = scene.base_dir / path
+    kernel = _scene_files(scene).get("blur.kernel")
+    if kernel is not None:
         try:
-            read_kernel(path)
+            read_kernel(kernel)
         except ValueError as e:
             raise ValueError(f"scene file {scene.path}: {e}" if scene.path else str(e)) from None
+
+
+def _scene_files(scene) -> dict[str, Path]:
+    """The files a scene reads, by scene key.
+
+    A camera file (``camera.name`` ending in .toml or .json) and ``blur.kernel`` (mode
+    "kernel"); a relative path is taken from the scene file's folder.
+    """
+    named = {}
+    if Path(scene.camera.name).suffix.lower() in (".toml", ".json"):
+        named["camera.name"] = Path(scene.camera.name)
+    if scene.blur.mode == "kernel" and scene.blur.kernel:
+        named["blur.kernel"] = Path(scene.blur.kernel)
+    return {key: path if path.is_absolute() or scene.base_dir is None else scene.base_dir / path
+            for key, path in named.items()}
 
 
 def _generate(args) -> int:
     from tqdm import tqdm
 
     from gpu_blur.backends import get_backend
-    from gpu_blur.dataset import DatasetWriter, discover
+    from gpu_blur.dataset import DatasetWriter, find_samples, library_versions
     from gpu_blur.distributed import pick_executor
     from gpu_blur.generate import Job
     from gpu_blur.scene import load_scene
@@ -303,21 +323,24 @@ def _generate(args) -> int:
     _check_setup(args, scene)
     executor = pick_executor(args, scene.output.precision)  # serial, --devices or --ray
     per_photo = args.samples_per_photo or (1 if args.input else 4)
-    specs = discover(args.input, scene.blur.mode, scene.blur.frames, per_photo,
-                     args.samples_per_sequence)
-    specs = specs[:args.limit] if args.limit else specs
-    run = {"gpu_blur": __version__, "seed": args.seed, "backend": args.backend,
-           "device": backend.device,
+    found = find_samples(args.input, scene.blur.mode, scene.blur.frames, per_photo,
+                         args.samples_per_sequence, exclude=args.output)
+    specs = found.take(args.limit)
+    run = {"seed": args.seed, "backend": args.backend, "device": backend.device,
            "input": str(args.input) if args.input else "built-in: coffee.png",
            "samples_per_photo": per_photo, "samples_per_sequence": args.samples_per_sequence,
-           "scene_file": str(args.scene) if args.scene else None, "scene": scene.to_dict()}
+           "scene_file": str(args.scene) if args.scene else None, "scene": scene.to_dict(),
+           "files": {key: hashlib.sha256(path.read_bytes()).hexdigest()
+                     for key, path in _scene_files(scene).items()},
+           "libraries": library_versions(args.backend)}
     writer = DatasetWriter(args.output, scene.output.bits, run, overwrite=args.overwrite,
-                           resume=args.resume, specs=specs)
+                           resume=args.resume, specs=specs, total=found.total)
     todo = [s for s in specs if s.index not in writer.done]
+    done = len(specs) - len(todo)
     if args.resume:
-        print(f"resuming {args.output}: {len(writer.done)} of {len(specs)} samples done, "
-              f"{len(todo)} to make ({writer.retry} failed before, to retry; {writer.torn} "
-              "torn manifest line(s) ignored)")
+        print(f"resuming {args.output}: {done} of {len(specs)} samples done, {len(todo)} to "
+              f"make ({writer.retry} failed before, to retry; {writer.torn} torn or invalid "
+              "manifest line(s) ignored)")
     record = {"seed": args.seed, "backend": args.backend, "device": backend.device}
     sleep_after = os.environ.get(TEST_SLEEP_AFTER)
     failed, made = [], 0
@@ -331,24 +354,26 @@ def _generate(args) -> int:
         samples = executor(job, todo)
         for spec, result, error in tqdm(samples, total=len(todo), desc="samples",
                                         unit="sample", disable=args.quiet):
-            if error is not None:  # this sample's input: record it, go on
-                failed.append(writer.fail(spec, error, record))
-                if args.strict and error.startswith(SPOT_CHECK_FAILED):
-                    print(f"gpu-blur: error: --strict: sample {spec.index} ({spec.name}): "
-                          f"{error}; the run stopped (samples made so far are kept; --resume "
-                          "goes on)", file=sys.stderr)
-                    return 2
-            else:
-                totals.add(result.timings)
-                try:
+            try:
+                if error is not None:  # this sample's input: record it, go on
+                    failed.append(writer.fail(spec, error, record))
+                else:
                     with timer("writing"):  # the device of the worker that made it
                         writer.write(spec, result, {**record,
                                                     "device": result.device or record["device"]})
-                except OSError as e:
-                    raise OSError(f"sample {spec.index} ({spec.name}): {e}; the samples "
-                                  "finished so far are kept: fix the output folder and run the "
-                                  "same command with --resume") from None
+            except OSError as e:  # a full disk, a folder gone
+                raise OSError(f"--output {args.output}: cannot write sample {spec.index} "
+                              f"({spec.name}): {e}; the samples finished so far are kept: free "
+                              "space or fix the folder, then run the same command with "
+                              "--resume") from None
+            if error is None:
+                totals.add(result.timings)
                 made += 1
+            elif args.strict and error.startswith(SPOT_CHECK_FAILED):
+                print(f"gpu-blur: error: --strict: sample {spec.index} ({spec.name}): "
+                      f"{error}; the run stopped (samples made so far are kept; --resume "
+                      "goes on)", file=sys.stderr)
+                return 2
             if sleep_after is not None and str(spec.index) == sleep_after.strip():
                 time.sleep(3600)
     except KeyboardInterrupt:
@@ -356,11 +381,15 @@ def _generate(args) -> int:
               "--resume to finish the set", file=sys.stderr)
         return 130
     finally:
-        writer.close()
+        if sys.exc_info()[1] is None:
+            writer.close()
+        else:  # the error that stopped the run is the one to report, not a failing flush
+            with contextlib.suppress(OSError):
+                writer.close()
     took = time.perf_counter() - start
-    done = f", {len(writer.done)} were done before" if writer.done else ""
+    before = f", {done} were done before" if done else ""
     print(f"wrote {made} samples ({len(failed)} failed) to {args.output} in {took:.1f} s "
-          f"({made / max(took, 1e-9):.2f} samples/s){done}; manifest: {writer.manifest_path}")
+          f"({made / max(took, 1e-9):.2f} samples/s){before}; manifest: {writer.manifest_path}")
     totals.add({"writing": current().seconds["writing"] - writing})
     print("\n".join(totals.summary(took)))
     if not failed:

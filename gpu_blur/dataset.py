@@ -3,24 +3,55 @@
 from __future__ import annotations
 
 import dataclasses
+import errno
+import fcntl
+import itertools
 import json
+import math
+import os
+import re
+import socket
+import time
 import zipfile
+from collections.abc import Callable, Iterator
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.imageio import write_image
+from gpu_blur.imageio import temporary_path, write_image
 from gpu_blur.params import ARRAY_PARAMS
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 MANIFEST = "manifest.jsonl"
 RUN = "run.json"
-#: run.json keys a resumed run must share with the set it finishes, with the option that sets
-#: each (everything that decides a sample's inputs, draws or pixels; not --tile or --limit).
+#: The most samples one run makes. Each waits in memory until made (a SampleSpec with its
+#: input paths, about 0.3 KB) and adds a manifest line (about 1 KB): 10 million samples hold
+#: some 3 GB of list and write 10 GB of manifest, and take days on a fast GPU.
+MAX_SAMPLES = 10_000_000
+#: The lock file a run holds (``fcntl.flock``) while it writes its output folder.
+LOCK = ".gpu_blur.lock"
+#: The set's folders; they hold only files named as DatasetWriter.write names them.
+SUBFOLDERS = ("blur", "sharp", "params")
+#: A sample's files, as manifest keys (paths relative to the set's folder).
+PATHS = ("blurred", "sharp", "arrays")
+_SAMPLE_FILE = re.compile(r"\d{6,}_.*\.(png|tiff|npz)")
+_PROBE = "gpu_blur_write_test"
+#: Temporary files (:func:`gpu_blur.imageio.temporary_path`) a killed run may leave in the set's
+#: folders: ``.<final name>[.<pid>].part[.<suffix>]`` of a sample file, the manifest, run.json
+#: or the write probe (names before the pid was added included). Nothing else is removed.
+_TEMPORARY = re.compile(rf"\.(\d{{6,}}.*|{re.escape(MANIFEST)}|{re.escape(RUN)}|{_PROBE})"
+                        r"(\.\d+)?\.part(\.[a-z]+)?")
+#: run.json keys a resumed run must share with the set it finishes, with what sets each:
+#: everything that decides a sample's inputs, draws or pixels (not --tile or --limit). "files"
+#: holds the sha256 of each file the scene names (camera.name, blur.kernel), "device" the
+#: backend's device (OpenCL platform numbers change when a runtime is installed),
+#: "libraries" the versions of the libraries that compute the pixels (library_versions).
 RESUME_KEYS = {"seed": "--seed", "scene": "--scene", "backend": "--backend",
-               "input": "--input", "samples_per_photo": "--samples-per-photo",
-               "samples_per_sequence": "--samples-per-sequence"}
+               "device": "device behind --backend", "input": "--input",
+               "samples_per_photo": "--samples-per-photo",
+               "samples_per_sequence": "--samples-per-sequence",
+               "files": "camera or kernel file contents", "libraries": "library version"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,8 +76,48 @@ def default_photo() -> Path:
     return Path(str(resources.files("gpu_blur").joinpath("data/coffee.png")))
 
 
+def _natural(name: str) -> tuple:
+    """Sort key comparing runs of digits as numbers: ``2.png`` before ``10.png``.
+
+    Names that tie as numbers (``01.png``, ``1.png``) fall back to the plain text.
+    """
+    parts = re.split(r"(\d+)", name)
+    return tuple(int(p) if i % 2 else p for i, p in enumerate(parts)), name
+
+
+def _identity(path: Path | None) -> tuple[int, int] | None:
+    """(device, inode) of an existing folder, else None."""
+    try:
+        st = os.stat(path) if path is not None else None
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino) if st is not None else None
+
+
+def _walk(folder: Path, skip: tuple[int, int] | None) -> Iterator[tuple[Path, bool]]:
+    """(path, is a folder) of every entry under ``folder``, depth first, in natural order.
+
+    The folder whose :func:`_identity` is ``skip`` is left out with all it holds. Linked
+    folders are listed but not entered, and unreadable ones skipped, as ``Path.rglob`` does.
+    """
+    try:
+        with os.scandir(folder) as it:
+            entries = sorted(it, key=lambda e: _natural(e.name))
+    except PermissionError:
+        return
+    for entry in entries:
+        is_dir = entry.is_dir()
+        if is_dir and skip is not None and _identity(Path(entry.path)) == skip:
+            continue
+        yield Path(entry.path), is_dir
+        if is_dir and not entry.is_symlink():
+            yield from _walk(Path(entry.path), skip)
+
+
 def _images(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    """The images directly in ``folder``, in natural order."""
+    return sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
+                  key=lambda p: _natural(p.name))
 
 
 def _sequence_name(folder: Path, root: Path) -> str:
@@ -59,8 +130,8 @@ def _is_rsblur_sample(folder: Path) -> bool:
     return folder.name.isdigit() and folder.parent.name.isdigit()
 
 
-def find_sequences(root: Path) -> list[tuple[str, list[Path]]]:
-    """Frame sequences under ``root``, GoPro-style and RSBlur-style, sorted by name.
+def find_sequences(root: Path, exclude: Path | None = None) -> list[tuple[str, list[Path]]]:
+    """Frame sequences under ``root``, GoPro-style and RSBlur-style, in natural order.
 
     * GoPro-style: every ``.../<seq>/sharp/`` folder; its images are the sequence
       (``GOPRO_Large/train/GOPR0372_07_00/sharp/000047.png``); named ``<seq>``.
@@ -71,39 +142,93 @@ def find_sequences(root: Path) -> list[tuple[str, list[Path]]]:
       frames and are never read; named ``<session>/<id>``. ``root`` itself counts when it
       is such a folder.
 
+    Natural order compares runs of digits as numbers: frames ``0.png, 1.png, ..., 9.png,
+    10.png`` in that order, and sequences likewise by their folders' names.
+
+    Args:
+        root: the input folder.
+        exclude: a folder under ``root`` left out with all it holds (the output folder).
+
     Returns:
-        (sequence name relative to root, its frames sorted by file name) pairs.
+        (sequence name relative to root, its frames) pairs.
     """
-    seqs = {}  # the frames' folder (which orders the sequences) -> (name, frames)
-    named = set()
-    for sharp in sorted(root.rglob("sharp")):
-        if sharp.is_dir():
-            frames = _images(sharp)
-            if frames:
-                named.add(sharp.parent)
-                seqs[sharp] = _sequence_name(sharp.parent, root), frames
-    for folder in [root, *sorted(root.rglob("*"))]:
-        if folder not in named and folder.is_dir() and _is_rsblur_sample(folder):
+    folders = [root] + [p for p, is_dir in _walk(root, _identity(exclude)) if is_dir]
+    sharp = {f: _images(f) for f in folders[1:] if f.name == "sharp"}
+    named = {f.parent for f, frames in sharp.items() if frames}
+    seqs = []
+    for folder in folders:
+        if sharp.get(folder):
+            seqs.append((_sequence_name(folder.parent, root), sharp[folder]))
+        elif folder not in named and _is_rsblur_sample(folder):
             frames = _images(folder)
             if frames:
-                seqs[folder] = _sequence_name(folder, root), frames
-    return [seqs[k] for k in sorted(seqs)]
+                seqs.append((_sequence_name(folder, root), frames))
+    return seqs
 
 
-def _windows(count: int, size: int, per_sequence: int | None) -> list[int]:
-    """First frames of a sequence's windows (see :func:`discover`)."""
+def _windows(count: int, size: int, per_sequence: int | None) -> Iterator[int]:
+    """First frames of a sequence's windows, in order (see :func:`find_samples`)."""
     if per_sequence is None:
-        return list(range(0, count - size + 1, size))
-    last = count - size
+        return iter(range(0, count - size + 1, size))
     if per_sequence == 1:
-        return [0]
-    return [round(j * last / (per_sequence - 1)) for j in range(per_sequence)]
+        return iter([0])
+    last = count - size
+    return (round(j * last / (per_sequence - 1)) for j in range(per_sequence))
 
 
-def discover(root: Path | None, mode: str, frames_per_sample: int,
-             samples_per_photo: int = 1,
-             samples_per_sequence: int | None = None) -> list[SampleSpec]:
-    """The samples a folder yields for a blur mode.
+def _sequence_samples(sequences, size: int, per_sequence: int | None) -> Iterator[SampleSpec]:
+    index = 0
+    for name, frames in sequences:
+        if len(frames) < size:
+            yield SampleSpec(index, f"{name}/{frames[0].stem}", tuple(frames),
+                             f"sequence {name} has {len(frames)} frame(s) in {frames[0].parent}, "
+                             f"fewer than blur.frames = {size}; add frames, lower blur.frames "
+                             "in the scene, or remove the sequence")
+            index += 1
+            continue
+        previous = None  # starts never decrease, so a repeat follows its first
+        for j, start in enumerate(_windows(len(frames), size, per_sequence)):
+            window = tuple(frames[start:start + size])
+            repeat = f"_{j}" if start == previous else ""
+            previous = start
+            yield SampleSpec(index, f"{name}/{window[0].stem}{repeat}", window)
+            index += 1
+
+
+def _photo_samples(photos, per_photo: int) -> Iterator[SampleSpec]:
+    for i, (name, path) in enumerate(photos):
+        for k in range(per_photo):
+            suffix = f"_{k}" if per_photo > 1 else ""
+            yield SampleSpec(i * per_photo + k, f"{name}{suffix}", (path,))
+
+
+@dataclasses.dataclass(frozen=True)
+class Samples:
+    """The samples an input gives: how many (``total``), each made only when taken."""
+
+    total: int
+    make: Callable[[], Iterator[SampleSpec]]
+
+    def take(self, limit: int | None = None) -> list[SampleSpec]:
+        """The first ``limit`` samples (all without one), in index order.
+
+        Raises:
+            ValueError: when that is more than :data:`MAX_SAMPLES`, saying why.
+        """
+        count = self.total if limit is None else min(limit, self.total)
+        if count > MAX_SAMPLES:
+            raise ValueError(
+                f"the input gives {self.total:,} samples, more than the {MAX_SAMPLES:,} one run "
+                "makes: each waits in memory until it is made and adds a manifest line (about "
+                "1 KB); lower --samples-per-photo or --samples-per-sequence, or pass --limit "
+                f"(at most {MAX_SAMPLES:,})")
+        return list(itertools.islice(self.make(), count))
+
+
+def find_samples(root: Path | None, mode: str, frames_per_sample: int,
+                 samples_per_photo: int = 1, samples_per_sequence: int | None = None,
+                 exclude: Path | None = None) -> Samples:
+    """The samples a folder yields for a blur mode, counted at once and made when taken.
 
     Args:
         root: input folder, or None for the built-in photo.
@@ -111,8 +236,9 @@ def discover(root: Path | None, mode: str, frames_per_sample: int,
             sequence :func:`find_sequences` finds: GoPro-style ``<seq>/sharp/*.png`` and
             RSBlur-style ``<session>/<id>/*.png`` (digit names, the sharp frames of one real
             blurred image directly in the folder; ``avg*/``, ``gt/``, ``real_blur/`` and other
-            subfolders ignored). ``kernel`` and ``trajectory`` take every image under ``root``
-            (recursively) as a photo.
+            subfolders ignored), frames and sequences in natural order (``2.png`` before
+            ``10.png``). ``kernel`` and ``trajectory`` take every image under ``root``
+            (recursively, in the same natural order) as a photo.
         frames_per_sample: frames per window (mode ``average``).
         samples_per_photo: samples made from each photo (each with its own draws).
         samples_per_sequence: mode ``average``: None (default) takes every consecutive,
@@ -122,9 +248,12 @@ def discover(root: Path | None, mode: str, frames_per_sample: int,
             the first window): strided when ``K <= n // frames``, overlapping beyond, and the
             same window again (with its own draws) when ``K > n - frames + 1``. Windows are
             named by their first frame, plus ``_<j>`` for a repeat.
+        exclude: a folder under ``root`` whose images are never taken (the output folder:
+            a set written inside its input is not read back as input).
 
     A sequence with fewer than ``frames_per_sample`` frames gives one sample with its
-    ``problem`` set (reported as failed), unless no sequence is long enough.
+    ``problem`` set (reported as failed), unless no sequence is long enough. Samples are
+    numbered in order; taking the first N makes only those N.
 
     Raises:
         ValueError: naming the folder when it is missing, not a folder, or yields no sample.
@@ -149,43 +278,34 @@ def discover(root: Path | None, mode: str, frames_per_sample: int,
         if mode == "average":
             if samples_per_sequence is not None and samples_per_sequence < 1:
                 raise ValueError(f"--samples-per-sequence {samples_per_sequence}: must be >= 1")
-            specs = []
-            for name, frames in find_sequences(root):
-                if len(frames) < frames_per_sample:
-                    specs.append(SampleSpec(
-                        len(specs), f"{name}/{frames[0].stem}", tuple(frames),
-                        f"sequence {name} has {len(frames)} frame(s) in {frames[0].parent}, "
-                        f"fewer than blur.frames = {frames_per_sample}; add frames, lower "
-                        "blur.frames in the scene, or remove the sequence"))
-                    continue
-                seen = set()
-                for j, start in enumerate(_windows(len(frames), frames_per_sample,
-                                                   samples_per_sequence)):
-                    window = tuple(frames[start:start + frames_per_sample])
-                    repeat = f"_{j}" if start in seen else ""
-                    seen.add(start)
-                    specs.append(SampleSpec(len(specs), f"{name}/{window[0].stem}{repeat}",
-                                            window))
-            if all(s.problem for s in specs):
-                short = "".join(f"; {s.name.rsplit('/', 1)[0]} has {len(s.inputs)}"
-                                for s in specs[:5])
+            size = frames_per_sample
+            seqs = find_sequences(root, exclude)
+            if all(len(frames) < size for _, frames in seqs):
+                short = "".join(f"; {name} has {len(frames)}" for name, frames in seqs[:5])
                 raise ValueError(
-                    f"--input {root}: no <seq>/sharp/ folder with at least {frames_per_sample} "
+                    f"--input {root}: no <seq>/sharp/ folder with at least {size} "
                     f"images (blur.frames){short} (nor an RSBlur-style <session>/<id>/ folder "
                     "of frames); lower blur.frames, or for single photos use blur.mode = "
                     "trajectory or kernel")
-            return specs
+            total = sum(1 if len(frames) < size else samples_per_sequence or len(frames) // size
+                        for _, frames in seqs)
+            return Samples(total, lambda: _sequence_samples(seqs, size, samples_per_sequence))
         photos = [(p.relative_to(root).with_suffix("").as_posix(), p)
-                  for p in sorted(root.rglob("*")) if p.suffix.lower() in IMAGE_SUFFIXES]
+                  for p, is_dir in _walk(root, _identity(exclude))
+                  if not is_dir and p.suffix.lower() in IMAGE_SUFFIXES]
         if not photos:
             raise ValueError(f"--input {root}: no images ({', '.join(IMAGE_SUFFIXES)}) found "
                              "in it or its subfolders")
-    specs = []
-    for name, path in photos:
-        for k in range(samples_per_photo):
-            suffix = f"_{k}" if samples_per_photo > 1 else ""
-            specs.append(SampleSpec(len(specs), f"{name}{suffix}", (path,)))
-    return specs
+    return Samples(len(photos) * samples_per_photo,
+                   lambda: _photo_samples(photos, samples_per_photo))
+
+
+def discover(root: Path | None, mode: str, frames_per_sample: int,
+             samples_per_photo: int = 1, samples_per_sequence: int | None = None,
+             limit: int | None = None, exclude: Path | None = None) -> list[SampleSpec]:
+    """The first ``limit`` (default: all) samples of :func:`find_samples`, as a list."""
+    return find_samples(root, mode, frames_per_sample, samples_per_photo, samples_per_sequence,
+                        exclude).take(limit)
 
 
 def _jsonable(value):
@@ -201,7 +321,7 @@ def _plain(value):
 
 def _write_text(path: Path, text: str) -> None:
     """Write a text file that appears complete or not at all."""
-    tmp = path.with_name(f".{path.name}.part")
+    tmp = temporary_path(path)
     tmp.write_text(text)
     tmp.replace(path)
 
@@ -211,7 +331,7 @@ def save_arrays(path: Path, arrays: dict) -> None:
 
     The file appears complete or not at all (written to a temporary name, then renamed).
     """
-    tmp = path.with_name(f".{path.stem}.part.npz")
+    tmp = temporary_path(path)
     with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as z:
         for name, value in arrays.items():
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
@@ -220,41 +340,86 @@ def save_arrays(path: Path, arrays: dict) -> None:
     tmp.replace(path)
 
 
-def _scene_difference(old, new) -> str:
-    """The first scene key whose value differs, as ``section.key = old (this run: new)``."""
-    old, new = old if isinstance(old, dict) else {}, new if isinstance(new, dict) else {}
-    for section in sorted(set(old) | set(new)):
-        a, b = old.get(section) or {}, new.get(section) or {}
-        for key in sorted(set(a) | set(b)):
-            if a.get(key) != b.get(key):
-                return f"{section}.{key} = {a.get(key)!r} (this run: {b.get(key)!r})"
-    return "the scene"  # pragma: no cover (called only when the scenes differ)
+def library_versions(backend: str) -> dict[str, str]:
+    """The versions of the libraries a sample's pixels depend on with ``backend``.
+
+    gpu_blur, numpy and OpenCV (image decoding and encoding, resampling) always; pyopencl or
+    Warp with their backends.
+    """
+    import cv2
+
+    from gpu_blur import __version__
+
+    versions = {"gpu_blur": __version__, "numpy": np.__version__, "opencv": cv2.__version__}
+    family = backend.split(":", 1)[0]
+    if family == "opencl":
+        import pyopencl
+
+        versions["pyopencl"] = pyopencl.VERSION_TEXT
+    elif family == "warp":
+        import warp
+
+        versions["warp"] = warp.config.version
+    return versions
+
+
+def _difference(name: str, old, new) -> str:
+    """Where two JSON values first differ, as ``name.key = old (this run: new)``."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        for key in sorted(set(old) | set(new)):
+            if old.get(key) != new.get(key):
+                return _difference(f"{name}.{key}", old.get(key), new.get(key))
+    shown = [repr(v) if len(repr(v)) <= 80 else repr(v)[:77] + "..." for v in (old, new)]
+    return f"{name} = {shown[0]} (this run: {shown[1]})"
 
 
 class DatasetWriter:
     """Writes ``blur/`` and ``sharp/`` PNGs, array parameters, ``manifest.jsonl`` and ``run.json``.
 
-    Each sample's files are written completely (temporary name, then rename) before its
-    manifest line is appended and flushed, so the manifest only lists finished samples, and
-    a run killed at any point leaves no half-written file under a final name.
+    What it guarantees:
 
-    Three ways to open a folder: a new set (refused if the folder holds a manifest already),
-    ``overwrite`` (start the set again), or ``resume``: finish the set a previous run started.
-    Resuming checks that ``run`` has the same settings as the folder's ``run.json``
-    (:data:`RESUME_KEYS`) and that each finished sample's index still names the same inputs,
-    keeps the finished samples (``done``; their files are not touched), drops manifest lines
-    of failed samples (to be tried again) and a last line torn by a kill, and removes
-    temporary files left by a killed run.
+    * One writer per folder: it holds an advisory lock (``fcntl.flock`` on :data:`LOCK`, which
+      names its pid, host and start) from opening to :meth:`close`; another writer on the
+      folder is refused at once, naming the holder. The lock dies with its process.
+    * Nothing half-written under a final name: each file is written under a temporary name
+      unique to the process (:func:`gpu_blur.imageio.temporary_path`) and renamed, and a
+      sample's line is appended and flushed only after its files, so the manifest lists
+      only finished samples whatever moment a run is killed.
+    * The manifest in sample order: lines are written in the order of ``specs`` however the
+      samples finish (see :meth:`_append`), so any executor writes a serial run's bytes.
+    * The set's folders are the set's: ``blur/``, ``sharp/`` and ``params/`` hold only
+      sample files named as :meth:`write` names them (``NNNNNN_<name>.png``); anything else
+      there is refused, named, before any change, and is never removed. Opening a folder
+      removes the sample files no kept manifest line lists and the temporary files of a
+      killed run (their naming only).
+
+    Three ways to open a folder: a new set (refused if the folder holds a manifest, run.json
+    or sample files), ``overwrite`` (remove the old set's manifest, run.json and sample files,
+    then start again), or ``resume``: finish the set a previous run started. Resuming checks
+    that ``run`` matches the folder's ``run.json`` in every key of :data:`RESUME_KEYS`
+    (options, device, library versions, camera and kernel file contents) and that each
+    finished sample's index still names the same inputs, keeps the finished samples
+    (``done``; their files are not touched), and drops the other lines: failed samples (to
+    be tried again), a line torn by a kill, and any line it cannot verify (an index that is
+    not an int in ``[0, total)``, files not named as this writer names them, or missing).
+
+    Args:
+        out: the set's folder (created if needed).
+        bits: 8 or 16 (PNG), 0 (float TIFF).
+        run: what ``run.json`` records (``gpu-blur generate``'s settings).
+        specs: the samples this run makes, in index order: the order of the manifest.
+        total: how many samples the input gives (before ``--limit``); default ``len(specs)``.
 
     Raises:
-        ValueError: an existing set without ``overwrite``/``resume``, or a resume whose
-            settings or inputs differ, naming what differs and the way out.
+        ValueError: an existing set without ``overwrite``/``resume``, a folder another run
+            holds or that holds files not of a set, or a resume whose settings, files or
+            inputs differ, naming what differs and the way out.
         OSError: naming the folder when it cannot be created or written.
     """
 
     def __init__(self, out: Path, bits: int, run: dict | None = None, *,
                  overwrite: bool = False, resume: bool = False,
-                 specs: list[SampleSpec] | None = None):
+                 specs: list[SampleSpec] | None = None, total: int | None = None):
         if overwrite and resume:
             raise ValueError("--overwrite and --resume exclude each other: --resume finishes "
                              "an interrupted set, --overwrite starts it again")
@@ -262,47 +427,130 @@ class DatasetWriter:
         self.manifest_path = out / MANIFEST
         self.done: dict[int, dict] = {}
         self.retry = 0  # failed samples whose lines were dropped, to be tried again
-        self.torn = 0  # manifest lines that were not whole JSON (cut by a kill)
-        exists = self.manifest_path.is_file() and self.manifest_path.stat().st_size > 0
-        if exists and not (overwrite or resume):
-            raise ValueError(f"{self.manifest_path} already exists; choose another --output, "
-                             "pass --resume to finish that set (retrying failed samples), or "
-                             "--overwrite to replace it")
+        self.torn = 0  # manifest lines cut by a kill, or that could not be verified
+        self._lock = self._take_lock()
+        try:
+            self._open(run, overwrite, resume, specs,
+                       len(specs) if total is None and specs is not None else total)
+        except BaseException:
+            os.close(self._lock)
+            raise
+
+    def _open(self, run, overwrite, resume, specs, total) -> None:
+        out = self.out
+        files = self._sample_files()
+        found = [str(p) for p in (self.manifest_path, out / RUN) if p.exists()]
+        if files:
+            found.append(f"{len(files)} sample file(s) in {', '.join(SUBFOLDERS)}")
+        if found and not (overwrite or resume):
+            raise ValueError(f"--output {out} holds a set already ({'; '.join(found)}); choose "
+                             "another --output, pass --resume to finish that set (retrying "
+                             "failed samples), or --overwrite to replace it")
         kept = None
-        if resume and (exists or (out / RUN).exists()):
+        if resume and found:
             self._check_run(run or {})
-            kept = self._read_manifest()
+            kept = self._read_manifest(total)
             self._check_inputs(specs or [])
+        # nothing is changed above this line
         self._make_folders()
-        for sub in ("blur", "sharp", "params"):
-            for part in (out / sub).glob(".*.part*") if (out / sub).is_dir() else ():
-                part.unlink()  # left by a killed run; no final file is ever a .part
-        for name in (MANIFEST, RUN):
-            (out / f".{name}.part").unlink(missing_ok=True)
-        if kept is not None:
+        if kept is None:  # a new set: first forget the old one, so no state lists lost files
+            self.manifest_path.unlink(missing_ok=True)
+            (out / RUN).unlink(missing_ok=True)
+        else:
             _write_text(self.manifest_path, "".join(kept))
-        elif run is not None:
+        listed = {out / line[k] for line in self.done.values() for k in PATHS if k in line}
+        for path in files:
+            if path not in listed:
+                path.unlink()  # of the set replaced, or of a sample not finished
+        for folder in (out, *(out / sub for sub in SUBFOLDERS)):
+            for entry in folder.iterdir() if folder.is_dir() else ():
+                if _TEMPORARY.fullmatch(entry.name) and not entry.is_dir():
+                    entry.unlink()  # left by a killed run (the lock keeps live runs out)
+        if kept is None and run is not None:
             _write_text(out / RUN, json.dumps(run, indent=1) + "\n")
-        self.manifest = open(self.manifest_path, "a" if kept is not None else "w")
+        self.manifest = open(self.manifest_path, "a")
+        self._specs, self._next = specs, 0  # lines go out in this order (see _append)
+        self._waiting: dict[int, str] = {}
+
+    def _sample_files(self) -> list[Path]:
+        """The sample files in ``blur/``, ``sharp/`` and ``params/`` (named as :meth:`write` does).
+
+        Raises:
+            ValueError: naming anything else there but temporary files, since those folders
+                are the set's: a new set, ``overwrite`` and ``resume`` remove sample files
+                no manifest line lists.
+        """
+        ours, others = [], []
+        for sub in SUBFOLDERS:
+            folder = self.out / sub
+            if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
+                others.append(folder)
+                continue
+            for entry in sorted(folder.iterdir()) if folder.is_dir() else ():
+                if entry.is_symlink() or not entry.is_file():
+                    others.append(entry)
+                elif _SAMPLE_FILE.fullmatch(entry.name):
+                    ours.append(entry)
+                elif not _TEMPORARY.fullmatch(entry.name):
+                    others.append(entry)
+        if others:
+            more = f" and {len(others) - 5} more" if len(others) > 5 else ""
+            raise ValueError(
+                f"--output {self.out}: {', '.join(map(str, others[:5]))}{more}: not a file "
+                f"gpu-blur wrote; {', '.join(SUBFOLDERS)} hold only a set's own files "
+                "(gpu-blur replaces and removes those), so move these out, or choose another "
+                "--output")
+        return ours
 
     @property
     def resumed(self) -> bool:
         """Whether finished samples were found (and are kept)."""
         return bool(self.done)
 
+    def _unwritable(self, e: OSError) -> OSError:
+        reason = e.strerror or str(e)
+        return OSError(f"--output {self.out}: cannot create or write the folder ({reason}"
+                       f"{': ' + str(e.filename) if e.filename else ''}); choose another "
+                       "--output, or make it a writable folder")
+
+    def _take_lock(self) -> int:
+        """Create the folder and lock it for this process; returns the lock file's descriptor.
+
+        ``flock`` locks belong to the open file, so the lock ends with :meth:`close` or with
+        the process (a killed run's lock file blocks nothing); the file itself stays.
+        """
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.out / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise self._unwritable(e) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as e:
+            holder = os.read(fd, 4096).decode(errors="replace").strip()
+            os.close(fd)
+            if e.errno not in (errno.EAGAIN, errno.EACCES):
+                raise self._unwritable(e) from None
+            raise ValueError(
+                f"--output {self.out}: another gpu-blur run is writing this folder (its lock "
+                f"file {self.out / LOCK} says: {holder or 'nothing yet'}); wait for that run "
+                "to end, or choose another --output") from None
+        os.ftruncate(fd, 0)
+        started = time.strftime("%Y-%m-%d %H:%M:%S %z")
+        os.write(fd, f"pid {os.getpid()} on {socket.gethostname()}, started {started}\n"
+                 .encode())
+        return fd
+
     def _make_folders(self) -> None:
         try:
             for sub in ("blur", "sharp"):
-                (self.out / sub).mkdir(parents=True, exist_ok=True)
+                (self.out / sub).mkdir(exist_ok=True)
             for folder in (self.out, self.out / "blur", self.out / "sharp"):
-                probe = folder / ".gpu_blur_write_test.part"
+                probe = temporary_path(folder / _PROBE)
                 probe.write_bytes(b"")
                 probe.unlink()
         except OSError as e:
-            reason = e.strerror or str(e)
-            raise OSError(f"--output {self.out}: cannot create or write the folder ({reason}"
-                          f"{': ' + str(e.filename) if e.filename else ''}); choose another "
-                          "--output, or make it a writable folder") from None
+            raise self._unwritable(e) from None
 
     def _check_run(self, run: dict) -> None:
         path = self.out / RUN
@@ -316,19 +564,26 @@ class DatasetWriter:
             raise ValueError(f"--resume: cannot read {path} ({e}); start the set again with "
                              "--overwrite, or use another --output") from None
         if not isinstance(old, dict):
-            old = {}
+            raise ValueError(f"--resume: {path} holds a JSON {type(old).__name__}, not the "
+                             "object gpu-blur writes; start the set again with --overwrite, or "
+                             "use another --output")
         for key, option in RESUME_KEYS.items():
             was, now = _plain(old.get(key)), _plain(run.get(key))
             if was != now:
-                what = (f"scene key {_scene_difference(was, now)}" if key == "scene"
-                        else f"{key} = {was!r} (this run: {now!r})")
                 raise ValueError(
-                    f"--resume: the set in {self.out} was made with another {option}: {what}; "
-                    f"resume with the settings in {path}, or start a new set with --overwrite "
-                    "or another --output")
+                    f"--resume: the set in {self.out} was made with another {option}: "
+                    f"{_difference(key, was, now)}; resume with what {path} records (options, "
+                    "device, library versions, camera and kernel files), or start a new set "
+                    "with --overwrite or another --output")
 
-    def _read_manifest(self) -> list[str]:
-        """The manifest lines to keep (finished samples whose files exist), filling ``done``."""
+    def _read_manifest(self, total: int | None) -> list[str]:
+        """The manifest lines to keep (finished samples whose files exist), filling ``done``.
+
+        A line is trusted only as far as it is checked: its index an int in ``[0, total)``,
+        its name and inputs strings, and its files exactly the names :meth:`write` gives that
+        index and name, present as regular files (not links). Other lines are dropped (their
+        samples made again), so no path in a manifest is ever read or removed.
+        """
         if not self.manifest_path.is_file():
             return []
         kept = []
@@ -336,21 +591,32 @@ class DatasetWriter:
             try:
                 line = json.loads(text)
             except ValueError:
-                self.torn += 1  # cut by a kill: that sample is made again
-                continue
-            if not isinstance(line, dict) or not isinstance(line.get("index"), int):
+                line = None  # cut by a kill: that sample is made again
+            if not (isinstance(line, dict) and type(line.get("index")) is int
+                    and 0 <= line["index"] < (total if total is not None else math.inf)
+                    and isinstance(line.get("name"), str) and isinstance(line.get("inputs"), list)
+                    and all(isinstance(p, str) for p in line["inputs"])):
                 self.torn += 1
                 continue
             if line.get("status") != "ok":
                 self.retry += 1
                 continue
-            files = [line.get(k) for k in ("blurred", "sharp", "arrays") if k in line]
-            if line["index"] in self.done or not all(
-                    isinstance(f, str) and (self.out / f).is_file() for f in files):
-                continue  # a repeat, or its files are gone: made again
+            paths = self._paths(line["index"], line["name"])
+            keys = [k for k in PATHS if k in line]
+            if line["index"] in self.done or keys[:2] != ["blurred", "sharp"] or any(
+                    line[k] != paths[k] or (self.out / paths[k]).is_symlink()
+                    or not (self.out / paths[k]).is_file() for k in keys):
+                continue  # a repeat, files named otherwise, or files gone: made again
             self.done[line["index"]] = line
             kept.append(text if text.endswith("\n") else text + "\n")
         return kept
+
+    def _paths(self, index: int, name: str) -> dict[str, str]:
+        """The files of sample ``index`` named ``name``, relative to the set's folder."""
+        stem = f"{index:06d}_{name.replace('/', '_')}"
+        ext = ".png" if self.bits else ".tiff"
+        return {"blurred": f"blur/{stem}{ext}", "sharp": f"sharp/{stem}{ext}",
+                "arrays": f"params/{stem}.npz"}
 
     def _check_inputs(self, specs: list[SampleSpec]) -> None:
         for spec in specs:
@@ -367,24 +633,42 @@ class DatasetWriter:
                     "or start a new set with --overwrite or another --output")
 
     def _append(self, line: dict) -> None:
-        self.manifest.write(json.dumps(line) + "\n")
+        """Write a sample's line, in the order of ``specs`` when given (finished ones skipped).
+
+        Executors (``--devices``, ``--ray``) hand samples back as they finish; a line waits
+        here until every earlier sample has its own, so the manifest is a serial run's, byte
+        for byte. What waits is small and bounded: lines (about 1 KB; the images and arrays
+        are on disk already) of samples finished while an earlier one is still being made,
+        and the executors hand out samples in order, only a few per worker ahead
+        (``DEVICE_DEPTH``, Ray's window). Lines still waiting at :meth:`close` (a run
+        stopped early) are dropped: a resume makes those samples again, in order.
+        """
+        text = json.dumps(line) + "\n"
+        if self._specs is None:
+            self.manifest.write(text)
+        else:
+            self._waiting[line["index"]] = text
+            while self._next < len(self._specs):
+                index = self._specs[self._next].index
+                if index not in self.done:
+                    if index not in self._waiting:
+                        break
+                    self.manifest.write(self._waiting.pop(index))
+                self._next += 1
         self.manifest.flush()
 
     def write(self, spec: SampleSpec, result, record: dict) -> dict:
         """Write one sample, then its manifest line (``status`` "ok"); returns the line."""
-        ext = ".png" if self.bits else ".tiff"
-        stem = spec.name.replace("/", "_")
-        blurred = Path("blur") / f"{spec.index:06d}_{stem}{ext}"
-        sharp = Path("sharp") / f"{spec.index:06d}_{stem}{ext}"
-        write_image(self.out / blurred, result.blurred, self.bits)
-        write_image(self.out / sharp, result.sharp, self.bits)
+        paths = self._paths(spec.index, spec.name)
+        write_image(self.out / paths["blurred"], result.blurred, self.bits)
+        write_image(self.out / paths["sharp"], result.sharp, self.bits)
         arrays = {k: result.params[k] for k in ARRAY_PARAMS if k in result.params}
         line = {
             "index": spec.index,
             "name": spec.name,
             "inputs": [str(p) for p in spec.inputs],
-            "blurred": blurred.as_posix(),
-            "sharp": sharp.as_posix(),
+            "blurred": paths["blurred"],
+            "sharp": paths["sharp"],
             **record,
             "status": "ok",
             "params": {k: _jsonable(v) for k, v in result.params.items() if k not in arrays},
@@ -392,9 +676,8 @@ class DatasetWriter:
         }
         if arrays:
             (self.out / "params").mkdir(exist_ok=True)
-            rel = Path("params") / f"{spec.index:06d}_{stem}.npz"
-            save_arrays(self.out / rel, arrays)
-            line["arrays"] = rel.as_posix()
+            save_arrays(self.out / paths["arrays"], arrays)
+            line["arrays"] = paths["arrays"]
         self._append(line)
         return line
 
@@ -406,5 +689,18 @@ class DatasetWriter:
         return line
 
     def close(self) -> None:
-        """Close the manifest."""
-        self.manifest.close()
+        """Close the manifest and release the output folder's lock.
+
+        Raises:
+            OSError: naming the manifest when its last lines cannot be written (a full disk).
+        """
+        try:
+            self.manifest.close()
+        except OSError as e:
+            raise OSError(f"{self.manifest_path}: cannot write its last lines ({e.strerror or e}); "
+                          "the samples it lists are kept: free space or fix the folder, then "
+                          "run the same command with --resume") from None
+        finally:
+            if self._lock is not None:
+                os.close(self._lock)
+                self._lock = None

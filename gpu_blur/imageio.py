@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import struct
 from pathlib import Path
 
@@ -174,13 +175,22 @@ def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
                      "[0, 1] (e.g. x.astype(np.uint8) for 0..255 integers)")
 
 
+def temporary_path(path: Path) -> Path:
+    """Where ``path`` is written before it is renamed into place.
+
+    ``.<name>.<pid>.part<suffix>`` beside it: the process id keeps two processes apart, the
+    suffix keeps the format.
+    """
+    return path.with_name(f".{path.name}.{os.getpid()}.part{path.suffix}")
+
+
 def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
     """Write an H x W x 3 RGB image in [0, 1]: PNG with 8/16 bits, or float32 TIFF for bits 0.
 
     The file appears complete or not at all (written to a temporary name, then renamed).
     """
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.part{path.suffix}")
+    tmp = temporary_path(path)
     if bits == 0:
         data = np.asarray(image, dtype=np.float32)[:, :, ::-1]
     else:

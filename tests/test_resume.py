@@ -1,6 +1,7 @@
 """A killed or partly failed ``gpu-blur generate`` resumes to exactly the set an uninterrupted
 run makes, without touching finished samples (issue 5)."""
 
+import hashlib
 import json
 import os
 import subprocess
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 from conftest import files, manifest_lines
 
+import gpu_blur
 from gpu_blur.cli import TEST_SLEEP_AFTER, main
 from gpu_blur.dataset import DatasetWriter
 
@@ -126,7 +128,7 @@ def test_resuming_a_finished_set_changes_nothing_and_an_empty_folder_starts_one(
     (["--seed", "7"], "another --seed: seed = 0 (this run: 7)"),
     (["--samples-per-photo", "2"], "another --samples-per-photo: samples_per_photo = 4 "
                                    "(this run: 2)"),
-    ("scene", "another --scene: scene key noise.model = 'poisson-gaussian' (this run: 'none')"),
+    ("scene", "another --scene: scene.noise.model = 'poisson-gaussian' (this run: 'none')"),
     ("input", "another --input: input = "),
 ])
 def test_resume_refuses_a_run_with_other_settings(tmp_path, photos, capsys, change, message):
@@ -145,7 +147,7 @@ def test_resume_refuses_a_run_with_other_settings(tmp_path, photos, capsys, chan
     capsys.readouterr()
     assert main(args(photos, out, "--limit", "1", "--resume", *change)) == 2
     err = capsys.readouterr().err
-    assert message in err and f"resume with the settings in {out / 'run.json'}" in err
+    assert message in err and f"resume with what {out / 'run.json'} records" in err
     assert (out / "manifest.jsonl").read_text() == text
 
 
@@ -182,3 +184,96 @@ def test_an_existing_set_needs_resume_or_overwrite(tmp_path, photos, capsys):
     assert "run.json is missing" in capsys.readouterr().err
     with pytest.raises(SystemExit):  # argparse: not allowed together
         main(args(photos, out, "--resume", "--overwrite"))
+
+
+def test_resume_trusts_no_manifest_line_that_names_other_files_or_indices(tmp_path, photos,
+                                                                           capsys):
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--limit", "4")) == 0
+    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    outside = tmp_path / "outside.png"
+    outside.write_bytes((out / lines[0]["blurred"]).read_bytes())
+    lines[0]["blurred"] = "../outside.png"  # exists, but outside the set
+    lines[1]["sharp"] = str(outside)  # absolute
+    lines[2]["arrays"] = lines[3]["arrays"]  # another sample's file
+    forged = [{**lines[3], "index": i} for i in (-1, True, 10**30, 8)]  # 8 samples: 0 to 7
+    (out / "manifest.jsonl").write_text(
+        "".join(json.dumps(x) + "\n" for x in [*lines, *forged]))
+    capsys.readouterr()
+    assert main(args(photos, out, "--resume", "--limit", "4")) == 0
+    assert "1 of 4 samples done, 3 to make (0 failed before, to retry; 4 torn" in (
+        capsys.readouterr().out)
+    assert outside.exists()  # neither trusted nor removed
+    reference = tmp_path / "reference"
+    assert main(args(photos, reference, "--limit", "4")) == 0
+    assert manifest_lines(out) == manifest_lines(reference)
+    assert files(out) == files(reference)
+
+
+CAMERA = ("[color]\ncamera_to_linear = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]\n"
+          "[white_balance]\nred = [1.8, 2.2]\nblue = 1.6\n")
+
+
+@pytest.mark.parametrize("key", ["camera.name", "blur.kernel"])
+def test_resume_refuses_a_camera_or_kernel_file_whose_contents_changed(tmp_path, photos,
+                                                                       capsys, key):
+    folder, scene = photos
+    if key == "camera.name":
+        changed = tmp_path / "cam.toml"
+        changed.write_text(CAMERA)
+        scene.write_text('[camera]\nname = "cam.toml"\n[blur]\nsteps = 3\n')
+    else:
+        changed = tmp_path / "k.npy"
+        np.save(changed, np.ones((3, 3)))
+        scene.write_text('[blur]\nmode = "kernel"\nkernel = "k.npy"\n')
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--limit", "1")) == 0
+    old = hashlib.sha256(changed.read_bytes()).hexdigest()
+    if key == "camera.name":
+        changed.write_text(CAMERA.replace("blue = 1.6", "blue = 1.7"))
+    else:
+        np.save(changed, np.ones((5, 5)))
+    new = hashlib.sha256(changed.read_bytes()).hexdigest()
+    capsys.readouterr()
+    assert main(args(photos, out, "--limit", "2", "--resume")) == 2
+    assert (f"made with another camera or kernel file contents: files.{key} = '{old}' "
+            f"(this run: '{new}')") in capsys.readouterr().err
+    assert len(manifest_lines(out)) == 1
+
+
+@pytest.mark.parametrize("key, recorded, message", [
+    ("device", "opencl:1:0 an older GPU (a runtime), float32",
+     "another device behind --backend: device = 'opencl:1:0 an older GPU (a runtime), "
+     "float32' (this run: 'numpy float64 (host CPU)')"),
+    ("libraries", {"gpu_blur": gpu_blur.__version__, "numpy": "1.0.0",
+                   "opencv": cv2.__version__},
+     f"another library version: libraries.numpy = '1.0.0' (this run: '{np.__version__}')"),
+])
+def test_resume_refuses_another_device_or_library_version(tmp_path, photos, capsys, key,
+                                                          recorded, message):
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--limit", "1")) == 0
+    run = json.loads((out / "run.json").read_text())
+    (out / "run.json").write_text(json.dumps({**run, key: recorded}))
+    capsys.readouterr()
+    assert main(args(photos, out, "--limit", "2", "--resume")) == 2
+    assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("edit, message", [
+    ({"scene": 5}, "another --scene: scene = 5 (this run: {'blur': "),
+    ({"scene": {"blur": 5}}, "another --scene: scene.blur = 5 (this run: {"),
+    ({"libraries": [1]}, "another library version: libraries = [1] (this run: {"),
+    ([1, 2], "holds a JSON list, not the object gpu-blur writes"),
+])
+def test_a_hand_edited_run_json_is_refused_with_a_message(tmp_path, photos, capsys, edit,
+                                                          message):
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--limit", "1")) == 0
+    run = json.loads((out / "run.json").read_text())
+    (out / "run.json").write_text(json.dumps({**run, **edit} if isinstance(edit, dict)
+                                             else edit))
+    capsys.readouterr()
+    assert main(args(photos, out, "--limit", "1", "--resume")) == 2
+    err = capsys.readouterr().err
+    assert message in err and "with --overwrite" in err
