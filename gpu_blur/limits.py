@@ -1,0 +1,142 @@
+"""The allowed range of every numeric setting, with its reason: one check for every number.
+
+Scene keys (:data:`gpu_blur.scene.FIELDS`), camera files (:func:`gpu_blur.cameras.load_camera`)
+and overrides of drawn values (:func:`gpu_blur.params.draw_params`) check a number with
+:meth:`Limit.problem` against the constants below, so a value is refused in the same words
+wherever it is given: the caller names the file and the key, the limit says what is allowed
+and why.
+
+Every number must be finite. The ranges are physical, with a wide margin (a white-balance gain
+of 1e30 is no camera), and lie far inside what float32 kernels represent. Without these checks
+the float32 kernels failed here (Intel's CPU OpenCL runtime ``opencl:0:0`` and Warp ``cpu``;
+a 16 x 16 photo, blur mode none, RAW round trip, A7R3 camera, values given as overrides):
+
+==================  ===========================================================  ============
+value               float32 kernels fail at (between, e.g. 1e-38 to 1e38 for K,   allowed
+                    they were within 3.3e-6 of the numpy reference)
+==================  ===========================================================  ============
+shot_noise_k (K)    1e-40 (a denormal, flushed to 0: OpenCL black, Warp NaN) and  [1e-9, 1]
+                    1e39 (beyond float32: black / NaN)
+WB gain             1e-37 (the rate x / (gain K) overflows: OpenCL off by up to   [0.01, 100]
+                    1, Warp NaN), 1e-40, and 1e39 (inf)
+read_noise_std      1e38 (std z overflows: OpenCL off by 1, Warp NaN); 1e37 held  [0, 1]
+saturation alpha    1e39 (inf, and inf x 0 = NaN where the mask is 0: black)      [0, 100]
+gaussian_std        none up to 1e39 (an inf sum clips to 0 or 1 as the reference) [0, 1]
+==================  ===========================================================  ============
+
+K and the read-noise std of a sample are drawn in ``level * (1 +- noise.spread)``, spread <= 1
+(:func:`gpu_blur.reference.noise.draw_noise_levels`), so a drawn K lies in [2^-23 * 1e-9, 2]
+(the smallest uniform is 2^-24): still 1e22 times the float32 failure point. Drawn values are
+therefore not checked again; overrides are held to the same ranges as the levels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+
+from gpu_blur.reference.blur import SHAKE_AUTO_STEPS_RANGE, SHAKE_ROLL_MAX_DEG
+
+
+@dataclasses.dataclass(frozen=True)
+class Limit:
+    """The allowed values of one numeric setting.
+
+    Attributes:
+        low: the smallest allowed value.
+        high: the largest (``math.inf``: no upper bound, but still finite).
+        reason: why, for the error message: units, what the bound means, what fails beyond.
+        integer: only integers (bools are not numbers here).
+        low_open: ``low`` itself is not allowed (a gain of 0 divides by zero).
+    """
+
+    low: float
+    high: float = math.inf
+    reason: str = ""
+    integer: bool = False
+    low_open: bool = False
+
+    @property
+    def kind(self) -> str:
+        """``int`` or ``int or float``, as messages name the type."""
+        return "int" if self.integer else "int or float"
+
+    def describe(self) -> str:
+        """The range in words, e.g. ``>= 0.01 and <= 100``."""
+        low = f"{'>' if self.low_open else '>='} {self.low:g}"
+        return low if self.high == math.inf else f"{low} and <= {self.high:g}"
+
+    def problem(self, value) -> str | None:
+        """What ``value`` must be, when it is not allowed; ``None`` when it is.
+
+        The text follows ``allowed:`` in a caller's message: the type and the bound it broke,
+        then the reason, e.g. ``int or float <= 1 (...)``.
+        """
+        number = numbers.Integral if self.integer else numbers.Real
+        if isinstance(value, bool) or not isinstance(value, number):
+            return self._say(f"{self.kind} {self.describe()}")
+        try:
+            x = float(value)
+        except OverflowError:  # an integer beyond float64 (JSON allows any)
+            x = math.inf
+        if not math.isfinite(x):
+            return self._say(f"a finite {self.kind} {self.describe()}")
+        if x < self.low or (self.low_open and x == self.low):
+            return self._say(f"{self.kind} {'>' if self.low_open else '>='} {self.low:g}")
+        if x > self.high:
+            return self._say(f"{self.kind} <= {self.high:g}")
+        return None
+
+    def _say(self, allowed: str) -> str:
+        return f"{allowed} ({self.reason})" if self.reason else allowed
+
+
+# -- the scene's blur ---------------------------------------------------------------------------
+FRAMES = Limit(1, 1024, integer=True, reason=(
+    "frames averaged per sample, each held in host memory: 1,024 frames of 1920 x 1080 take "
+    "6.4 GB; RSBlur averages 9"))
+#: 8 x the auto choice's largest (reference.blur.SHAKE_AUTO_STEPS_RANGE, about one pose per
+#: pixel of the path); each pose costs a bilinear read per pixel (numpy: ~0.2 us per pixel and
+#: pose, 31 s for 8,192 poses on 128 x 128) and 72 bytes of float64 3 x 3 on the device.
+STEPS = Limit(0, 8 * (SHAKE_AUTO_STEPS_RANGE[1] - 1), integer=True, reason=(
+    "camera poses, 0 = auto: 9 to 1,025, about one per pixel of the path; more poses than "
+    "pixels along the path change nothing, and each costs a read per pixel"))
+EXTENT = Limit(0, reason="pixels the image centre moves; the image's size bounds it per sample")
+ROLL = Limit(0, SHAKE_ROLL_MAX_DEG, reason="degrees of camera roll; the shake model's largest")
+KERNEL_SIZE = Limit(1, 255, integer=True, reason=(
+    "pixels across a random motion kernel, a read per pixel and tap: 255 x 255 is 65,025 "
+    "taps; GoPro_U used 5 to 29"))
+# -- saturation and noise -----------------------------------------------------------------------
+ALPHA = Limit(0, 100, reason=(
+    "highlight boost: alpha x mask is added before clipping to 1, so alpha >= 1 already clips "
+    "a fully masked pixel; RSBlur draws 0.25 to 1.75"))
+SHOT_NOISE_K = Limit(1e-9, 1.0, reason=(
+    "Poisson gain K, the signal one photon adds to the [0, 1] RAW range: 1e-9 is a billion "
+    "photons at full scale, 1 a single one; RealBlur 8.9e-5, RSBlur 1e-4"))
+READ_NOISE_STD = Limit(0, 1.0, reason=(
+    "read-noise std in [0, 1] RAW units, 1 is noise as large as the whole range; RealBlur "
+    "2.9e-5, RSBlur 9.2e-4"))
+SPREAD = Limit(0, 1, reason="K and the std are drawn in level * (1 +- spread), so K stays > 0")
+GAUSSIAN_STD = Limit(0, 1.0, reason=(
+    "sRGB noise std, 1 is noise as large as the whole range; RSBlur 0.0112"))
+NORMAL_ABOVE = Limit(0, reason=(
+    "a Poisson rate in counts per photosite; for no approximation use noise.poisson = "
+    "'exact'"))
+# -- output -------------------------------------------------------------------------------------
+CROP = Limit(0, integer=True, reason="pixels cropped from each side")
+CRF_TABLE_SIZE = Limit(0, 65536, integer=True, reason=(
+    "nodes of the re-toning table, 0 = the authors' 2,551"))
+# -- camera files -------------------------------------------------------------------------------
+WB_GAIN = Limit(0.01, 100.0, reason=(
+    "a white-balance gain relative to green: real cameras lie within about 1 to 4, the A7R3 "
+    "1.5 to 2.9; the kernels divide the signal by it before the Poisson rate"))
+WB_WEIGHT = Limit(0, 1e12, low_open=True, reason=(
+    "how often a (red, blue) pair is drawn, e.g. its row count; RealBlur's list: up to 1,380"))
+#: Largest |entry| of a camera's Cam2Lin and of its inverse Lin2Cam: they map [0, 1] camera RGB
+#: and linear sRGB onto each other, so their entries are of order 1 (presets: at most 2.2 and
+#: 0.8). Measured on float32 kernels: scale factors 1e-30 to 1e30 still agree with the
+#: reference; beyond float32's range (3.4e38) the matrices become inf.
+COLOR_MATRIX_ENTRY = Limit(-1000.0, 1000.0, reason=(
+    "an entry of Cam2Lin or its inverse Lin2Cam, which map [0, 1] camera RGB and linear sRGB "
+    "onto each other; the presets' are at most 2.2 in magnitude"))
