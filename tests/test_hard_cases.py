@@ -758,7 +758,7 @@ _untiled: dict = {}
 
 @pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
 @settings(max_examples=5, deadline=None)
-@given(tile=st.tuples(st.integers(3, 30), st.integers(3, 30)))
+@given(tile=st.tuples(st.integers(16, 30), st.integers(16, 30)))  # scheduler.MIN_TILE up
 def test_tiling_invariance_property(spec, tile, coffee_rgb):
     photo = np.ascontiguousarray(coffee_rgb[236:260, 330:370])  # spoon highlights: saturated
     scene = scene_for(spec, {"blur": {"extent": [2.0, 6.0]}, "saturation": {"mode": "on"},
