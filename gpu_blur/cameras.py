@@ -129,13 +129,16 @@ def _camera(name, source, cam_to_lin, wb, shot, read, response=None) -> Camera:
     """
     cam_to_lin = np.asarray(cam_to_lin, dtype=np.float64)
     lin_to_cam = checked_inverse(cam_to_lin, f"camera {name!r} camera_to_linear")
-    for what, m in (("camera_to_linear (Cam2Lin)", cam_to_lin), ("Lin2Cam", lin_to_cam)):
+    for what, m, limit in (("Cam2Lin", cam_to_lin, limits.CAM2LIN_LARGEST),
+                           ("Lin2Cam", lin_to_cam, limits.LIN2CAM_LARGEST)):
         m.setflags(write=False)
-        largest = float(m.flat[np.argmax(np.abs(m))])
-        problem = limits.COLOR_MATRIX_ENTRY.problem(largest)
+        # the largest |m @ x| for x in [0, 1]^3
+        largest = float(max(np.clip(m, 0, None).sum(axis=1).max(),
+                            np.clip(-m, 0, None).sum(axis=1).max()))
+        problem = limit.problem(largest)
         if problem:
-            raise ValueError(f"camera {name!r}: its {what} holds {largest:.4g}; allowed: every "
-                             f"entry {problem}")
+            raise ValueError(f"camera {name!r}: its {what} maps a [0, 1] colour to "
+                             f"{largest:.4g}; allowed: {problem}")
     for key, value, limit in (("noise.shot_noise_k", shot, limits.SHOT_NOISE_K),
                               ("noise.read_noise_std", read, limits.READ_NOISE_STD)):
         problem = limit.problem(value)
@@ -247,8 +250,8 @@ def load_camera(path: str | Path) -> Camera:
 
     Numbers must be finite and within :mod:`gpu_blur.limits` (gains ``WB_GAIN``, weights
     ``WB_WEIGHT``, noise ``SHOT_NOISE_K`` and ``READ_NOISE_STD``, the same as scene keys and
-    overrides; Cam2Lin and its inverse ``COLOR_MATRIX_ENTRY``); keys other than those in
-    :data:`CAMERA_FILE_KEYS` are refused.
+    overrides; Cam2Lin and its inverse ``CAM2LIN_LARGEST`` and ``LIN2CAM_LARGEST``); keys
+    other than those in :data:`CAMERA_FILE_KEYS` are refused.
 
     ``gpu-blur calibrate`` writes ``[response]`` when given ``--crf-linear`` and
     ``--crf-rendered``; a scene with ``output.crf = "camera"`` then re-tones its output and
@@ -342,8 +345,11 @@ def _is_number(value) -> bool:
 
 
 def _check_camera_keys(spec: dict, path: Path) -> None:
-    """Refuse keys a camera file does not have (:data:`CAMERA_FILE_KEYS`), and tables that are
-    not tables, naming the file and the key."""
+    """Refuse keys a camera file does not have, and tables that are not tables.
+
+    Raises:
+        ValueError: naming the file and the key (:data:`CAMERA_FILE_KEYS` lists the keys).
+    """
     for table, keys in CAMERA_FILE_KEYS.items():
         if table and table not in spec:
             continue

@@ -6,28 +6,31 @@ and overrides of drawn values (:func:`gpu_blur.params.draw_params`) check a numb
 wherever it is given: the caller names the file and the key, the limit says what is allowed
 and why.
 
-Every number must be finite. The ranges are physical, with a wide margin (a white-balance gain
-of 1e30 is no camera), and lie far inside what float32 kernels represent. Without these checks
-the float32 kernels failed here (Intel's CPU OpenCL runtime ``opencl:0:0`` and Warp ``cpu``;
-a 16 x 16 photo, blur mode none, RAW round trip, A7R3 camera, values given as overrides):
+Every number must be finite. The ranges are physical, with a margin (a white-balance gain of
+1e30 is no camera), and chosen so that float32 kernels stay within the tolerance table of the
+numpy reference (:mod:`gpu_blur.testing`). Measured on Intel's CPU OpenCL runtime
+``opencl:0:0`` and Warp ``cpu``, float32, the values given as overrides (blur mode none, RAW
+round trip, A7R3 camera unless said):
 
-==================  ===========================================================  ============
-value               float32 kernels fail at (between, e.g. 1e-38 to 1e38 for K,   allowed
-                    they were within 3.3e-6 of the numpy reference)
-==================  ===========================================================  ============
-shot_noise_k (K)    1e-40 (a denormal, flushed to 0: OpenCL black, Warp NaN) and  [1e-9, 1]
-                    1e39 (beyond float32: black / NaN)
-WB gain             1e-37 (the rate x / (gain K) overflows: OpenCL off by up to   [0.01, 100]
-                    1, Warp NaN), 1e-40, and 1e39 (inf)
-read_noise_std      1e38 (std z overflows: OpenCL off by 1, Warp NaN); 1e37 held  [0, 1]
-saturation alpha    1e39 (inf, and inf x 0 = NaN where the mask is 0: black)      [0, 100]
-gaussian_std        none up to 1e39 (an inf sum clips to 0 or 1 as the reference) [0, 1]
-==================  ===========================================================  ============
+* Representable (16 x 16 photo, float output against the reference): K failed at 1e-40 (a
+  denormal, flushed to 0: OpenCL all black, Warp all NaN) and at 1e39 (inf), and agreed from
+  1e-38 to 1e38 (within 3.3e-6); a WB gain failed at 1e-37 (the rate x / (gain K) overflows:
+  OpenCL off by up to 1, Warp NaN) and at 1e39, agreed from 1e-30 to 1e37; the read-noise std
+  failed at 1e38 (std z overflows), agreed up to 1e37; alpha failed at 1e39 (inf x 0 = NaN:
+  black); the sRGB Gaussian std never did (to 1e39: the sum clips as in the reference).
+* Within the tolerance table (128 x 128 photo, 6 samples, 8-bit output, ``verify=1``: every
+  pass against the reference, see :mod:`gpu_blur.scheduler`): the noise in RAW units,
+  ``gain * sqrt(K x + std^2)``, sets the RAW values' size, and the to_raw and finish rows are
+  absolute. With gain 8: K 0.25 with std 0.05 passed, K 0.25 with std 0.1 failed one sample
+  on OpenCL (finish), K 1 with std 0.1 failed (to_raw, 8.1e-7 > 5e-7); gain 10 with K 1 failed;
+  gain 100 failed from K 1e-4 with std 0.1. A Lin2Cam of 8 x the identity (RAW values to 8)
+  failed at the default noise; a Cam2Lin with rows [8, -4, -3] passed.
 
-K and the read-noise std of a sample are drawn in ``level * (1 +- noise.spread)``, spread <= 1
-(:func:`gpu_blur.reference.noise.draw_noise_levels`), so a drawn K lies in [2^-23 * 1e-9, 2]
-(the smallest uniform is 2^-24): still 1e22 times the float32 failure point. Drawn values are
-therefore not checked again; overrides are held to the same ranges as the levels.
+So K <= 0.125, std <= 0.025 and gains <= 8: K and the std of a sample are drawn in
+``level * (1 +- noise.spread)``, spread <= 1 (:func:`gpu_blur.reference.noise.draw_noise_levels`),
+so a drawn K lies in [2^-23 * 1e-9, 0.25] and a drawn std in [0, 0.05], the passing corner
+above. Drawn values are therefore not checked again; overrides are held to the ranges of the
+levels.
 """
 
 from __future__ import annotations
@@ -111,15 +114,17 @@ KERNEL_SIZE = Limit(1, 255, integer=True, reason=(
 ALPHA = Limit(0, 100, reason=(
     "highlight boost: alpha x mask is added before clipping to 1, so alpha >= 1 already clips "
     "a fully masked pixel; RSBlur draws 0.25 to 1.75"))
-SHOT_NOISE_K = Limit(1e-9, 1.0, reason=(
+SHOT_NOISE_K = Limit(1e-9, 0.125, reason=(
     "Poisson gain K, the signal one photon adds to the [0, 1] RAW range: 1e-9 is a billion "
-    "photons at full scale, 1 a single one; RealBlur 8.9e-5, RSBlur 1e-4"))
-READ_NOISE_STD = Limit(0, 1.0, reason=(
-    "read-noise std in [0, 1] RAW units, 1 is noise as large as the whole range; RealBlur "
-    "2.9e-5, RSBlur 9.2e-4"))
+    "photons at full scale, 0.125 eight; RealBlur 8.9e-5, RSBlur 1e-4; float32 kernels leave "
+    "the tolerance table beyond (gpu_blur.limits)"))
+READ_NOISE_STD = Limit(0, 0.025, reason=(
+    "read-noise std in [0, 1] RAW units, 0.025 is 2.5 % of the whole range; RealBlur 2.9e-5, "
+    "RSBlur 9.2e-4; float32 kernels leave the tolerance table beyond (gpu_blur.limits)"))
 SPREAD = Limit(0, 1, reason="K and the std are drawn in level * (1 +- spread), so K stays > 0")
-GAUSSIAN_STD = Limit(0, 1.0, reason=(
-    "sRGB noise std, 1 is noise as large as the whole range; RSBlur 0.0112"))
+GAUSSIAN_STD = Limit(0, 0.5, reason=(
+    "sRGB noise std, drawn up to twice this: 1 is noise as large as the whole range; RSBlur "
+    "0.0112"))
 NORMAL_ABOVE = Limit(0, reason=(
     "a Poisson rate in counts per photosite; for no approximation use noise.poisson = "
     "'exact'"))
@@ -128,15 +133,20 @@ CROP = Limit(0, integer=True, reason="pixels cropped from each side")
 CRF_TABLE_SIZE = Limit(0, 65536, integer=True, reason=(
     "nodes of the re-toning table, 0 = the authors' 2,551"))
 # -- camera files -------------------------------------------------------------------------------
-WB_GAIN = Limit(0.01, 100.0, reason=(
-    "a white-balance gain relative to green: real cameras lie within about 1 to 4, the A7R3 "
-    "1.5 to 2.9; the kernels divide the signal by it before the Poisson rate"))
+WB_GAIN = Limit(0.125, 8.0, reason=(
+    "a white-balance gain relative to green: the presets' lie within 1 and 2.92; it scales "
+    "the RAW noise, and float32 kernels leave the tolerance table beyond (gpu_blur.limits)"))
 WB_WEIGHT = Limit(0, 1e12, low_open=True, reason=(
     "how often a (red, blue) pair is drawn, e.g. its row count; RealBlur's list: up to 1,380"))
-#: Largest |entry| of a camera's Cam2Lin and of its inverse Lin2Cam: they map [0, 1] camera RGB
-#: and linear sRGB onto each other, so their entries are of order 1 (presets: at most 2.2 and
-#: 0.8). Measured on float32 kernels: scale factors 1e-30 to 1e30 still agree with the
-#: reference; beyond float32's range (3.4e38) the matrices become inf.
-COLOR_MATRIX_ENTRY = Limit(-1000.0, 1000.0, reason=(
-    "an entry of Cam2Lin or its inverse Lin2Cam, which map [0, 1] camera RGB and linear sRGB "
-    "onto each other; the presets' are at most 2.2 in magnitude"))
+#: How far a camera's matrices may scale a colour: the largest |output| of an input in
+#: [0, 1]^3 (per row, the sum of the positive entries or of the negative ones). Lin2Cam gives
+#: the RAW signal of a linear colour, which must stay near [0, 1] for the float32 tolerance (a
+#: Lin2Cam of 8 x the identity failed, see above); presets: 1.0 to 1.11 (a desaturating Cam2Lin
+#: of tests/test_hard_cases.py: 1.6). Cam2Lin turns RAW into linear sRGB; presets: 1.0 to 2.2
+#: (a Cam2Lin with rows [8, -4, -3] passed).
+LIN2CAM_LARGEST = Limit(0, 2.0, reason=(
+    "the largest RAW value Lin2Cam, the inverse of Cam2Lin, gives a [0, 1] colour; the "
+    "presets' is at most 1.11"))
+CAM2LIN_LARGEST = Limit(0, 8.0, reason=(
+    "the largest linear value Cam2Lin gives a [0, 1] camera colour; the presets' is at most "
+    "2.2"))
