@@ -318,13 +318,14 @@ def load_scene(path: str | Path | dict | None = None) -> Scene:
 
 
 def describe_fields() -> str:
-    """Every scene key with its default and meaning, as TOML comments (for help text)."""
+    """Every scene key with its default, meaning and range, as TOML comments (for help text)."""
     lines = []
     for section, fields in FIELDS.items():
         lines.append(f"[{section}]")
         for key, f in fields.items():
             default = "(camera's)" if f.default is None else repr(f.default).replace("'", '"')
             default = default.replace("True", "true").replace("False", "false")
-            lines.append(f"{key} = {default}  # {f.help}")
+            allowed = f" [{f.limit.describe()}]" if f.limit is not None else ""
+            lines.append(f"{key} = {default}  # {f.help}{allowed}")
         lines.append("")
     return "\n".join(lines)

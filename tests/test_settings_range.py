@@ -15,7 +15,7 @@ import pytest
 import gpu_blur
 from gpu_blur.cameras import load_camera
 from gpu_blur.cli import main
-from gpu_blur.scene import FIELDS, SceneError, load_scene, scene_from_dict
+from gpu_blur.scene import FIELDS, SceneError, describe_fields, load_scene, scene_from_dict
 from gpu_blur.scheduler import MIN_TILE
 
 PHOTO = np.random.default_rng(1).integers(0, 256, (8, 8, 3), dtype=np.uint8)
@@ -57,6 +57,14 @@ def test_costly_or_unusable_scene_values_are_refused_before_any_sample(data, mes
     with pytest.raises(SceneError, match=None) as e:
         scene_from_dict(data, "my.toml")
     assert message in str(e.value)
+
+
+def test_gpu_blur_scene_lists_each_numeric_key_with_its_range():
+    listed = describe_fields()
+    for section, key, field in NUMERIC_KEYS:
+        table = listed.split(f"[{section}]\n", 1)[1]
+        line = table.split(f"{key} = ", 1)[1].split("\n", 1)[0]
+        assert line.endswith(f"[{field.limit.describe()}]"), line
 
 
 def test_a_scene_changed_in_python_meets_the_checks_of_a_file():
