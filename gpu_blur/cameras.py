@@ -21,10 +21,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import numbers
 from pathlib import Path
 
 import numpy as np
 
+from gpu_blur import limits
 from gpu_blur.constants import rsblur_data
 from gpu_blur.reference.color import camera_to_linear_matrix, checked_inverse
 from gpu_blur.scene import FIELDS, toml_loads
@@ -120,15 +122,28 @@ def check_float32_response(camera: Camera) -> None:
 
 
 def _camera(name, source, cam_to_lin, wb, shot, read, response=None) -> Camera:
+    """A checked :class:`Camera` (noise levels and matrix entries within :mod:`gpu_blur.limits`).
+
+    Raises:
+        ValueError: naming the camera, the value and what is allowed.
+    """
     cam_to_lin = np.asarray(cam_to_lin, dtype=np.float64)
     lin_to_cam = checked_inverse(cam_to_lin, f"camera {name!r} camera_to_linear")
-    for m in (cam_to_lin, lin_to_cam):
+    for what, m, limit in (("Cam2Lin", cam_to_lin, limits.CAM2LIN_LARGEST),
+                           ("Lin2Cam", lin_to_cam, limits.LIN2CAM_LARGEST)):
         m.setflags(write=False)
-    if not (shot > 0 and read >= 0):
-        raise ValueError(
-            f"camera {name!r}: shot_noise_k must be > 0 and read_noise_std >= 0, got "
-            f"{shot!r} and {read!r}"
-        )
+        # the largest |m @ x| for x in [0, 1]^3
+        largest = float(max(np.clip(m, 0, None).sum(axis=1).max(),
+                            np.clip(-m, 0, None).sum(axis=1).max()))
+        problem = limit.problem(largest)
+        if problem:
+            raise ValueError(f"camera {name!r}: its {what} maps a [0, 1] colour to "
+                             f"{largest:.4g}; allowed: {problem}")
+    for key, value, limit in (("noise.shot_noise_k", shot, limits.SHOT_NOISE_K),
+                              ("noise.read_noise_std", read, limits.READ_NOISE_STD)):
+        problem = limit.problem(value)
+        if problem:
+            raise ValueError(f"camera {name!r}: {key} = {value!r} is invalid; allowed: {problem}")
     return Camera(name, source, cam_to_lin, lin_to_cam, wb, float(shot), float(read), response)
 
 
@@ -198,6 +213,19 @@ def get_camera(name_or_path: str | Path, base_dir: Path | None = None) -> Camera
     )
 
 
+#: The keys a camera file may hold, per table ("" is the top level); :func:`load_camera`
+#: refuses any other, as a scene file does. ``[calibration]`` is ``gpu-blur calibrate``'s
+#: record of the fit, not read here: any keys (None).
+CAMERA_FILE_KEYS: dict[str, tuple[str, ...] | None] = {
+    "": ("name", "source", "color", "white_balance", "noise", "response", "calibration"),
+    "color": ("xyz_to_camera", "ccm_xyz", "adapt_d50", "camera_to_linear"),
+    "white_balance": ("red", "blue", "pairs"),
+    "noise": ("shot_noise_k", "read_noise_std"),
+    "response": ("polynomial", "inverse_linear", "source", "residual_rms", "condition_number"),
+    "calibration": None,
+}
+
+
 def load_camera(path: str | Path) -> Camera:
     """Load a camera file.
 
@@ -211,7 +239,7 @@ def load_camera(path: str | Path) -> Camera:
         adapt_d50 = false                       # with ccm_xyz: wrap T in D65 <-> D50
         camera_to_linear = [[...], [...], [...]]  # the composed Cam2Lin itself
         [white_balance]                 # either ranges or pairs
-        red = [1.9, 2.4]
+        red = [1.9, 2.4]                        # a gain or a range [low, high]
         blue = [1.5, 1.9]
         pairs = [[2.66, 1.46, 1380], ...]       # (red, blue, weight)
         [noise]
@@ -220,11 +248,19 @@ def load_camera(path: str | Path) -> Camera:
         [response]                      # optional: a fitted camera response (Eq. 6)
         polynomial = [c_0, c_1, ..., c_K]       # ascending powers, >= 2 finite numbers
 
+    Numbers must be finite and within :mod:`gpu_blur.limits` (gains ``WB_GAIN``, weights
+    ``WB_WEIGHT``, noise ``SHOT_NOISE_K`` and ``READ_NOISE_STD``, the same as scene keys and
+    overrides; Cam2Lin and its inverse ``CAM2LIN_LARGEST`` and ``LIN2CAM_LARGEST``); keys
+    other than those in :data:`CAMERA_FILE_KEYS` are refused.
+
     ``gpu-blur calibrate`` writes ``[response]`` when given ``--crf-linear`` and
     ``--crf-rendered``; a scene with ``output.crf = "camera"`` then re-tones its output and
     sharp reference with that polynomial (:attr:`Camera.response`). The table's other keys
     (``inverse_linear``, residuals) and ``[calibration]`` (the chart fit) are not read here
     (see :mod:`gpu_blur.calibrate`).
+
+    Raises:
+        ValueError: naming the file, the key, the value and what is allowed.
     """
     path = Path(path)
     spec = read_camera_spec(path)
@@ -232,23 +268,35 @@ def load_camera(path: str | Path) -> Camera:
     def fail(key, value, allowed):
         raise ValueError(f"camera file {path}: {key} = {value!r} is invalid; expected {allowed}")
 
+    def number(key, value, limit):
+        problem = limit.problem(value)
+        if problem:
+            raise ValueError(f"camera file {path}: {key} = {value!r} is invalid; allowed: "
+                             f"{problem}")
+        return float(value)
+
+    _check_camera_keys(spec, path)
+    for key in ("name", "source"):
+        if key in spec and not isinstance(spec[key], str):
+            fail(key, spec[key], "a string")
     color = spec.get("color", {})
     given = [k for k in ("xyz_to_camera", "ccm_xyz", "camera_to_linear") if k in color]
     if len(given) != 1:
         fail("[color]", sorted(color), "exactly one of xyz_to_camera, ccm_xyz, camera_to_linear")
     key = given[0]
-    try:
-        matrix = np.array(color[key], dtype=np.float64)
-    except (TypeError, ValueError):
-        matrix = None
-    if matrix is None or matrix.shape != (3, 3):
-        fail(f"color.{key}", color[key], "a 3 x 3 list of numbers")
+    rows = color[key]
+    if not (isinstance(rows, list) and len(rows) == 3 and all(
+            isinstance(r, list) and len(r) == 3 and all(_is_number(v) for v in r) for r in rows)):
+        fail(f"color.{key}", rows, "a 3 x 3 list of numbers")
+    adapt = color.get("adapt_d50", False)
+    if not isinstance(adapt, bool):
+        fail("color.adapt_d50", adapt, "true or false")
+    matrix = np.array(rows, dtype=np.float64)
     try:
         if key == "xyz_to_camera":
             cam_to_lin = camera_to_linear_matrix(xyz_to_cam=matrix)
         elif key == "ccm_xyz":
-            cam_to_lin = camera_to_linear_matrix(ccm=matrix,
-                                                 adapt_d50=bool(color.get("adapt_d50", False)))
+            cam_to_lin = camera_to_linear_matrix(ccm=matrix, adapt_d50=adapt)
         else:
             cam_to_lin = matrix
     except ValueError as e:
@@ -257,30 +305,64 @@ def load_camera(path: str | Path) -> Camera:
     wb_spec = spec.get("white_balance", {})
     if "pairs" in wb_spec:
         pairs = wb_spec["pairs"]
-        ok = isinstance(pairs, list) and pairs and all(
-            isinstance(p, list) and len(p) == 3 and all(isinstance(v, (int, float)) for v in p)
-            and p[0] > 0 and p[1] > 0 and p[2] > 0 for p in pairs)
-        if not ok:
-            fail("white_balance.pairs", pairs, "a list of [red_gain, blue_gain, weight] > 0")
-        wb = WhiteBalance(pairs=tuple(tuple(float(v) for v in p) for p in pairs))
+        if "red" in wb_spec or "blue" in wb_spec:
+            fail("[white_balance]", sorted(wb_spec), "either pairs, or red and blue")
+        if not (isinstance(pairs, list) and pairs and all(
+                isinstance(p, list) and len(p) == 3 for p in pairs)):
+            fail("white_balance.pairs", pairs, "a list of [red_gain, blue_gain, weight]")
+        wb = WhiteBalance(pairs=tuple(
+            (number(f"white_balance.pairs[{i}][0] (red gain)", p[0], limits.WB_GAIN),
+             number(f"white_balance.pairs[{i}][1] (blue gain)", p[1], limits.WB_GAIN),
+             number(f"white_balance.pairs[{i}][2] (weight)", p[2], limits.WB_WEIGHT))
+            for i, p in enumerate(pairs)))
     else:
         ranges = []
         for channel in ("red", "blue"):
             r = wb_spec.get(channel, [1.0, 1.0])
-            r = [r, r] if isinstance(r, (int, float)) else r
-            if not (isinstance(r, list) and len(r) == 2 and 0 < r[0] <= r[1]):
-                fail(f"white_balance.{channel}", r, "a gain > 0 or a range [low, high]")
-            ranges.append((float(r[0]), float(r[1])))
+            r = r if isinstance(r, list) else [r, r]
+            if len(r) != 2:
+                fail(f"white_balance.{channel}", r, "a gain or a range [low, high]")
+            low, high = (number(f"white_balance.{channel}", v, limits.WB_GAIN) for v in r)
+            if low > high:
+                fail(f"white_balance.{channel}", r, "a range [low, high] with low <= high")
+            ranges.append((low, high))
         wb = WhiteBalance(*ranges)
 
     response = response_polynomial(spec, path) if "response" in spec else None
     noise = spec.get("noise", {})
+    shot = number("noise.shot_noise_k", noise.get("shot_noise_k", 1e-4), limits.SHOT_NOISE_K)
+    read = number("noise.read_noise_std", noise.get("read_noise_std", 9.1504e-4),
+                  limits.READ_NOISE_STD)
     try:
         return _camera(spec.get("name", path.stem), spec.get("source", str(path.name)),
-                       cam_to_lin, wb, noise.get("shot_noise_k", 1e-4),
-                       noise.get("read_noise_std", 9.1504e-4), response)
+                       cam_to_lin, wb, shot, read, response)
     except ValueError as e:
-        raise ValueError(f"camera file {path}: {e}") from None
+        raise ValueError(f"camera file {path}: color.{key}: {e}") from None
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def _check_camera_keys(spec: dict, path: Path) -> None:
+    """Refuse keys a camera file does not have, and tables that are not tables.
+
+    Raises:
+        ValueError: naming the file and the key (:data:`CAMERA_FILE_KEYS` lists the keys).
+    """
+    for table, keys in CAMERA_FILE_KEYS.items():
+        if table and table not in spec:
+            continue
+        given = spec[table] if table else spec
+        if not isinstance(given, dict):
+            raise ValueError(f"camera file {path}: [{table}] = {given!r} is invalid; expected a "
+                             f"table of keys ({', '.join(keys or ())})")
+        unknown = sorted(set(given) - set(keys)) if keys is not None else []
+        if unknown:
+            where = f"{table}.{unknown[0]}" if table else unknown[0]
+            raise ValueError(f"camera file {path}: unknown key {where}; "
+                             f"{f'[{table}]' if table else 'top-level'} keys are "
+                             f"{', '.join(keys)}")
 
 
 def read_camera_spec(path: Path) -> dict:

@@ -255,11 +255,12 @@ def _check_setup(args, scene) -> None:
     """Fail before any sample for what every sample would fail on (exit status 2)."""
     from gpu_blur.imageio import read_kernel
     from gpu_blur.pipeline import scene_camera
+    from gpu_blur.scheduler import check_tile
 
     if not 0 <= args.seed < 2**64:
         raise ValueError(f"--seed {args.seed}: must lie in [0, 2**64)")
-    if args.tile and min(args.tile) < 1:
-        raise ValueError(f"--tile {args.tile[0]} {args.tile[1]}: rows and columns must be >= 1")
+    if args.tile:
+        check_tile(args.tile, "--tile")
     if (args.samples_per_photo is not None and args.samples_per_photo < 1) or (
             args.limit is not None and args.limit < 1):
         raise ValueError("--samples-per-photo and --limit must be >= 1")

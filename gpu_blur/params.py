@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gpu_blur import limits
 from gpu_blur.cameras import Camera
 from gpu_blur.imageio import check_kernel, read_kernel
 from gpu_blur.plan import Plan
@@ -33,6 +34,18 @@ DRAW_INDEX = {
 }
 #: Array-valued parameters (recorded beside the scalars, overridable too).
 ARRAY_PARAMS = ("kernel", "homographies")
+#: The range an override of each number must lie in: the same as the scene key or camera
+#: value it stands for (:mod:`gpu_blur.limits`). Drawn values come from checked settings.
+OVERRIDE_LIMITS = {
+    "alpha": limits.ALPHA,
+    "red_gain": limits.WB_GAIN,
+    "blue_gain": limits.WB_GAIN,
+    "shot_noise_k": limits.SHOT_NOISE_K,
+    "read_noise_std": limits.READ_NOISE_STD,
+    "gaussian_std": limits.GAUSSIAN_STD,
+    "kernel_size": limits.KERNEL_SIZE,
+    "extent_px": limits.EXTENT,
+}
 
 
 def _uniform_range(u: float, lo: float, hi: float) -> float:
@@ -50,10 +63,15 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
         seed: dataset seed, 0 <= seed < 2**64.
         sample_index: the sample's index, 0 <= index < 2**32.
         image_shape: (height, width) of the sample, for the camera path.
-        overrides: values to use instead of drawing (same names as the result).
+        overrides: values to use instead of drawing (same names as the result); numbers
+            must lie within :data:`OVERRIDE_LIMITS`.
 
     Returns:
         A dict of plain Python scalars and, for ``kernel`` / ``homographies``, float64 arrays.
+
+    Raises:
+        ValueError: an unknown or unused override, or one outside its range (naming it, the
+            value and what is allowed).
     """
     overrides = dict(overrides or {})
     known = set(DRAW_INDEX) | set(ARRAY_PARAMS)
@@ -65,7 +83,13 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
     p: dict = {}
 
     def put(name, value):
-        p[name] = overrides.pop(name) if name in overrides else value
+        if name not in overrides:
+            p[name] = value
+            return
+        p[name] = overrides.pop(name)
+        problem = OVERRIDE_LIMITS[name].problem(p[name]) if name in OVERRIDE_LIMITS else None
+        if problem:
+            raise ValueError(f"overrides[{name!r}] = {p[name]!r} is invalid; allowed: {problem}")
 
     b = scene.blur
     if plan.kept("blur") and b.mode == "kernel" and b.kernel:
@@ -114,12 +138,9 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
         raise ValueError(
             f"override {sorted(overrides)[0]!r} is not used by this scene's plan; used here: "
             f"{sorted(p)}")
-    for name in ("alpha", "red_gain", "blue_gain", "shot_noise_k", "read_noise_std",
-                 "gaussian_std", "extent_px"):
-        if name in p:
-            p[name] = float(p[name])
-            if not np.isfinite(p[name]) or p[name] < 0:
-                raise ValueError(f"parameter {name} = {p[name]!r} must be finite and >= 0")
+    for name, limit in OVERRIDE_LIMITS.items():
+        if name in p:  # plain Python numbers, for the manifest
+            p[name] = int(p[name]) if limit.integer else float(p[name])
     for name in ARRAY_PARAMS:
         if name in p:
             try:
@@ -130,7 +151,10 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
         check_kernel(p["kernel"], "overrides['kernel']")
     if "homographies" in p:
         h = p["homographies"]
-        if h.ndim != 3 or h.shape[1:] != (3, 3) or len(h) == 0 or not np.isfinite(h).all():
+        most = limits.STEPS.high
+        if (h.ndim != 3 or h.shape[1:] != (3, 3) or not 1 <= len(h) <= most
+                or not np.isfinite(h).all()):
             raise ValueError(f"overrides['homographies'] must be a finite n x 3 x 3 array "
-                             f"(n >= 1) of camera poses; got shape {h.shape}")
+                             f"(1 <= n <= {most:g}, as blur.steps) of camera poses; got shape "
+                             f"{h.shape}")
     return p

@@ -9,7 +9,6 @@ full list (``gpu-blur plan --help`` prints it).
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -19,7 +18,9 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
+from gpu_blur import limits
 from gpu_blur.constants import GAUSSIAN_SRGB_NOISE_STD
+from gpu_blur.limits import Limit
 from gpu_blur.reference.interpolate import FLOW_METHODS, INTERPOLATION_FACTORS
 
 PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
@@ -27,15 +28,19 @@ PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 
 @dataclasses.dataclass(frozen=True)
 class Field:
-    """One scene key: its default, what is allowed, and what it means."""
+    """One scene key: its default, what is allowed, and what it means.
+
+    A key takes one of ``choices``, a value of type ``kind`` (str, bool), or a number within
+    ``limit`` (:mod:`gpu_blur.limits`: finite, in range, with the reason); ``pair`` makes it a
+    ``[low, high]`` range of two such numbers.
+    """
 
     default: Any
     help: str
     choices: tuple = ()
-    kind: type | tuple[type, ...] | None = None
-    minimum: float | None = None
-    maximum: float | None = None
-    pair: bool = False  # a [low, high] range
+    kind: type | None = None
+    limit: Limit | None = None
+    pair: bool = False
 
 
 #: section -> key -> Field. The single definition of the scene format.
@@ -46,7 +51,7 @@ FIELDS: dict[str, dict[str, Field]] = {
                       "'none' (input is already blurred sRGB)",
                       choices=("average", "kernel", "trajectory", "none")),
         "frames": Field(9, "frames averaged per sample in mode 'average' (RSBlur: 9)",
-                        kind=int, minimum=1),
+                        limit=limits.FRAMES),
         "interpolation": Field(1, "mode 'average': raise the frame rate by this factor before "
                                "averaging, (frames - 1) * factor + 1 frames in all (RSBlur: 8, "
                                "9 -> 65); 1 averages the frames as they are",
@@ -55,21 +60,21 @@ FIELDS: dict[str, dict[str, Field]] = {
                       "OpenCV: 'dis' (DIS, preset medium) or 'farneback'", choices=FLOW_METHODS),
         "steps": Field(0, "poses along the camera path in mode 'trajectory'; 0 = auto: about "
                        "one per pixel of the longest pixel path, so blur is a streak, not copies",
-                       kind=int, minimum=0),
+                       limit=limits.STEPS),
         "extent": Field([4.0, 24.0], "range of the shake path's extent at the image centre, "
-                        "pixels (drawn per sample)", kind=(int, float), minimum=0, pair=True),
+                        "pixels (drawn per sample)", limit=limits.EXTENT, pair=True),
         "roll": Field(0.5, "largest camera roll during the exposure, degrees",
-                      kind=(int, float), minimum=0),
+                      limit=limits.ROLL),
         "kernel": Field("", "mode 'kernel': path of a kernel (.npy or grayscale .png); "
                         "empty draws a random motion kernel per sample", kind=str),
         "kernel_size": Field([5, 29], "mode 'kernel', random kernels: range of odd sizes "
-                             "(GoPro_U used 5..29)", kind=int, minimum=1, pair=True),
+                             "(GoPro_U used 5..29)", limit=limits.KERNEL_SIZE, pair=True),
     },
     "saturation": {
         "mode": Field("auto", "saturation synthesis: 'on', 'off', or 'auto' (only for samples "
                       "with pixels at the clip level)", choices=("auto", "on", "off")),
         "alpha": Field([0.25, 1.75], "range of the highlight boost alpha (RSBlur: U(0.25, "
-                       "1.75))", kind=(int, float), minimum=0, pair=True),
+                       "1.75))", limit=limits.ALPHA, pair=True),
     },
     "camera": {
         "name": Field("a7r3", "camera preset (a7r3, a7r3-wb-list, rsblur-0001..0019, srgb) or "
@@ -79,19 +84,19 @@ FIELDS: dict[str, dict[str, Field]] = {
         "model": Field("poisson-gaussian", "'poisson-gaussian' on the RAW mosaic, 'gaussian' "
                        "in sRGB, or 'none'", choices=("poisson-gaussian", "gaussian", "none")),
         "shot_noise_k": Field(None, "Poisson gain K (RSBlur beta1); default: the camera's",
-                              kind=(int, float), minimum=0),
+                              limit=limits.SHOT_NOISE_K),
         "read_noise_std": Field(None, "read-noise std (RSBlur beta2); default: the camera's",
-                                kind=(int, float), minimum=0),
+                                limit=limits.READ_NOISE_STD),
         "spread": Field(0.5, "K and the std are drawn in level * (1 +- spread) (RSBlur: 0.5)",
-                        kind=(int, float), minimum=0, maximum=1),
+                        limit=limits.SPREAD),
         "gaussian_std": Field(GAUSSIAN_SRGB_NOISE_STD, "sRGB Gaussian noise std before the "
-                              "+- spread draw (RSBlur TF)", kind=(int, float), minimum=0),
+                              "+- spread draw (RSBlur TF)", limit=limits.GAUSSIAN_STD),
         "poisson": Field("exact", "shot-noise sampler: 'exact' (inversion below rate 10, PTRS "
                          "above) or 'normal' (accuracy knob: max(0, round(rate + sqrt(rate) z)) "
                          "for rates above noise.normal_above)", choices=("exact", "normal")),
         "normal_above": Field(1000.0, "noise.poisson = 'normal': the Poisson rate (photon "
                               "counts per photosite) above which counts are a rounded normal",
-                              kind=(int, float), minimum=0),
+                              limit=limits.NORMAL_ABOVE),
     },
     "isp": {
         "round_trip": Field("auto", "RAW round trip: 'auto' (only with poisson-gaussian noise) "
@@ -116,13 +121,13 @@ FIELDS: dict[str, dict[str, Field]] = {
         "bits": Field(8, "quantize to 8 or 16 bits (round half up), or 0 to keep float",
                       choices=(0, 8, 16)),
         "crop": Field(0, "pixels cropped from every side of both outputs (RSBlur: 4)",
-                      kind=int, minimum=0),
+                      limit=limits.CROP),
         "precision": Field("float32", "compute precision of kernel backends",
                            choices=("float32", "float64")),
         "crf_table_size": Field(0, "output.crf = 'a7r3-lut': nodes of the re-toning table; 0 = "
                                 "the authors' 2,551, another size (>= 2, e.g. 256, 1024, 4096) "
-                                "resamples it (accuracy knob)", kind=int, minimum=0,
-                                maximum=65536),
+                                "resamples it (accuracy knob)",
+                                limit=limits.CRF_TABLE_SIZE),
         "fast_math": Field(False, "kernel backends, float32 only: fast transcendentals (OpenCL "
                            "native_ functions, Warp's CUDA fast math) for the sRGB curves and "
                            "the Gaussian normals; Poisson counts stay exact (accuracy knob)",
@@ -161,6 +166,9 @@ class Scene:
     output: Any
     path: Path | None = None  # the file it came from (relative camera/kernel paths use it)
 
+    def __post_init__(self):
+        check_scene(self, f"scene file {self.path}" if self.path else "scene")
+
     @property
     def base_dir(self) -> Path | None:
         """Folder that relative paths inside the scene are resolved against."""
@@ -181,29 +189,57 @@ def toml_loads(text: str) -> dict:
 
 
 def _check(where: str, key: str, field: Field, value):
+    """``value`` of one key, checked (pairs as lists, numbers as Python int or float).
+
+    Raises:
+        SceneError: naming ``where``, the key, the value and what is allowed.
+    """
     def fail(allowed: str):
         raise SceneError(f"{where}: {key} = {value!r} is invalid; allowed: {allowed}")
 
+    def number(v):
+        problem = field.limit.problem(v)
+        if problem:
+            fail(f"[low, high], each {problem}" if field.pair else problem)
+        if type(v) not in (int, float):  # numpy scalars from the Python API
+            v = int(v) if field.limit.integer else float(v)
+        return v
+
+    if value is None and field.default is None:
+        return None  # the camera's level
     if field.choices:
         if value not in field.choices or isinstance(value, bool) != isinstance(
                 field.choices[0], bool):
             fail(" | ".join(repr(c) for c in field.choices))
         return value
-    items = value if field.pair else [value]
-    kinds = field.kind if isinstance(field.kind, tuple) else (field.kind,)
-    what = " or ".join(k.__name__ for k in kinds)
-    if field.pair and not (isinstance(value, list) and len(value) == 2):
-        fail(f"a [low, high] pair of {what}")
-    for v in items:
-        if not isinstance(v, kinds) or (bool not in kinds and isinstance(v, bool)):
-            fail(f"{'a pair of ' if field.pair else ''}{what}")
-        if field.minimum is not None and v < field.minimum:
-            fail(f"{what} >= {field.minimum}")
-        if field.maximum is not None and v > field.maximum:
-            fail(f"{what} <= {field.maximum}")
-    if field.pair and items[0] > items[1]:
-        fail("low <= high")
-    return list(value) if field.pair else value
+    if field.pair:
+        if not (isinstance(value, (list, tuple)) and len(value) == 2):
+            fail(f"a [low, high] pair of {field.limit.kind} {field.limit.describe()}")
+        low, high = (number(v) for v in value)
+        if low > high:
+            fail("low <= high")
+        return [low, high]
+    if field.limit is not None:
+        return number(value)
+    if not isinstance(value, field.kind) or (field.kind is not bool and isinstance(value, bool)):
+        fail(field.kind.__name__)
+    return value
+
+
+def check_scene(scene: Scene, where: str) -> None:
+    """Check every setting of a scene, and how they combine, as :func:`scene_from_dict` does.
+
+    :class:`Scene` runs it on construction, so a scene made in Python (or changed with
+    ``dataclasses.replace``) meets the checks of a scene file.
+
+    Raises:
+        SceneError: naming ``where``, the key, the bad value and what is allowed.
+    """
+    sections = {name: getattr(scene, name) for name in FIELDS}
+    for section, fields in FIELDS.items():
+        for key, field in fields.items():
+            _check(where, f"{section}.{key}", field, getattr(sections[section], key))
+    _check_consistency(sections, where)
 
 
 def scene_from_dict(data: dict, where: str = "scene", path: Path | None = None) -> Scene:
@@ -234,41 +270,39 @@ def scene_from_dict(data: dict, where: str = "scene", path: Path | None = None) 
             else:
                 values[key] = list(field.default) if field.pair else field.default
         sections[section] = _SECTIONS[section](**values)
-    scene = Scene(**sections, path=path)
-    _check_consistency(scene, where)
-    return scene
+    _check_consistency(sections, where)
+    return Scene(**sections, path=path)
 
 
-def _check_consistency(scene: Scene, where: str) -> None:
-    if scene.blur.interpolation > 1 and scene.blur.mode != "average":
-        raise SceneError(f"{where}: blur.interpolation = {scene.blur.interpolation!r} needs "
-                         f"blur.mode = 'average' (it is {scene.blur.mode!r}); allowed: 1 for "
+def _check_consistency(sections: dict, where: str) -> None:
+    blur, output = sections["blur"], sections["output"]
+    if blur.interpolation > 1 and blur.mode != "average":
+        raise SceneError(f"{where}: blur.interpolation = {blur.interpolation!r} needs "
+                         f"blur.mode = 'average' (it is {blur.mode!r}); allowed: 1 for "
                          "this mode, or set blur.mode = 'average'")
-    lo, hi = scene.blur.kernel_size
-    if scene.blur.mode == "kernel" and not scene.blur.kernel and lo % 2 == 0 and lo == hi:
-        raise SceneError(f"{where}: blur.kernel_size = {scene.blur.kernel_size!r} holds no odd "
+    lo, hi = blur.kernel_size
+    if blur.mode == "kernel" and not blur.kernel and lo % 2 == 0 and lo == hi:
+        raise SceneError(f"{where}: blur.kernel_size = {blur.kernel_size!r} holds no odd "
                          "size; allowed: a range containing an odd size")
-    if not math.isfinite(scene.noise.normal_above):
-        raise SceneError(f"{where}: noise.normal_above = {scene.noise.normal_above!r} is "
-                         "invalid; allowed: a finite rate >= 0 (use noise.poisson = 'exact' "
-                         "for no approximation)")
-    size, crf = scene.output.crf_table_size, scene.output.crf
+    size, crf = output.crf_table_size, output.crf
     if size == 1:
         raise SceneError(f"{where}: output.crf_table_size = 1 is invalid; allowed: 0 (the "
                          "authors' table) or a size >= 2")
     if size and crf != "a7r3-lut":
         raise SceneError(f"{where}: output.crf_table_size = {size!r} needs output.crf = "
                          f"'a7r3-lut' (it is {crf!r}); allowed with another crf: 0")
-    if scene.output.fast_math and scene.output.precision != "float32":
+    if output.fast_math and output.precision != "float32":
         raise SceneError(f"{where}: output.fast_math = true needs output.precision = "
                          "'float32' (fast functions exist for float only); allowed with "
                          "'float64': false")
 
 
-def load_scene(path: str | Path | None = None) -> Scene:
-    """Load and validate a scene TOML file; ``None`` gives the default scene."""
+def load_scene(path: str | Path | dict | None = None) -> Scene:
+    """Load and validate a scene TOML file, or a dict of sections; ``None`` gives the default."""
     if path is None:
         return scene_from_dict({})
+    if isinstance(path, dict):
+        return scene_from_dict(path)
     path = Path(path)
     try:
         text = path.read_text()
@@ -284,13 +318,14 @@ def load_scene(path: str | Path | None = None) -> Scene:
 
 
 def describe_fields() -> str:
-    """Every scene key with its default and meaning, as TOML comments (for help text)."""
+    """Every scene key with its default, meaning and range, as TOML comments (for help text)."""
     lines = []
     for section, fields in FIELDS.items():
         lines.append(f"[{section}]")
         for key, f in fields.items():
             default = "(camera's)" if f.default is None else repr(f.default).replace("'", '"')
             default = default.replace("True", "true").replace("False", "false")
-            lines.append(f"{key} = {default}  # {f.help}")
+            allowed = f" [{f.limit.describe()}]" if f.limit is not None else ""
+            lines.append(f"{key} = {default}  # {f.help}{allowed}")
         lines.append("")
     return "\n".join(lines)

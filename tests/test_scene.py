@@ -31,7 +31,7 @@ def test_shipped_example_scenes_load_and_plan(path):
     ({"saturation": {"alpha": [1.5, 0.5]}}, "low <= high"),
     ({"saturation": {"alpha": 1.0}}, "a [low, high] pair"),
     ({"output": {"bits": 12}}, "output.bits = 12 is invalid; allowed: 0 | 8 | 16"),
-    ({"noise": {"shot_noise_k": -1e-4}}, ">= 0"),
+    ({"noise": {"shot_noise_k": -1e-4}}, "allowed: int or float >= 1e-09 (Poisson gain K"),
 ])
 def test_bad_values_are_named_with_what_is_allowed(data, message):
     with pytest.raises(SceneError, match=None) as e:

@@ -1,0 +1,154 @@
+"""The allowed range of every numeric setting, with its reason: one check for every number.
+
+Scene keys (:data:`gpu_blur.scene.FIELDS`), camera files (:func:`gpu_blur.cameras.load_camera`)
+and overrides of drawn values (:func:`gpu_blur.params.draw_params`) check a number with
+:meth:`Limit.problem` against the constants below, so a value is refused in the same words
+wherever it is given: the caller names the file and the key, the limit says what is allowed
+and why.
+
+Every number must be finite. The ranges are physical, with a margin (a white-balance gain of
+1e30 is no camera), and chosen so that float32 kernels stay within the tolerance table of the
+numpy reference (:mod:`gpu_blur.testing`). Measured on Intel's CPU OpenCL runtime
+``opencl:0:0`` and Warp ``cpu``, float32, the values given as overrides (blur mode none, RAW
+round trip, A7R3 camera unless said):
+
+* Representable (16 x 16 photo, float output against the reference): K failed at 1e-40 (a
+  denormal, flushed to 0: OpenCL all black, Warp all NaN) and at 1e39 (inf), and agreed from
+  1e-38 to 1e38 (within 3.3e-6); a WB gain failed at 1e-37 (the rate x / (gain K) overflows:
+  OpenCL off by up to 1, Warp NaN) and at 1e39, agreed from 1e-30 to 1e37; the read-noise std
+  failed at 1e38 (std z overflows), agreed up to 1e37; alpha failed at 1e39 (inf x 0 = NaN:
+  black); the sRGB Gaussian std never did (to 1e39: the sum clips as in the reference).
+* Within the tolerance table (64 x 64 and 128 x 128 photos, 1 to 6 samples, 8-bit output,
+  ``verify=1``: every pass against the reference, see :mod:`gpu_blur.scheduler`): the noise
+  in RAW units, ``gain * sqrt(K x + std^2)``, sets the RAW values' size, and the to_raw and
+  finish rows are absolute. With gain 8: K 0.25 with std 0.05 passed 6 samples, K 0.25 with
+  std 0.1 failed one of 3 on OpenCL (finish), K 1 with std 0.1 failed (to_raw, 8.1e-7 >
+  5e-7); gain 10 with K 1 failed; gain 100 failed from K 1e-4 with std 0.1; gains 1 and 4
+  passed up to K 1 with std 0.1, gain 0.1 up to K 0.2 with std 0.2. A Lin2Cam of 8 x the
+  identity (RAW values to 8) failed at the default noise; a Cam2Lin with rows [8, -4, -3]
+  passed; sRGB Gaussian noise of std 0.5 and 1 passed.
+
+So K <= 0.125, std <= 0.025 and gains <= 8: K and the std of a sample are drawn in
+``level * (1 +- noise.spread)``, spread <= 1 (:func:`gpu_blur.reference.noise.draw_noise_levels`),
+so a drawn K lies in [2^-23 * 1e-9, 0.25] and a drawn std in [0, 0.05], the passing corner
+above. Drawn values are therefore not checked again; overrides are held to the ranges of the
+levels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+
+from gpu_blur.reference.blur import SHAKE_AUTO_STEPS_RANGE, SHAKE_ROLL_MAX_DEG
+
+
+@dataclasses.dataclass(frozen=True)
+class Limit:
+    """The allowed values of one numeric setting.
+
+    Attributes:
+        low: the smallest allowed value.
+        high: the largest (``math.inf``: no upper bound, but still finite).
+        reason: why, for the error message: units, what the bound means, what fails beyond.
+        integer: only integers (bools are not numbers here).
+        low_open: ``low`` itself is not allowed (a gain of 0 divides by zero).
+    """
+
+    low: float
+    high: float = math.inf
+    reason: str = ""
+    integer: bool = False
+    low_open: bool = False
+
+    @property
+    def kind(self) -> str:
+        """``int`` or ``int or float``, as messages name the type."""
+        return "int" if self.integer else "int or float"
+
+    def describe(self) -> str:
+        """The range in words, e.g. ``>= 0.125 and <= 8``."""
+        low = f"{'>' if self.low_open else '>='} {self.low:g}"
+        return low if self.high == math.inf else f"{low} and <= {self.high:g}"
+
+    def problem(self, value) -> str | None:
+        """What ``value`` must be, when it is not allowed; ``None`` when it is.
+
+        The text follows ``allowed:`` in a caller's message: the type and the bound it broke,
+        then the reason, e.g. ``int or float <= 1 (...)``.
+        """
+        number = numbers.Integral if self.integer else numbers.Real
+        if isinstance(value, bool) or not isinstance(value, number):
+            return self._say(f"{self.kind} {self.describe()}")
+        try:
+            x = float(value)
+        except OverflowError:  # an integer beyond float64 (JSON allows any)
+            x = math.inf
+        if not math.isfinite(x):
+            return self._say(f"a finite {self.kind} {self.describe()}")
+        if x < self.low or (self.low_open and x == self.low):
+            return self._say(f"{self.kind} {'>' if self.low_open else '>='} {self.low:g}")
+        if x > self.high:
+            return self._say(f"{self.kind} <= {self.high:g}")
+        return None
+
+    def _say(self, allowed: str) -> str:
+        return f"{allowed} ({self.reason})" if self.reason else allowed
+
+
+# -- the scene's blur ---------------------------------------------------------------------------
+FRAMES = Limit(1, 1024, integer=True, reason=(
+    "frames averaged per sample, each held in host memory: 1,024 frames of 1920 x 1080 take "
+    "6.4 GB; RSBlur averages 9"))
+#: 8 x the auto choice's largest (reference.blur.SHAKE_AUTO_STEPS_RANGE, about one pose per
+#: pixel of the path); each pose costs a bilinear read per pixel (numpy: ~0.2 us per pixel and
+#: pose, 31 s for 8,192 poses on 128 x 128) and 72 bytes of float64 3 x 3 on the device.
+STEPS = Limit(0, 8 * (SHAKE_AUTO_STEPS_RANGE[1] - 1), integer=True, reason=(
+    "camera poses, 0 = auto: 9 to 1,025, about one per pixel of the path; more poses than "
+    "pixels along the path change nothing, and each costs a read per pixel"))
+EXTENT = Limit(0, reason="pixels the image centre moves; the image's size bounds it per sample")
+ROLL = Limit(0, SHAKE_ROLL_MAX_DEG, reason="degrees of camera roll; the shake model's largest")
+KERNEL_SIZE = Limit(1, 255, integer=True, reason=(
+    "pixels across a random motion kernel, a read per pixel and tap: 255 x 255 is 65,025 "
+    "taps; GoPro_U used 5 to 29"))
+# -- saturation and noise -----------------------------------------------------------------------
+ALPHA = Limit(0, 100, reason=(
+    "highlight boost: alpha x mask is added before clipping to 1, so alpha >= 1 already clips "
+    "a fully masked pixel; RSBlur draws 0.25 to 1.75"))
+SHOT_NOISE_K = Limit(1e-9, 0.125, reason=(
+    "Poisson gain K, the signal one photon adds to the [0, 1] RAW range: 1e-9 is a billion "
+    "photons at full scale, 0.125 eight; RealBlur 8.9e-5, RSBlur 1e-4; float32 kernels leave "
+    "the tolerance table beyond (gpu_blur.limits)"))
+READ_NOISE_STD = Limit(0, 0.025, reason=(
+    "read-noise std in [0, 1] RAW units, 0.025 is 2.5 % of the whole range; RealBlur 2.9e-5, "
+    "RSBlur 9.2e-4; float32 kernels leave the tolerance table beyond (gpu_blur.limits)"))
+SPREAD = Limit(0, 1, reason="K and the std are drawn in level * (1 +- spread), so K stays > 0")
+GAUSSIAN_STD = Limit(0, 0.5, reason=(
+    "sRGB noise std, drawn up to twice this: 1 is noise as large as the whole range; RSBlur "
+    "0.0112"))
+NORMAL_ABOVE = Limit(0, reason=(
+    "a Poisson rate in counts per photosite; for no approximation use noise.poisson = "
+    "'exact'"))
+# -- output -------------------------------------------------------------------------------------
+CROP = Limit(0, integer=True, reason="pixels cropped from each side")
+CRF_TABLE_SIZE = Limit(0, 65536, integer=True, reason=(
+    "nodes of the re-toning table, 0 = the authors' 2,551"))
+# -- camera files -------------------------------------------------------------------------------
+WB_GAIN = Limit(0.125, 8.0, reason=(
+    "a white-balance gain relative to green: the presets' lie within 1 and 2.92; it scales "
+    "the RAW noise, and float32 kernels leave the tolerance table beyond (gpu_blur.limits)"))
+WB_WEIGHT = Limit(0, 1e12, low_open=True, reason=(
+    "how often a (red, blue) pair is drawn, e.g. its row count; RealBlur's list: up to 1,380"))
+#: How far a camera's matrices may scale a colour: the largest |output| of an input in
+#: [0, 1]^3 (per row, the sum of the positive entries or of the negative ones). Lin2Cam gives
+#: the RAW signal of a linear colour, which must stay near [0, 1] for the float32 tolerance (a
+#: Lin2Cam of 8 x the identity failed, see above); presets: 1.0 to 1.11 (a desaturating Cam2Lin
+#: of tests/test_hard_cases.py: 1.6). Cam2Lin turns RAW into linear sRGB; presets: 1.0 to 2.2
+#: (a Cam2Lin with rows [8, -4, -3] passed).
+LIN2CAM_LARGEST = Limit(0, 2.0, reason=(
+    "the largest RAW value Lin2Cam, the inverse of Cam2Lin, gives a [0, 1] colour; the "
+    "presets' is at most 1.11"))
+CAM2LIN_LARGEST = Limit(0, 8.0, reason=(
+    "the largest linear value Cam2Lin gives a [0, 1] camera colour; the presets' is at most "
+    "2.2"))
