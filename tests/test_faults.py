@@ -1,0 +1,95 @@
+"""Faults a run must survive (issue 13): a sample's own error fails that sample only, signals
+end the worker processes, and damaged JPEG data is refused.
+
+Small images and the numpy backend throughout.
+"""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+import gpu_blur.generate
+from gpu_blur.cli import main
+from gpu_blur.dataset import SampleSpec
+from gpu_blur.generate import Job, make_sample
+from gpu_blur.reference.interpolate import optical_flow
+from gpu_blur.scene import scene_from_dict
+
+
+def manifest(out):
+    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    return sorted(lines, key=lambda x: x["index"])
+
+
+# ---- a sample's own error fails that sample -----------------------------------------------
+
+@pytest.mark.parametrize("shape", [(4, 4), (1, 7), (15, 40)], ids=["4x4", "1x7", "15x40"])
+def test_dis_flow_needs_frames_of_16_pixels_and_names_the_size(shape):
+    # OpenCV 5.0.0 raised cv2.error on 4 x 4 and 1 x 7 and crashed (segmentation fault) on 15 x 40
+    rng = np.random.default_rng(0)
+    frame = rng.random((*shape, 3))
+    with pytest.raises(ValueError) as e:
+        optical_flow(frame, frame, "dis")
+    assert f"frames of {shape[0]} x {shape[1]} pixels" in str(e.value)
+    assert "at least 16 x 16" in str(e.value) and "blur.flow = 'farneback'" in str(e.value)
+    assert optical_flow(frame, frame, "farneback").shape == (*shape, 2)
+    grown = rng.random((max(shape[0], 16), max(shape[1], 16), 3))
+    assert optical_flow(grown, np.roll(grown, 1, axis=1), "dis").shape == (*grown.shape[:2], 2)
+
+
+def write_sequence(folder, shape, seed):
+    folder.mkdir(parents=True)
+    rng = np.random.default_rng(seed)
+    for i in range(3):
+        cv2.imwrite(str(folder / f"{i:06d}.png"), rng.integers(0, 256, (*shape, 3), np.uint8))
+
+
+@pytest.mark.parametrize("executor", [[], ["--devices", "numpy,numpy"]],
+                         ids=["serial", "devices"])
+def test_frames_too_small_for_the_flow_fail_their_sample_and_the_run_goes_on(
+        tmp_path, capsys, executor):
+    write_sequence(tmp_path / "in" / "a_big" / "sharp", (24, 32), 0)
+    write_sequence(tmp_path / "in" / "b_tiny" / "sharp", (4, 4), 1)
+    scene = tmp_path / "s.toml"
+    scene.write_text('[blur]\nmode = "average"\nframes = 3\ninterpolation = 2\n')
+    out = tmp_path / "out"
+    assert main(["generate", "--input", str(tmp_path / "in"), "--output", str(out),
+                 "--scene", str(scene), "--quiet", *executor]) == 1
+    big, tiny = manifest(out)
+    assert big["status"] == "ok" and (out / big["blurred"]).is_file()
+    assert tiny["status"] == "failed"
+    assert "frames of 4 x 4 pixels (H x W) are too small for blur.flow = 'dis'" in tiny["error"]
+    assert "1 of 2 samples failed" in capsys.readouterr().err
+
+
+@pytest.fixture
+def job():
+    return Job(scene_from_dict({"blur": {"steps": 3}}), 0, "numpy")
+
+
+SPEC = SampleSpec(index=3, name="p", inputs=("p.png",))
+
+
+def test_only_opencv_and_memory_errors_of_a_sample_fail_that_sample(job, monkeypatch):
+    errors = [
+        (cv2.error("OpenCV(5.0.0) /io/x.cpp:1: error: (-201:Incorrect size of input array) "
+                   "The input image is too small in function 'calc'\n"),
+         "OpenCV refused this sample's data: The input image is too small"),
+        (MemoryError("Unable to allocate 7.5 GiB for an array"),
+         "out of memory (Unable to allocate 7.5 GiB for an array): this sample needs more"),
+        (TypeError("a bug"), None),  # gpu_blur's fault: it surfaces
+        (KeyboardInterrupt(), None),
+    ]
+    for error, message in errors:
+        def synthesize(*args, error=error, **kwargs):
+            raise error
+
+        monkeypatch.setattr(gpu_blur.generate, "synthesize", synthesize)
+        if message is None:
+            with pytest.raises(type(error)):
+                make_sample(job, SPEC)
+        else:
+            spec, result, reason = make_sample(job, SPEC)
+            assert spec is SPEC and result is None and reason.startswith(message)
