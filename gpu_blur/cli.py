@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -544,12 +547,63 @@ def _align(args) -> int:
     return 0 if result.converged else 1
 
 
+class Terminated(KeyboardInterrupt):
+    """A termination signal (SIGTERM, SIGHUP) received by ``generate``: it stops as on Ctrl-C."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+#: Signals that stop ``generate`` as Ctrl-C does: finished samples kept, workers ended.
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP")
+                     if hasattr(signal, name))
+
+
+@contextlib.contextmanager
+def _stop_on_signals(received: list[int]):
+    """Within the block, a stop signal raises :class:`Terminated` and is appended to ``received``.
+
+    Only the first: the handlers are then reset, so a second signal ends the process at once.
+    Outside the main thread (where Python cannot set handlers) nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        received.append(signum)
+        for s in STOP_SIGNALS:
+            signal.signal(s, signal.SIG_DFL)
+        raise Terminated(signum)
+
+    before = {s: signal.signal(s, stop) for s in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, handler)
+
+
+def _generate_until_stopped(args) -> int:
+    """``generate``, stopped by SIGTERM or SIGHUP as by Ctrl-C, exiting with 128 + the signal."""
+    received: list[int] = []
+    try:
+        with _stop_on_signals(received):
+            status = _generate(args)
+    except Terminated as e:  # outside generate's own handling (setting up, summing up)
+        print(f"gpu-blur: stopped by {signal.Signals(e.signum).name}; run the same command "
+              "with --resume to finish the set", file=sys.stderr)
+        return 128 + e.signum
+    return 128 + received[0] if received else status
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``gpu-blur``; returns the exit status."""
     args = _parser().parse_args(argv)
     try:
         if args.command == "generate":
-            return _generate(args)
+            return _generate_until_stopped(args)
         if args.command == "calibrate":
             return _calibrate(args)
         if args.command == "bench":

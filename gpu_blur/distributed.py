@@ -23,6 +23,8 @@ import functools
 import multiprocessing
 import os
 import signal
+import threading
+import time
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
@@ -45,6 +47,8 @@ RAY_INSTALL = "pip install 'gpu_blur[ray]'"
 GPU_BATCH = 32
 #: Samples handed to one local device worker ahead of the one it makes, so it never waits.
 DEVICE_DEPTH = 2
+#: Seconds between a device worker's checks that the driver process is still its parent.
+PARENT_CHECK_S = 0.5
 
 
 def family(backend: str) -> str:
@@ -152,10 +156,33 @@ def uses_cuda(backend) -> bool:
 _worker_job: Job | None = None
 
 
-def _worker_start(job: Job) -> None:
+def _worker_start(job: Job, driver: int) -> None:
     global _worker_job
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's; it stops workers
+    # Ctrl-C and a closed terminal reach the whole process group: the driver handles them
+    # and stops the workers (SIGTERM, which they obey)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "SIGHUP"):
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    threading.Thread(target=_exit_without, args=(driver,), daemon=True).start()
     _worker_job = job
+
+
+def _exit_without(driver: int) -> None:
+    """End this worker process once the driver is no longer its parent (killed, crashed)."""
+    while os.getppid() == driver:
+        time.sleep(PARENT_CHECK_S)
+    os._exit(1)
+
+
+def _stop_workers(pool: cf.ProcessPoolExecutor) -> None:
+    """Terminate a pool's worker processes now; their unfinished samples are dropped."""
+    stop = getattr(pool, "terminate_workers", None)  # Python 3.14
+    if stop is not None:
+        stop()
+        return
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        if process.is_alive():
+            process.terminate()
 
 
 def _worker_open() -> str:
@@ -175,7 +202,9 @@ def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str]) -> It
     Workers are started with ``spawn`` (OpenCL and CUDA contexts do not survive a fork),
     each builds its backend once (``job`` with its device as the backend) and takes the
     next sample when it finishes one, so faster devices make more. A device that cannot be
-    opened stops the run before any sample.
+    opened stops the run before any sample. When the run stops early (Ctrl-C, SIGTERM, an
+    error, the caller closing this generator) the workers are terminated, not waited for;
+    a worker whose driver dies exits by itself within :data:`PARENT_CHECK_S`.
 
     Raises:
         RuntimeError: a device that cannot be opened, or a worker that died (killed, out of
@@ -192,8 +221,10 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
     specs = iter(todo)
     context = multiprocessing.get_context("spawn")
     pools = [cf.ProcessPoolExecutor(1, mp_context=context, initializer=_worker_start,
-                                    initargs=(dataclasses.replace(job, backend=device),))
+                                    initargs=(dataclasses.replace(job, backend=device),
+                                              os.getpid()))
              for device in devices]
+    finished = False
     try:
         opening = [pool.submit(_worker_open) for pool in pools]
         for device, future in zip(devices, opening, strict=True):
@@ -228,7 +259,11 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
                     ) from None
                 feed(worker)
                 yield spec, result, error  # the driver's own spec object
+        finished = True
     finally:
+        if not finished:  # stopped early: the samples still being made are dropped
+            for pool in pools:
+                _stop_workers(pool)
         for pool in pools:
             pool.shutdown(wait=True, cancel_futures=True)
 

@@ -5,13 +5,19 @@ Small images and the numpy backend throughout.
 """
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
 import gpu_blur.generate
-from gpu_blur.cli import main
+from gpu_blur.cli import TEST_SLEEP_AFTER, main
 from gpu_blur.dataset import SampleSpec
 from gpu_blur.generate import Job, make_sample
 from gpu_blur.reference.interpolate import optical_flow
@@ -93,3 +99,71 @@ def test_only_opencv_and_memory_errors_of_a_sample_fail_that_sample(job, monkeyp
         else:
             spec, result, reason = make_sample(job, SPEC)
             assert spec is SPEC and result is None and reason.startswith(message)
+
+
+# ---- signals end the worker processes -----------------------------------------------------
+
+def parent_of(pid):
+    """The parent process id of ``pid`` from /proc, or None once it is gone (or a zombie)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+    state, ppid = stat.rsplit(")", 1)[1].split()[:2]
+    return None if state == "Z" else int(ppid)
+
+
+def children_of(pid):
+    return [int(p.name) for p in Path("/proc").iterdir()
+            if p.name.isdigit() and parent_of(p.name) == pid]
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads processes from /proc")
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP, signal.SIGKILL],
+                         ids=["SIGTERM", "SIGHUP", "SIGKILL"])
+def test_a_signal_to_a_devices_run_ends_its_workers_and_keeps_finished_samples(tmp_path,
+                                                                             signum):
+    folder = tmp_path / "in"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for name in ("a", "b"):
+        cv2.imwrite(str(folder / f"{name}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    scene = tmp_path / "s.toml"
+    scene.write_text("[blur]\nsteps = 3\n")
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "gpu_blur.cli", "generate", "--input", str(folder),
+               "--output", str(out), "--scene", str(scene), "--samples-per-photo", "4",
+               "--quiet", "--devices", "numpy,numpy"]
+    env = {**os.environ, TEST_SLEEP_AFTER: "1"}  # the driver sleeps once sample 1 is recorded
+    log = tmp_path / "log"
+    with log.open("w") as sink:  # a file, not a pipe: workers left alive would hold a pipe open
+        run = subprocess.Popen(command, env=env, stdout=sink, stderr=subprocess.STDOUT)
+    workers = []
+    try:
+        deadline = time.monotonic() + 60
+        while '"index": 1,' not in ((out / "manifest.jsonl").read_text()
+                                    if (out / "manifest.jsonl").exists() else ""):
+            assert run.poll() is None, log.read_text()
+            assert time.monotonic() < deadline, "the run never reached sample 1"
+            time.sleep(0.05)
+        workers = children_of(run.pid)  # the two workers and multiprocessing's tracker
+        assert len(workers) >= 2
+        run.send_signal(signum)
+        run.wait(timeout=30)
+        if signum == signal.SIGKILL:
+            assert run.returncode == -signal.SIGKILL
+        else:
+            assert run.returncode == 128 + signum, log.read_text()
+            assert "run the same command with --resume" in log.read_text()
+        deadline = time.monotonic() + 10
+        while any(parent_of(pid) is not None for pid in workers):
+            assert time.monotonic() < deadline, [parent_of(pid) for pid in workers]
+            time.sleep(0.05)
+    finally:
+        run.kill()
+        for pid in workers:
+            if parent_of(pid) is not None:
+                os.kill(pid, signal.SIGKILL)
+    kept = manifest(out)
+    assert 1 in [x["index"] for x in kept]
+    assert all(x["status"] == "ok" and (out / x["blurred"]).is_file() for x in kept)
