@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import struct
 from pathlib import Path
 
@@ -174,20 +175,46 @@ def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
                      "[0, 1] (e.g. x.astype(np.uint8) for 0..255 integers)")
 
 
+def _temporary(path: Path) -> Path:
+    """A hidden name beside ``path`` for writing it, unique to this process, same suffix."""
+    return path.with_name(f".{path.name}.{os.getpid()}.part{path.suffix}")
+
+
 def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
     """Write an H x W x 3 RGB image in [0, 1]: PNG with 8/16 bits, or float32 TIFF for bits 0.
 
-    The file appears complete or not at all (written to a temporary name, then renamed).
+    The file appears complete or not at all (written to a temporary name, then renamed; the
+    temporary file is removed on failure).
     """
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.part{path.suffix}")
+    tmp = _temporary(path)
     if bits == 0:
         data = np.asarray(image, dtype=np.float32)[:, :, ::-1]
     else:
         data = to_integers(image, bits)[:, :, ::-1]
-    if not cv2.imwrite(str(tmp), np.ascontiguousarray(data)):
-        raise OSError(f"{path}: could not write the image")
-    tmp.replace(path)
+    try:
+        try:
+            written = cv2.imwrite(str(tmp), np.ascontiguousarray(data))
+        except cv2.error:
+            written = False
+        if not written:
+            raise OSError(f"{path}: could not write the image")
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Write a text file that appears complete or not at all (as :func:`write_image`)."""
+    path = Path(path)
+    tmp = _temporary(path)
+    try:
+        tmp.write_text(text)
+        tmp.replace(path)
+    except OSError as e:
+        raise OSError(e.errno, e.strerror, str(path)) from None  # the name asked for
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def read_kernel(path: str | Path) -> np.ndarray:

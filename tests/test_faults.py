@@ -101,6 +101,29 @@ def test_only_opencv_and_memory_errors_of_a_sample_fail_that_sample(job, monkeyp
             assert spec is SPEC and result is None and reason.startswith(message)
 
 
+# ---- no command writes over its own inputs (align and compare: test_align, test_metrics) ---
+
+@pytest.mark.parametrize("option", ["--chart", "--reference"])
+def test_calibrate_refuses_to_write_its_camera_file_over_an_input(tmp_path, capsys, option):
+    from importlib import resources
+
+    from gpu_blur.calibrate import COLORCHECKER24
+
+    chart = tmp_path / "chart.json"
+    chart.write_text(json.dumps({"rgb": np.random.default_rng(0).uniform(0.05, 0.9, (24, 3))
+                                 .tolist()}))
+    reference = tmp_path / "reference.json"
+    reference.write_text((resources.files("gpu_blur") / "data" / COLORCHECKER24).read_text())
+    target = chart if option == "--chart" else reference
+    before = target.read_bytes()
+    assert main(["calibrate", "--chart", str(chart), "--reference", str(reference),
+                 "--output", str(target), "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert f"--output {target}: it would write {target}, which is {option} {target}" in err
+    assert "give --output a new camera file name" in err
+    assert target.read_bytes() == before
+
+
 # ---- signals end the worker processes -----------------------------------------------------
 
 def parent_of(pid):
