@@ -20,6 +20,7 @@ import gpu_blur.generate
 from gpu_blur.cli import TEST_SLEEP_AFTER, main
 from gpu_blur.dataset import SampleSpec
 from gpu_blur.generate import Job, make_sample
+from gpu_blur.imageio import read_image
 from gpu_blur.reference.interpolate import optical_flow
 from gpu_blur.scene import scene_from_dict
 
@@ -99,6 +100,64 @@ def test_only_opencv_and_memory_errors_of_a_sample_fail_that_sample(job, monkeyp
         else:
             spec, result, reason = make_sample(job, SPEC)
             assert spec is SPEC and result is None and reason.startswith(message)
+
+
+# ---- damaged JPEG data is refused ---------------------------------------------------------
+
+ROCKET = Path(__file__).resolve().parent / "data" / "rocket.jpg"
+
+
+def scan_middle(data):
+    """A byte offset in the middle of a JPEG's (first) entropy-coded data."""
+    start = data.index(b"\xff\xda")
+    return start + (len(data) - start) // 2
+
+
+def assert_refused(path, data, message):
+    path.write_bytes(data)
+    with pytest.raises(ValueError) as e:
+        read_image(path)
+    assert str(e.value).startswith(f"{path}: corrupt JPEG (") and message in str(e.value)
+    assert "re-export or re-copy the file" in str(e.value)
+
+
+def test_a_real_jpeg_with_a_bad_marker_inside_its_image_data_is_refused(tmp_path):
+    data = ROCKET.read_bytes()
+    assert read_image(ROCKET).shape == (427, 640, 3)
+    middle = scan_middle(data)
+    inserted = data[:middle] + b"\xff\x37" + data[middle:]
+    overwritten = data[:middle] + bytes([0x12, 0xFF, 0xD8, 0x34]) + data[middle + 4:]
+    for bad in (inserted, overwritten):  # OpenCV decodes both, the lower half garbled
+        assert cv2.imdecode(np.frombuffer(bad, np.uint8), cv2.IMREAD_COLOR) is not None
+    assert_refused(tmp_path / "marker.jpg", inserted,
+                   f"marker 0xFF37 at byte {middle} cannot stand there")
+    assert_refused(tmp_path / "soi.jpg", overwritten, f"marker 0xFFD8 at byte {middle + 1}")
+
+
+JPEG_OPTIONS = {
+    "baseline": [],
+    "progressive": [cv2.IMWRITE_JPEG_PROGRESSIVE, 1],
+    "restart-intervals": [cv2.IMWRITE_JPEG_RST_INTERVAL, 4],
+    "progressive-444-restart-intervals": [
+        cv2.IMWRITE_JPEG_PROGRESSIVE, 1, cv2.IMWRITE_JPEG_RST_INTERVAL, 3,
+        cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444],
+}
+
+
+@pytest.mark.parametrize("options", JPEG_OPTIONS.values(), ids=JPEG_OPTIONS.keys())
+def test_whole_jpegs_are_read_and_damaged_ones_refused(tmp_path, rocket_rgb, options):
+    bgr = np.rint(rocket_rgb[:, :, ::-1] * 255).astype(np.uint8)
+    data = cv2.imencode(".jpg", bgr, options)[1].tobytes()
+    path = tmp_path / "x.jpg"
+    path.write_bytes(data + b"data after the end of the image, e.g. a second image")
+    assert np.array_equal(read_image(path), cv2.imread(str(path))[:, :, ::-1])
+    middle = scan_middle(data)
+    assert_refused(path, data[:middle] + b"\xff\x37" + data[middle:], "cannot stand there")
+    if cv2.IMWRITE_JPEG_RST_INTERVAL in options:  # restart markers show what is missing
+        assert_refused(path, data[:middle] + data[middle + 2000:],
+                       "image data is missing or damaged")
+        assert_refused(path, data[:middle] + bytes(1000) + data[middle + 1000:],
+                       "image data is missing or damaged")
 
 
 # ---- no command writes over its own inputs (align and compare: test_align, test_metrics) ---
