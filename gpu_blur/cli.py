@@ -684,6 +684,10 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError, RuntimeError) as e:
         print(f"gpu-blur: error: {e}", file=sys.stderr)
         return 2
+    except MemoryError as e:  # inputs too large for this machine, outside any one sample
+        print(f"gpu-blur: error: out of memory ({str(e) or 'no detail'}): use smaller inputs "
+              "or free memory", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

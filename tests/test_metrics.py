@@ -326,3 +326,14 @@ def test_compare_json_is_written_whole_or_not_at_all(tmp_path, triple, monkeypat
     assert out.read_text() == "the scores of an earlier run\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["interp.png", "real.png",
                                                           "scores.json", "synth.png"]
+
+
+def test_compare_out_of_memory_is_an_error_message_not_a_traceback(triple, monkeypatch,
+                                                                    capsys):
+    def psnr(*args, **kwargs):
+        raise MemoryError("Unable to allocate 9.3 GiB for an array")
+
+    monkeypatch.setattr(metrics, "psnr", psnr)
+    assert main(["compare", triple["real"], triple["synth"]]) == 2
+    assert "gpu-blur: error: out of memory (Unable to allocate 9.3 GiB for an array)" \
+           in capsys.readouterr().err
