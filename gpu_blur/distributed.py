@@ -17,7 +17,6 @@ gpu_blur, in the same version) must be at the same paths on every node.
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import dataclasses
 import functools
 import multiprocessing
@@ -25,7 +24,10 @@ import os
 import signal
 import threading
 import time
+import traceback
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
+from multiprocessing.connection import wait
 from pathlib import Path
 
 from gpu_blur.dataset import SampleSpec
@@ -153,18 +155,37 @@ def uses_cuda(backend) -> bool:
 
 # -- one worker process per device of this host ---------------------------------------------
 
-_worker_job: Job | None = None
+def _device_worker(job: Job, driver: int, conn) -> None:
+    """A device worker process: open the device, then make each sample the driver sends.
 
-
-def _worker_start(job: Job, driver: int) -> None:
-    global _worker_job
+    Messages to the driver: ``("open", device description)`` or ``("error", why)`` first,
+    then per sample ``("sample", make_sample's tuple)`` or ``("error", traceback)`` for an
+    exception that is no fault of the sample (a bug: the driver stops the run with it). The
+    driver closing its end of the pipe ends the worker.
+    """
     # Ctrl-C and a closed terminal reach the whole process group: the driver handles them
     # and stops the workers (SIGTERM, which they obey)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if hasattr(signal, "SIGHUP"):
         signal.signal(signal.SIGHUP, signal.SIG_IGN)
     threading.Thread(target=_exit_without, args=(driver,), daemon=True).start()
-    _worker_job = job
+    from gpu_blur.backends import get_backend
+
+    try:
+        conn.send(("open", get_backend(job.backend, job.scene.output.precision).device))
+    except Exception as e:  # any reason the device cannot be opened
+        conn.send(("error", str(e)))
+        return
+    while True:
+        try:
+            spec = conn.recv()
+        except EOFError:
+            return
+        try:
+            message = ("sample", make_sample(job, spec))
+        except Exception:
+            message = ("error", traceback.format_exc())
+        conn.send(message)
 
 
 def _exit_without(driver: int) -> None:
@@ -172,28 +193,6 @@ def _exit_without(driver: int) -> None:
     while os.getppid() == driver:
         time.sleep(PARENT_CHECK_S)
     os._exit(1)
-
-
-def _stop_workers(pool: cf.ProcessPoolExecutor) -> None:
-    """Terminate a pool's worker processes now; their unfinished samples are dropped."""
-    stop = getattr(pool, "terminate_workers", None)  # Python 3.14
-    if stop is not None:
-        stop()
-        return
-    for process in list((getattr(pool, "_processes", None) or {}).values()):
-        if process.is_alive():
-            process.terminate()
-
-
-def _worker_open() -> str:
-    """Build the worker's backend (once: get_backend keeps it); returns its description."""
-    from gpu_blur.backends import get_backend
-
-    return get_backend(_worker_job.backend, _worker_job.scene.output.precision).device
-
-
-def _worker_make(spec: SampleSpec) -> tuple:
-    return make_sample(_worker_job, spec)
 
 
 def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str]) -> Iterator[tuple]:
@@ -207,8 +206,9 @@ def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str]) -> It
     a worker whose driver dies exits by itself within :data:`PARENT_CHECK_S`.
 
     Raises:
-        RuntimeError: a device that cannot be opened, or a worker that died (killed, out of
-            memory), naming the device and the sample.
+        RuntimeError: a device that cannot be opened, a worker that died (killed, out of
+            memory), naming the device and the sample, or a worker's error that is no fault
+            of its sample, with its traceback.
     """
     if not devices:
         raise ValueError("run_devices needs at least one device")
@@ -220,52 +220,63 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
         return
     specs = iter(todo)
     context = multiprocessing.get_context("spawn")
-    pools = [cf.ProcessPoolExecutor(1, mp_context=context, initializer=_worker_start,
-                                    initargs=(dataclasses.replace(job, backend=device),
-                                              os.getpid()))
-             for device in devices]
+    workers, conns = [], []
     finished = False
     try:
-        opening = [pool.submit(_worker_open) for pool in pools]
-        for device, future in zip(devices, opening, strict=True):
+        for device in devices:
+            conn, child = context.Pipe()
+            worker = context.Process(target=_device_worker, daemon=True, args=(
+                dataclasses.replace(job, backend=device), os.getpid(), child))
+            worker.start()
+            child.close()  # the worker's end is the worker's: its death closes the pipe
+            workers.append(worker)
+            conns.append(conn)
+        for device, conn in zip(devices, conns, strict=True):
             try:
-                future.result()
-            except cf.process.BrokenProcessPool:
+                kind, value = conn.recv()
+            except EOFError:
                 raise RuntimeError(f"--devices {device}: its worker process died while "
                                    "opening the device") from None
-            except Exception as e:  # any reason the device cannot be opened
-                raise RuntimeError(f"--devices {device}: {e}") from None
-        pending: dict[cf.Future, tuple[int, SampleSpec]] = {}
+            if kind != "open":
+                raise RuntimeError(f"--devices {device}: {value}")
+        queued: list[deque[SampleSpec]] = [deque() for _ in devices]
 
         def feed(worker: int) -> None:
             spec = next(specs, None)
             if spec is not None:
-                pending[pools[worker].submit(_worker_make, spec)] = (worker, spec)
+                conns[worker].send(spec)
+                queued[worker].append(spec)
 
-        for worker in range(len(pools)):
+        for worker in range(len(devices)):
             for _ in range(DEVICE_DEPTH):
                 feed(worker)
-        while pending:
-            done, _ = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
-            for future in done:
-                worker, spec = pending.pop(future)
+        while any(queued):
+            for conn in wait([c for c, q in zip(conns, queued, strict=True) if q]):
+                worker = conns.index(conn)
+                spec = queued[worker].popleft()
                 try:
-                    _, result, error = future.result()
-                except cf.process.BrokenProcessPool:
+                    kind, value = conn.recv()
+                except EOFError:
                     raise RuntimeError(
                         f"the worker on {devices[worker]} died while making sample "
                         f"{spec.index} ({spec.name}): killed, or out of memory? The samples "
                         "finished so far are kept: run the same command with --resume"
                     ) from None
+                if kind != "sample":
+                    raise RuntimeError(f"the worker on {devices[worker]} failed on sample "
+                                       f"{spec.index} ({spec.name}), not for a fault of the "
+                                       f"sample:\n{value}")
+                _, result, error = value
                 feed(worker)
                 yield spec, result, error  # the driver's own spec object
         finished = True
     finally:
-        if not finished:  # stopped early: the samples still being made are dropped
-            for pool in pools:
-                _stop_workers(pool)
-        for pool in pools:
-            pool.shutdown(wait=True, cancel_futures=True)
+        for conn in conns:  # an idle worker ends when its pipe closes
+            conn.close()
+        for worker in workers:
+            if not finished:  # stopped early: the samples still being made are dropped
+                worker.terminate()
+            worker.join()
 
 
 # -- Ray ------------------------------------------------------------------------------------
