@@ -243,9 +243,15 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
 
         def feed(worker: int) -> None:
             spec = next(specs, None)
-            if spec is not None:
+            if spec is None:
+                return
+            try:
                 conns[worker].send(spec)
-                queued[worker].append(spec)
+            except OSError:  # its end of the pipe is closed
+                raise RuntimeError(f"the worker on {devices[worker]} died (killed, or out of "
+                                   "memory?); the samples finished so far are kept: run the "
+                                   "same command with --resume") from None
+            queued[worker].append(spec)
 
         for worker in range(len(devices)):
             for _ in range(DEVICE_DEPTH):
