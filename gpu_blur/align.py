@@ -147,7 +147,7 @@ def _correlation(reference: np.ndarray, moving: np.ndarray, homography: np.ndarr
     return float(cv2.computeECC(ref, warped, valid.astype(np.uint8)))
 
 
-def _opencv_reason(error: cv2.error) -> str:
+def opencv_reason(error: cv2.error) -> str:
     """OpenCV's own sentence from a cv2.error, without its source file and line."""
     text = " ".join(str(error).split())
     match = re.search(r"error: \(-?\d+:[^)]*\) (.*?)(?: in function .*)?$", text)
@@ -172,7 +172,7 @@ def _ecc_level(reference: np.ndarray, moving: np.ndarray, start: np.ndarray,
         except cv2.error as e:
             raise AlignmentError(
                 f"ECC failed at iteration {iteration}{where}, on {reference.shape[0]} x "
-                f"{reference.shape[1]} images (OpenCV: {_opencv_reason(e)}); the images may be "
+                f"{reference.shape[1]} images (OpenCV: {opencv_reason(e)}); the images may be "
                 "flat (no texture), share too little content, or be too far apart for ECC to "
                 "start: check they show the same scene, crop them to the overlap, or pass an "
                 "initial homography") from None

@@ -6,7 +6,9 @@ import argparse
 import contextlib
 import hashlib
 import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -235,6 +237,12 @@ def _calibrate_parser(sub) -> None:
 def _calibrate(args) -> int:
     from gpu_blur.calibrate import calibrate, write_camera_file
 
+    inputs = [("--chart", args.chart), ("--boxes", args.boxes), ("--reference", args.reference),
+              ("--align-to", args.align_to)] + [("--crf-linear", p) for p in args.crf_linear] + [
+              ("--crf-rendered", p) for p in args.crf_rendered]
+    _refuse_writing_over_inputs(f"--output {args.output}", [args.output],
+                                [(role, p) for role, p in inputs if p is not None],
+                                "give --output a new camera file name")
     if args.output.exists() and not args.overwrite:
         raise ValueError(f"--output {args.output} exists; pass --overwrite to replace it")
     result = calibrate(args.chart, boxes=args.boxes, reference=args.reference,
@@ -433,6 +441,37 @@ def _devices() -> None:
         print(f"{d['spec']:<16} {d['kind']} {d['name']} (NVIDIA Warp); fp64 yes{memory}; ready")
 
 
+def _refuse_writing_over_inputs(option: str, outputs, inputs, fix: str) -> None:
+    """Refuse a command whose output file is one of its inputs, before any work.
+
+    Args:
+        option: the option that places the outputs (``--json``, ``--output DIR``).
+        outputs: the paths the command may write.
+        inputs: ``(role, path)`` of the files it reads (``("REAL", Path("real.png"))``).
+        fix: what to do instead.
+
+    The same file is found by device and inode (:func:`os.path.samefile`), so a symbolic or
+    hard link to an input counts; an output that does not exist yet is no input.
+
+    Raises:
+        ValueError: naming the option, the output, the input and ``fix``.
+    """
+    files = {}
+    for role, path in inputs:
+        with contextlib.suppress(OSError):  # a missing input is refused when it is read
+            st = os.stat(path)
+            files.setdefault((st.st_dev, st.st_ino), (role, path))
+    for out in outputs:
+        try:
+            st = os.stat(out)
+        except OSError:
+            continue
+        if (st.st_dev, st.st_ino) in files:
+            role, path = files[st.st_dev, st.st_ino]
+            raise ValueError(f"{option}: it would write {out}, which is {role} {path} (the same "
+                             f"file): the command would destroy its own input; {fix}")
+
+
 def _read_unit(path: Path, role: str):
     """An image file as float64 sRGB values in [0, 1], H x W x 3; errors name the role."""
     from gpu_blur.imageio import read_image, to_unit
@@ -456,11 +495,17 @@ def _compare(args) -> int:
     import math
 
     from gpu_blur import metrics
+    from gpu_blur.imageio import write_text
 
-    real = _read_unit(args.real, "REAL")
-    synth = _read_unit(args.synth, "SYNTH")
     ref_path = args.interp or args.sharp
     ref_kind = "interp" if args.interp else "sharp"
+    if args.json:
+        inputs = [("REAL", args.real), ("SYNTH", args.synth)]
+        _refuse_writing_over_inputs(f"--json {args.json}", [args.json],
+                                    inputs + ([(f"--{ref_kind}", ref_path)] if ref_path else []),
+                                    "give --json a new file name")
+    real = _read_unit(args.real, "REAL")
+    synth = _read_unit(args.synth, "SYNTH")
     ref = _read_unit(ref_path, f"--{ref_kind}") if ref_path else None
     names = f"REAL {args.real}", f"SYNTH {args.synth}"
     if ref is not None:
@@ -516,7 +561,7 @@ def _compare(args) -> int:
         if not math.isfinite(scores["psnr_db"]):
             scores["psnr_db"] = None  # identical images; JSON has no infinity
         try:
-            args.json.write_text(json.dumps(scores, indent=2) + "\n")
+            write_text(args.json, json.dumps(scores, indent=2) + "\n")
         except OSError as e:
             raise OSError(f"--json {args.json}: cannot write it ({e.strerror})") from None
     return 0
@@ -529,7 +574,7 @@ def _align(args) -> int:
     import numpy as np
 
     from gpu_blur.align import align_ecc, inside_mask, warp_to_reference
-    from gpu_blur.imageio import read_image, to_unit, write_image
+    from gpu_blur.imageio import read_image, to_unit, write_image, write_text
 
     if args.frames and not args.output:
         raise ValueError("gpu-blur align: give --output DIR for the warped frames")
@@ -538,6 +583,13 @@ def _align(args) -> int:
         raise ValueError("gpu-blur align: two frames share a file name (without its suffix); "
                          "the warped frames keep their names in --output: align each sequence "
                          "separately")
+    if args.output:  # a warped frame is <stem>.png, or <stem>.tiff for float data
+        outputs = [args.output / f"{stem}{suffix}" for stem in stems
+                   for suffix in (".png", ".tiff")] + [args.output / "alignment.json"]
+        inputs = [("REAL", args.real), ("SYNTH", args.synth)] + [("FRAME", f)
+                                                                 for f in args.frames]
+        _refuse_writing_over_inputs(f"--output {args.output}", outputs, inputs,
+                                    "give --output a folder that holds none of the inputs")
     real = _read_unit(args.real, "REAL")
     synth = _read_unit(args.synth, "SYNTH")
     result = align_ecc(real, synth, levels=args.levels, max_iterations=args.max_iterations)
@@ -569,9 +621,60 @@ def _align(args) -> int:
         write_image(out, np.clip(warped, 0.0, 1.0), bits)
         record["frames"].append({"input": str(path), "output": str(out)})
     if args.output:
-        (args.output / "alignment.json").write_text(json.dumps(record, indent=2) + "\n")
+        write_text(args.output / "alignment.json", json.dumps(record, indent=2) + "\n")
         print(f"wrote {len(args.frames)} warped frame(s) and alignment.json to {args.output}")
     return 0 if result.converged else 1
+
+
+class Terminated(KeyboardInterrupt):
+    """A termination signal (SIGTERM, SIGHUP) received by ``generate``: it stops as on Ctrl-C."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+#: Signals that stop ``generate`` as Ctrl-C does: finished samples kept, workers ended.
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP")
+                     if hasattr(signal, name))
+
+
+@contextlib.contextmanager
+def _stop_on_signals(received: list[int]):
+    """Within the block, a stop signal raises :class:`Terminated` and is appended to ``received``.
+
+    Only the first: the handlers are then reset, so a second signal ends the process at once.
+    Outside the main thread (where Python cannot set handlers) nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        received.append(signum)
+        for s in STOP_SIGNALS:
+            signal.signal(s, signal.SIG_DFL)
+        raise Terminated(signum)
+
+    before = {s: signal.signal(s, stop) for s in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, handler)
+
+
+def _generate_until_stopped(args) -> int:
+    """``generate``, stopped by SIGTERM or SIGHUP as by Ctrl-C, exiting with 128 + the signal."""
+    received: list[int] = []
+    try:
+        with _stop_on_signals(received):
+            status = _generate(args)
+    except Terminated as e:  # outside generate's own handling (setting up, summing up)
+        print(f"gpu-blur: stopped by {signal.Signals(e.signum).name}; run the same command "
+              "with --resume to finish the set", file=sys.stderr)
+        return 128 + e.signum
+    return 128 + received[0] if received else status
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -579,7 +682,7 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         if args.command == "generate":
-            return _generate(args)
+            return _generate_until_stopped(args)
         if args.command == "calibrate":
             return _calibrate(args)
         if args.command == "bench":
@@ -609,6 +712,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except (ValueError, OSError, RuntimeError) as e:
         print(f"gpu-blur: error: {e}", file=sys.stderr)
+        return 2
+    except MemoryError as e:  # inputs too large for this machine, outside any one sample
+        print(f"gpu-blur: error: out of memory ({str(e) or 'no detail'}): use smaller inputs "
+              "or free memory", file=sys.stderr)
         return 2
 
 

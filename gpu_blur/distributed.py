@@ -17,13 +17,17 @@ gpu_blur, in the same version) must be at the same paths on every node.
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import dataclasses
 import functools
 import multiprocessing
 import os
 import signal
+import threading
+import time
+import traceback
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
+from multiprocessing.connection import wait
 from pathlib import Path
 
 from gpu_blur.dataset import SampleSpec
@@ -45,6 +49,8 @@ RAY_INSTALL = "pip install 'gpu_blur[ray]'"
 GPU_BATCH = 32
 #: Samples handed to one local device worker ahead of the one it makes, so it never waits.
 DEVICE_DEPTH = 2
+#: Seconds between a device worker's checks that the driver process is still its parent.
+PARENT_CHECK_S = 0.5
 
 
 def family(backend: str) -> str:
@@ -149,24 +155,44 @@ def uses_cuda(backend) -> bool:
 
 # -- one worker process per device of this host ---------------------------------------------
 
-_worker_job: Job | None = None
+def _device_worker(job: Job, driver: int, conn) -> None:
+    """A device worker process: open the device, then make each sample the driver sends.
 
-
-def _worker_start(job: Job) -> None:
-    global _worker_job
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's; it stops workers
-    _worker_job = job
-
-
-def _worker_open() -> str:
-    """Build the worker's backend (once: get_backend keeps it); returns its description."""
+    Messages to the driver: ``("open", device description)`` or ``("error", why)`` first,
+    then per sample ``("sample", make_sample's tuple)`` or ``("error", traceback)`` for an
+    exception that is no fault of the sample (a bug: the driver stops the run with it). The
+    driver closing its end of the pipe ends the worker.
+    """
+    # Ctrl-C and a closed terminal reach the whole process group: the driver handles them
+    # and stops the workers (SIGTERM, which they obey)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "SIGHUP"):
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    threading.Thread(target=_exit_without, args=(driver,), daemon=True).start()
     from gpu_blur.backends import get_backend
 
-    return get_backend(_worker_job.backend, _worker_job.scene.output.precision).device
+    try:
+        conn.send(("open", get_backend(job.backend, job.scene.output.precision).device))
+    except Exception as e:  # any reason the device cannot be opened
+        conn.send(("error", str(e)))
+        return
+    while True:
+        try:
+            spec = conn.recv()
+        except EOFError:
+            return
+        try:
+            message = ("sample", make_sample(job, spec))
+        except Exception:
+            message = ("error", traceback.format_exc())
+        conn.send(message)
 
 
-def _worker_make(spec: SampleSpec) -> tuple:
-    return make_sample(_worker_job, spec)
+def _exit_without(driver: int) -> None:
+    """End this worker process once the driver is no longer its parent (killed, crashed)."""
+    while os.getppid() == driver:
+        time.sleep(PARENT_CHECK_S)
+    os._exit(1)
 
 
 def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str]) -> Iterator[tuple]:
@@ -175,11 +201,14 @@ def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str]) -> It
     Workers are started with ``spawn`` (OpenCL and CUDA contexts do not survive a fork),
     each builds its backend once (``job`` with its device as the backend) and takes the
     next sample when it finishes one, so faster devices make more. A device that cannot be
-    opened stops the run before any sample.
+    opened stops the run before any sample. When the run stops early (Ctrl-C, SIGTERM, an
+    error, the caller closing this generator) the workers are terminated, not waited for;
+    a worker whose driver dies exits by itself within :data:`PARENT_CHECK_S`.
 
     Raises:
-        RuntimeError: a device that cannot be opened, or a worker that died (killed, out of
-            memory), naming the device and the sample.
+        RuntimeError: a device that cannot be opened, a worker that died (killed, out of
+            memory), naming the device and the sample, or a worker's error that is no fault
+            of its sample, with its traceback.
     """
     if not devices:
         raise ValueError("run_devices needs at least one device")
@@ -191,46 +220,69 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
         return
     specs = iter(todo)
     context = multiprocessing.get_context("spawn")
-    pools = [cf.ProcessPoolExecutor(1, mp_context=context, initializer=_worker_start,
-                                    initargs=(dataclasses.replace(job, backend=device),))
-             for device in devices]
+    workers, conns = [], []
+    finished = False
     try:
-        opening = [pool.submit(_worker_open) for pool in pools]
-        for device, future in zip(devices, opening, strict=True):
+        for device in devices:
+            conn, child = context.Pipe()
+            worker = context.Process(target=_device_worker, daemon=True, args=(
+                dataclasses.replace(job, backend=device), os.getpid(), child))
+            worker.start()
+            child.close()  # the worker's end is the worker's: its death closes the pipe
+            workers.append(worker)
+            conns.append(conn)
+        for device, conn in zip(devices, conns, strict=True):
             try:
-                future.result()
-            except cf.process.BrokenProcessPool:
+                kind, value = conn.recv()
+            except EOFError:
                 raise RuntimeError(f"--devices {device}: its worker process died while "
                                    "opening the device") from None
-            except Exception as e:  # any reason the device cannot be opened
-                raise RuntimeError(f"--devices {device}: {e}") from None
-        pending: dict[cf.Future, tuple[int, SampleSpec]] = {}
+            if kind != "open":
+                raise RuntimeError(f"--devices {device}: {value}")
+        queued: list[deque[SampleSpec]] = [deque() for _ in devices]
 
         def feed(worker: int) -> None:
             spec = next(specs, None)
-            if spec is not None:
-                pending[pools[worker].submit(_worker_make, spec)] = (worker, spec)
+            if spec is None:
+                return
+            try:
+                conns[worker].send(spec)
+            except OSError:  # its end of the pipe is closed
+                raise RuntimeError(f"the worker on {devices[worker]} died (killed, or out of "
+                                   "memory?); the samples finished so far are kept: run the "
+                                   "same command with --resume") from None
+            queued[worker].append(spec)
 
-        for worker in range(len(pools)):
+        for worker in range(len(devices)):
             for _ in range(DEVICE_DEPTH):
                 feed(worker)
-        while pending:
-            done, _ = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
-            for future in done:
-                worker, spec = pending.pop(future)
+        while any(queued):
+            for conn in wait([c for c, q in zip(conns, queued, strict=True) if q]):
+                worker = conns.index(conn)
+                spec = queued[worker].popleft()
                 try:
-                    _, result, error = future.result()
-                except cf.process.BrokenProcessPool:
+                    kind, value = conn.recv()
+                except EOFError:
                     raise RuntimeError(
                         f"the worker on {devices[worker]} died while making sample "
                         f"{spec.index} ({spec.name}): killed, or out of memory? The samples "
                         "finished so far are kept: run the same command with --resume"
                     ) from None
+                if kind != "sample":
+                    raise RuntimeError(f"the worker on {devices[worker]} failed on sample "
+                                       f"{spec.index} ({spec.name}), not for a fault of the "
+                                       f"sample:\n{value}")
+                _, result, error = value
                 feed(worker)
                 yield spec, result, error  # the driver's own spec object
+        finished = True
     finally:
-        for pool in pools:
-            pool.shutdown(wait=True, cancel_futures=True)
+        for conn in conns:  # an idle worker ends when its pipe closes
+            conn.close()
+        for worker in workers:
+            if not finished:  # stopped early: the samples still being made are dropped
+                worker.terminate()
+            worker.join()
 
 
 # -- Ray ------------------------------------------------------------------------------------

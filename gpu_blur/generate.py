@@ -11,6 +11,9 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable, Iterator
 
+import cv2
+
+from gpu_blur.align import opencv_reason
 from gpu_blur.dataset import SampleSpec
 from gpu_blur.pipeline import Synthesis, synthesize
 from gpu_blur.scene import Scene
@@ -28,14 +31,30 @@ class Job:
 
 
 def make_sample(job: Job, spec: SampleSpec) -> tuple[SampleSpec, Synthesis | None, str | None]:
-    """One sample: ``(spec, result, None)``, or ``(spec, None, reason)`` for bad input."""
+    """One sample: ``(spec, result, None)``, or ``(spec, None, reason)`` for bad input.
+
+    What fails only this sample (the reason goes to the manifest and the run goes on) is what
+    this sample's inputs and size cause: ValueError (a check refused an input or a value),
+    OSError (a file could not be read), cv2.error (OpenCV refused the sample's data, e.g. its
+    size) and MemoryError (the sample needs more host memory than there is). Anything else
+    is a fault of gpu_blur or of the device and would fail every sample alike, so it stops
+    the run with its traceback (TypeError, AttributeError, a backend's RuntimeError), as do
+    KeyboardInterrupt and SystemExit.
+    """
     try:
         if spec.problem:
             raise ValueError(spec.problem)
         result = synthesize(list(spec.inputs), job.scene, seed=job.seed,
                             sample_index=spec.index, backend=job.backend, tile=job.schedule)
-    except (ValueError, OSError) as e:  # this sample's input: reported, the run goes on
+    except (ValueError, OSError) as e:
         return spec, None, str(e)
+    except cv2.error as e:
+        return spec, None, f"OpenCV refused this sample's data: {opencv_reason(e)}"
+    except MemoryError as e:
+        detail = str(e) or "no detail"
+        return spec, None, (f"out of memory ({detail}): this sample needs more host memory "
+                            "than there is; make it smaller (frames, blur.steps, "
+                            "blur.interpolation) or free memory")
     return spec, result, None
 
 

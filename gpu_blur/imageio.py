@@ -15,14 +15,21 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _WAY_OUT = "re-export or re-copy the file, or remove it from the input"
 
 
-def _truncation(data: bytes) -> str | None:
-    """Why a PNG or JPEG file's bytes end early, or None when they look complete.
+_TRUNCATED_JPEG = "truncated JPEG (no end-of-image marker after the image data)"
+#: Start-of-frame markers (ITU-T T.81, Table B.1): 0xC0 to 0xCF but DHT, JPG and DAC.
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+#: Those of DCT coding (baseline, extended, progressive), whose restart intervals count MCUs
+#: of 8 x 8 blocks (T.81, A.2); the lossless and hierarchical ones are not checked as deeply.
+_JPEG_SOF_DCT = frozenset({0xC0, 0xC1, 0xC2, 0xC9, 0xCA})
 
-    libpng refuses a truncated PNG by itself, but libjpeg decodes a truncated JPEG with its
-    missing part grey and only a warning, so both are checked here from their structure: a
-    PNG must reach its IEND chunk, a JPEG must have an end-of-image marker after its last
-    start-of-scan (inside scan data 0xFF is always stuffed, so 0xFFD9 is only ever the marker;
-    data after it, such as a second image, is allowed).
+
+def _damage(data: bytes) -> str | None:
+    """Why a PNG or JPEG file's bytes are truncated or corrupt, or None when they look whole.
+
+    libpng refuses a damaged PNG by itself (each chunk's CRC and the zlib checksum) but not
+    every truncated one, and libjpeg decodes a truncated or damaged JPEG with a warning at
+    most (grey or garbled blocks), so both are checked here from their structure: a PNG must
+    reach its IEND chunk, a JPEG must pass :func:`_jpeg_damage`.
     """
     if data.startswith(_PNG_SIGNATURE):
         pos = len(_PNG_SIGNATURE)
@@ -35,10 +42,134 @@ def _truncation(data: bytes) -> str | None:
                 return None
         return "truncated PNG (the file ends before its IEND chunk)"
     if data.startswith(b"\xff\xd8"):
-        scan = data.rfind(b"\xff\xda")
-        if scan < 0 or data.find(b"\xff\xd9", scan) < 0:
-            return "truncated JPEG (no end-of-image marker after the image data)"
+        return _jpeg_damage(data)
     return None
+
+
+def _jpeg_damage(data: bytes) -> str | None:
+    """Why a JPEG file's marker structure is broken, or None (ITU-T T.81, Annex B).
+
+    Checked: after the start of image, segments follow each other, each a marker with a
+    length that stays inside the file; one frame header before the first scan, and each scan's
+    components in it; in the entropy-coded data after each scan header every 0xFF is a stuffed
+    0xFF00, a restart marker RST0..RST7 in turn, or the marker that ends the scan; with a
+    restart interval (DRI), each scan of a DCT frame has the restart markers its number of
+    MCUs needs (one more is tolerated: libjpeg skips a trailing one); the end-of-image marker
+    is reached (data after it, such as a second image, is allowed).
+
+    Not found: damage that keeps this structure, e.g. bits flipped or bytes zeroed inside
+    entropy-coded data without a restart marker in reach (JPEG has no checksum; libjpeg
+    does not notice those either).
+    """
+    size, pos = len(data), 2
+    frame: tuple[int, int, dict[int, tuple[int, int]], int] | None = None
+    interval = scans = 0
+    while True:
+        if pos >= size:
+            return _TRUNCATED_JPEG
+        if data[pos] != 0xFF:
+            return (f"corrupt JPEG (byte {pos} is 0x{data[pos]:02X} where a marker is due: "
+                    "damaged or stray data between segments)")
+        while pos < size and data[pos] == 0xFF:  # fill bytes may precede a marker
+            pos += 1
+        if pos >= size:
+            return _TRUNCATED_JPEG
+        marker, at = data[pos], pos - 1
+        pos += 1
+        if marker == 0xD9:
+            return None if scans else ("corrupt JPEG (end-of-image marker at byte "
+                                       f"{at} before any image data)")
+        if marker == 0x01:  # TEM: a marker without a length
+            continue
+        if marker < 0xC0 or 0xD0 <= marker <= 0xD8:
+            return (f"corrupt JPEG (marker 0xFF{marker:02X} at byte {at} cannot stand there: "
+                    "damaged data)")
+        if pos + 2 > size:
+            return _TRUNCATED_JPEG
+        length = int.from_bytes(data[pos:pos + 2], "big")
+        body, pos = data[pos + 2:pos + length], pos + length
+        if pos > size:
+            return _TRUNCATED_JPEG
+        if length < 2:
+            return f"corrupt JPEG (segment 0xFF{marker:02X} at byte {at} has length {length})"
+        if marker in _JPEG_SOF:
+            if frame is not None:
+                return f"corrupt JPEG (a second frame header at byte {at})"
+            count = body[5] if len(body) >= 6 else 0
+            if count < 1 or len(body) != 6 + 3 * count:
+                return f"corrupt JPEG (frame header at byte {at} is malformed)"
+            comps = {body[6 + 3 * i]: (body[7 + 3 * i] >> 4, body[7 + 3 * i] & 15)
+                     for i in range(count)}
+            if not all(1 <= h <= 4 and 1 <= v <= 4 for h, v in comps.values()):
+                return f"corrupt JPEG (frame header at byte {at} has a bad sampling factor)"
+            frame = (int.from_bytes(body[1:3], "big"), int.from_bytes(body[3:5], "big"),
+                     comps, marker)
+        elif marker == 0xDD:
+            if len(body) != 2:
+                return f"corrupt JPEG (restart interval segment at byte {at} is malformed)"
+            interval = int.from_bytes(body, "big")
+        elif marker == 0xDA:
+            if frame is None:
+                return f"corrupt JPEG (a scan at byte {at} before the frame header)"
+            count = body[0] if body else 0
+            ids = [body[1 + 2 * i] for i in range(count)] if len(body) == 4 + 2 * count else []
+            if not ids or any(i not in frame[2] for i in ids):
+                return f"corrupt JPEG (scan header at byte {at} is malformed)"
+            scans += 1
+            pos, problem = _jpeg_scan(data, pos, interval, _jpeg_mcus(frame, ids))
+            if problem:
+                return f"corrupt JPEG ({problem} in scan {scans})"
+
+
+def _jpeg_mcus(frame: tuple[int, int, dict[int, tuple[int, int]], int],
+               ids: list[int]) -> int | None:
+    """MCUs in a scan of ``ids`` of a DCT frame (T.81, A.2.2 and A.2.3); None if not known."""
+    height, width, comps, marker = frame
+    if marker not in _JPEG_SOF_DCT or height == 0:  # lossless, hierarchical, or DNL height
+        return None
+    def up(a: int, b: int) -> int:  # a / b rounded up
+        return -(-a // b)
+
+    hmax = max(h for h, _ in comps.values())
+    vmax = max(v for _, v in comps.values())
+    if len(ids) == 1:  # non-interleaved: one block per MCU, over the component's own size
+        h, v = comps[ids[0]]
+        return up(up(width * h, hmax), 8) * up(up(height * v, vmax), 8)
+    return up(width, 8 * hmax) * up(height, 8 * vmax)
+
+
+def _jpeg_scan(data: bytes, pos: int, interval: int,
+               mcus: int | None) -> tuple[int, str | None]:
+    """Walk entropy-coded data from ``pos``: the marker that ends it, and what is wrong."""
+    size, found = len(data), 0
+    while True:
+        ff = data.find(b"\xff", pos)
+        if ff < 0:
+            return size, None  # the caller reports the missing end of image
+        code = ff + 1
+        while code < size and data[code] == 0xFF:
+            code += 1
+        if code >= size:
+            return size, None
+        if data[code] == 0x00:  # a stuffed 0xFF data byte
+            pos = code + 1
+            continue
+        if not 0xD0 <= data[code] <= 0xD7:
+            break
+        if not interval:
+            return ff, f"restart marker at byte {ff} without a restart interval"
+        if data[code] - 0xD0 != found % 8:
+            return ff, (f"restart marker RST{data[code] - 0xD0} at byte {ff} where "
+                        f"RST{found % 8} is due: image data is missing or damaged")
+        found += 1
+        pos = code + 1
+    invalid = data[code] < 0xC0 or data[code] == 0xD8  # the caller names that marker
+    if interval and mcus is not None and not invalid:
+        needed = -(-mcus // interval) - 1
+        if found not in (needed, needed + 1):
+            return ff, (f"{found} restart markers where its {mcus} MCUs in intervals of "
+                        f"{interval} need {needed}: image data is missing or damaged")
+    return ff, None
 
 
 def read_image(path: str | Path) -> np.ndarray:
@@ -66,7 +197,7 @@ def read_image(path: str | Path) -> np.ndarray:
         raise ValueError(f"{path}: cannot read it ({e.strerror}); check its permissions") from None
     if not data:
         raise ValueError(f"{path}: the file is empty (0 bytes); {_WAY_OUT}")
-    problem = _truncation(data)
+    problem = _damage(data)
     if problem:
         raise ValueError(f"{path}: {problem}; {_WAY_OUT}")
     try:
@@ -187,7 +318,8 @@ def temporary_path(path: Path) -> Path:
 def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
     """Write an H x W x 3 RGB image in [0, 1]: PNG with 8/16 bits, or float32 TIFF for bits 0.
 
-    The file appears complete or not at all (written to a temporary name, then renamed).
+    The file appears complete or not at all (written to a temporary name, then renamed; the
+    temporary file is removed on failure).
     """
     path = Path(path)
     tmp = temporary_path(path)
@@ -195,9 +327,29 @@ def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
         data = np.asarray(image, dtype=np.float32)[:, :, ::-1]
     else:
         data = to_integers(image, bits)[:, :, ::-1]
-    if not cv2.imwrite(str(tmp), np.ascontiguousarray(data)):
-        raise OSError(f"{path}: could not write the image")
-    tmp.replace(path)
+    try:
+        try:
+            written = cv2.imwrite(str(tmp), np.ascontiguousarray(data))
+        except cv2.error:
+            written = False
+        if not written:
+            raise OSError(f"{path}: could not write the image")
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Write a text file that appears complete or not at all (as :func:`write_image`)."""
+    path = Path(path)
+    tmp = temporary_path(path)
+    try:
+        tmp.write_text(text)
+        tmp.replace(path)
+    except OSError as e:
+        raise OSError(e.errno, e.strerror, str(path)) from None  # the name asked for
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def read_kernel(path: str | Path) -> np.ndarray:
@@ -221,7 +373,17 @@ def read_kernel(path: str | Path) -> np.ndarray:
             raise ValueError(f"{where}: not a numpy array file ({e}); save the kernel with "
                              "np.save") from None
     else:
-        kernel = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        try:
+            data = path.read_bytes()
+        except OSError as e:
+            raise ValueError(f"{where}: cannot read it ({e.strerror})") from None
+        problem = _damage(data)
+        if problem:
+            raise ValueError(f"{where}: {problem}")
+        try:
+            kernel = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        except cv2.error:
+            kernel = None
         if kernel is None:
             raise ValueError(f"{where}: not a readable image (corrupt, truncated or a format "
                              "OpenCV does not read)")

@@ -1,5 +1,6 @@
 import json
 import math
+import os
 
 import cv2
 import numpy as np
@@ -181,3 +182,29 @@ def test_align_command_needs_an_output_folder_for_frames(tmp_path, coffee_rgb, c
     path = write_png(tmp_path / "a.png", coffee_rgb)
     assert main(["align", path, path, path]) == 2
     assert "give --output DIR" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("place", ["same folder", "symlinked folder", "hard link"])
+def test_align_command_refuses_an_output_folder_where_it_would_overwrite_a_frame(
+        tmp_path, coffee_rgb, capsys, place):
+    small = coffee_rgb[:64, :96]
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    real = write_png(tmp_path / "real.png", small)
+    frames = [write_png(seq / f"{i}.png", small) for i in range(2)]
+    out = seq
+    if place == "symlinked folder":
+        out = tmp_path / "link"
+        out.symlink_to(seq)
+    elif place == "hard link":
+        out = tmp_path / "aligned"
+        out.mkdir()
+        os.link(frames[1], out / "1.png")
+    hit = 1 if place == "hard link" else 0  # the first frame written over
+    before = {p: p.read_bytes() for p in seq.iterdir()}
+    assert main(["align", real, real, *frames, "--output", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--output {out}: it would write {out / f'{hit}.png'}, which is FRAME " \
+           f"{frames[hit]} (the same file)" in err
+    assert "give --output a folder that holds none of the inputs" in err
+    assert {p: p.read_bytes() for p in seq.iterdir()} == before  # nothing written, no json

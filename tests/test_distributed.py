@@ -220,3 +220,13 @@ def test_a_job_pickles(photos):
     _, scene_path = photos
     job = Job(load_scene(scene_path), 7, "opencl:0:0", (16, 16))
     assert pickle.loads(pickle.dumps(job)) == job
+
+
+def test_a_device_workers_own_error_stops_the_run_naming_the_sample_with_its_traceback(photos):
+    folder, scene_path = photos
+    job = Job(load_scene(scene_path), 0, "numpy", schedule=object())  # no Schedule: a bug
+    specs = discover(folder, "trajectory", 1, 1)
+    with pytest.raises(RuntimeError) as e:
+        list(run_devices(job, specs, ["numpy"]))
+    assert str(e.value).startswith("the worker on numpy failed on sample 0 (a), not for a "
+                                   "fault of the sample:\nTraceback (most recent call last):")

@@ -1,6 +1,7 @@
 import json
 import math
 import re
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -291,3 +292,48 @@ def test_compare_names_a_missing_file(tmp_path, triple, capsys):
     assert main(["compare", triple["real"], str(tmp_path / "none.png")]) == 2
     err = capsys.readouterr().err
     assert "SYNTH" in err and "none.png: no such file" in err
+
+
+@pytest.mark.parametrize("target", ["real", "synth", "interp", "link to real"])
+def test_compare_refuses_a_json_file_that_is_one_of_its_inputs(tmp_path, triple, capsys,
+                                                               target):
+    path = triple.get(target)
+    if target == "link to real":
+        path = tmp_path / "scores.json"
+        path.symlink_to(triple["real"])
+    before = {k: Path(v).read_bytes() for k, v in triple.items()}
+    assert main(["compare", triple["real"], triple["synth"], "--interp", triple["interp"],
+                 "--json", str(path)]) == 2
+    role = {"synth": "SYNTH", "interp": "--interp"}.get(target, "REAL")
+    err = capsys.readouterr().err
+    assert f"--json {path}: it would write {path}, which is {role} {triple[target.split()[-1]]}" \
+           " (the same file)" in err and "give --json a new file name" in err
+    assert {k: Path(v).read_bytes() for k, v in triple.items()} == before
+
+
+def test_compare_json_is_written_whole_or_not_at_all(tmp_path, triple, monkeypatch):
+    out = tmp_path / "scores.json"
+    out.write_text("the scores of an earlier run\n")
+
+    def write_half(self, text, *args, **kwargs):
+        with open(self, "w") as f:
+            f.write(text[:len(text) // 2])
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_text", write_half)
+    assert main(["compare", triple["real"], triple["synth"], "--json", str(out)]) == 2
+    monkeypatch.undo()
+    assert out.read_text() == "the scores of an earlier run\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["interp.png", "real.png",
+                                                          "scores.json", "synth.png"]
+
+
+def test_compare_out_of_memory_is_an_error_message_not_a_traceback(triple, monkeypatch,
+                                                                    capsys):
+    def psnr(*args, **kwargs):
+        raise MemoryError("Unable to allocate 9.3 GiB for an array")
+
+    monkeypatch.setattr(metrics, "psnr", psnr)
+    assert main(["compare", triple["real"], triple["synth"]]) == 2
+    assert "gpu-blur: error: out of memory (Unable to allocate 9.3 GiB for an array)" \
+           in capsys.readouterr().err

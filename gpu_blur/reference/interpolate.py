@@ -74,7 +74,9 @@ from gpu_blur.reference.transfer import srgb_to_linear
 
 __all__ = [
     "FLOW_METHODS",
+    "FLOW_MIN_SIDE",
     "INTERPOLATION_FACTORS",
+    "check_flow_size",
     "flow_consistent",
     "interpolate_frame",
     "interpolated_average",
@@ -99,6 +101,13 @@ CONSISTENCY_ABSOLUTE_PX2 = 0.5
 #: pyramid scale, levels, window size, iterations, polynomial neighbourhood and its sigma.
 FARNEBACK_PARAMETERS = {"pyr_scale": 0.5, "levels": 3, "winsize": 15, "iterations": 3,
                         "poly_n": 5, "poly_sigma": 1.2}
+#: Smallest frame side, pixels, each flow method is given. DIS matches 8 x 8 patches over an
+#: image pyramid whose depth OpenCV picks from the frame size (modules/video/src/dis_flow.cpp):
+#: a side under 8, or both under 12, raises cv2.error, and a side of 8 to 15 with the other
+#: side 40 or more crashes the process (OpenCV 5.0.0: the depth it then picks from the width
+#: alone leaves fewer rows than a patch). Both sides from 16 up ran on every size tried, up
+#: to 8000. Farneback runs on any size, 1 x 1 included.
+FLOW_MIN_SIDE = {"dis": 16, "farneback": 1}
 
 
 def _check_frame(frame, name: str) -> np.ndarray:
@@ -144,7 +153,8 @@ def optical_flow(frame_from, frame_to, method: str = "dis") -> np.ndarray:
         ``H x W x 2`` float32 ``(dx, dy)`` in pixels: ``frame_from(x) ~ frame_to(x + F(x))``.
 
     Raises:
-        ValueError: for an unknown method, frames of different shapes or non-finite values.
+        ValueError: for an unknown method, frames of different shapes, frames too small for
+            the method (:func:`check_flow_size`) or non-finite values.
     """
     import cv2
 
@@ -155,6 +165,7 @@ def optical_flow(frame_from, frame_to, method: str = "dis") -> np.ndarray:
     if a.shape != b.shape:
         raise ValueError(f"frames must have one shape for optical flow; got {a.shape} and "
                          f"{b.shape}")
+    check_flow_size(a.shape[:2], method)
     g0, g1 = _gray8(a), _gray8(b)
     if method == "dis":
         dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
@@ -162,6 +173,21 @@ def optical_flow(frame_from, frame_to, method: str = "dis") -> np.ndarray:
     else:
         flow = cv2.calcOpticalFlowFarneback(g0, g1, None, flags=0, **FARNEBACK_PARAMETERS)
     return np.ascontiguousarray(flow, dtype=np.float32)
+
+
+def check_flow_size(shape: tuple[int, int], method: str) -> None:
+    """Refuse frames of ``shape`` (H, W) smaller than the flow method takes (:data:`FLOW_MIN_SIDE`).
+
+    Raises:
+        ValueError: naming the size, the minimum and the ways out.
+    """
+    side = FLOW_MIN_SIDE[method]
+    if min(shape) < side:
+        raise ValueError(
+            f"frames of {shape[0]} x {shape[1]} pixels (H x W) are too small for blur.flow = "
+            f"{method!r}, which needs at least {side} x {side} (OpenCV's DIS matches 8 x 8 "
+            "patches over an image pyramid): use larger frames, blur.flow = 'farneback' or "
+            "blur.interpolation = 1")
 
 
 def sequence_flows(frames: Sequence, method: str = "dis") -> np.ndarray:
