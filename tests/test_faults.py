@@ -134,6 +134,16 @@ def test_a_real_jpeg_with_a_bad_marker_inside_its_image_data_is_refused(tmp_path
     assert_refused(tmp_path / "soi.jpg", overwritten, f"marker 0xFFD8 at byte {middle + 1}")
 
 
+def test_a_real_jpeg_with_damaged_huffman_data_is_refused(tmp_path):
+    data = ROCKET.read_bytes()
+    middle = scan_middle(data)
+    # 16 bytes overwritten: the marker structure is intact (no 0xFF among them), so only
+    # decoding finds the damage; OpenCV decodes it without a word
+    damaged = data[:middle] + bytes(range(0x60, 0x70)) + data[middle + 16:]
+    assert cv2.imdecode(np.frombuffer(damaged, np.uint8), cv2.IMREAD_COLOR) is not None
+    assert_refused(tmp_path / "huffman.jpg", damaged, "Corrupt JPEG data")
+
+
 JPEG_OPTIONS = {
     "baseline": [],
     "progressive": [cv2.IMWRITE_JPEG_PROGRESSIVE, 1],
