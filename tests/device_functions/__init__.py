@@ -176,7 +176,7 @@ class OpenCLTarget(Target):
         self.context = cl.Context([device])
         self.queue = cl.CommandQueue(self.context)
         source = (HERE / f"{spec.topic}.cl").read_text()
-        options = ["-I", str(INCLUDE), *defines]
+        options = ["-I", str(INCLUDE), "-I", str(Path(cl.__file__).parent / "cl"), *defines]
         with warnings.catch_warnings():  # the compiler's log of a successful build
             warnings.simplefilter("ignore", cl.CompilerWarning)
             program = cl.Program(self.context, source).build(options=options, cache_dir=False)
