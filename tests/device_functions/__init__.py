@@ -19,7 +19,7 @@ import functools
 import importlib
 import os
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -148,6 +148,10 @@ class Target:
         """Values as the build holds them, back in float64 for the reference."""
         return np.asarray(values, dtype=np.float64).astype(self.real).astype(np.float64)
 
+    def at(self, build: str) -> Target:
+        """The same language and device at another build."""
+        return target(replace(self.spec, build=build))
+
     def key(self, seed: int) -> list:
         """The Philox key of ``seed`` as the probes' two ``uint`` arguments."""
         from gpu_blur.reference import rng
@@ -212,11 +216,15 @@ class WarpTarget(Target):
                       np.dtype(np.float32): wp.float32, np.dtype(np.float64): wp.float64}
 
     def run(self, name, n, args, outputs):
+        return self.launch(self.kernels[name], n, args, outputs)
+
+    def launch(self, kernel, n, args, outputs):
+        """:meth:`run` for a Warp kernel given itself, not by name."""
         wp = self.wp
         inputs = [wp.array(np.ascontiguousarray(a).reshape(-1), dtype=self.types[a.dtype],
                            device=self.device) if isinstance(a, np.ndarray) else
                   a.item() if isinstance(a, np.generic) else a for a in args]
         outs = [wp.empty(int(np.prod(shape)), dtype=self.types[np.dtype(dtype)],
                          device=self.device) for shape, dtype in outputs]
-        wp.launch(self.kernels[name], dim=n, inputs=inputs + outs, device=self.device)
+        wp.launch(kernel, dim=n, inputs=inputs + outs, device=self.device)
         return [o.numpy().reshape(shape) for o, (shape, _) in zip(outs, outputs, strict=True)]
