@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import report
-from device_functions import target, target_specs
+from device_functions import target_fixture, target_specs
 
 from gpu_blur.reference import rng, transfer
 from gpu_blur.reference.rng import Stream
@@ -27,22 +27,9 @@ from gpu_blur.testing import assert_close, z_mean, z_var
 SEED = 0xFEED_0007
 
 
-@pytest.fixture(scope="module", params=target_specs("random"), ids=str)
-def program(request):
-    """The random probes in one language on one device at one build."""
-    return target(request.param)
-
-
-@pytest.fixture(scope="module", params=target_specs("pixel"), ids=str)
-def built(request):
-    """The pixel probes in one language on one device at float32 or float64."""
-    return target(request.param)
-
-
-@pytest.fixture(scope="module", params=target_specs("random", ["float32-fast"]), ids=str)
-def fast(request):
-    """The fast-maths probes in one language on one device."""
-    return target(request.param)
+program = target_fixture(target_specs("random"))
+built = target_fixture(target_specs("pixel"))
+fast = target_fixture(target_specs("random", ["float32-fast"]))
 
 
 def device_counts(program, kernel, rates, ys, xs, sample_index, *threshold):

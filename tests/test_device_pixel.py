@@ -15,7 +15,7 @@ from fractions import Fraction
 
 import numpy as np
 import pytest
-from device_functions import target, target_specs
+from device_functions import target_fixture, target_specs
 
 from gpu_blur.backends import cfa_bits
 from gpu_blur.cameras import get_camera
@@ -45,16 +45,8 @@ PATTERNS = list(BayerPattern)
 BORDERS = {"reflect": 0, "zero": 1}
 
 
-@pytest.fixture(scope="module", params=target_specs("pixel"), ids=str)
-def built(request):
-    """The probes in one language on one device at float32 or float64."""
-    return target(request.param)
-
-
-@pytest.fixture(scope="module", params=target_specs("pixel", ["float64"]), ids=str)
-def built64(request):
-    """The probes in one language on one device at float64."""
-    return target(request.param)
+built = target_fixture(target_specs("pixel"))
+built64 = target_fixture(target_specs("pixel", ["float64"]))
 
 
 def map1(built, name, x, *extra, per_item: int = 1) -> np.ndarray:

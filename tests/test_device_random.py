@@ -15,7 +15,8 @@ import functools
 import numpy as np
 import pytest
 from conftest import report
-from device_functions import target, target_specs
+from device_functions import target_fixture, target_specs
+from test_rng import KNOWN_ANSWERS
 
 from gpu_blur.reference import rng
 from gpu_blur.reference.rng import Stream
@@ -25,30 +26,15 @@ SEED = 0x5EED_CAFE_F00D_1234
 TARGETS = target_specs("random")
 
 
-@pytest.fixture(scope="module", params=TARGETS, ids=str)
-def program(request):
-    """The probes in one language on one device at one build."""
-    return target(request.param)
+program = target_fixture(TARGETS)
 
 
 # --------------------------------------------------------------------------------------------
 # Philox, words and uniforms: bitwise
 # --------------------------------------------------------------------------------------------
 
-#: Random123 kat_vectors, philox4x32 10 rounds (tests/test_rng.py's KNOWN_ANSWERS).
-KNOWN_ANSWERS_10 = [
-    ((0, 0, 0, 0), (0, 0), (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8)),
-    (
-        (0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF),
-        (0xFFFFFFFF, 0xFFFFFFFF),
-        (0x408F276D, 0x41C83B0E, 0xA20BC7C6, 0x6D5451FD),
-    ),
-    (
-        (0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344),
-        (0xA4093822, 0x299F31D0),
-        (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1),
-    ),
-]
+#: Random123 kat_vectors, philox4x32 10 rounds: (counter, key, expected).
+KNOWN_ANSWERS_10 = [(c, k, e) for rounds, c, k, e in KNOWN_ANSWERS if rounds == 10]
 
 
 def test_philox_matches_random123_known_answers_and_reference(program):

@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 HERE = Path(__file__).resolve().parent
 INCLUDE = HERE.parents[1] / "kernels" / "opencl" / "include"
@@ -125,6 +126,18 @@ def target_specs(topic: str, builds: list[str] | None = None,
 def _needs_fp64(topic: str, build: str) -> bool:
     real, wide, _ = OPENCL_BUILDS[topic][build]
     return np.dtype(real) == np.float64 or np.dtype(wide) == np.float64
+
+
+def target_fixture(specs: list[TargetSpec]):
+    """A module fixture over ``specs`` that gives each :class:`Target`; bind it to the name
+    the tests ask for (``built = target_fixture(target_specs("pixel"))``). A test may narrow it
+    with ``@pytest.mark.parametrize(name, other_specs, indirect=True)``."""
+
+    @pytest.fixture(scope="module", params=specs, ids=str)
+    def fixture(request):
+        return target(request.param)
+
+    return fixture
 
 
 @functools.cache
