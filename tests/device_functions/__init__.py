@@ -7,8 +7,9 @@ outputs: ``<topic>.cl`` (OpenCL C) and ``<topic>_warp.py`` (Warp) in this folder
 numpy arrays (copied to the device, flat) and numpy scalars; outputs are (shape, numpy dtype)
 pairs, flat on the device and returned as numpy arrays of that shape.
 
-Targets: the OpenCL device ``backend="opencl"`` picks and every Warp device; with
-GPU_BLUR_BACKENDS set (e.g. ``opencl:1:0,warp:cpu``), the devices it names. A build name is the
+Targets: the OpenCL device ``backend="opencl"`` picks (one, as the suite's time allows) and every
+Warp device; with GPU_BLUR_BACKENDS set (e.g. ``opencl:1:0,warp:cpu``; ``opencl`` or ``warp``
+alone for all of that language), the devices it names. A build name is the
 tolerance table's dtype column (gpu_blur/testing.py), so a test names its rows with
 ``target.lang`` and ``target.build``.
 """
@@ -50,7 +51,8 @@ WARP_BUILDS = {
     "random": {"float64": (np.float64, np.float64), "float32-fast": (np.float32, np.float64)},
 }
 #: The builds a topic's `target` fixture runs over (the others are asked for by name).
-DEFAULT_BUILDS = {"pixel": ["float32", "float64"], "random": ["float32", "float64", "float32-nofp64"]}
+DEFAULT_BUILDS = {"pixel": ["float32", "float64"],
+                  "random": ["float32", "float64", "float32-nofp64"]}
 
 
 @dataclass(frozen=True)
@@ -63,8 +65,8 @@ class TargetSpec:
     build: str  # the tolerance table's dtype column
 
     def __str__(self) -> str:
-        return f"{self.device}-{self.build}" if self.lang == "opencl" else \
-            f"warp:{self.device}-{self.build}"
+        device = self.device if self.lang == "opencl" else f"warp:{self.device}"
+        return f"{device}-{self.build}"
 
 
 def _wanted() -> list[str] | None:
@@ -73,7 +75,7 @@ def _wanted() -> list[str] | None:
 
 
 @functools.cache
-def opencl_devices() -> tuple[tuple[str, bool], ...]:
+def opencl_target_devices() -> tuple[tuple[str, bool], ...]:
     """(spec, has fp64) of the OpenCL devices the targets use; none without pyopencl."""
     try:
         from gpu_blur.backends.opencl import OpenCLError, opencl_devices, select_device
@@ -91,7 +93,7 @@ def opencl_devices() -> tuple[tuple[str, bool], ...]:
 
 
 @functools.cache
-def warp_devices() -> tuple[str, ...]:
+def warp_target_devices() -> tuple[str, ...]:
     """Warp's device aliases the targets use; none without Warp."""
     try:
         import warp as wp
@@ -113,11 +115,11 @@ def target_specs(topic: str, builds: list[str] | None = None,
     builds = builds or DEFAULT_BUILDS[topic]
     specs = []
     if "opencl" in langs:
-        for device, fp64 in opencl_devices():
+        for device, fp64 in opencl_target_devices():
             specs += [TargetSpec("opencl", device, topic, b) for b in builds
                       if b in OPENCL_BUILDS[topic] and (fp64 or not _needs_fp64(topic, b))]
     if "warp" in langs:
-        for device in warp_devices():
+        for device in warp_target_devices():
             specs += [TargetSpec("warp", device, topic, b) for b in builds
                       if b in WARP_BUILDS[topic]]
     return specs

@@ -102,9 +102,9 @@ for _real in (wp.float32, wp.float64):
     wp.overload(t_quantize, [_arr, int, wp.array(dtype=int), _arr])
     wp.overload(t_demosaic, [_arr] + [int] * 11 + [_arr])
 
-KERNELS = {k.func.__name__: k for k in (t_reflect101, t_cfa_channel, t_srgb_to_linear, t_linear_to_srgb,
-                              t_decode_knee, t_polynomial_crf, t_lookup_crf, t_apply_matrix,
-                              t_quantize, t_demosaic)}
+KERNELS = {k.func.__name__: k for k in (t_reflect101, t_cfa_channel, t_srgb_to_linear,
+                                        t_linear_to_srgb, t_decode_knee, t_polynomial_crf,
+                                        t_lookup_crf, t_apply_matrix, t_quantize, t_demosaic)}
 
 
 def kernels(build: str) -> dict:
