@@ -147,45 +147,12 @@ def opencl_queue():
     return cl, context, cl.CommandQueue(context)
 
 
-# -- device-function tests: launching kernels, keys, measured numbers ------------------------
+# -- measured numbers --------------------------------------------------------------------------
 
 def report(record_property, name: str, value) -> None:
     """A measured number: into the test report (``record_property``) and, with ``-s``, stdout."""
     record_property(name, value)
     print(f"{name} = {value}")
-
-
-def opencl_key_arg(seed: int):
-    """The Philox key of ``seed`` as the ``uint2`` kernel argument."""
-    import pyopencl as cl
-
-    from gpu_blur.reference import rng
-
-    key = rng.key_from_seed(seed)
-    return cl.cltypes.make_uint2(int(key[0]), int(key[1]))
-
-
-def warp_key_args(seed: int) -> list:
-    """The Philox key of ``seed`` as two ``wp.uint32`` kernel arguments."""
-    import warp as wp
-
-    from gpu_blur.reference import rng
-
-    key0, key1 = (int(v) for v in rng.key_from_seed(seed))
-    return [wp.uint32(key0), wp.uint32(key1)]
-
-
-def warp_launch(kernel, device, n, scalars, arrays, outputs):
-    """Run ``kernel`` over ``n`` items: ``arrays`` are (numpy array, warp dtype) pairs, ``outputs``
-    (shape, warp dtype) pairs; returns the outputs as numpy arrays."""
-    import warp as wp
-
-    inputs = list(scalars)
-    for values, dtype in arrays:
-        inputs.append(wp.array(np.ascontiguousarray(values), dtype=dtype, device=device))
-    outs = [wp.empty(shape, dtype=dtype, device=device) for shape, dtype in outputs]
-    wp.launch(kernel, dim=n, inputs=inputs + outs, device=device)
-    return [o.numpy() for o in outs]
 
 
 # -- generated sets: what a run wrote, for comparing runs ------------------------------------

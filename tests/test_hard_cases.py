@@ -8,8 +8,8 @@ is about the kernels' arithmetic, the reference is fed the same rounded values.
 
 Covered elsewhere, not repeated here: uniforms never reach a log as exactly 0 or 1
 (tests/test_rng.py::test_uniforms_are_never_0_or_1_even_at_extreme_words for the reference,
-test_uniform_is_exact_for_every_23_bit_value_and_both_ends in tests/test_opencl_random.py and
-tests/test_warp_random.py for the kernels, at the words 0 and 2^32 - 1); fp32 and fp64 compute
+test_uniform_is_exact_for_every_23_bit_value_and_both_ends in tests/test_device_random.py for
+the kernels of both languages, at the words 0 and 2^32 - 1); fp32 and fp64 compute
 within their rows (tests/test_backends.py); near-singular matrices refused by the reference
 (tests/test_color.py); the reference's knees and round trips (tests/test_transfer.py).
 
