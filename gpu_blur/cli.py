@@ -12,7 +12,7 @@ import threading
 import time
 from pathlib import Path
 
-from gpu_blur import __version__
+from gpu_blur import __version__, testhooks
 
 EPILOG = """examples:
   gpu-blur generate --output out/                      # built-in photo, camera shake
@@ -28,10 +28,6 @@ with "status": "failed" and why; fix them and rerun with --resume); 2 nothing co
 (bad option, scene, input folder or output folder)
 """
 
-#: Test hook, not an option: with ``GPU_BLUR_TEST_SLEEP_AFTER=<n>`` in the environment,
-#: ``generate`` sleeps for an hour right after sample ``n``'s manifest line is written, so a
-#: test can kill it at a known point (tests/test_resume.py).
-TEST_SLEEP_AFTER = "GPU_BLUR_TEST_SLEEP_AFTER"
 #: Failed samples listed one by one in the summary (all are in the manifest).
 SHOW_FAILED = 20
 
@@ -351,7 +347,6 @@ def _generate(args) -> int:
               f"make ({writer.retry} failed before, to retry; {writer.torn} torn or invalid "
               "manifest line(s) ignored)")
     record = {"seed": args.seed, "backend": args.backend, "device": backend.device}
-    sleep_after = os.environ.get(TEST_SLEEP_AFTER)
     failed, made = [], 0
     totals, writing = RunTotals(), current().seconds["writing"]
     start = time.perf_counter()
@@ -383,8 +378,7 @@ def _generate(args) -> int:
                       f"{error}; the run stopped (samples made so far are kept; --resume "
                       "goes on)", file=sys.stderr)
                 return 2
-            if sleep_after is not None and str(spec.index) == sleep_after.strip():
-                time.sleep(3600)
+            testhooks.sleep_after(spec.index)
     except KeyboardInterrupt:
         print(f"gpu-blur: interrupted after {made} new samples; run the same command with "
               "--resume to finish the set", file=sys.stderr)

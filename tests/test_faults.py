@@ -17,12 +17,13 @@ import numpy as np
 import pytest
 
 import gpu_blur.generate
-from gpu_blur.cli import TEST_SLEEP_AFTER, main
+from gpu_blur.cli import main
 from gpu_blur.dataset import SampleSpec
 from gpu_blur.generate import Job, make_sample
 from gpu_blur.imageio import read_image
 from gpu_blur.reference.interpolate import optical_flow
 from gpu_blur.scene import scene_from_dict
+from gpu_blur.testhooks import TEST_SLEEP_AFTER
 
 
 def manifest(out):
