@@ -424,7 +424,7 @@ def read_kernel(path: str | Path) -> np.ndarray:
 
 
 def check_kernel(kernel: np.ndarray, where: str) -> None:
-    """Refuse what :func:`gpu_blur.reference.blur.normalize_kernel` cannot normalize.
+    """Refuse what :func:`gpu_blur.reference.motion_kernel.normalize_kernel` cannot normalize.
 
     Raises:
         ValueError: starting with ``where``, saying what is wrong and the way out.

@@ -16,7 +16,7 @@ from gpu_blur.align import (
     warp_to_reference,
 )
 from gpu_blur.cli import main
-from gpu_blur.reference.blur import warp_homography
+from gpu_blur.reference.shake import warp_homography
 from gpu_blur.testing import tolerance
 
 # PSNR over the scored pixels of the moving image warped back with the estimated homography,
