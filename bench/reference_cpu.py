@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import gpu_blur
-from gpu_blur.benchmark import cpu_name
+from gpu_blur.analysis.bench.host import cpu_name
 from gpu_blur.cameras import get_camera
 from gpu_blur.reference import average, bayer, demosaic, motion_kernel, noise, rng, shake, transfer
 from gpu_blur.reference.color import apply_matrix

@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from gpu_blur import metrics
-from gpu_blur.align import (
+from gpu_blur.analysis import metrics
+from gpu_blur.analysis.align import (
     MIN_LEVEL_SIDE,
     AlignmentError,
     align_ecc,

@@ -177,7 +177,7 @@ def test_whole_jpegs_are_read_and_damaged_ones_refused(tmp_path, rocket_rgb, opt
 def test_calibrate_refuses_to_write_its_camera_file_over_an_input(tmp_path, capsys, option):
     from importlib import resources
 
-    from gpu_blur.calibrate import COLORCHECKER24
+    from gpu_blur.analysis.calibrate import COLORCHECKER24
 
     chart = tmp_path / "chart.json"
     chart.write_text(json.dumps({"rgb": np.random.default_rng(0).uniform(0.05, 0.9, (24, 3))
