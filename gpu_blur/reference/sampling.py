@@ -1,8 +1,6 @@
 """Shared by the blur kinds: argument checks, the reflect-101 border and bilinear sampling.
 
-Boundary rule: mirror **without** repeating the edge pixel (numpy's ``pad(mode="reflect")``,
-OpenCV's ``BORDER_REFLECT_101``, scipy's ``"mirror"``), periodic with period ``2 (n - 1)``, so
-defined arbitrarily far outside; an axis of length 1 is constant.
+The border rule is that of every blur kind (:mod:`gpu_blur.reference.blur`, "Conventions").
 """
 
 from __future__ import annotations
