@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 import gpu_blur
-from gpu_blur.benchmark import cpu_name
+from gpu_blur.analysis.bench.host import cpu_name
 from gpu_blur.scene import scene_from_dict
 
 H, W, FRAMES, RUNS = 1200, 1920, 9, 5

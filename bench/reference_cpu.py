@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 import gpu_blur
-from gpu_blur.benchmark import cpu_name
+from gpu_blur.analysis.bench.host import cpu_name
 from gpu_blur.cameras import get_camera
-from gpu_blur.reference import bayer, blur, demosaic, noise, rng, transfer
+from gpu_blur.reference import average, bayer, demosaic, motion_kernel, noise, rng, shake, transfer
 from gpu_blur.reference.color import apply_matrix
 
 OUT = Path(__file__).parent / "results" / "reference_cpu.json"
@@ -45,12 +45,12 @@ def main() -> None:
     linear = transfer.srgb_to_linear(srgb)
     cam = get_camera("a7r3")
     raw = bayer.mosaic(apply_matrix(linear, cam.linear_to_camera), bayer.BayerPattern.RGGB)
-    kernel = blur.random_motion_kernel(g.uniform(size=blur.KERNEL_UNIFORMS), 29)
-    shake = blur.camera_shake_homographies(g.uniform(size=blur.SHAKE_UNIFORMS), H, W, 17,
-                                           16.0, 0.5)
+    kernel = motion_kernel.random_motion_kernel(g.uniform(size=motion_kernel.KERNEL_UNIFORMS), 29)
+    homographies = shake.camera_shake_homographies(g.uniform(size=shake.SHAKE_UNIFORMS), H, W,
+                                                  17, 16.0, 0.5)
 
     def accumulate():
-        acc = blur.FrameAccumulator(H, W)
+        acc = average.FrameAccumulator(H, W)
         for f in frames:
             acc.add(transfer.srgb_to_linear(f))
         acc.result()
@@ -59,9 +59,9 @@ def main() -> None:
         "srgb_to_linear": lambda: transfer.srgb_to_linear(srgb),
         "linear_to_srgb": lambda: transfer.linear_to_srgb(linear),
         "blur_average_9_frames": accumulate,
-        "blur_kernel_29x29_with_mask": lambda: (blur.convolve_kernel(linear, kernel),
-                                                blur.convolve_kernel(linear, kernel)),
-        "blur_trajectory_17_poses": lambda: blur.shake_blur(linear, shake),
+        "blur_kernel_29x29_with_mask": lambda: (motion_kernel.convolve_kernel(linear, kernel),
+                                                motion_kernel.convolve_kernel(linear, kernel)),
+        "blur_trajectory_17_poses": lambda: shake.shake_blur(linear, homographies),
         "linear_to_camera": lambda: apply_matrix(linear, cam.linear_to_camera),
         "mosaic": lambda: bayer.mosaic(linear, bayer.BayerPattern.RGGB),
         "poisson_gaussian_noise": lambda: noise.add_poisson_gaussian(

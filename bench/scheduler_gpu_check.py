@@ -23,6 +23,7 @@ import numpy as np
 import gpu_blur
 from gpu_blur.scene import scene_from_dict
 from gpu_blur.scheduler import SpotCheckError
+from gpu_blur.testhooks import TEST_FAULT
 
 OUT = os.environ.get("OUT", "/tmp")
 
@@ -94,14 +95,14 @@ def planted_faults(results):
     caught = {}
     for be in ["opencl", "warp:cuda:0"]:
         for fault in ["accumulate@100,100", "to_raw@250,400", "finish@399,599"]:
-            os.environ["GPU_BLUR_TEST_FAULT"] = fault
+            os.environ[TEST_FAULT] = fault
             try:
                 gpu_blur.synthesize([rgb], scene_from_dict({}), seed=1, sample_index=3,
                                     backend=be, verify=1.0, tile=(128, 128))
                 caught[f"{be} {fault}"] = "NOT CAUGHT"
             except SpotCheckError as e:
                 caught[f"{be} {fault}"] = str(e)[:160]
-            del os.environ["GPU_BLUR_TEST_FAULT"]
+            del os.environ[TEST_FAULT]
     results["faults"] = caught
 
 

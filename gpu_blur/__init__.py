@@ -2,6 +2,21 @@
 
 Start with :func:`synthesize` (one sample), :func:`load_scene` (settings) and :func:`plan`
 (which stages a scene runs); the float64 reference of every stage is :mod:`gpu_blur.reference`.
+
+One sample, module by module:
+
+    scene.py        the scene: validated settings (limits.py: every number's range)
+    plan.py         scene -> the ordered stages it calls for, each kept or skipped
+    params.py       the sample's random draws (rng: reference/rng.py), or given values
+    pipeline.py     synthesize(): the three passes on a backend; scheduler.py runs them in
+                    tiles (tiling.py) within a memory budget, with spot checks
+    backends/       numpy (reference/), OpenCL (kernels/opencl/), Warp (warp_kernels/)
+    dataset.py      outputs: blurred and sharp images, parameters, the manifest
+                    (generate.py and distributed.py make a set's samples)
+
+Apart from synthesis: :mod:`gpu_blur.analysis` (calibration, alignment, metrics, the
+benchmark), which measures and never synthesizes. Test hooks: :mod:`gpu_blur.testhooks`;
+the tests' tolerances: :mod:`gpu_blur.testing`.
 """
 
 __version__ = "0.1.0"

@@ -257,7 +257,7 @@ def load_camera(path: str | Path) -> Camera:
     ``--crf-rendered``; a scene with ``output.crf = "camera"`` then re-tones its output and
     sharp reference with that polynomial (:attr:`Camera.response`). The table's other keys
     (``inverse_linear``, residuals) and ``[calibration]`` (the chart fit) are not read here
-    (see :mod:`gpu_blur.calibrate`).
+    (see :mod:`gpu_blur.analysis.calibrate`).
 
     Raises:
         ValueError: naming the file, the key, the value and what is allowed.

@@ -12,7 +12,7 @@ import threading
 import time
 from pathlib import Path
 
-from gpu_blur import __version__
+from gpu_blur import __version__, testhooks
 
 EPILOG = """examples:
   gpu-blur generate --output out/                      # built-in photo, camera shake
@@ -28,10 +28,6 @@ with "status": "failed" and why; fix them and rerun with --resume); 2 nothing co
 (bad option, scene, input folder or output folder)
 """
 
-#: Test hook, not an option: with ``GPU_BLUR_TEST_SLEEP_AFTER=<n>`` in the environment,
-#: ``generate`` sleeps for an hour right after sample ``n``'s manifest line is written, so a
-#: test can kill it at a known point (tests/test_resume.py).
-TEST_SLEEP_AFTER = "GPU_BLUR_TEST_SLEEP_AFTER"
 #: Failed samples listed one by one in the summary (all are in the manifest).
 SHOW_FAILED = 20
 
@@ -108,14 +104,14 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("devices", help="list every backend and device, with fp64 support and memory")
     sub.add_parser("scene", help="print every scene key with its default and meaning")
     sub.add_parser("cameras", help="list the built-in cameras")
-    from gpu_blur.benchmark import add_arguments as bench_arguments
+    from gpu_blur.analysis.bench.run import add_arguments as bench_arguments
 
     bench_arguments(sub.add_parser(
         "bench", help="accuracy against time of every accuracy knob on every backend",
         description="Time every accuracy knob's settings on numpy and every OpenCL and Warp "
         "device, with the error against the numpy float64 reference; writes "
         "accuracy_vs_time_<tag>.json, .md (tables) and .png (Pareto plot). See "
-        "gpu_blur/benchmark.py."))
+        "gpu_blur/analysis/bench/."))
 
     c = sub.add_parser(
         "compare", help="score a synthesized blurred image against a real one (PSNR, SSIM, "
@@ -126,7 +122,7 @@ def _parser() -> argparse.ArgumentParser:
         "2015; also\nprinted in 8-bit codes), and, given a noise-free reference, the KL\n"
         "divergence D(real || synth) in nats between the residuals REAL - "
         "reference and\nSYNTH - reference (one bin per 8-bit code, add-one smoothing; "
-        "gpu_blur.metrics).",
+        "gpu_blur.analysis.metrics).",
         epilog="examples:\n"
         "  gpu-blur compare real.png synth.png\n"
         "  gpu-blur compare real.png synth.png --interp interp.png --json scores.json\n"
@@ -187,7 +183,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _calibrate_parser(sub) -> None:
-    from gpu_blur.calibrate import DEFAULT_CRF_ORDER, help_text
+    from gpu_blur.analysis.calibrate import DEFAULT_CRF_ORDER, help_text
 
     c = sub.add_parser(
         "calibrate", help="fit a camera file (WB gains, colour matrix, response) to a chart",
@@ -235,7 +231,7 @@ def _calibrate_parser(sub) -> None:
 
 
 def _calibrate(args) -> int:
-    from gpu_blur.calibrate import calibrate, write_camera_file
+    from gpu_blur.analysis.calibrate import calibrate, write_camera_file
 
     inputs = [("--chart", args.chart), ("--boxes", args.boxes), ("--reference", args.reference),
               ("--align-to", args.align_to)] + [("--crf-linear", p) for p in args.crf_linear] + [
@@ -351,7 +347,6 @@ def _generate(args) -> int:
               f"make ({writer.retry} failed before, to retry; {writer.torn} torn or invalid "
               "manifest line(s) ignored)")
     record = {"seed": args.seed, "backend": args.backend, "device": backend.device}
-    sleep_after = os.environ.get(TEST_SLEEP_AFTER)
     failed, made = [], 0
     totals, writing = RunTotals(), current().seconds["writing"]
     start = time.perf_counter()
@@ -383,8 +378,7 @@ def _generate(args) -> int:
                       f"{error}; the run stopped (samples made so far are kept; --resume "
                       "goes on)", file=sys.stderr)
                 return 2
-            if sleep_after is not None and str(spec.index) == sleep_after.strip():
-                time.sleep(3600)
+            testhooks.sleep_after(spec.index)
     except KeyboardInterrupt:
         print(f"gpu-blur: interrupted after {made} new samples; run the same command with "
               "--resume to finish the set", file=sys.stderr)
@@ -494,7 +488,7 @@ def _compare(args) -> int:
     import json
     import math
 
-    from gpu_blur import metrics
+    from gpu_blur.analysis import metrics
     from gpu_blur.imageio import write_text
 
     ref_path = args.interp or args.sharp
@@ -513,7 +507,7 @@ def _compare(args) -> int:
                    "in SYNTH's geometry: make both from the same sharp frames and crop")
     alignment, mask = None, None
     if args.align:
-        from gpu_blur.align import align_ecc, warp_to_reference
+        from gpu_blur.analysis.align import align_ecc, warp_to_reference
 
         alignment = align_ecc(real, synth)
         scored, mask = warp_to_reference(synth, alignment.homography, real.shape)
@@ -573,7 +567,7 @@ def _align(args) -> int:
 
     import numpy as np
 
-    from gpu_blur.align import align_ecc, inside_mask, warp_to_reference
+    from gpu_blur.analysis.align import align_ecc, inside_mask, warp_to_reference
     from gpu_blur.imageio import read_image, to_unit, write_image, write_text
 
     if args.frames and not args.output:
@@ -686,7 +680,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "calibrate":
             return _calibrate(args)
         if args.command == "bench":
-            from gpu_blur.benchmark import run_from_args
+            from gpu_blur.analysis.bench.run import run_from_args
 
             return run_from_args(args)
         if args.command == "plan":

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.imageio import temporary_path, write_image
+from gpu_blur.imageio import temporary_path, write_image, write_text
 from gpu_blur.params import ARRAY_PARAMS
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
@@ -319,13 +319,6 @@ def _plain(value):
     return json.loads(json.dumps(value, default=_jsonable))
 
 
-def _write_text(path: Path, text: str) -> None:
-    """Write a text file that appears complete or not at all."""
-    tmp = temporary_path(path)
-    tmp.write_text(text)
-    tmp.replace(path)
-
-
 def save_arrays(path: Path, arrays: dict) -> None:
     """``np.savez`` with fixed zip timestamps, so equal arrays give equal bytes.
 
@@ -457,7 +450,7 @@ class DatasetWriter:
             self.manifest_path.unlink(missing_ok=True)
             (out / RUN).unlink(missing_ok=True)
         else:
-            _write_text(self.manifest_path, "".join(kept))
+            write_text(self.manifest_path, "".join(kept))
         listed = {out / line[k] for line in self.done.values() for k in PATHS if k in line}
         for path in files:
             if path not in listed:
@@ -467,7 +460,7 @@ class DatasetWriter:
                 if _TEMPORARY.fullmatch(entry.name) and not entry.is_dir():
                     entry.unlink()  # left by a killed run (the lock keeps live runs out)
         if kept is None and run is not None:
-            _write_text(out / RUN, json.dumps(run, indent=1) + "\n")
+            write_text(out / RUN, json.dumps(run, indent=1) + "\n")
         self.manifest = open(self.manifest_path, "a")
         self._specs, self._next = specs, 0  # lines go out in this order (see _append)
         self._waiting: dict[int, str] = {}

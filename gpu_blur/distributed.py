@@ -28,16 +28,11 @@ import traceback
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from multiprocessing.connection import wait
-from pathlib import Path
 
+from gpu_blur import testhooks
 from gpu_blur.dataset import SampleSpec
 from gpu_blur.generate import Job, make_sample, run_serial
 
-#: Test hook, not an option: with ``GPU_BLUR_TEST_FAIL_ONCE=<index>:<marker file>`` in the
-#: driver's environment, the Ray task that makes sample ``index`` kills its worker process
-#: (as a lost node would) unless the marker file exists, creating it first: only the first
-#: attempt fails (tests/test_distributed.py).
-TEST_FAIL_ONCE = "GPU_BLUR_TEST_FAIL_ONCE"
 RAY_INSTALL = "pip install 'gpu_blur[ray]'"
 #: Samples per Ray task on GPUs. Ray starts a fresh worker process for every GPU task (its
 #: default ``max_calls=1``, which pins the process to the GPU Ray assigned and frees that
@@ -300,20 +295,8 @@ def _ray_make(job: Job, specs: list[SampleSpec], cwd: str, fail_once) -> list[tu
     """One Ray task: make a few samples (runs on a cluster node)."""
     if os.getcwd() != cwd and os.path.isdir(cwd):
         os.chdir(cwd)  # relative inputs and scene paths mean what they mean to the driver
-    if fail_once is not None:
-        index, marker = fail_once
-        if any(s.index == index for s in specs) and not Path(marker).exists():
-            Path(marker).write_text("failed once\n")
-            os._exit(1)  # the worker dies, as on a lost node
+    testhooks.fail_once(fail_once, [s.index for s in specs])
     return [make_sample(job, spec) for spec in specs]
-
-
-def _fail_once_hook():
-    value = os.environ.get(TEST_FAIL_ONCE)
-    if not value:
-        return None
-    index, marker = value.split(":", 1)
-    return int(index), marker
 
 
 def run_ray(job: Job, specs: Iterable[SampleSpec], address: str = "auto",
@@ -379,7 +362,7 @@ def _ray_results(ray, job, specs, address, gpus_per_task, retries, batch):
         slots = int(have.get("GPU", 0) / gpus) if gpus else int(have.get("CPU", 1))
         window = max(4, 2 * slots)
         task = ray.remote(num_gpus=gpus, max_retries=retries, retry_exceptions=True)(_ray_make)
-        job_ref, cwd, hook = ray.put(job), os.getcwd(), _fail_once_hook()
+        job_ref, cwd, hook = ray.put(job), os.getcwd(), testhooks.fail_once_setting()
         chunks = iter([specs[i:i + batch] for i in range(0, len(specs), batch)])
 
         def submit() -> None:

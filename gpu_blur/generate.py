@@ -13,8 +13,8 @@ from collections.abc import Iterable, Iterator
 
 import cv2
 
-from gpu_blur.align import opencv_reason
 from gpu_blur.dataset import SampleSpec
+from gpu_blur.imageio import opencv_reason
 from gpu_blur.pipeline import Synthesis, synthesize
 from gpu_blur.scene import Scene
 from gpu_blur.scheduler import Schedule

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import os
+import re
 import struct
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -334,6 +336,13 @@ def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
                      "[0, 1] (e.g. x.astype(np.uint8) for 0..255 integers)")
 
 
+def opencv_reason(error: cv2.error) -> str:
+    """OpenCV's own sentence from a cv2.error, without its source file and line."""
+    text = " ".join(str(error).split())
+    match = re.search(r"error: \(-?\d+:[^)]*\) (.*?)(?: in function .*)?$", text)
+    return (match.group(1) if match else text).strip().rstrip(".")
+
+
 def temporary_path(path: Path) -> Path:
     """Where ``path`` is written before it is renamed into place.
 
@@ -367,12 +376,22 @@ def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
         tmp.unlink(missing_ok=True)
 
 
-def write_text(path: str | Path, text: str) -> None:
-    """Write a text file that appears complete or not at all (as :func:`write_image`)."""
+def write_text(path: str | Path, text: str,
+               check: Callable[[Path], None] | None = None) -> None:
+    """Write a text file that appears complete or not at all (as :func:`write_image`).
+
+    Args:
+        path: the file.
+        text: its contents.
+        check: called with the temporary file before it is renamed onto ``path``; what it
+            raises leaves ``path`` as it was.
+    """
     path = Path(path)
     tmp = temporary_path(path)
     try:
         tmp.write_text(text)
+        if check is not None:
+            check(tmp)
         tmp.replace(path)
     except OSError as e:
         raise OSError(e.errno, e.strerror, str(path)) from None  # the name asked for
@@ -424,7 +443,7 @@ def read_kernel(path: str | Path) -> np.ndarray:
 
 
 def check_kernel(kernel: np.ndarray, where: str) -> None:
-    """Refuse what :func:`gpu_blur.reference.blur.normalize_kernel` cannot normalize.
+    """Refuse what :func:`gpu_blur.reference.motion_kernel.normalize_kernel` cannot normalize.
 
     Raises:
         ValueError: starting with ``where``, saying what is wrong and the way out.

@@ -41,7 +41,7 @@ import dataclasses
 import math
 import numbers
 
-from gpu_blur.reference.blur import SHAKE_AUTO_STEPS_RANGE, SHAKE_ROLL_MAX_DEG
+from gpu_blur.reference.shake import SHAKE_AUTO_STEPS_RANGE, SHAKE_ROLL_MAX_DEG
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,7 +101,7 @@ class Limit:
 FRAMES = Limit(1, 1024, integer=True, reason=(
     "frames averaged per sample, each held in host memory: 1,024 frames of 1920 x 1080 take "
     "6.4 GB; RSBlur averages 9"))
-#: 8 x the auto choice's largest (reference.blur.SHAKE_AUTO_STEPS_RANGE, about one pose per
+#: 8 x the auto choice's largest (reference.shake.SHAKE_AUTO_STEPS_RANGE, about one pose per
 #: pixel of the path); each pose costs a bilinear read per pixel (numpy: ~0.2 us per pixel and
 #: pose, 31 s for 8,192 poses on 128 x 128) and 72 bytes of float64 3 x 3 on the device.
 STEPS = Limit(0, 8 * (SHAKE_AUTO_STEPS_RANGE[1] - 1), integer=True, reason=(

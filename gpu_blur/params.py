@@ -15,7 +15,7 @@ from gpu_blur import limits
 from gpu_blur.cameras import Camera
 from gpu_blur.imageio import check_kernel, read_kernel
 from gpu_blur.plan import Plan
-from gpu_blur.reference import blur, rng
+from gpu_blur.reference import motion_kernel, rng, shake
 from gpu_blur.reference.bayer import BayerPattern
 from gpu_blur.reference.noise import draw_noise_levels
 from gpu_blur.scene import PATTERNS, Scene
@@ -100,15 +100,16 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
         lo, hi = b.kernel_size
         sizes = [s for s in range(lo, hi + 1) if s % 2 == 1]
         put("kernel_size", sizes[min(int(draw["kernel_size"] * len(sizes)), len(sizes) - 1)])
-        ku = rng.image_uniforms(seed, sample_index, rng.Stream.KERNEL, blur.KERNEL_UNIFORMS)
-        put("kernel", blur.random_motion_kernel(ku, int(p["kernel_size"])))
+        ku = rng.image_uniforms(seed, sample_index, rng.Stream.KERNEL,
+                                motion_kernel.KERNEL_UNIFORMS)
+        put("kernel", motion_kernel.random_motion_kernel(ku, int(p["kernel_size"])))
     if plan.kept("blur") and b.mode == "trajectory":
         put("extent_px", _uniform_range(draw["extent_px"], *b.extent))
-        su = rng.image_uniforms(seed, sample_index, rng.Stream.TRAJECTORY, blur.SHAKE_UNIFORMS)
-        shake = (su, image_shape[0], image_shape[1])
-        steps = b.steps or blur.auto_shake_steps(*shake, float(p["extent_px"]), float(b.roll))
-        put("homographies", blur.camera_shake_homographies(
-            *shake, steps, float(p["extent_px"]), float(b.roll)))
+        su = rng.image_uniforms(seed, sample_index, rng.Stream.TRAJECTORY, shake.SHAKE_UNIFORMS)
+        frame = (su, image_shape[0], image_shape[1])
+        steps = b.steps or shake.auto_shake_steps(*frame, float(p["extent_px"]), float(b.roll))
+        put("homographies", shake.camera_shake_homographies(
+            *frame, steps, float(p["extent_px"]), float(b.roll)))
     if plan.kept("saturate"):
         put("alpha", _uniform_range(draw["alpha"], *scene.saturation.alpha))
     if plan.raw_round_trip:

@@ -325,7 +325,7 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
         ("input_float32", "float64"): (0.0, 2.5e-7),
     }.items()},
     # -- quality metrics and alignment (tests/test_metrics.py, tests/test_align.py) --
-    # gpu_blur.metrics against scikit-image 0.26 (peak_signal_noise_ratio; structural_similarity
+    # gpu_blur.analysis.metrics against scikit-image 0.26 (peak_signal_noise_ratio; structural_similarity
     # with gaussian_weights=True, sigma=1.5, use_sample_covariance=False, channel_axis=-1) on
     # two photographs with noise, blur, JPEG, shift and darkening, RGB and one channel: the same
     # maths summed in another order. PSNR in dB, measured <= 3.6e-15; SSIM measured <= 1.6e-15.
@@ -394,8 +394,6 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # The response at its inverse table's nodes against the nodes: bisection to float64
     # resolution, then Horner's rounding with cancelling coefficients (measured 2.6e-14).
     ("crf_inverse_nodes", "numpy", "float64"): (0.0, 1e-13),
-    # Lawson-Hanson NNLS against scipy.optimize.nnls, random 30 x 8 problems: measured 9.3e-16.
-    ("nnls", "independent", "float64"): (0.0, 1e-14),
     # -- frame interpolation (tests/test_interpolate.py) --
     # An integer-shift sequence of a photo with exact flows against its bilinear reconstruction
     # at the intermediates' sub-pixel shifts, written out independently: the same bilinear

@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from gpu_blur import metrics
-from gpu_blur.align import (
+from gpu_blur.analysis import metrics
+from gpu_blur.analysis.align import (
     MIN_LEVEL_SIDE,
     AlignmentError,
     align_ecc,
@@ -16,7 +16,7 @@ from gpu_blur.align import (
     warp_to_reference,
 )
 from gpu_blur.cli import main
-from gpu_blur.reference.blur import warp_homography
+from gpu_blur.reference.shake import warp_homography
 from gpu_blur.testing import tolerance
 
 # PSNR over the scored pixels of the moving image warped back with the estimated homography,

@@ -1,4 +1,4 @@
-"""gpu-blur bench (gpu_blur.benchmark): the report's structure, errors, availability, plot."""
+"""gpu-blur bench (gpu_blur.analysis.bench): the report's structure, errors, availability, plot."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import KERNEL_BACKEND_SPECS
 
-from gpu_blur import benchmark
+from gpu_blur.analysis import bench as benchmark
 from gpu_blur.cli import main
 from gpu_blur.testing import tolerance
 

@@ -8,20 +8,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gpu_blur.reference.blur import (
+from gpu_blur.reference.average import FrameAccumulator, average_frames, saturation_indicator
+from gpu_blur.reference.motion_kernel import (
     GOPRO_U_KERNEL_SIZES,
     KERNEL_EXTENT_MIN,
     KERNEL_UNIFORMS,
-    SHAKE_UNIFORMS,
-    FrameAccumulator,
-    auto_shake_steps,
-    average_frames,
-    camera_shake_homographies,
     convolve_kernel,
     kernel_halo,
     normalize_kernel,
     random_motion_kernel,
-    saturation_indicator,
+)
+from gpu_blur.reference.shake import (
+    SHAKE_UNIFORMS,
+    auto_shake_steps,
+    camera_shake_homographies,
     shake_blur,
     shake_halo,
     warp_homography,

@@ -6,10 +6,9 @@ import colour  # colour-science, which the test extra's colour-demosaicing bring
 import cv2
 import numpy as np
 import pytest
-from scipy.optimize import nnls
 
 import gpu_blur
-from gpu_blur import calibrate as cal
+from gpu_blur.analysis import calibrate as cal
 from gpu_blur.cameras import get_camera, load_camera
 from gpu_blur.cli import main
 from gpu_blur.constants import A7R3_CRF_POLYNOMIAL, SRGB_TO_XYZ, XYZ_TO_SRGB
@@ -344,16 +343,14 @@ def test_inverse_table_inverts_the_response(coefficients):
     assert np.abs(back - rendered).max() <= 1.0 / (table.size - 1)
 
 
-def test_nonnegative_least_squares_matches_scipy_and_its_optimality_conditions():
-    rng = np.random.default_rng(5)
-    for _ in range(20):
-        a = rng.normal(size=(30, 8))
-        b = rng.normal(size=30)
-        x = cal.nonnegative_least_squares(a, b)
-        gradient = a.T @ (b - a @ x)
-        assert x.min() >= 0 and gradient.max() <= 1e-12
-        assert np.abs(gradient[x > 0]).max(initial=0.0) <= 1e-12
-        assert_close(x, nnls(a, b)[0], "nnls", "independent")
+def test_a_camera_the_loader_refuses_leaves_the_old_file_and_no_temporary_file(tmp_path):
+    path = tmp_path / "cam.toml"
+    path.write_text("old\n")
+    bad = {"color": {"ccm_xyz": [[0.0, 0.0, 0.0]] * 3}, "white_balance": {"red": 2.0, "blue": 1.5}}
+    with pytest.raises(ValueError, match=str(path)) as e:
+        cal.write_camera_file(path, bad)
+    assert ".part" not in str(e.value)  # the error names the file asked for
+    assert path.read_text() == "old\n" and sorted(tmp_path.iterdir()) == [path]
 
 
 # ---- the command ----

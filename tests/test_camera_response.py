@@ -7,8 +7,8 @@ import pytest
 from conftest import BACKEND_SPECS, KERNEL_BACKEND_SPECS, make_backend, spec_backend, spec_dtype
 
 import gpu_blur
+from gpu_blur.analysis.calibrate import read_response
 from gpu_blur.backends.numpy import NumpyBackend
-from gpu_blur.calibrate import read_response
 from gpu_blur.cameras import get_camera, load_camera, preset_names
 from gpu_blur.cli import main
 from gpu_blur.constants import A7R3_CRF_POLYNOMIAL

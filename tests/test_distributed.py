@@ -18,9 +18,10 @@ from conftest import files, manifest_lines
 
 from gpu_blur.cli import main
 from gpu_blur.dataset import discover
-from gpu_blur.distributed import TEST_FAIL_ONCE, parse_devices, run_devices, run_ray
+from gpu_blur.distributed import parse_devices, run_devices, run_ray
 from gpu_blur.generate import Job, run_serial
 from gpu_blur.scene import load_scene
+from gpu_blur.testhooks import TEST_FAIL_ONCE
 
 
 def _opencl_usable():

@@ -17,12 +17,13 @@ import numpy as np
 import pytest
 
 import gpu_blur.generate
-from gpu_blur.cli import TEST_SLEEP_AFTER, main
+from gpu_blur.cli import main
 from gpu_blur.dataset import SampleSpec
 from gpu_blur.generate import Job, make_sample
 from gpu_blur.imageio import read_image
 from gpu_blur.reference.interpolate import optical_flow
 from gpu_blur.scene import scene_from_dict
+from gpu_blur.testhooks import TEST_SLEEP_AFTER
 
 
 def manifest(out):
@@ -176,7 +177,7 @@ def test_whole_jpegs_are_read_and_damaged_ones_refused(tmp_path, rocket_rgb, opt
 def test_calibrate_refuses_to_write_its_camera_file_over_an_input(tmp_path, capsys, option):
     from importlib import resources
 
-    from gpu_blur.calibrate import COLORCHECKER24
+    from gpu_blur.analysis.calibrate import COLORCHECKER24
 
     chart = tmp_path / "chart.json"
     chart.write_text(json.dumps({"rgb": np.random.default_rng(0).uniform(0.05, 0.9, (24, 3))

@@ -24,7 +24,8 @@ from conftest import KERNEL_BACKEND_SPECS, make_backend, spec_backend, spec_dtyp
 import gpu_blur
 from gpu_blur.backends.flows import with_flows
 from gpu_blur.plan import plan
-from gpu_blur.reference.blur import FrameAccumulator, average_frames, blur_halo
+from gpu_blur.reference.average import FrameAccumulator, average_frames
+from gpu_blur.reference.blur import blur_halo
 from gpu_blur.reference.interpolate import (
     CONSISTENCY_ABSOLUTE_PX2,
     CONSISTENCY_RELATIVE,

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from gpu_blur import metrics
-from gpu_blur.align import corner_displacement
+from gpu_blur.analysis import metrics
+from gpu_blur.analysis.align import corner_displacement
 from gpu_blur.cli import main
 from gpu_blur.testing import assert_close
 

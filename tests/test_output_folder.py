@@ -15,9 +15,10 @@ import pytest
 from conftest import files, manifest_lines
 
 from gpu_blur import dataset
-from gpu_blur.cli import TEST_SLEEP_AFTER, main
+from gpu_blur.cli import main
 from gpu_blur.dataset import DatasetWriter, SampleSpec
 from gpu_blur.imageio import write_image
+from gpu_blur.testhooks import TEST_SLEEP_AFTER
 
 
 @pytest.fixture

@@ -14,8 +14,9 @@ import pytest
 from conftest import files, manifest_lines
 
 import gpu_blur
-from gpu_blur.cli import TEST_SLEEP_AFTER, main
+from gpu_blur.cli import main
 from gpu_blur.dataset import DatasetWriter
+from gpu_blur.testhooks import TEST_SLEEP_AFTER
 
 
 @pytest.fixture

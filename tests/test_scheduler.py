@@ -9,7 +9,7 @@ import pytest
 from conftest import BACKEND_SPECS, KERNEL_BACKEND_SPECS, make_backend, spec_backend, spec_dtype
 
 import gpu_blur
-from gpu_blur.backends import FRAMES_PER_LAUNCH, TEST_FAULT
+from gpu_blur.backends import FRAMES_PER_LAUNCH
 from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.cli import main
 from gpu_blur.dataset import discover
@@ -24,6 +24,7 @@ from gpu_blur.scheduler import (
     parse_bytes,
     spot_check_tiles,
 )
+from gpu_blur.testhooks import TEST_FAULT
 from gpu_blur.testing import tolerance
 from gpu_blur.tiling import Region
 from gpu_blur.timings import CATEGORIES

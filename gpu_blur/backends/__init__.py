@@ -25,7 +25,6 @@ Names: ``numpy`` (float64 reference), ``opencl`` (first usable OpenCL device, GP
 from __future__ import annotations
 
 import functools
-import os
 
 import numpy as np
 
@@ -87,14 +86,6 @@ class OnDevice:
         return self.numpy(np.float64 if dtype is None else dtype)
 
 
-#: Test hook, not an option: with ``GPU_BLUR_TEST_FAULT=<pass>`` or ``<pass>@<row>,<col>`` in
-#: the environment (``pass`` one of accumulate, to_raw, finish), the kernel backends (OpenCL,
-#: Warp) corrupt that pass's output at global pixel (row, col) (default 0, 0) by 0.25,
-#: in every tile whose output holds the pixel, so a test can check that spot checks
-#: (``--verify``) catch a wrong kernel (tests/test_scheduler.py). Never set it otherwise.
-TEST_FAULT = "GPU_BLUR_TEST_FAULT"
-
-
 def cfa_bits(pattern: str | None) -> int:
     """The pattern's channels packed as gb_cfa_channel reads them.
 
@@ -104,34 +95,6 @@ def cfa_bits(pattern: str | None) -> int:
     if pattern is None:
         return 0
     return sum(c << (2 * i) for i, c in enumerate(BayerPattern(pattern).channels))
-
-
-def fault_planted(pass_: str) -> bool:
-    """Whether the :data:`TEST_FAULT` test hook names ``pass_`` (cheap; checked per pass)."""
-    fault = os.environ.get(TEST_FAULT)
-    return bool(fault) and fault.partition("@")[0].strip() == pass_
-
-
-def planted_fault(pass_: str, values: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
-    """Apply the :data:`TEST_FAULT` test hook to a pass's output (in place); returns it.
-
-    Args:
-        pass_: the pass that made ``values``.
-        values: its host output, ``h x w`` or ``h x w x 3``, writable.
-        origin: global (row, column) of ``values[0, 0]``.
-    """
-    fault = os.environ.get(TEST_FAULT)
-    if not fault:
-        return values
-    name, _, at = fault.partition("@")
-    if name.strip() != pass_:
-        return values
-    y, x = (int(v) for v in at.split(",")) if at else (0, 0)
-    ly, lx = y - origin[0], x - origin[1]
-    if 0 <= ly < values.shape[0] and 0 <= lx < values.shape[1]:
-        v = values[ly, lx]
-        values[ly, lx] = np.where(v < 0.5, v + 0.25, v - 0.25)
-    return values
 
 
 @functools.cache

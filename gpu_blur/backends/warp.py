@@ -21,9 +21,7 @@ from gpu_blur.backends import (
     FRAMES_PER_LAUNCH,
     OnDevice,
     cfa_bits,
-    fault_planted,
     fill_stack,
-    planted_fault,
 )
 from gpu_blur.backends.flows import interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
@@ -32,6 +30,7 @@ from gpu_blur.reference import blur
 from gpu_blur.reference.interpolate import CONSISTENCY_ABSOLUTE_PX2, CONSISTENCY_RELATIVE
 from gpu_blur.reference.rng import key_from_seed
 from gpu_blur.reference.transfer import a7r3_lookup_table
+from gpu_blur.testhooks import fault_planted, planted_fault
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
 
@@ -167,7 +166,7 @@ class WarpBackend:
             wp.synchronize_device(self.wp_device)
 
     def _out(self, array: wp.array, shape, pass_: str, origin) -> OnDevice:
-        """A pass's output, with the :data:`~gpu_blur.backends.TEST_FAULT` hook applied."""
+        """A pass's output, with the :data:`~gpu_blur.testhooks.TEST_FAULT` hook applied."""
         result = OnDevice(array, shape, self._fetch)
         if fault_planted(pass_):
             host = planted_fault(pass_, result.numpy(), origin)

@@ -3,22 +3,13 @@
 One module per concern; the names below are the stages' names in every backend.
 """
 
+from gpu_blur.reference.average import FrameAccumulator, average_frames, saturation_indicator
 from gpu_blur.reference.bayer import (
     BayerPattern,
     inverse_white_balance,
     mosaic,
     site_gains,
     white_balance,
-)
-from gpu_blur.reference.blur import (
-    FrameAccumulator,
-    average_frames,
-    camera_shake_homographies,
-    convolve_kernel,
-    random_motion_kernel,
-    saturation_indicator,
-    shake_blur,
-    warp_homography,
 )
 from gpu_blur.reference.color import (
     adapt_d50_to_d65,
@@ -33,10 +24,12 @@ from gpu_blur.reference.color import (
     xyz_to_linear,
 )
 from gpu_blur.reference.demosaic import demosaic_bilinear, demosaic_malvar2004
+from gpu_blur.reference.motion_kernel import convolve_kernel, random_motion_kernel
 from gpu_blur.reference.noise import add_gaussian_srgb, add_poisson_gaussian
 from gpu_blur.reference.output import crop_border, quantize
 from gpu_blur.reference.rng import Stream, philox4x32, poisson
 from gpu_blur.reference.saturation import restore_saturated, synthesize_saturation
+from gpu_blur.reference.shake import camera_shake_homographies, shake_blur, warp_homography
 from gpu_blur.reference.transfer import (
     gamma_to_linear,
     inverse_lookup_crf,

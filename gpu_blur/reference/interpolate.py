@@ -21,7 +21,7 @@ flow, computed on the host with OpenCV, and a warp-and-blend of the two neighbou
        I_t(x) = (1 - t) a + t b
 
    with bilinear sampling and reflect-101 outside the image, as
-   :func:`gpu_blur.reference.blur.warp_homography`.
+   :func:`gpu_blur.reference.shake.warp_homography`.
 3. **Occlusions**: a sample is trusted when the flow that carried it is confirmed by the flow
    in the other direction. The forward-backward test of Sundaram, Brox and Keutzer ("Dense
    Point Trajectories by GPU-accelerated Large Displacement Optical Flow", ECCV 2010, section
@@ -43,7 +43,7 @@ flow, computed on the host with OpenCV, and a warp-and-blend of the two neighbou
    warp and blend applied to the frames' saturation indicators ``[frame >= 1]`` (per channel,
    sRGB 1 being linear 1), so an intermediate value counts as saturated in proportion to the
    weights of its saturated neighbours. This is how trajectory blur makes its mask
-   (:func:`gpu_blur.reference.blur.shake_blur` warps the indicator) and it is continuous in
+   (:func:`gpu_blur.reference.shake.shake_blur` warps the indicator) and it is continuous in
    the sample position: a value a hair under 1 (``1 - 1e-8``, a saturated region sampled a
    millionth of a pixel into an unsaturated neighbour) would count 0 in float64 and 1 once
    rounded to float32, so a test on the blended value makes backends of different precisions
@@ -52,7 +52,7 @@ flow, computed on the host with OpenCV, and a warp-and-blend of the two neighbou
 5. **Average** with factor ``f`` over ``n`` frames: the ``n`` originals and ``f - 1``
    intermediates (``t = k / f``, ``k = 1 .. f - 1``) between each consecutive pair,
    ``(n - 1) f + 1`` frames in all (9 frames at ``f = 8``: RSBlur's 65), added in time order
-   to :class:`gpu_blur.reference.blur.FrameAccumulator`. With ``f = 1`` this is plain averaging,
+   to :class:`gpu_blur.reference.average.FrameAccumulator`. With ``f = 1`` this is plain averaging,
    operation for operation.
 
 Limits: flows taken at the intermediate pixel are right for uniform motion and blur the edges
@@ -69,7 +69,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from gpu_blur.reference.blur import SATURATION_LEVEL, FrameAccumulator, _bilinear_sample
+from gpu_blur.reference.average import SATURATION_LEVEL, FrameAccumulator
+from gpu_blur.reference.sampling import bilinear_sample
 from gpu_blur.reference.transfer import srgb_to_linear
 
 __all__ = [
@@ -217,7 +218,7 @@ def sequence_flows(frames: Sequence, method: str = "dis") -> np.ndarray:
 def _sample(image: np.ndarray, px: np.ndarray, py: np.ndarray) -> np.ndarray:
     """Bilinear samples of ``H x W x C`` ``image`` at ``H x W`` positions, reflect-101."""
     h, w, c = image.shape
-    return _bilinear_sample(image.reshape(h * w, c), h, w, px, py)
+    return bilinear_sample(image.reshape(h * w, c), h, w, px, py)
 
 
 def _grid(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -348,7 +349,7 @@ def interpolated_average(frames: Sequence, factor: int, flows=None,
 
     Returns:
         ``(blurred, saturation_mask)``, both ``H x W x C`` float64 linear, over the
-        ``(n - 1) factor + 1`` frames (see :class:`~gpu_blur.reference.blur.FrameAccumulator`).
+        ``(n - 1) factor + 1`` frames (see :class:`~gpu_blur.reference.average.FrameAccumulator`).
     """
     times = interpolation_times(factor)
     if len(frames) < 1:

@@ -17,11 +17,12 @@ its output lies on the reference's pixel grid. Pixel centres are at integer coor
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from gpu_blur.imageio import opencv_reason
 
 __all__ = [
     "DEFAULT_GAUSS_SIZE",
@@ -145,13 +146,6 @@ def _correlation(reference: np.ndarray, moving: np.ndarray, homography: np.ndarr
                                  flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
     valid = inside_mask(homography, reference.shape, moving.shape)
     return float(cv2.computeECC(ref, warped, valid.astype(np.uint8)))
-
-
-def opencv_reason(error: cv2.error) -> str:
-    """OpenCV's own sentence from a cv2.error, without its source file and line."""
-    text = " ".join(str(error).split())
-    match = re.search(r"error: \(-?\d+:[^)]*\) (.*?)(?: in function .*)?$", text)
-    return (match.group(1) if match else text).strip().rstrip(".")
 
 
 def _ecc_level(reference: np.ndarray, moving: np.ndarray, start: np.ndarray,
