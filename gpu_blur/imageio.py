@@ -54,7 +54,7 @@ _LIBJPEG_DAMAGE = ("Corrupt JPEG data", "Premature end of JPEG file")
 
 
 def _jpeg_decode_damage(data: bytes) -> str | None:
-    """libjpeg's own warning when it decodes damaged entropy-coded data, or None.
+    """The warning libjpeg gives when it decodes damaged entropy-coded data, or None.
 
     A JPEG has no checksum: a bad Huffman code, a segment that ends early or bytes left over
     before a marker show only while decoding, and libjpeg (OpenCV's decoder) goes on with grey

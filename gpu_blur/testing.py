@@ -325,10 +325,11 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
         ("input_float32", "float64"): (0.0, 2.5e-7),
     }.items()},
     # -- quality metrics and alignment (tests/test_metrics.py, tests/test_align.py) --
-    # gpu_blur.analysis.metrics against scikit-image 0.26 (peak_signal_noise_ratio; structural_similarity
-    # with gaussian_weights=True, sigma=1.5, use_sample_covariance=False, channel_axis=-1) on
-    # two photographs with noise, blur, JPEG, shift and darkening, RGB and one channel: the same
-    # maths summed in another order. PSNR in dB, measured <= 3.6e-15; SSIM measured <= 1.6e-15.
+    # gpu_blur.analysis.metrics against scikit-image 0.26 (peak_signal_noise_ratio;
+    # structural_similarity with gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
+    # channel_axis=-1) on two photographs with noise, blur, JPEG, shift and darkening, RGB and
+    # one channel: the same maths summed in another order. PSNR in dB, measured <= 3.6e-15;
+    # SSIM measured <= 1.6e-15.
     ("psnr", "independent", "float64"): (0.0, 1e-13),
     ("ssim", "independent", "float64"): (0.0, 1e-14),
     # noise_level(255 x) against 255 noise_level(x): the same eigenvalues scaled, rounding only
