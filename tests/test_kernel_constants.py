@@ -1,0 +1,191 @@
+"""The kernels' constants come from the numpy reference (gpu_blur.kernel_constants).
+
+The expected values are read from the reference modules themselves, so a constant retyped on
+either side (a kernel, Warp, kernel_constants, the header on disk) fails here.
+"""
+
+import math
+import re
+from fractions import Fraction
+
+import numpy as np
+import pytest
+from conftest import BACKEND_SPECS, make_backend
+
+from gpu_blur import kernel_constants
+from gpu_blur.reference import blur, demosaic, rng, transfer
+
+OPENCL = [s for s in BACKEND_SPECS if s.startswith("opencl")]
+WARP = [s for s in BACKEND_SPECS if s.startswith("warp")]
+
+#: The sRGB curve constants as the reference uses them (1 / gamma as its quotient).
+SRGB = [transfer.SRGB_ENCODE_KNEE, transfer.SRGB_SLOPE, transfer.SRGB_GAMMA,
+        1.0 / transfer.SRGB_GAMMA, transfer.SRGB_SCALE, transfer.SRGB_OFFSET]
+TAPS = [8.0 * demosaic.MALVAR2004_G_AT_RB, 8.0 * demosaic.MALVAR2004_RB_AT_G_ROW,
+        8.0 * demosaic.MALVAR2004_RB_AT_G_COLUMN, 8.0 * demosaic.MALVAR2004_RB_AT_BR,
+        4.0 * demosaic.BILINEAR_G, 4.0 * demosaic.BILINEAR_RB]
+
+
+#: One literal of a rendered constant: wrapped in GB_REAL/GB_WIDE, a float32 hex, or bare.
+LITERAL = r"(?:GB_REAL|GB_WIDE)\(([^)]*)\)|(0x[0-9a-f.]+p[-+]\d+)f|(-?[\d.e+-]+)u?"
+
+
+def nearest_float32(decimal: str) -> np.float32:
+    """The float32 nearest a decimal literal, rounded once (as an OpenCL ``...f`` literal)."""
+    exact = Fraction(decimal)
+    guess = np.float32(float(exact))
+    around = [np.nextafter(guess, np.float32(-np.inf)), guess,
+              np.nextafter(guess, np.float32(np.inf))]
+    return min(around, key=lambda f: abs(Fraction(float(f)) - exact))
+
+
+def test_header_on_disk_is_the_rendering_of_the_python_values():
+    from gpu_blur.backends.opencl import kernel_dir
+
+    on_disk = (kernel_dir() / kernel_constants.HEADER).read_text()
+    assert on_disk == kernel_constants.opencl_header(), (
+        f"{kernel_constants.HEADER} is out of date with gpu_blur.kernel_constants: run "
+        "python -m gpu_blur.kernel_constants")
+
+
+def test_every_literal_reads_back_as_its_python_value_in_both_precisions():
+    for macro, name, how in kernel_constants.OPENCL:
+        value = kernel_constants.value_of(name)
+        values = value if isinstance(value, tuple) else (value,)
+        text = kernel_constants.c_literal(value, how)
+        literals = re.findall(LITERAL, text)
+        assert len(literals) == len(values), (macro, text)
+        for (wrapped, hex_float, bare), v in zip(literals, values, strict=True):
+            if hex_float:
+                assert float.fromhex(hex_float) == v, macro
+            elif how in (kernel_constants.UINT, kernel_constants.INT):
+                assert int(bare) == v, macro
+            else:
+                decimal = wrapped or bare
+                assert float(decimal) == v, macro
+                # a float build reads the decimal once into float; Warp rounds the double:
+                # both must give the same float
+                assert nearest_float32(decimal) == np.float32(v), macro
+
+
+def opencl_source() -> str:
+    reals = ["GB_SRGB_ENCODE_KNEE", "GB_SRGB_SLOPE", "GB_SRGB_GAMMA", "GB_SRGB_INV_GAMMA",
+             "GB_SRGB_SCALE", "GB_SRGB_OFFSET", "GB_SATURATION_LEVEL", "GB_UNIFORM_SCALE",
+             "GB_SRGB_DECODE_KNEE", "(real)GB_TWO_PI_FLOAT"]
+    words = [f"GB_STREAM_{s.name}" for s in rng.Stream] + [
+        "GB_STREAM_SHIFT", "GB_ROUND_LIMIT", "GB_UNIFORM_SHIFT", "GB_POISSON_INVERSION_MAX_K",
+        "GB_LOG_FACTORIAL_TABLE_SIZE"]
+    wide = ["GB_HALF_LOG_TWO_PI", "GB_POISSON_PTRS_MIN_RATE", "(gb_wide)GB_TWO_PI_DOUBLE"]
+    taps = ["GB_MALVAR2004_G_AT_RB", "GB_MALVAR2004_RB_AT_G_ROW", "GB_MALVAR2004_RB_AT_G_COLUMN",
+            "GB_MALVAR2004_RB_AT_BR", "GB_BILINEAR_G", "GB_BILINEAR_RB"]
+    lines = [f"reals[{i}] = {x};" for i, x in enumerate(reals)]
+    lines += [f"words[{i}] = (uint)({x});" for i, x in enumerate(words)]
+    lines += [f"wide[{i}] = {x};" for i, x in enumerate(wide)]
+    lines += [f"for (int k = 0; k < 16; ++k) wide[{len(wide)} + k] = gb_log_factorial_table[k];"]
+    offset = len(reals)
+    for t, n in zip(taps, (25, 25, 25, 25, 9, 9), strict=True):
+        lines.append(f"for (int k = 0; k < {n}; ++k) reals[{offset} + k] = {t}[k];")
+        offset += n
+    return ('#include "gb_pixel.h"\n#include "gb_random.h"\n#include "gb_demosaic.h"\n'
+            "__kernel void constants(__global real *reals, __global uint *words,\n"
+            "                        __global gb_wide *wide)\n{\n    "
+            + "\n    ".join(lines) + "\n}\n")
+
+
+def opencl_constants(backend):
+    """What a program built by ``backend`` sees: (reals, words, wide) as numpy arrays."""
+    import pyopencl as cl
+
+    wide_type = np.float64 if backend.info.fp64 else np.float32
+    outs = [np.zeros(10 + 118, backend.real), np.zeros(12, np.uint32), np.zeros(19, wide_type)]
+    bufs = [cl.Buffer(backend.ctx, cl.mem_flags.WRITE_ONLY, o.nbytes) for o in outs]
+    backend.program_from_source(opencl_source()).constants(backend.queue, (1,), None, *bufs)
+    for o, b in zip(outs, bufs, strict=True):
+        cl.enqueue_copy(backend.queue, o, b)
+    return outs
+
+
+@pytest.mark.skipif(not OPENCL, reason="needs an OpenCL device")
+@pytest.mark.parametrize("spec", OPENCL)
+def test_opencl_kernels_see_the_reference_values(spec):
+    backend = make_backend(spec).backend
+    reals, words, wide = opencl_constants(backend)
+    real = backend.real
+    expected = [*SRGB, blur.SATURATION_LEVEL, rng._UNIFORM_SCALE]
+    assert reals[:8].tolist() == [real(v) for v in expected]
+    knee = real(reals[8])
+    if real is np.float64:
+        assert knee == transfer.SRGB_DECODE_KNEE
+    else:  # the float at or just above the knee: `a < knee` decides as in float64
+        assert float(knee) >= transfer.SRGB_DECODE_KNEE
+        assert float(np.nextafter(knee, real(0))) < transfer.SRGB_DECODE_KNEE
+    assert reals[9] == np.float32(2.0 * math.pi)
+    assert reals[10:].tolist() == np.concatenate([t.ravel() for t in TAPS]).tolist()
+    assert words[:7].tolist() == [int(s) for s in rng.Stream]
+    shift, limit, uniform_shift, max_k, table_size = words[7:].tolist()
+    assert (1 << shift, limit) == (rng._ROUND_LIMIT, rng._ROUND_LIMIT)
+    assert (uniform_shift, max_k) == (rng._UNIFORM_SHIFT, rng.POISSON_INVERSION_MAX_K)
+    assert table_size == rng.LOG_FACTORIAL_TABLE.size
+    w = wide.dtype.type
+    assert wide.tolist() == [w(v) for v in (rng._HALF_LOG_TWO_PI, rng.POISSON_PTRS_MIN_RATE,
+                                            2.0 * math.pi, *rng.LOG_FACTORIAL_TABLE)]
+
+
+@pytest.mark.skipif(not OPENCL, reason="needs an OpenCL device")
+def test_an_edited_python_value_reaches_the_opencl_build(monkeypatch):
+    backend = make_backend(OPENCL[0]).backend
+    monkeypatch.setattr(kernel_constants, "SRGB_SLOPE", 13.0)
+    monkeypatch.setitem(kernel_constants.STREAMS, "SHOT_NOISE", 9)
+    reals, words, _ = opencl_constants(backend)
+    # the build's text, not the header on disk (which still says 12.92 and 4)
+    assert reals[1] == 13.0
+    assert words[3] == 9
+
+
+@pytest.mark.skipif(not WARP, reason="needs a Warp device")
+def test_warp_kernels_see_the_reference_values():
+    import warp as wp
+
+    from gpu_blur.warp_kernels import pixel, random
+
+    @wp.kernel
+    def constants(reals: wp.array(dtype=wp.float64), knee32: wp.array(dtype=wp.float32),
+                  words: wp.array(dtype=wp.uint32)):
+        knee32[0] = pixel.srgb_decode_knee(wp.float32(0.0))
+        reals[0] = pixel.srgb_decode_knee(wp.float64(0.0))
+        reals[1] = random.POISSON_PTRS_MIN_RATE
+        for k in range(16):
+            reals[2 + k] = random.LOG_FACTORIAL_TABLE[k]
+        for i in range(5):
+            for j in range(5):
+                reals[18 + 5 * i + j] = wp.float64(pixel.MALVAR2004_G_AT_RB[i, j])
+                reals[43 + 5 * i + j] = wp.float64(pixel.MALVAR2004_RB_AT_G_ROW[i, j])
+                reals[68 + 5 * i + j] = wp.float64(pixel.MALVAR2004_RB_AT_G_COLUMN[i, j])
+                reals[93 + 5 * i + j] = wp.float64(pixel.MALVAR2004_RB_AT_BR[i, j])
+        for i in range(3):
+            for j in range(3):
+                reals[118 + 3 * i + j] = wp.float64(pixel.BILINEAR_G[i, j])
+                reals[127 + 3 * i + j] = wp.float64(pixel.BILINEAR_RB[i, j])
+        words[0] = random.PARAMS
+        words[1] = random.TRAJECTORY
+        words[2] = random.KERNEL
+        words[3] = random.SHOT_NOISE
+        words[4] = random.READ_NOISE
+        words[5] = random.SRGB_NOISE
+        words[6] = random.SPOT_CHECK
+        words[7] = random.ROUND_LIMIT
+        words[8] = wp.uint32(random.POISSON_INVERSION_MAX_K)
+
+    device = make_backend(WARP[0]).wp_device
+    reals = wp.zeros(136, dtype=wp.float64, device=device)
+    knee32 = wp.zeros(1, dtype=wp.float32, device=device)
+    words = wp.zeros(9, dtype=wp.uint32, device=device)
+    wp.launch(constants, dim=1, inputs=[reals, knee32, words], device=device)
+    reals, knee32, words = reals.numpy(), knee32.numpy()[0], words.numpy()
+    assert float(knee32) >= transfer.SRGB_DECODE_KNEE
+    assert float(np.nextafter(knee32, np.float32(0))) < transfer.SRGB_DECODE_KNEE
+    assert reals[:2].tolist() == [transfer.SRGB_DECODE_KNEE, rng.POISSON_PTRS_MIN_RATE]
+    assert reals[2:18].tolist() == rng.LOG_FACTORIAL_TABLE.tolist()
+    assert reals[18:].tolist() == np.concatenate([t.ravel() for t in TAPS]).tolist()
+    assert words.tolist() == [*(int(s) for s in rng.Stream), rng._ROUND_LIMIT,
+                              rng.POISSON_INVERSION_MAX_K]
