@@ -90,6 +90,10 @@ LOG_FACTORIAL_TABLE_SIZE = len(LOG_FACTORIAL_TABLE)
 HALF_LOG_TWO_PI = rng._HALF_LOG_TWO_PI
 POISSON_PTRS_MIN_RATE = rng.POISSON_PTRS_MIN_RATE
 POISSON_INVERSION_MAX_K = rng.POISSON_INVERSION_MAX_K
+#: PTRS (Hörmann 1993): setup, candidate shift, squeeze and tail bounds (rng.PTRS_*).
+PTRS = {name: getattr(rng, f"PTRS_{name}") for name in (
+    "B0", "B1", "A0", "A1", "IA0", "IA1", "IA2", "VR0", "VR1", "K_SHIFT", "US_SQUEEZE",
+    "US_TAIL")}
 
 # -- rendering for OpenCL -------------------------------------------------------------------
 #: How a value is written in OpenCL C: in the compute type ``real`` (GB_REAL), in the
@@ -126,6 +130,7 @@ OPENCL: tuple[tuple[str, str, str], ...] = (
     ("GB_HALF_LOG_TWO_PI", "HALF_LOG_TWO_PI", WIDE),
     ("GB_POISSON_PTRS_MIN_RATE", "POISSON_PTRS_MIN_RATE", WIDE),
     ("GB_POISSON_INVERSION_MAX_K", "POISSON_INVERSION_MAX_K", INT),
+    *((f"GB_PTRS_{name}", f"PTRS.{name}", WIDE) for name in PTRS),
 )
 
 #: The header on disk (see the module docstring), relative to the kernels' folder.
@@ -133,10 +138,9 @@ HEADER = Path("include") / "gb_constants.h"
 
 
 def value_of(name: str):
-    """The current value of a name of :data:`OPENCL` (``STREAMS.X`` is a stream)."""
-    if name.startswith("STREAMS."):
-        return globals()["STREAMS"][name.split(".", 1)[1]]
-    return globals()[name]
+    """The current value of a name of :data:`OPENCL` (``STREAMS.X``: an entry of a dict)."""
+    table, _, key = name.partition(".")
+    return globals()[table][key] if key else globals()[name]
 
 
 def c_literal(value, how: str) -> str:

@@ -21,6 +21,8 @@ WARP = [s for s in BACKEND_SPECS if s.startswith("warp")]
 #: The sRGB curve constants as the reference uses them (1 / gamma as its quotient).
 SRGB = [transfer.SRGB_ENCODE_KNEE, transfer.SRGB_SLOPE, transfer.SRGB_GAMMA,
         1.0 / transfer.SRGB_GAMMA, transfer.SRGB_SCALE, transfer.SRGB_OFFSET]
+PTRS = ["B0", "B1", "A0", "A1", "IA0", "IA1", "IA2", "VR0", "VR1", "K_SHIFT", "US_SQUEEZE",
+        "US_TAIL"]
 TAPS = [8.0 * demosaic.MALVAR2004_G_AT_RB, 8.0 * demosaic.MALVAR2004_RB_AT_G_ROW,
         8.0 * demosaic.MALVAR2004_RB_AT_G_COLUMN, 8.0 * demosaic.MALVAR2004_RB_AT_BR,
         4.0 * demosaic.BILINEAR_G, 4.0 * demosaic.BILINEAR_RB]
@@ -75,7 +77,8 @@ def opencl_source() -> str:
     words = [f"GB_STREAM_{s.name}" for s in rng.Stream] + [
         "GB_STREAM_SHIFT", "GB_ROUND_LIMIT", "GB_UNIFORM_SHIFT", "GB_POISSON_INVERSION_MAX_K",
         "GB_LOG_FACTORIAL_TABLE_SIZE"]
-    wide = ["GB_HALF_LOG_TWO_PI", "GB_POISSON_PTRS_MIN_RATE", "(gb_wide)GB_TWO_PI_DOUBLE"]
+    wide = ["GB_HALF_LOG_TWO_PI", "GB_POISSON_PTRS_MIN_RATE", "(gb_wide)GB_TWO_PI_DOUBLE",
+            *(f"GB_PTRS_{name}" for name in PTRS)]
     taps = ["GB_MALVAR2004_G_AT_RB", "GB_MALVAR2004_RB_AT_G_ROW", "GB_MALVAR2004_RB_AT_G_COLUMN",
             "GB_MALVAR2004_RB_AT_BR", "GB_BILINEAR_G", "GB_BILINEAR_RB"]
     lines = [f"reals[{i}] = {x};" for i, x in enumerate(reals)]
@@ -97,7 +100,8 @@ def opencl_constants(backend):
     import pyopencl as cl
 
     wide_type = np.float64 if backend.info.fp64 else np.float32
-    outs = [np.zeros(10 + 118, backend.real), np.zeros(12, np.uint32), np.zeros(19, wide_type)]
+    outs = [np.zeros(10 + 118, backend.real), np.zeros(12, np.uint32),
+            np.zeros(3 + len(PTRS) + 16, wide_type)]
     bufs = [cl.Buffer(backend.ctx, cl.mem_flags.WRITE_ONLY, o.nbytes) for o in outs]
     backend.program_from_source(opencl_source()).constants(backend.queue, (1,), None, *bufs)
     for o, b in zip(outs, bufs, strict=True):
@@ -127,8 +131,9 @@ def test_opencl_kernels_see_the_reference_values(spec):
     assert (uniform_shift, max_k) == (rng._UNIFORM_SHIFT, rng.POISSON_INVERSION_MAX_K)
     assert table_size == rng.LOG_FACTORIAL_TABLE.size
     w = wide.dtype.type
+    ptrs = [getattr(rng, f"PTRS_{name}") for name in PTRS]
     assert wide.tolist() == [w(v) for v in (rng._HALF_LOG_TWO_PI, rng.POISSON_PTRS_MIN_RATE,
-                                            2.0 * math.pi, *rng.LOG_FACTORIAL_TABLE)]
+                                            2.0 * math.pi, *ptrs, *rng.LOG_FACTORIAL_TABLE)]
 
 
 @pytest.mark.skipif(not OPENCL, reason="needs an OpenCL device")

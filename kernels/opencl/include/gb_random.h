@@ -56,8 +56,8 @@ typedef float gb_wide;
 /* From gpu_blur.reference.rng, in gb_constants.h: the stream numbers GB_STREAM_<NAME> (rng.Stream;
  * SPOT_CHECK is host only), GB_STREAM_SHIFT and GB_ROUND_LIMIT (2^24 rounds below the stream
  * byte), GB_UNIFORM_SHIFT and GB_UNIFORM_SCALE, 2 pi (GB_TWO_PI_DOUBLE, GB_TWO_PI_FLOAT), log(k!)
- * (GB_LOG_FACTORIAL_TABLE, GB_HALF_LOG_TWO_PI), GB_POISSON_PTRS_MIN_RATE and
- * GB_POISSON_INVERSION_MAX_K. */
+ * (GB_LOG_FACTORIAL_TABLE, GB_HALF_LOG_TWO_PI), GB_POISSON_PTRS_MIN_RATE,
+ * GB_POISSON_INVERSION_MAX_K and PTRS's GB_PTRS_<NAME> (rng.PTRS_<NAME>). */
 
 /* Philox4x32-10 block function: four 32-bit words of counter under a two-word key. */
 static inline uint4 gb_philox(uint4 counter, uint2 key)
@@ -186,10 +186,10 @@ static inline real gb_poisson(real rate_in, uint2 key, uint sample_index, uint x
     /* PTRS (Hoermann 1993), mu = rate. */
     const gb_wide mu = rate;
     const gb_wide log_mu = log(mu);
-    const gb_wide b = GB_WIDE(0.931) + GB_WIDE(2.53) * sqrt(mu);
-    const gb_wide a = GB_WIDE(-0.059) + GB_WIDE(0.02483) * b;
-    const gb_wide inv_alpha = GB_WIDE(1.1239) + GB_WIDE(1.1328) / (b - GB_WIDE(3.4));
-    const gb_wide v_r = GB_WIDE(0.9277) - GB_WIDE(3.6224) / (b - GB_WIDE(2.0));
+    const gb_wide b = GB_PTRS_B0 + GB_PTRS_B1 * sqrt(mu);
+    const gb_wide a = GB_PTRS_A0 + GB_PTRS_A1 * b;
+    const gb_wide inv_alpha = GB_PTRS_IA0 + GB_PTRS_IA1 / (b - GB_PTRS_IA2);
+    const gb_wide v_r = GB_PTRS_VR0 - GB_PTRS_VR1 / (b - GB_WIDE(2.0));
     for (uint round = 0u; round < GB_ROUND_LIMIT; ++round) {
         const uint4 bits = gb_pixel_bits(key, sample_index, GB_STREAM_SHOT_NOISE, x, y, round);
         for (int attempt = 0; attempt < 2; ++attempt) {
@@ -200,9 +200,9 @@ static inline real gb_poisson(real rate_in, uint2 key, uint sample_index, uint x
             const gb_wide us = GB_WIDE(0.5) - fabs(big_u);
             /* k stays floating: a rejected candidate can lie far outside the int range. */
             const gb_wide k =
-                floor((GB_WIDE(2.0) * a / us + b) * big_u + mu + GB_WIDE(0.43));
-            if (us >= GB_WIDE(0.07) && v <= v_r) return (real)k;
-            if (k < GB_WIDE(0.0) || (us < GB_WIDE(0.013) && v > us)) continue;
+                floor((GB_WIDE(2.0) * a / us + b) * big_u + mu + GB_PTRS_K_SHIFT);
+            if (us >= GB_PTRS_US_SQUEEZE && v <= v_r) return (real)k;
+            if (k < GB_WIDE(0.0) || (us < GB_PTRS_US_TAIL && v > us)) continue;
             const gb_wide lhs = log(v * inv_alpha / (a / (us * us) + b));
             const gb_wide rhs = -mu + k * log_mu - gb_log_factorial(k);
             if (lhs <= rhs) return (real)k;
