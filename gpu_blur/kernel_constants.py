@@ -58,14 +58,25 @@ SRGB_DECODE_KNEE_FLOAT32 = _float32_at_or_above(SRGB_DECODE_KNEE)
 SATURATION_LEVEL = blur.SATURATION_LEVEL
 
 # -- demosaicing taps (reference.demosaic), as the kernels hold them ------------------------
+# Kernels hold each filter times a power of two (exact) and weigh an entry by its inverse,
+# ``entry * TAP_WEIGHT``, which is the reference's weight exactly.
+MALVAR2004_TAP_SCALE, BILINEAR_TAP_SCALE = 8.0, 4.0
+MALVAR2004_TAP_WEIGHT = 1.0 / MALVAR2004_TAP_SCALE
+BILINEAR_TAP_WEIGHT = 1.0 / BILINEAR_TAP_SCALE
+
+
+def _scaled(taps: np.ndarray, scale: float) -> tuple[float, ...]:
+    return tuple((scale * taps).ravel().tolist())
+
+
 #: Malvar 2004 filters times 8 (multiples of 1/2, exact in float), rows dy = -2 .. 2.
-MALVAR2004_G_AT_RB_X8 = tuple((8.0 * demosaic.MALVAR2004_G_AT_RB).ravel().tolist())
-MALVAR2004_RB_AT_G_ROW_X8 = tuple((8.0 * demosaic.MALVAR2004_RB_AT_G_ROW).ravel().tolist())
-MALVAR2004_RB_AT_G_COLUMN_X8 = tuple((8.0 * demosaic.MALVAR2004_RB_AT_G_COLUMN).ravel().tolist())
-MALVAR2004_RB_AT_BR_X8 = tuple((8.0 * demosaic.MALVAR2004_RB_AT_BR).ravel().tolist())
+MALVAR2004_G_AT_RB_X8 = _scaled(demosaic.MALVAR2004_G_AT_RB, MALVAR2004_TAP_SCALE)
+MALVAR2004_RB_AT_G_ROW_X8 = _scaled(demosaic.MALVAR2004_RB_AT_G_ROW, MALVAR2004_TAP_SCALE)
+MALVAR2004_RB_AT_G_COLUMN_X8 = _scaled(demosaic.MALVAR2004_RB_AT_G_COLUMN, MALVAR2004_TAP_SCALE)
+MALVAR2004_RB_AT_BR_X8 = _scaled(demosaic.MALVAR2004_RB_AT_BR, MALVAR2004_TAP_SCALE)
 #: Bilinear filters times 4 (integers), rows dy = -1 .. 1.
-BILINEAR_G_X4 = tuple((4.0 * demosaic.BILINEAR_G).ravel().tolist())
-BILINEAR_RB_X4 = tuple((4.0 * demosaic.BILINEAR_RB).ravel().tolist())
+BILINEAR_G_X4 = _scaled(demosaic.BILINEAR_G, BILINEAR_TAP_SCALE)
+BILINEAR_RB_X4 = _scaled(demosaic.BILINEAR_RB, BILINEAR_TAP_SCALE)
 
 # -- counter-based random draws (reference.rng) ---------------------------------------------
 #: Stream numbers (rng.Stream), by name.
@@ -112,10 +123,12 @@ OPENCL: tuple[tuple[str, str, str], ...] = (
     ("GB_SRGB_SCALE", "SRGB_SCALE", REAL),
     ("GB_SRGB_OFFSET", "SRGB_OFFSET", REAL),
     ("GB_SATURATION_LEVEL", "SATURATION_LEVEL", REAL),
+    ("GB_MALVAR2004_TAP_WEIGHT", "MALVAR2004_TAP_WEIGHT", REAL),
     ("GB_MALVAR2004_G_AT_RB_X8", "MALVAR2004_G_AT_RB_X8", REAL),
     ("GB_MALVAR2004_RB_AT_G_ROW_X8", "MALVAR2004_RB_AT_G_ROW_X8", REAL),
     ("GB_MALVAR2004_RB_AT_G_COLUMN_X8", "MALVAR2004_RB_AT_G_COLUMN_X8", REAL),
     ("GB_MALVAR2004_RB_AT_BR_X8", "MALVAR2004_RB_AT_BR_X8", REAL),
+    ("GB_BILINEAR_TAP_WEIGHT", "BILINEAR_TAP_WEIGHT", REAL),
     ("GB_BILINEAR_G_X4", "BILINEAR_G_X4", REAL),
     ("GB_BILINEAR_RB_X4", "BILINEAR_RB_X4", REAL),
     *((f"GB_STREAM_{name}", f"STREAMS.{name}", UINT) for name in STREAMS),

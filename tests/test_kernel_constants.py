@@ -23,9 +23,11 @@ SRGB = [transfer.SRGB_ENCODE_KNEE, transfer.SRGB_SLOPE, transfer.SRGB_GAMMA,
         1.0 / transfer.SRGB_GAMMA, transfer.SRGB_SCALE, transfer.SRGB_OFFSET]
 PTRS = ["B0", "B1", "A0", "A1", "IA0", "IA1", "IA2", "VR0", "VR1", "K_SHIFT", "US_SQUEEZE",
         "US_TAIL"]
-TAPS = [8.0 * demosaic.MALVAR2004_G_AT_RB, 8.0 * demosaic.MALVAR2004_RB_AT_G_ROW,
-        8.0 * demosaic.MALVAR2004_RB_AT_G_COLUMN, 8.0 * demosaic.MALVAR2004_RB_AT_BR,
-        4.0 * demosaic.BILINEAR_G, 4.0 * demosaic.BILINEAR_RB]
+MALVAR = [demosaic.MALVAR2004_G_AT_RB, demosaic.MALVAR2004_RB_AT_G_ROW,
+          demosaic.MALVAR2004_RB_AT_G_COLUMN, demosaic.MALVAR2004_RB_AT_BR]
+BILINEAR = [demosaic.BILINEAR_G, demosaic.BILINEAR_RB]
+#: The taps as the kernels hold them: Malvar's times 8, bilinear's times 4.
+TAPS = [8.0 * t for t in MALVAR] + [4.0 * t for t in BILINEAR]
 
 
 #: One literal of a rendered constant: wrapped in GB_REAL/GB_WIDE, a float32 hex, or bare.
@@ -73,7 +75,8 @@ def test_every_literal_reads_back_as_its_python_value_in_both_precisions():
 def opencl_source() -> str:
     reals = ["GB_SRGB_ENCODE_KNEE", "GB_SRGB_SLOPE", "GB_SRGB_GAMMA", "GB_SRGB_INV_GAMMA",
              "GB_SRGB_SCALE", "GB_SRGB_OFFSET", "GB_SATURATION_LEVEL", "GB_UNIFORM_SCALE",
-             "GB_SRGB_DECODE_KNEE", "(real)GB_TWO_PI_FLOAT"]
+             "GB_SRGB_DECODE_KNEE", "(real)GB_TWO_PI_FLOAT", "GB_MALVAR2004_TAP_WEIGHT",
+             "GB_BILINEAR_TAP_WEIGHT"]
     words = [f"GB_STREAM_{s.name}" for s in rng.Stream] + [
         "GB_STREAM_SHIFT", "GB_ROUND_LIMIT", "GB_UNIFORM_SHIFT", "GB_POISSON_INVERSION_MAX_K",
         "GB_LOG_FACTORIAL_TABLE_SIZE"]
@@ -100,7 +103,7 @@ def opencl_constants(backend):
     import pyopencl as cl
 
     wide_type = np.float64 if backend.info.fp64 else np.float32
-    outs = [np.zeros(10 + 118, backend.real), np.zeros(12, np.uint32),
+    outs = [np.zeros(12 + 118, backend.real), np.zeros(12, np.uint32),
             np.zeros(3 + len(PTRS) + 16, wide_type)]
     bufs = [cl.Buffer(backend.ctx, cl.mem_flags.WRITE_ONLY, o.nbytes) for o in outs]
     backend.program_from_source(opencl_source()).constants(backend.queue, (1,), None, *bufs)
@@ -124,7 +127,12 @@ def test_opencl_kernels_see_the_reference_values(spec):
         assert float(knee) >= transfer.SRGB_DECODE_KNEE
         assert float(np.nextafter(knee, real(0))) < transfer.SRGB_DECODE_KNEE
     assert reals[9] == np.float32(2.0 * math.pi)
-    assert reals[10:].tolist() == np.concatenate([t.ravel() for t in TAPS]).tolist()
+    malvar_weight, bilinear_weight = reals[10:12]
+    taps = np.split(reals[12:], np.cumsum([t.size for t in TAPS])[:-1])
+    # the kernel's weight of an entry is the reference's tap, exactly
+    for held, weight, tap in zip(taps, [malvar_weight] * 4 + [bilinear_weight] * 2,
+                                 MALVAR + BILINEAR, strict=True):
+        assert (held.astype(np.float64) * float(weight)).tolist() == tap.ravel().tolist()
     assert words[:7].tolist() == [int(s) for s in rng.Stream]
     shift, limit, uniform_shift, max_k, table_size = words[7:].tolist()
     assert (1 << shift, limit) == (rng._ROUND_LIMIT, rng._ROUND_LIMIT)

@@ -56,6 +56,8 @@ import warp as wp
 
 from gpu_blur import kernel_constants as constants
 from gpu_blur.kernel_constants import (
+    BILINEAR_TAP_WEIGHT,
+    MALVAR2004_TAP_WEIGHT,
     SRGB_DECODE_KNEE,
     SRGB_DECODE_KNEE_FLOAT32,
     SRGB_ENCODE_KNEE,
@@ -376,7 +378,7 @@ def _malvar2004_filter(raw: wp.array(dtype=Any), w: int, rows: Any, cols: Any, t
         for j in range(5):
             entry = taps[i, j]
             if entry != wp.float32(0.0):
-                weight = raw.dtype(entry) * raw.dtype(0.125)  # exact: multiples of 1/2
+                weight = raw.dtype(entry) * raw.dtype(MALVAR2004_TAP_WEIGHT)  # 1/8, exact: k/2
                 total += weight * _stencil_sample(raw, w, rows[i], cols[j])
     return total
 
@@ -434,7 +436,7 @@ def _bilinear_channel(raw: wp.array(dtype=Any), w: int, rows: Any, cols: Any, cf
         for j in range(3):
             entry = taps[i, j]
             if entry != wp.float32(0.0) and cfa_channel(cfa, gx + j - 1, gy + i - 1) == channel:
-                weight = raw.dtype(entry) * raw.dtype(0.25)  # exact
+                weight = raw.dtype(entry) * raw.dtype(BILINEAR_TAP_WEIGHT)  # 1/4, exact
                 total += weight * _stencil_sample(raw, w, rows[i], cols[j])
     return total
 

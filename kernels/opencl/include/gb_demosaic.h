@@ -82,7 +82,7 @@ static inline real gb_malvar2004_filter(__global const real *raw, long w, const 
         for (int l = 0; l < 5; ++l) {
             real entry = taps[5 * k + l];
             if (entry != GB_REAL(0.0)) {
-                real weight = entry * GB_REAL(0.125); /* exact: entries are multiples of 1/2 */
+                real weight = entry * GB_MALVAR2004_TAP_WEIGHT; /* 1/8, exact: entries are k/2 */
                 sum += weight * gb_stencil_sample(raw, w, row, row_in, col, col_in, k, l);
             }
         }
@@ -142,7 +142,7 @@ static inline void gb_demosaic_bilinear(__global const real *raw, long x0, long 
             for (int l = 0; l < 3; ++l) {
                 real entry = taps[3 * k + l];
                 if (entry != GB_REAL(0.0) && gb_cfa_channel(cfa, gx + l - 1, gy + k - 1) == c) {
-                    real weight = entry * GB_REAL(0.25); /* exact */
+                    real weight = entry * GB_BILINEAR_TAP_WEIGHT; /* 1/4, exact */
                     sum += weight * gb_stencil_sample(raw, w, row, row_in, col, col_in, k, l);
                 }
             }
