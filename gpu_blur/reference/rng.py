@@ -415,7 +415,7 @@ def pixel_normals(seed: int, sample_index: int, stream: Stream, y, x, count: int
 # --------------------------------------------------------------------------------------------
 
 #: log(k!) for k = 0..15, each the float64 nearest the exact value (computed with 50-digit
-#: decimal arithmetic, ``Decimal(k!).ln()``). Kernels carry the same literals.
+#: decimal arithmetic, ``Decimal(k!).ln()``). Kernels get them from gpu_blur.kernel_constants.
 LOG_FACTORIAL_TABLE = np.array(
     [
         0.0,
