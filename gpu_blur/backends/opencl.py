@@ -34,6 +34,7 @@ from gpu_blur.backends import (
 )
 from gpu_blur.backends.flows import interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
+from gpu_blur.kernel_constants import opencl_header
 from gpu_blur.plan import Plan
 from gpu_blur.reference import blur
 from gpu_blur.reference.interpolate import CONSISTENCY_ABSOLUTE_PX2, CONSISTENCY_RELATIVE
@@ -294,6 +295,9 @@ class OpenCLBackend:
             # float division and sqrt rounded as in numpy (OpenCL otherwise allows 2.5 / 3 ulp,
             # which NVIDIA's OpenCL uses): mean counts k / n then match the reference exactly
             options.append("-cl-fp32-correctly-rounded-divide-sqrt")
+        # the kernel constants from the Python values (kernel_constants), before the source;
+        # #line keeps the compiler's line numbers those of the source
+        text = f"{opencl_header()}#line 1\n{text}"
         try:
             with warnings.catch_warnings():  # a banner or warnings; failures raise below
                 warnings.simplefilter("ignore", cl.CompilerWarning)

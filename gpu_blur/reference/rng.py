@@ -93,6 +93,16 @@ POISSON_PTRS_MIN_RATE = 10.0
 #: uniform, 1 - 2**-24, by k = 31 (rate just below 10), so the cap never decides a count; it
 #: only bounds the loop in kernels that might carry the CDF in lower precision.
 POISSON_INVERSION_MAX_K = 64
+#: PTRS constants (Hörmann 1993; the formulas are in :func:`poisson`'s docstring): the setup
+#: b = B0 + B1 sqrt(mu), a = A0 + A1 b, inv_alpha = IA0 + IA1 / (b - IA2),
+#: v_r = VR0 - VR1 / (b - 2); the candidate's shift K_SHIFT; the squeeze and tail bounds on us.
+PTRS_B0, PTRS_B1 = 0.931, 2.53
+PTRS_A0, PTRS_A1 = -0.059, 0.02483
+PTRS_IA0, PTRS_IA1, PTRS_IA2 = 1.1239, 1.1328, 3.4
+PTRS_VR0, PTRS_VR1 = 0.9277, 3.6224
+PTRS_K_SHIFT = 0.43
+PTRS_US_SQUEEZE = 0.07
+PTRS_US_TAIL = 0.013
 
 
 class Stream(enum.IntEnum):
@@ -405,7 +415,7 @@ def pixel_normals(seed: int, sample_index: int, stream: Stream, y, x, count: int
 # --------------------------------------------------------------------------------------------
 
 #: log(k!) for k = 0..15, each the float64 nearest the exact value (computed with 50-digit
-#: decimal arithmetic, ``Decimal(k!).ln()``). Kernels carry the same literals.
+#: decimal arithmetic, ``Decimal(k!).ln()``). Kernels get them from gpu_blur.kernel_constants.
 LOG_FACTORIAL_TABLE = np.array(
     [
         0.0,
@@ -490,9 +500,9 @@ def _ptrs_attempt(u_word, v_word, mu, log_mu, a, b, inv_alpha, v_r):
     big_u = u_word - 0.5
     v = v_word
     us = 0.5 - np.abs(big_u)
-    k = np.floor((2.0 * a / us + b) * big_u + mu + 0.43)
-    accepted = (us >= 0.07) & (v <= v_r)
-    rejected = (k < 0.0) | ((us < 0.013) & (v > us))
+    k = np.floor((2.0 * a / us + b) * big_u + mu + PTRS_K_SHIFT)
+    accepted = (us >= PTRS_US_SQUEEZE) & (v <= v_r)
+    rejected = (k < 0.0) | ((us < PTRS_US_TAIL) & (v > us))
     test = np.flatnonzero(~accepted & ~rejected)
     if test.size:
         ti = test
@@ -506,10 +516,10 @@ def _poisson_ptrs(rate, seed, sample_index, stream, y, x) -> np.ndarray:
     """Hörmann's PTRS for rate >= 10; 1-D arrays of rates and their global coordinates."""
     mu = rate
     log_mu = np.log(mu)
-    b = 0.931 + 2.53 * np.sqrt(mu)
-    a = -0.059 + 0.02483 * b
-    inv_alpha = 1.1239 + 1.1328 / (b - 3.4)
-    v_r = 0.9277 - 3.6224 / (b - 2.0)
+    b = PTRS_B0 + PTRS_B1 * np.sqrt(mu)
+    a = PTRS_A0 + PTRS_A1 * b
+    inv_alpha = PTRS_IA0 + PTRS_IA1 / (b - PTRS_IA2)
+    v_r = PTRS_VR0 - PTRS_VR1 / (b - 2.0)
     out = np.full(mu.shape, np.nan)
     pending = np.arange(mu.size)
     round_ = 0

@@ -19,6 +19,7 @@ import functools
 
 import warp as wp
 
+from gpu_blur.kernel_constants import SATURATION_LEVEL
 from gpu_blur.warp_kernels import pixel
 from gpu_blur.warp_kernels.passes import add_compensated, source_value_func
 
@@ -89,7 +90,7 @@ def interpolate_kernels(real, source=None) -> dict:
     @wp.func
     def saturated_value(v: real) -> real:
         # the saturation indicator of a stored sRGB value: 1 at or above 1 (linear 1)
-        if v >= real(1.0):
+        if v >= real(SATURATION_LEVEL):
             return real(1.0)
         return real(0.0)
 
@@ -182,7 +183,7 @@ def interpolate_kernels(real, source=None) -> dict:
         for c in range(3):
             lin = pixel.srgb_to_linear(frame_value(frame, o + c))
             add_compensated(total, compensation, od + c, lin)
-            if lin >= real(1.0):
+            if lin >= real(SATURATION_LEVEL):
                 saturated[od + c] = saturated[od + c] + real(1.0)
 
     @wp.kernel(module="unique")

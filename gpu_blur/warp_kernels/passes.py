@@ -20,6 +20,7 @@ from typing import Any
 
 import warp as wp
 
+from gpu_blur.kernel_constants import SATURATION_LEVEL
 from gpu_blur.warp_kernels import pixel, random
 
 
@@ -92,7 +93,7 @@ def accumulate_kernels(real, source=None) -> dict:
         v = pixel.srgb_to_linear(source_value(srgb[i]))
         linear[i] = v
         indicator[i] = real(0.0)
-        if v >= real(1.0):
+        if v >= real(SATURATION_LEVEL):
             indicator[i] = real(1.0)
 
     @wp.kernel(module="unique")
@@ -122,7 +123,7 @@ def accumulate_kernels(real, source=None) -> dict:
             else:
                 c = c + ((v - t) + s)
             s = t
-            if v >= real(1.0):
+            if v >= real(SATURATION_LEVEL):
                 n = n + wp.uint32(1)
         if mean_of > 0:
             linear[i] = (s + c) / real(mean_of)

@@ -54,6 +54,20 @@ from typing import Any
 
 import warp as wp
 
+from gpu_blur import kernel_constants as constants
+from gpu_blur.kernel_constants import (
+    BILINEAR_TAP_WEIGHT,
+    MALVAR2004_TAP_WEIGHT,
+    SRGB_DECODE_KNEE,
+    SRGB_DECODE_KNEE_FLOAT32,
+    SRGB_ENCODE_KNEE,
+    SRGB_GAMMA,
+    SRGB_INV_GAMMA,
+    SRGB_OFFSET,
+    SRGB_SCALE,
+    SRGB_SLOPE,
+)
+
 __all__ = [
     "BILINEAR_G",
     "BILINEAR_RB",
@@ -127,12 +141,12 @@ def fma(a: wp.float64, b: wp.float64, c: wp.float64) -> wp.float64:  # noqa: F81
 
 # -- transfer curves, responses, clipping (gb_pixel.h) --------------------------------------------
 
-# sRGB, IEC 61966-2-1 (the same constants as gpu_blur.reference.transfer), as literals below.
-# float32: the float nearest 0.04045 (0.0404499993) lies below it; the next float up
-# (0.0404500030, 0x1.4b5dcep-5) makes `a < knee` pick the float64 reference's branch for every
-# float a. The float nearest 0.0031308 lies above it with no float in between, so the encode
-# knee needs no such care.
-SRGB_DECODE_KNEE_FLOAT32 = float.fromhex("0x1.4b5dcep-5")
+# sRGB, IEC 61966-2-1: gpu_blur.reference.transfer's constants through kernel_constants, each a
+# module-level float that Warp reads as a literal (``type(x)(SRGB_SLOPE)`` folds as
+# ``type(x)(12.92)`` does). float32: the float nearest 0.04045 lies below it; the next float up
+# (SRGB_DECODE_KNEE_FLOAT32, 0x1.4b5dcep-5) makes `a < knee` pick the float64 reference's branch
+# for every float a. The float nearest 0.0031308 lies above it with no float in between, so the
+# encode knee needs no such care.
 
 
 @wp.func
@@ -144,7 +158,7 @@ def srgb_decode_knee(x: wp.float32) -> wp.float32:
 @wp.func
 def srgb_decode_knee(x: wp.float64) -> wp.float64:  # noqa: F811
     """The sRGB decode knee of x's type: 0.04045."""
-    return wp.float64(0.04045)
+    return wp.float64(SRGB_DECODE_KNEE)
 
 
 @wp.func
@@ -169,8 +183,8 @@ def srgb_to_linear(x: Any):
     knee = srgb_decode_knee(x)
     low = a < knee
     curve = wp.where(low, knee, a)  # NaN stays NaN
-    power = wp.pow((curve + type(x)(0.055)) / type(x)(1.055), type(x)(2.4))
-    y = wp.where(low, a / type(x)(12.92), power)
+    power = wp.pow((curve + type(x)(SRGB_OFFSET)) / type(x)(SRGB_SCALE), type(x)(SRGB_GAMMA))
+    y = wp.where(low, a / type(x)(SRGB_SLOPE), power)
     return wp.copysign(y, x)
 
 
@@ -179,14 +193,14 @@ def linear_to_srgb(x: Any):
     """The sRGB OETF: sign(x) * (12.92 |x| if |x| < 0.0031308 else 1.055 |x|^(1/2.4) - 0.055).
 
     Same branch rule as srgb_to_linear; the IEC knees do not meet exactly (see transfer.py).
-    1 / 2.4 is written out (0.41666666666666667), as in gb_pixel.h.
+    1 / 2.4 is the float64 quotient, as in the reference and gb_pixel.h.
     """
     a = wp.abs(x)
-    knee = type(x)(0.0031308)
+    knee = type(x)(SRGB_ENCODE_KNEE)
     low = a < knee
     curve = wp.where(low, knee, a)
-    power = type(x)(1.055) * wp.pow(curve, type(x)(0.41666666666666667)) - type(x)(0.055)
-    y = wp.where(low, type(x)(12.92) * a, power)
+    power = type(x)(SRGB_SCALE) * wp.pow(curve, type(x)(SRGB_INV_GAMMA)) - type(x)(SRGB_OFFSET)
+    y = wp.where(low, type(x)(SRGB_SLOPE) * a, power)
     return wp.copysign(y, x)
 
 
@@ -309,60 +323,25 @@ _mat33 = wp.types.matrix(shape=(3, 3), dtype=wp.float32)
 # Malvar, He, Cutler, "High-quality linear interpolation for demosaicing of Bayer-patterned color
 # images", ICASSP 2004, Fig. 2: the four 5 x 5 filters times 8 (each sums to 8), rows dy = -2 .. 2
 # (top to bottom), columns dx = -2 .. 2 (left to right). Weight = entry / 8. The entries are
-# multiples of 1/2, exact in float32 and in the compute type.
+# reference.demosaic's filters times 8 (kernel_constants), multiples of 1/2, exact in float32
+# and in the compute type.
 
 #: G at R sites and at B sites.
-MALVAR2004_G_AT_RB = wp.constant(_mat55(
-     0,  0, -1,  0,  0,
-     0,  0,  2,  0,  0,
-    -1,  2,  4,  2, -1,
-     0,  0,  2,  0,  0,
-     0,  0, -1,  0,  0,
-))  # fmt: skip
-
+MALVAR2004_G_AT_RB = wp.constant(_mat55(*constants.MALVAR2004_G_AT_RB_X8))
 #: R at a G site whose row holds R (B at a G site whose row holds B): same colour left and right.
-MALVAR2004_RB_AT_G_ROW = wp.constant(_mat55(
-      0,  0, .5,  0,  0,
-      0, -1,  0, -1,  0,
-     -1,  4,  5,  4, -1,
-      0, -1,  0, -1,  0,
-      0,  0, .5,  0,  0,
-))  # fmt: skip
-
+MALVAR2004_RB_AT_G_ROW = wp.constant(_mat55(*constants.MALVAR2004_RB_AT_G_ROW_X8))
 #: R at a G site whose column holds R (B likewise): the transpose, same colour above and below.
-MALVAR2004_RB_AT_G_COLUMN = wp.constant(_mat55(
-      0,  0, -1,  0,  0,
-      0, -1,  4, -1,  0,
-     .5,  0,  5,  0, .5,
-      0, -1,  4, -1,  0,
-      0,  0, -1,  0,  0,
-))  # fmt: skip
-
+MALVAR2004_RB_AT_G_COLUMN = wp.constant(_mat55(*constants.MALVAR2004_RB_AT_G_COLUMN_X8))
 #: R at B sites and B at R sites.
-MALVAR2004_RB_AT_BR = wp.constant(_mat55(
-       0,    0, -1.5,    0,    0,
-       0,    2,    0,    2,    0,
-    -1.5,    0,    6,    0, -1.5,
-       0,    2,    0,    2,    0,
-       0,    0, -1.5,    0,    0,
-))  # fmt: skip
+MALVAR2004_RB_AT_BR = wp.constant(_mat55(*constants.MALVAR2004_RB_AT_BR_X8))
 
 # Bilinear, times 4, rows dy = -1 .. 1, columns dx = -1 .. 1; applied to the plane of one channel
 # (zeros at the other channels' sites). Weight = entry / 4.
 
 #: G: mean of the 4 axial neighbours.
-BILINEAR_G = wp.constant(_mat33(
-    0, 1, 0,
-    1, 4, 1,
-    0, 1, 0,
-))  # fmt: skip
-
+BILINEAR_G = wp.constant(_mat33(*constants.BILINEAR_G_X4))
 #: R or B: mean of the 2 neighbours at G sites, of the 4 diagonal neighbours at B or R sites.
-BILINEAR_RB = wp.constant(_mat33(
-    1, 2, 1,
-    2, 4, 2,
-    1, 2, 1,
-))  # fmt: skip
+BILINEAR_RB = wp.constant(_mat33(*constants.BILINEAR_RB_X4))
 
 
 @wp.func
@@ -399,7 +378,7 @@ def _malvar2004_filter(raw: wp.array(dtype=Any), w: int, rows: Any, cols: Any, t
         for j in range(5):
             entry = taps[i, j]
             if entry != wp.float32(0.0):
-                weight = raw.dtype(entry) * raw.dtype(0.125)  # exact: multiples of 1/2
+                weight = raw.dtype(entry) * raw.dtype(MALVAR2004_TAP_WEIGHT)  # 1/8, exact: k/2
                 total += weight * _stencil_sample(raw, w, rows[i], cols[j])
     return total
 
@@ -457,7 +436,7 @@ def _bilinear_channel(raw: wp.array(dtype=Any), w: int, rows: Any, cols: Any, cf
         for j in range(3):
             entry = taps[i, j]
             if entry != wp.float32(0.0) and cfa_channel(cfa, gx + j - 1, gy + i - 1) == channel:
-                weight = raw.dtype(entry) * raw.dtype(0.25)  # exact
+                weight = raw.dtype(entry) * raw.dtype(BILINEAR_TAP_WEIGHT)  # 1/4, exact
                 total += weight * _stencil_sample(raw, w, rows[i], cols[j])
     return total
 

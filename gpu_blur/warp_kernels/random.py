@@ -51,7 +51,7 @@ import math
 
 import warp as wp
 
-from gpu_blur.reference import rng
+from gpu_blur import kernel_constants as constants
 
 __all__ = [
     "KERNEL",
@@ -78,68 +78,71 @@ __all__ = [
     "uniform",
 ]
 
+# The numbers below come from gpu_blur.reference.rng through gpu_blur.kernel_constants, which
+# gives gb_random.h the same values.
+
 # -- stream numbers (rng.Stream), as wp.uint32 constants -----------------------------------------
-PARAMS = wp.constant(wp.uint32(int(rng.Stream.PARAMS)))
-TRAJECTORY = wp.constant(wp.uint32(int(rng.Stream.TRAJECTORY)))
-KERNEL = wp.constant(wp.uint32(int(rng.Stream.KERNEL)))
-SHOT_NOISE = wp.constant(wp.uint32(int(rng.Stream.SHOT_NOISE)))
-READ_NOISE = wp.constant(wp.uint32(int(rng.Stream.READ_NOISE)))
-SRGB_NOISE = wp.constant(wp.uint32(int(rng.Stream.SRGB_NOISE)))
-SPOT_CHECK = wp.constant(wp.uint32(int(rng.Stream.SPOT_CHECK)))  # host only (scheduler)
+PARAMS = wp.constant(wp.uint32(constants.STREAMS["PARAMS"]))
+TRAJECTORY = wp.constant(wp.uint32(constants.STREAMS["TRAJECTORY"]))
+KERNEL = wp.constant(wp.uint32(constants.STREAMS["KERNEL"]))
+SHOT_NOISE = wp.constant(wp.uint32(constants.STREAMS["SHOT_NOISE"]))
+READ_NOISE = wp.constant(wp.uint32(constants.STREAMS["READ_NOISE"]))
+SRGB_NOISE = wp.constant(wp.uint32(constants.STREAMS["SRGB_NOISE"]))
+SPOT_CHECK = wp.constant(wp.uint32(constants.STREAMS["SPOT_CHECK"]))  # host only (scheduler)
 
 # -- Philox4x32 (Random123's PHILOX_M4x32_0/1 and PHILOX_W32_0/1) -------------------------------
-_PHILOX_M0 = wp.constant(wp.uint64(0xD2511F53))
-_PHILOX_M1 = wp.constant(wp.uint64(0xCD9E8D57))
-_PHILOX_W0 = wp.constant(wp.uint32(0x9E3779B9))
-_PHILOX_W1 = wp.constant(wp.uint32(0xBB67AE85))
+_PHILOX_M0 = wp.constant(wp.uint64(constants.PHILOX_M4X32_0))
+_PHILOX_M1 = wp.constant(wp.uint64(constants.PHILOX_M4X32_1))
+_PHILOX_W0 = wp.constant(wp.uint32(constants.PHILOX_W32_0))
+_PHILOX_W1 = wp.constant(wp.uint32(constants.PHILOX_W32_1))
 _SHIFT_HI = wp.constant(wp.uint64(32))
-_STREAM_SHIFT = wp.constant(wp.uint32(24))
+_STREAM_SHIFT = wp.constant(wp.uint32(constants.STREAM_SHIFT))
 #: Rounds per pixel: bits of counter word 3 below the stream byte.
-ROUND_LIMIT = wp.constant(wp.uint32(2**24))
+ROUND_LIMIT = wp.constant(wp.uint32(constants.ROUND_LIMIT))
 
 # -- uniforms and Box-Muller ---------------------------------------------------------------------
-_UNIFORM_SHIFT = wp.constant(wp.uint32(9))
-_UNIFORM_SCALE = wp.constant(wp.float64(2.0**-23))
+_UNIFORM_SHIFT = wp.constant(wp.uint32(constants.UNIFORM_SHIFT))
+_UNIFORM_SCALE = wp.constant(wp.float64(constants.UNIFORM_SCALE))
 #: 2 * pi rounded to float64, as the reference's ``2.0 * math.pi``.
-_TWO_PI = wp.constant(wp.float64(6.283185307179586))
+_TWO_PI = wp.constant(wp.float64(constants.TWO_PI))
 #: 2 * pi rounded to float32 (6.2831855), for the fast normals.
-_TWO_PI_F32 = wp.constant(wp.float32(6.283185307179586))
+_TWO_PI_F32 = wp.constant(wp.float32(constants.TWO_PI_FLOAT32))
 
 # -- log(k!) and Poisson -------------------------------------------------------------------------
-_vec16d = wp.types.vector(length=16, dtype=wp.float64)
+_vec16d = wp.types.vector(length=constants.LOG_FACTORIAL_TABLE_SIZE, dtype=wp.float64)
 #: log(k!) for k = 0..15: rng.LOG_FACTORIAL_TABLE, the same float64 values.
-LOG_FACTORIAL_TABLE = wp.constant(_vec16d(*rng.LOG_FACTORIAL_TABLE.tolist()))
-_HALF_LOG_TWO_PI = wp.constant(wp.float64(0.9189385332046728))
+LOG_FACTORIAL_TABLE = wp.constant(_vec16d(*constants.LOG_FACTORIAL_TABLE))
+_HALF_LOG_TWO_PI = wp.constant(wp.float64(constants.HALF_LOG_TWO_PI))
 #: rng.POISSON_PTRS_MIN_RATE: PTRS at and above this rate, inversion below.
-POISSON_PTRS_MIN_RATE = wp.constant(wp.float64(rng.POISSON_PTRS_MIN_RATE))
+POISSON_PTRS_MIN_RATE = wp.constant(wp.float64(constants.POISSON_PTRS_MIN_RATE))
 #: rng.POISSON_INVERSION_MAX_K: hard stop of the inversion search.
-POISSON_INVERSION_MAX_K = wp.constant(int(rng.POISSON_INVERSION_MAX_K))
+POISSON_INVERSION_MAX_K = wp.constant(int(constants.POISSON_INVERSION_MAX_K))
 
 _F0 = wp.constant(wp.float64(0.0))
 _NAN = wp.constant(wp.float64(math.nan))
 _F_HALF = wp.constant(wp.float64(0.5))
 _F1 = wp.constant(wp.float64(1.0))
 _F2 = wp.constant(wp.float64(2.0))
-_F16 = wp.constant(wp.float64(16.0))
+_F_TABLE = wp.constant(wp.float64(float(constants.LOG_FACTORIAL_TABLE_SIZE)))
 _F_MINUS2 = wp.constant(wp.float64(-2.0))
 # Stirling series coefficients, each formed as the reference forms it (1.0 / n in float64).
 _F12 = wp.constant(wp.float64(12.0))
 _F360 = wp.constant(wp.float64(360.0))
 _F1260 = wp.constant(wp.float64(1260.0))
 _F1680 = wp.constant(wp.float64(1680.0))
-# PTRS setup and test constants (Hoermann 1993), as rng._poisson_ptrs writes them.
-_PTRS_B0 = wp.constant(wp.float64(0.931))
-_PTRS_B1 = wp.constant(wp.float64(2.53))
-_PTRS_A0 = wp.constant(wp.float64(-0.059))
-_PTRS_A1 = wp.constant(wp.float64(0.02483))
-_PTRS_IA0 = wp.constant(wp.float64(1.1239))
-_PTRS_IA1 = wp.constant(wp.float64(1.1328))
-_PTRS_IA2 = wp.constant(wp.float64(3.4))
-_PTRS_VR0 = wp.constant(wp.float64(0.9277))
-_PTRS_VR1 = wp.constant(wp.float64(3.6224))
-_PTRS_SHIFT = wp.constant(wp.float64(0.43))
-_PTRS_US_SQUEEZE = wp.constant(wp.float64(0.07))
-_PTRS_US_TAIL = wp.constant(wp.float64(0.013))
+# PTRS setup and test constants (Hoermann 1993): rng.PTRS_*.
+_PTRS_B0 = wp.constant(wp.float64(constants.PTRS["B0"]))
+_PTRS_B1 = wp.constant(wp.float64(constants.PTRS["B1"]))
+_PTRS_A0 = wp.constant(wp.float64(constants.PTRS["A0"]))
+_PTRS_A1 = wp.constant(wp.float64(constants.PTRS["A1"]))
+_PTRS_IA0 = wp.constant(wp.float64(constants.PTRS["IA0"]))
+_PTRS_IA1 = wp.constant(wp.float64(constants.PTRS["IA1"]))
+_PTRS_IA2 = wp.constant(wp.float64(constants.PTRS["IA2"]))
+_PTRS_VR0 = wp.constant(wp.float64(constants.PTRS["VR0"]))
+_PTRS_VR1 = wp.constant(wp.float64(constants.PTRS["VR1"]))
+_PTRS_SHIFT = wp.constant(wp.float64(constants.PTRS["K_SHIFT"]))
+_PTRS_US_SQUEEZE = wp.constant(wp.float64(constants.PTRS["US_SQUEEZE"]))
+_PTRS_US_TAIL = wp.constant(wp.float64(constants.PTRS["US_TAIL"]))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -309,7 +312,7 @@ def log_factorial(k: wp.float64) -> wp.float64:
         r = 1/k;  s = r (1/12 - r^2 (1/360 - r^2 (1/1260 - r^2 / 1680)))
         log k! = (k + 0.5) log k - k + 0.5 log(2 pi) + s
     """
-    if k < _F16:
+    if k < _F_TABLE:
         return LOG_FACTORIAL_TABLE[wp.int32(k)]
     r = _F1 / k
     r2 = r * r

@@ -17,7 +17,7 @@ __kernel void gb_linearize(__global const gb_source *srgb, __global real *linear
     size_t i = get_global_id(0);
     real v = gb_srgb_to_linear(gb_source_value(srgb[i]));
     linear[i] = v;
-    indicator[i] = v >= GB_REAL(1.0) ? GB_REAL(1.0) : GB_REAL(0.0);
+    indicator[i] = v >= GB_SATURATION_LEVEL ? GB_REAL(1.0) : GB_REAL(0.0);
 }
 
 /* The linear value of a stored frame value at frames[i]. 8-bit codes: a gather from `table`,
@@ -56,7 +56,7 @@ __kernel void gb_blur_average_add(__global const gb_source *frames, uint count, 
         real t = s + v;
         c += fabs(s) >= fabs(v) ? (s - t) + v : (v - t) + s;
         s = t;
-        n += v >= GB_REAL(1.0) ? 1u : 0u;
+        n += v >= GB_SATURATION_LEVEL ? 1u : 0u;
     }
     if (mean_of > 0) {
         linear[i] = (s + c) / (real)mean_of;

@@ -9,8 +9,6 @@
 #include "gb_random.h"
 #include "gb_demosaic.h"
 
-#define GB_STREAM_SRGB_NOISE 6u
-
 __kernel void gb_finish(__global const real *raw, __global const real *saturated, long vx0,
                         long vy0, long vw, long full_w, long full_h, long ox0, long oy0,
                         long ow, long oh, int cfa, __constant real *cam_to_lin,

@@ -28,7 +28,7 @@
 #define GB_FRAME_VALUE(frame, o) gb_source_value((frame)[o])
 
 /* Saturation indicator of one stored sRGB value: 1 at or above 1 (linear 1), else 0. */
-#define GB_SATURATED(v) ((v) >= GB_REAL(1.0) ? GB_REAL(1.0) : GB_REAL(0.0))
+#define GB_SATURATED(v) ((v) >= GB_SATURATION_LEVEL ? GB_REAL(1.0) : GB_REAL(0.0))
 
 /* Bilinear sample of an RGB frame view at (px, py), reflect-101 neighbours, as
  * reference.blur._bilinear_sample: a + f (b - a) along x, then along y. sat gets the same
@@ -157,7 +157,7 @@ __kernel void gb_blur_interpolate_add_frame(__global const gb_source *frame, lon
     for (int c = 0; c < 3; ++c) {
         real lin = gb_srgb_to_linear(GB_FRAME_VALUE(frame, o + c));
         gb_add_compensated(sum, compensation, od + c, lin);
-        saturated[od + c] += lin >= GB_REAL(1.0) ? GB_REAL(1.0) : GB_REAL(0.0);
+        saturated[od + c] += lin >= GB_SATURATION_LEVEL ? GB_REAL(1.0) : GB_REAL(0.0);
     }
 }
 

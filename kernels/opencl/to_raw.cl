@@ -9,8 +9,6 @@
 #include "gb_common.h"
 #include "gb_random.h"
 
-#define GB_STREAM_READ_NOISE 5u
-
 __kernel void gb_to_raw(__global const real *linear, __global const real *mask, long x0,
                         long y0, long w, long h, real alpha, __constant real *lin_to_cam,
                         int cfa, real red_gain, real blue_gain, real shot_noise_k,

@@ -21,60 +21,29 @@
 
 /* Malvar, He, Cutler, "High-quality linear interpolation for demosaicing of Bayer-patterned color
  * images", ICASSP 2004, Fig. 2: the four 5 x 5 filters times 8 (each sums to 8), row-major,
- * rows dy = -2 .. 2 (top to bottom), columns dx = -2 .. 2 (left to right). Weight = entry / 8. */
+ * rows dy = -2 .. 2 (top to bottom), columns dx = -2 .. 2 (left to right). Weight = entry / 8.
+ * The entries are gpu_blur.reference.demosaic's filters times 8 (gb_constants.h). */
 
 /* G at R sites and at B sites. */
-__constant real GB_MALVAR2004_G_AT_RB[25] = {
-     0,  0, -1,  0,  0,
-     0,  0,  2,  0,  0,
-    -1,  2,  4,  2, -1,
-     0,  0,  2,  0,  0,
-     0,  0, -1,  0,  0,
-};
+__constant real GB_MALVAR2004_G_AT_RB[25] = GB_MALVAR2004_G_AT_RB_X8;
 
 /* R at a G site whose row holds R (B at a G site whose row holds B): same colour left and right. */
-__constant real GB_MALVAR2004_RB_AT_G_ROW[25] = {
-              0,  0, GB_REAL(0.5),  0,  0,
-              0, -1,            0, -1,  0,
-             -1,  4,            5,  4, -1,
-              0, -1,            0, -1,  0,
-              0,  0, GB_REAL(0.5),  0,  0,
-};
+__constant real GB_MALVAR2004_RB_AT_G_ROW[25] = GB_MALVAR2004_RB_AT_G_ROW_X8;
 
 /* R at a G site whose column holds R (B likewise): the transpose, same colour above and below. */
-__constant real GB_MALVAR2004_RB_AT_G_COLUMN[25] = {
-               0,  0, -1,  0,            0,
-               0, -1,  4, -1,            0,
-    GB_REAL(0.5),  0,  5,  0, GB_REAL(0.5),
-               0, -1,  4, -1,            0,
-               0,  0, -1,  0,            0,
-};
+__constant real GB_MALVAR2004_RB_AT_G_COLUMN[25] = GB_MALVAR2004_RB_AT_G_COLUMN_X8;
 
 /* R at B sites and B at R sites. */
-__constant real GB_MALVAR2004_RB_AT_BR[25] = {
-                0,  0, GB_REAL(-1.5),  0,             0,
-                0,  2,             0,  2,             0,
-    GB_REAL(-1.5),  0,             6,  0, GB_REAL(-1.5),
-                0,  2,             0,  2,             0,
-                0,  0, GB_REAL(-1.5),  0,             0,
-};
+__constant real GB_MALVAR2004_RB_AT_BR[25] = GB_MALVAR2004_RB_AT_BR_X8;
 
 /* Bilinear, times 4, rows dy = -1 .. 1, columns dx = -1 .. 1; applied to the plane of one
  * channel (zeros at the other channels' sites). Weight = entry / 4. */
 
 /* G: mean of the 4 axial neighbours. */
-__constant real GB_BILINEAR_G[9] = {
-    0, 1, 0,
-    1, 4, 1,
-    0, 1, 0,
-};
+__constant real GB_BILINEAR_G[9] = GB_BILINEAR_G_X4;
 
 /* R or B: mean of the 2 neighbours at G sites, of the 4 diagonal neighbours at B or R sites. */
-__constant real GB_BILINEAR_RB[9] = {
-    1, 2, 1,
-    2, 4, 2,
-    1, 2, 1,
-};
+__constant real GB_BILINEAR_RB[9] = GB_BILINEAR_RB_X4;
 
 /* Stencil coordinates along one axis: global position g + k - reach (k = 0 .. 2 reach) under the
  * border rule, as an index relative to the view's origin `o` (a column, or a row to be scaled by
@@ -113,7 +82,7 @@ static inline real gb_malvar2004_filter(__global const real *raw, long w, const 
         for (int l = 0; l < 5; ++l) {
             real entry = taps[5 * k + l];
             if (entry != GB_REAL(0.0)) {
-                real weight = entry * GB_REAL(0.125); /* exact: entries are multiples of 1/2 */
+                real weight = entry * GB_MALVAR2004_TAP_WEIGHT; /* 1/8, exact: entries are k/2 */
                 sum += weight * gb_stencil_sample(raw, w, row, row_in, col, col_in, k, l);
             }
         }
@@ -173,7 +142,7 @@ static inline void gb_demosaic_bilinear(__global const real *raw, long x0, long 
             for (int l = 0; l < 3; ++l) {
                 real entry = taps[3 * k + l];
                 if (entry != GB_REAL(0.0) && gb_cfa_channel(cfa, gx + l - 1, gy + k - 1) == c) {
-                    real weight = entry * GB_REAL(0.25); /* exact */
+                    real weight = entry * GB_BILINEAR_TAP_WEIGHT; /* 1/4, exact */
                     sum += weight * gb_stencil_sample(raw, w, row, row_in, col, col_in, k, l);
                 }
             }

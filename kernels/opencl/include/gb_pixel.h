@@ -21,22 +21,14 @@
 #include "gb_common.h"
 #include "gb_math.h"
 
-/* sRGB, IEC 61966-2-1 (the same constants as gpu_blur.reference.transfer). */
+/* sRGB, IEC 61966-2-1: GB_SRGB_* of gb_constants.h (gpu_blur.reference.transfer). The decode
+ * knee of float builds is the float just above 0.04045 (the nearest lies below it), so that
+ * `a < knee` picks the float64 reference's branch for every float a (kernel_constants). */
 #ifdef GB_FP64
-#define GB_SRGB_DECODE_KNEE 0.04045
+#define GB_SRGB_DECODE_KNEE GB_SRGB_DECODE_KNEE_DOUBLE
 #else
-/* The float nearest 0.04045 (0.0404499993) lies below it; the next float up (0.0404500030) makes
- * `a < knee` pick the float64 reference's branch for every float a. The float nearest 0.0031308
- * lies above it with no float in between, so the encode knee needs no such care. */
-#define GB_SRGB_DECODE_KNEE 0x1.4b5dcep-5f
+#define GB_SRGB_DECODE_KNEE GB_SRGB_DECODE_KNEE_FLOAT
 #endif
-#define GB_SRGB_ENCODE_KNEE GB_REAL(0.0031308)
-#define GB_SRGB_SLOPE GB_REAL(12.92)
-#define GB_SRGB_GAMMA GB_REAL(2.4)
-/* 1 / 2.4, written out so that float builds need no double constant. */
-#define GB_SRGB_INV_GAMMA GB_REAL(0.41666666666666667)
-#define GB_SRGB_SCALE GB_REAL(1.055)
-#define GB_SRGB_OFFSET GB_REAL(0.055)
 
 /* clip(x, 0, 1) as np.clip: NaN stays NaN (fmin/fmax would turn it into a bound). */
 static inline real gb_clip01(real x)

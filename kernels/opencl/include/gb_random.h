@@ -53,18 +53,11 @@ typedef float gb_wide;
 #define GB_WIDE(x) (x##f)
 #endif
 
-/* Stream numbers (rng.Stream). */
-#define GB_STREAM_PARAMS 1u
-#define GB_STREAM_TRAJECTORY 2u
-#define GB_STREAM_KERNEL 3u
-#define GB_STREAM_SHOT_NOISE 4u
-#define GB_STREAM_READ_NOISE 5u
-#define GB_STREAM_SRGB_NOISE 6u
-#define GB_STREAM_SPOT_CHECK 7u /* host only: which tiles gpu_blur.scheduler spot-checks */
-
-/* rng.POISSON_INVERSION_MAX_K, and the round limit 2^24. */
-#define GB_POISSON_INVERSION_MAX_K 64
-#define GB_ROUND_LIMIT 16777216u
+/* From gpu_blur.reference.rng, in gb_constants.h: the stream numbers GB_STREAM_<NAME> (rng.Stream;
+ * SPOT_CHECK is host only), GB_STREAM_SHIFT and GB_ROUND_LIMIT (2^24 rounds below the stream
+ * byte), GB_UNIFORM_SHIFT and GB_UNIFORM_SCALE, 2 pi (GB_TWO_PI_DOUBLE, GB_TWO_PI_FLOAT), log(k!)
+ * (GB_LOG_FACTORIAL_TABLE, GB_HALF_LOG_TWO_PI), GB_POISSON_PTRS_MIN_RATE,
+ * GB_POISSON_INVERSION_MAX_K and PTRS's GB_PTRS_<NAME> (rng.PTRS_<NAME>). */
 
 /* Philox4x32-10 block function: four 32-bit words of counter under a two-word key. */
 static inline uint4 gb_philox(uint4 counter, uint2 key)
@@ -79,13 +72,13 @@ static inline uint4 gb_philox(uint4 counter, uint2 key)
 static inline uint4 gb_pixel_bits(uint2 key, uint sample_index, uint stream, uint x, uint y,
                                   uint round)
 {
-    return gb_philox((uint4)(x, y, sample_index, (stream << 24) | round), key);
+    return gb_philox((uint4)(x, y, sample_index, (stream << GB_STREAM_SHIFT) | round), key);
 }
 
 /* A word as a uniform in (0, 1): an odd multiple of 2^-24, exact in float and double. */
 static inline real gb_uniform(uint bits)
 {
-    return ((real)(bits >> 9) + GB_REAL(0.5)) * GB_REAL(0x1p-23);
+    return ((real)(bits >> GB_UNIFORM_SHIFT) + GB_REAL(0.5)) * GB_UNIFORM_SCALE;
 }
 
 /* Box-Muller in gb_wide: r = sqrt(-2 log u1), t = (2 pi) u2; (r cos t, r sin t). */
@@ -95,7 +88,7 @@ static inline void gb_box_muller_wide(gb_wide u1, gb_wide u2, gb_wide *z_cos, gb
     const gb_wide radius = sqrt(GB_WIDE(-2.0) * log(u1));
 #ifdef GB_RANDOM_WIDE_IS_DOUBLE
     /* 2 * pi rounded to double, as numpy's 2.0 * math.pi. */
-    const gb_wide angle = 6.283185307179586 * u2;
+    const gb_wide angle = GB_TWO_PI_DOUBLE * u2;
     *z_cos = radius * cos(angle);
     *z_sin = radius * sin(angle);
 #else
@@ -116,7 +109,7 @@ static inline void gb_box_muller(real u1, real u2, real *z_cos, real *z_sin)
 #pragma OPENCL FP_CONTRACT OFF
 #ifdef GB_NATIVE_MATH
     const float radius = gb_sqrt(-2.0f * gb_log(u1));
-    const float angle = 6.2831855f * (u2 - 0.5f);
+    const float angle = GB_TWO_PI_FLOAT * (u2 - 0.5f);
     *z_cos = -radius * gb_cos(angle);
     *z_sin = -radius * gb_sin(angle);
 #else
@@ -141,40 +134,24 @@ static inline real gb_pixel_normal(uint2 key, uint sample_index, uint stream, ui
     return (j & 1u) ? z_sin : z_cos;
 }
 
-/* log(k!) for k = 0..15, the float64 literals of rng.LOG_FACTORIAL_TABLE. */
-__constant gb_wide gb_log_factorial_table[16] = {
-    GB_WIDE(0.0),
-    GB_WIDE(0.0),
-    GB_WIDE(0.6931471805599453),
-    GB_WIDE(1.791759469228055),
-    GB_WIDE(3.1780538303479458),
-    GB_WIDE(4.787491742782046),
-    GB_WIDE(6.579251212010101),
-    GB_WIDE(8.525161361065415),
-    GB_WIDE(10.60460290274525),
-    GB_WIDE(12.801827480081469),
-    GB_WIDE(15.104412573075516),
-    GB_WIDE(17.502307845873887),
-    GB_WIDE(19.987214495661885),
-    GB_WIDE(22.552163853123425),
-    GB_WIDE(25.19122118273868),
-    GB_WIDE(27.89927138384089),
-};
+/* log(k!) for k = 0..15, the float64 values of rng.LOG_FACTORIAL_TABLE (gb_constants.h). */
+__constant gb_wide gb_log_factorial_table[GB_LOG_FACTORIAL_TABLE_SIZE] = GB_LOG_FACTORIAL_TABLE;
 
-/* log(k!) for integer-valued k >= 0 (rng.log_factorial): the table below 16, else Stirling
+/* log(k!) for integer-valued k >= 0 (rng.log_factorial): the table below 16 (its size), else
+ * Stirling:
  *   r = 1/k;  s = r (1/12 - r^2 (1/360 - r^2 (1/1260 - r^2 / 1680)))
  *   log k! = (k + 0.5) log k - k + 0.5 log(2 pi) + s */
 static inline gb_wide gb_log_factorial(gb_wide k)
 {
 #pragma OPENCL FP_CONTRACT OFF
-    if (k < GB_WIDE(16.0)) return gb_log_factorial_table[(int)k];
+    if (k < (gb_wide)GB_LOG_FACTORIAL_TABLE_SIZE) return gb_log_factorial_table[(int)k];
     const gb_wide r = GB_WIDE(1.0) / k;
     const gb_wide r2 = r * r;
     const gb_wide series =
         r * (GB_WIDE(1.0) / GB_WIDE(12.0) -
              r2 * (GB_WIDE(1.0) / GB_WIDE(360.0) -
                    r2 * (GB_WIDE(1.0) / GB_WIDE(1260.0) - r2 / GB_WIDE(1680.0))));
-    return (k + GB_WIDE(0.5)) * log(k) - k + GB_WIDE(0.9189385332046728) + series;
+    return (k + GB_WIDE(0.5)) * log(k) - k + GB_HALF_LOG_TWO_PI + series;
 }
 
 /* One Poisson count at pixel (x, y) of stream SHOT_NOISE (rng.poisson), as a real.
@@ -189,7 +166,7 @@ static inline real gb_poisson(real rate_in, uint2 key, uint sample_index, uint x
     const gb_wide rate = rate_raw > GB_WIDE(0.0) ? rate_raw : GB_WIDE(0.0);
     if (isinf(rate)) return (real)INFINITY;
 
-    if (rate < GB_WIDE(10.0)) { /* rng.POISSON_PTRS_MIN_RATE */
+    if (rate < GB_POISSON_PTRS_MIN_RATE) {
         /* Inversion by sequential search on word 0 of round 0. */
         const uint4 bits = gb_pixel_bits(key, sample_index, GB_STREAM_SHOT_NOISE, x, y, 0u);
         const gb_wide u = (gb_wide)gb_uniform(bits.x);
@@ -209,10 +186,10 @@ static inline real gb_poisson(real rate_in, uint2 key, uint sample_index, uint x
     /* PTRS (Hoermann 1993), mu = rate. */
     const gb_wide mu = rate;
     const gb_wide log_mu = log(mu);
-    const gb_wide b = GB_WIDE(0.931) + GB_WIDE(2.53) * sqrt(mu);
-    const gb_wide a = GB_WIDE(-0.059) + GB_WIDE(0.02483) * b;
-    const gb_wide inv_alpha = GB_WIDE(1.1239) + GB_WIDE(1.1328) / (b - GB_WIDE(3.4));
-    const gb_wide v_r = GB_WIDE(0.9277) - GB_WIDE(3.6224) / (b - GB_WIDE(2.0));
+    const gb_wide b = GB_PTRS_B0 + GB_PTRS_B1 * sqrt(mu);
+    const gb_wide a = GB_PTRS_A0 + GB_PTRS_A1 * b;
+    const gb_wide inv_alpha = GB_PTRS_IA0 + GB_PTRS_IA1 / (b - GB_PTRS_IA2);
+    const gb_wide v_r = GB_PTRS_VR0 - GB_PTRS_VR1 / (b - GB_WIDE(2.0));
     for (uint round = 0u; round < GB_ROUND_LIMIT; ++round) {
         const uint4 bits = gb_pixel_bits(key, sample_index, GB_STREAM_SHOT_NOISE, x, y, round);
         for (int attempt = 0; attempt < 2; ++attempt) {
@@ -223,9 +200,9 @@ static inline real gb_poisson(real rate_in, uint2 key, uint sample_index, uint x
             const gb_wide us = GB_WIDE(0.5) - fabs(big_u);
             /* k stays floating: a rejected candidate can lie far outside the int range. */
             const gb_wide k =
-                floor((GB_WIDE(2.0) * a / us + b) * big_u + mu + GB_WIDE(0.43));
-            if (us >= GB_WIDE(0.07) && v <= v_r) return (real)k;
-            if (k < GB_WIDE(0.0) || (us < GB_WIDE(0.013) && v > us)) continue;
+                floor((GB_WIDE(2.0) * a / us + b) * big_u + mu + GB_PTRS_K_SHIFT);
+            if (us >= GB_PTRS_US_SQUEEZE && v <= v_r) return (real)k;
+            if (k < GB_WIDE(0.0) || (us < GB_PTRS_US_TAIL && v > us)) continue;
             const gb_wide lhs = log(v * inv_alpha / (a / (us * us) + b));
             const gb_wide rhs = -mu + k * log_mu - gb_log_factorial(k);
             if (lhs <= rhs) return (real)k;
