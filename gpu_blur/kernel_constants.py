@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.reference import blur, demosaic, rng, transfer
+from gpu_blur.reference import average, demosaic, rng, transfer
 
 # -- sRGB curve (reference.transfer) --------------------------------------------------------
 SRGB_DECODE_KNEE = transfer.SRGB_DECODE_KNEE
@@ -53,9 +53,9 @@ def _float32_at_or_above(x: float) -> float:
 #: nearest the encode knee lies above it with no float in between: no such care there.)
 SRGB_DECODE_KNEE_FLOAT32 = _float32_at_or_above(SRGB_DECODE_KNEE)
 
-# -- saturation (reference.blur) ------------------------------------------------------------
+# -- saturation (reference.average) ------------------------------------------------------------
 #: A linear value at or above this is saturated (the indicator of the accumulate pass).
-SATURATION_LEVEL = blur.SATURATION_LEVEL
+SATURATION_LEVEL = average.SATURATION_LEVEL
 
 # -- demosaicing taps (reference.demosaic), as the kernels hold them ------------------------
 # Kernels hold each filter times a power of two (exact) and weigh an entry by its inverse,

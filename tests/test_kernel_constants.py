@@ -13,7 +13,7 @@ import pytest
 from conftest import BACKEND_SPECS, make_backend
 
 from gpu_blur import kernel_constants
-from gpu_blur.reference import blur, demosaic, rng, transfer
+from gpu_blur.reference import average, demosaic, rng, transfer
 
 OPENCL = [s for s in BACKEND_SPECS if s.startswith("opencl")]
 
@@ -117,7 +117,7 @@ def test_opencl_kernels_see_the_reference_values(spec):
     backend = make_backend(spec).backend
     reals, words, wide = opencl_constants(backend)
     real = backend.real
-    expected = [*SRGB, blur.SATURATION_LEVEL, rng._UNIFORM_SCALE]
+    expected = [*SRGB, average.SATURATION_LEVEL, rng._UNIFORM_SCALE]
     assert reals[:8].tolist() == [real(v) for v in expected]
     knee = real(reals[8])
     if real is np.float64:
