@@ -97,7 +97,7 @@ def interpolate_kernels(real, source=None) -> dict:
     @wp.func
     def sample_rgb(frame: wp.array(dtype=source), sx0: int, sy0: int, sw: int, full_w: int,
                    full_h: int, px: wp.float64, py: wp.float64) -> mat23:
-        # as reference.blur._bilinear_sample: a + f (b - a) along x, then along y; row 0 the
+        # as reference.sampling.bilinear_sample: a + f (b - a) along x, then along y; row 0 the
         # values, row 1 the same sample of the saturation indicator (reference step 4)
         fx0 = wp.floor(px)
         fy0 = wp.floor(py)

@@ -99,7 +99,7 @@ __kernel void gb_blur_kernel(__global const real *src, long sx0, long sy0, long 
 
 /* blur, variant trajectory: add the linear image and its indicator warped by one pose to their
  * compensated sums. Output pixel (gx, gy) samples src bilinearly at H^-1 (gx, gy, 1) (hinv
- * row-major), with reflect-101 neighbours, as gpu_blur.reference.blur.warp_homography.
+ * row-major), with reflect-101 neighbours, as gpu_blur.reference.shake.warp_homography.
  * Positions are computed in double where the device has it. src and ind are views holding every
  * pixel the region's inverse mapping reads. */
 __kernel void gb_blur_trajectory_add(__global const real *src, __global const real *ind,

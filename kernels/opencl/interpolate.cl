@@ -31,7 +31,7 @@
 #define GB_SATURATED(v) ((v) >= GB_SATURATION_LEVEL ? GB_REAL(1.0) : GB_REAL(0.0))
 
 /* Bilinear sample of an RGB frame view at (px, py), reflect-101 neighbours, as
- * reference.blur._bilinear_sample: a + f (b - a) along x, then along y. sat gets the same
+ * reference.sampling.bilinear_sample: a + f (b - a) along x, then along y. sat gets the same
  * sample of the frame's saturation indicator (reference.interpolate, module step 4). */
 static inline void gb_interp_sample_rgb(__global const gb_source *frame, long sx0, long sy0, long sw,
                                         long full_w, long full_h, gb_pos px, gb_pos py,
