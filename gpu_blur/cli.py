@@ -47,8 +47,9 @@ def _parser() -> argparse.ArgumentParser:
                    "(<seq>/sharp/*.png, blur.mode = average) or of photos (kernel, trajectory)")
     g.add_argument("--output", type=Path, required=True, help="folder for blur/, sharp/, "
                    "params/, manifest.jsonl and run.json")
-    g.add_argument("--scene", type=Path, help="scene TOML (default: built-in defaults; see "
-                   "`gpu-blur scene`)")
+    g.add_argument("--scene", type=Path, help="scene TOML, or a built-in scene's name "
+                   "(realblur_j, rsblur, minimal; a file of that name wins); default: the "
+                   "default scene (`gpu-blur scene` prints it as TOML to start from)")
     g.add_argument("--seed", type=int, default=0, help="dataset seed; with a sample's index it "
                    "fixes all of that sample's random draws (default 0)")
     g.add_argument("--backend", default="numpy", help="numpy (float64 reference), opencl "
@@ -99,10 +100,12 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--quiet", action="store_true", help="no progress bar")
 
     pl = sub.add_parser("plan", help="print the stages a scene runs, kept or skipped, with why")
-    pl.add_argument("scene", type=Path, nargs="?", help="scene TOML (default: built-in)")
+    pl.add_argument("scene", type=Path, nargs="?", help="scene TOML, or a built-in scene's "
+                    "name (realblur_j, rsblur, minimal; default: the default scene)")
 
     sub.add_parser("devices", help="list every backend and device, with fp64 support and memory")
-    sub.add_parser("scene", help="print every scene key with its default and meaning")
+    sub.add_parser("scene", help="print the default scene as TOML: every key with its default, "
+                   "meaning and range (gpu-blur scene > my.toml, then --scene my.toml)")
     sub.add_parser("cameras", help="list the built-in cameras")
     from gpu_blur.analysis.bench.run import add_arguments as bench_arguments
 
@@ -466,6 +469,25 @@ def _refuse_writing_over_inputs(option: str, outputs, inputs, fix: str) -> None:
                              f"file): the command would destroy its own input; {fix}")
 
 
+def _cameras() -> None:
+    """``gpu-blur cameras``: each built-in camera with the numbers one chooses by."""
+    from gpu_blur.cameras import get_camera, preset_names
+
+    print(f"{'camera':<14} {'K':>10} {'read std':>10}  {'WB red':<12} {'WB blue':<12} source")
+    for name in preset_names():
+        c = get_camera(name)
+        wb = c.white_balance
+        if wb.pairs:
+            red, blue = (f"{len(wb.pairs)} pairs", f"{min(p[1] for p in wb.pairs):.2f}-"
+                         f"{max(p[1] for p in wb.pairs):.2f}")
+            red += f" {min(p[0] for p in wb.pairs):.2f}-{max(p[0] for p in wb.pairs):.2f}"
+        else:
+            red, blue = ("-".join(f"{g:.2f}" for g in dict.fromkeys(r))
+                         for r in (wb.red_range, wb.blue_range))
+        print(f"{name:<14} {c.shot_noise_k:>10.4g} {c.read_noise_std:>10.4g}  {red:<12} "
+              f"{blue:<12} {c.source}")
+
+
 def _read_unit(path: Path, role: str):
     """An image file as float64 sRGB values in [0, 1], H x W x 3; errors name the role."""
     from gpu_blur.imageio import read_image, to_unit
@@ -684,10 +706,13 @@ def main(argv: list[str] | None = None) -> int:
 
             return run_from_args(args)
         if args.command == "plan":
+            from gpu_blur.pipeline import scene_camera
             from gpu_blur.plan import plan
             from gpu_blur.scene import load_scene
 
-            print(plan(load_scene(args.scene)))
+            scene = load_scene(args.scene)
+            scene_camera(scene)  # an unknown camera or a bad camera file, as generate says
+            print(plan(scene))
         elif args.command == "devices":
             _devices()
         elif args.command == "scene":
@@ -699,11 +724,11 @@ def main(argv: list[str] | None = None) -> int:
         elif args.command == "align":
             return _align(args)
         elif args.command == "cameras":
-            from gpu_blur.cameras import get_camera, preset_names
-
-            for name in preset_names():
-                print(f"{name:<14} {get_camera(name).source}")
+            _cameras()
         return 0
+    except BrokenPipeError:  # the reader left (gpu-blur cameras | head -1): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
     except (ValueError, OSError, RuntimeError) as e:
         print(f"gpu-blur: error: {e}", file=sys.stderr)
         return 2

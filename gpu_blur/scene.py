@@ -9,7 +9,9 @@ full list (``gpu-blur plan --help`` prints it).
 from __future__ import annotations
 
 import dataclasses
+import json
 import sys
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -297,17 +299,44 @@ def _check_consistency(sections: dict, where: str) -> None:
                          "'float64': false")
 
 
+def builtin_scenes() -> dict[str, Path]:
+    """The example scenes shipped in ``gpu_blur/data/scenes/``, by name (file name, no suffix)."""
+    folder = Path(str(resources.files("gpu_blur").joinpath("data/scenes")))
+    return {p.stem: p for p in sorted(folder.glob("*.toml"))}
+
+
+def scene_path(name: str | Path) -> Path:
+    """The file a scene name stands for: an existing file, else a built-in scene's.
+
+    ``realblur_j`` and ``realblur_j.toml`` name the built-in scene unless a file of that name
+    exists (a file of one's own always wins).
+
+    Raises:
+        SceneError: naming the file and the built-in scenes, when it is neither.
+    """
+    path = Path(name)
+    if path.exists():
+        return path
+    builtin = builtin_scenes()
+    stem = path.name[:-5] if path.name.endswith(".toml") else path.name
+    if path.parent == Path(".") and stem in builtin:
+        return builtin[stem]
+    raise SceneError(f"scene file {path} does not exist; built-in scenes (by name): "
+                     f"{', '.join(builtin)}")
+
+
 def load_scene(path: str | Path | dict | None = None) -> Scene:
-    """Load and validate a scene TOML file, or a dict of sections; ``None`` gives the default."""
+    """Load and validate a scene: a TOML file, a built-in scene's name, or a dict of sections.
+
+    ``None`` gives the default scene; names are resolved by :func:`scene_path`.
+    """
     if path is None:
         return scene_from_dict({})
     if isinstance(path, dict):
         return scene_from_dict(path)
-    path = Path(path)
+    path = scene_path(path)
     try:
         text = path.read_text()
-    except FileNotFoundError:
-        raise SceneError(f"scene file {path} does not exist") from None
     except OSError as e:
         raise SceneError(f"scene file {path}: cannot read it ({e.strerror})") from None
     try:
@@ -318,14 +347,22 @@ def load_scene(path: str | Path | dict | None = None) -> Scene:
 
 
 def describe_fields() -> str:
-    """Every scene key with its default, meaning and range, as TOML comments (for help text)."""
+    """Every scene key with its default, meaning and range: a TOML file of the default scene.
+
+    ``gpu-blur scene > my.toml`` is a scene ``--scene`` takes as it is; a key whose default
+    comes from the camera is commented out (TOML has no null).
+    """
     lines = []
     for section, fields in FIELDS.items():
         lines.append(f"[{section}]")
         for key, f in fields.items():
-            default = "(camera's)" if f.default is None else repr(f.default).replace("'", '"')
-            default = default.replace("True", "true").replace("False", "false")
             allowed = f" [{f.limit.describe()}]" if f.limit is not None else ""
+            if f.choices:
+                allowed = f" [one of {', '.join(json.dumps(c) for c in f.choices)}]"
+            if f.default is None:
+                lines.append(f"# {key} = ...  # default: the camera's; {f.help}{allowed}")
+                continue
+            default = json.dumps(f.default)  # TOML's strings, numbers, booleans and arrays
             lines.append(f"{key} = {default}  # {f.help}{allowed}")
         lines.append("")
     return "\n".join(lines)
