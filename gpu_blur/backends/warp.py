@@ -119,7 +119,7 @@ class WarpBackend(KernelBackend):
 
     # -- kernels -----------------------------------------------------------------------------
     def _pass_kernels(self, config: PassConfig, source=None, interpolate: bool = False):
-        """The Warp kernels of ``config``, by name (the flags are the factories' arguments)."""
+        """The Warp kernels of ``config``, by name (the factories read their flags from it)."""
         from gpu_blur.warp_kernels.interpolate import interpolate_kernels
         from gpu_blur.warp_kernels.passes import accumulate_kernels, finish_kernel, to_raw_kernel
 
@@ -128,14 +128,8 @@ class WarpBackend(KernelBackend):
             factory = interpolate_kernels if interpolate else accumulate_kernels
             return factory(self.real, source)
         if config.pass_ == Pass.TO_RAW:
-            return {"to_raw": to_raw_kernel(
-                self.real, config.kept(S.SATURATE), config.kept(S.MOSAIC), config.clip_camera,
-                config.kept(S.POISSON_GAUSSIAN_NOISE), config.poisson_normal,
-                config.fast_math)}
-        return {"finish": finish_kernel(
-            self.real, config.demosaic, config.zero_border, config.clip_demosaic,
-            config.kept(S.TONE), config.kept(S.GAUSSIAN_NOISE),
-            config.kept(S.RESTORE_SATURATED), config.retone, config.bits, config.fast_math)}
+            return {"to_raw": to_raw_kernel(self.real, config)}
+        return {"finish": finish_kernel(self.real, config)}
 
     def _launch(self, kernels, name: str, grid, *args) -> None:
         inputs = [self._render(a) for a in args if not (isinstance(a, Arg) and a.extent)]
