@@ -77,6 +77,11 @@ class Stage:
         reason: why it is kept or skipped, in words.
         variant: which flavour runs (e.g. ``"malvar2004"``), or ``""``.
         options: the settings the stage reads (e.g. ``{"border": "reflect", "clip": False}``).
+        values: scene numbers the pass's kernel takes as arguments for this stage, passed
+            whether the stage runs or not (the kernel's signature does not change); they
+            follow the kernel's own arguments in plan order
+            (:func:`gpu_blur.backends.kernel.stage_values`). A new pointwise stage with a
+            setting passes it here, with no change to the backends.
     """
 
     name: str
@@ -85,6 +90,7 @@ class Stage:
     reason: str
     variant: str = ""
     options: dict = dataclasses.field(default_factory=dict)
+    values: tuple[float, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)

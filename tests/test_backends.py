@@ -1,12 +1,14 @@
 """One test body per pass and stage, run on every backend against the float64 reference."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from conftest import BACKEND_SPECS, KERNEL_BACKEND_SPECS, make_backend, spec_backend, spec_dtype
 
 import gpu_blur
 from gpu_blur.backends import Backend
-from gpu_blur.backends.kernel import pass_config
+from gpu_blur.backends.kernel import Arg, pass_config, stage_values, to_raw_args
 from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.cameras import get_camera
 from gpu_blur.distributed import uses_cuda
@@ -300,3 +302,16 @@ def test_reference_to_raw_is_sensor_raw_then_noisy_raw(photo):
     noisy = REFERENCE.noisy_raw(p, params, raw, (2, 4), seed=SEED, sample_index=SAMPLE)
     np.testing.assert_array_equal(noisy, image)
     np.testing.assert_array_equal(sensor_sat, sat)
+
+
+def test_a_stage_s_values_close_its_pass_kernel_s_arguments():
+    p = plan(scene_from_dict({}))
+    stages = tuple(dataclasses.replace(s, values=(0.25, 2.0)) if s.name == S.WHITE_BALANCE
+                   else s for s in p.stages)
+    p = dataclasses.replace(p, stages=stages)
+    params = {"alpha": 1.0, "pattern": "RGGB", "red_gain": 2.0, "blue_gain": 1.5,
+              "shot_noise_k": 0.01, "read_noise_std": 0.001}
+    args = to_raw_args(p, params, (0, 0), 4, 4, ("linear", "mask"), "matrix", ("sat", "raw"),
+                       seed=SEED, sample_index=SAMPLE)
+    assert args[-4:] == ("sat", "raw", Arg("real", 0.25), Arg("real", 2.0))
+    assert stage_values(p, Pass.FINISH) == ()

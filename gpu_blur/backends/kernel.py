@@ -135,6 +135,14 @@ def _view_geometry(view: Region) -> tuple[Arg, ...]:
     return _index(view.x0, view.y0, view.w, view.full_w, view.full_h)
 
 
+def stage_values(plan: Plan, pass_: Pass) -> tuple[Arg, ...]:
+    """The pass's stages' :attr:`~gpu_blur.plan.Stage.values`, in plan order, as reals.
+
+    They close the to_raw and finish kernels' argument lists.
+    """
+    return tuple(Arg("real", v) for s in plan.stages if s.pass_ == pass_ for v in s.values)
+
+
 def to_raw_args(plan: Plan, params: dict, origin: tuple[int, int], h: int, w: int, inputs,
                 matrix, outputs, *, seed: int, sample_index: int) -> tuple:
     """The to_raw kernel's arguments, in order."""
@@ -144,17 +152,17 @@ def to_raw_args(plan: Plan, params: dict, origin: tuple[int, int], h: int, w: in
             Arg("real", params.get("alpha", 0.0)), matrix,
             Arg("int", cfa_bits(params.get("pattern"))), *real,
             Arg("real", plan[S.POISSON_GAUSSIAN_NOISE].options["normal_above"]),
-            *_random_key(seed, sample_index), *outputs)
+            *_random_key(seed, sample_index), *outputs, *stage_values(plan, Pass.TO_RAW))
 
 
-def finish_args(params: dict, view: Region, out: Region, inputs, matrix, polynomial, table,
-                result, *, seed: int, sample_index: int) -> tuple:
+def finish_args(plan: Plan, params: dict, view: Region, out: Region, inputs, matrix,
+                polynomial, table, result, *, seed: int, sample_index: int) -> tuple:
     """The finish kernel's arguments, in order (``polynomial``, ``table``: (buffer, size))."""
     return (*inputs, *_view_geometry(view), *_out_geometry(out),
             Arg("int", cfa_bits(params.get("pattern"))), matrix,
             Arg("real", params.get("gaussian_std", 0.0)), *_random_key(seed, sample_index),
             polynomial[0], Arg("int", polynomial[1], extent=True), table[0],
-            Arg("int", table[1], extent=True), result)
+            Arg("int", table[1], extent=True), result, *stage_values(plan, Pass.FINISH))
 
 
 def source_dtype(frame, real) -> np.dtype:
@@ -429,7 +437,7 @@ class KernelBackend:
         matrix = self._constant(camera.camera_to_linear)
         with self._timed():
             self._launch(k, "finish", (out.h, out.w), *finish_args(
-                params, view, out, inputs, matrix,
+                plan, params, view, out, inputs, matrix,
                 (self._constant(polynomial), polynomial.size), (self._constant(table),
                                                                 table.size),
                 result, seed=seed, sample_index=sample_index))
