@@ -13,7 +13,7 @@ from gpu_blur.backends import get_backend, to_host
 from gpu_blur.cameras import Camera, check_float32_response, get_camera
 from gpu_blur.imageio import check_image, read_image, unit_values
 from gpu_blur.params import draw_params
-from gpu_blur.plan import Plan, StageName, plan
+from gpu_blur.plan import Plan, StageName, plan, raw_round_trip
 from gpu_blur.reference import transfer
 from gpu_blur.reference.output import crop_border, quantize
 from gpu_blur.scene import Scene, load_scene
@@ -167,9 +167,8 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
     with timer("reading"):
         frames, mask, sharp = _gather(inputs, scene)
 
-    sample_plan = plan(scene, saturated=_reaches_clip_level(frames, mask))
     h, w = frames[0].shape[:2]
-    if sample_plan.raw_round_trip:
+    if raw_round_trip(scene):
         h, w = h - h % 2, w - w % 2
         if h < 2 or w < 2:
             raise ValueError(f"input of {frames[0].shape[:2]} is too small for the Bayer steps "
@@ -177,6 +176,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         frames = [f[:h, :w] for f in frames]
         sharp = sharp[:h, :w]
         mask = None if mask is None else mask[:h, :w]
+    sample_plan = plan(scene, saturated=_reaches_clip_level(frames, mask))
 
     # Every draw has a fixed index (gpu_blur.params), so a stage the sample skips (auto
     # saturation) never shifts another draw.

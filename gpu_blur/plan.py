@@ -189,6 +189,14 @@ class Plan:
         return "\n".join(lines)
 
 
+def raw_round_trip(scene: Scene) -> bool:
+    """Whether ``scene`` sends the image through camera RAW and back (:attr:`Plan.raw_round_trip`).
+
+    Known before the sample's plan: its input is cut to even sizes first (the Bayer 2 x 2 cell).
+    """
+    return scene.noise.model == "poisson-gaussian" or scene.isp.round_trip == "always"
+
+
 def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
     """The stages ``scene`` calls for.
 
@@ -239,7 +247,7 @@ def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
     else:
         add(S.SATURATE, P.TO_RAW, False,
             "saturation.mode = auto: no input pixel reaches the clip level")
-    raw = n.model == "poisson-gaussian" or isp.round_trip == "always"
+    raw = raw_round_trip(scene)
     why_raw = ("Poisson-Gaussian noise acts on the RAW mosaic" if n.model == "poisson-gaussian"
                else "isp.round_trip = always: demosaic artefacts asked for")
     why_not = f"noise.model = {n.model}: no RAW round trip"

@@ -1,5 +1,8 @@
 """The OpenCL backend: the plan's three passes as fused kernels (``kernels/opencl/*.cl``).
 
+The passes' host logic is :mod:`gpu_blur.backends.kernel`'s; this module holds the device,
+buffers, queues, launching, and the rendering of a pass configuration into ``-D`` defines.
+
 Pass outputs stay on the device between passes. Frames upload in their stored dtype
 (``-DGB_SOURCE_BITS``), from pinned host buffers on a second queue that overlaps the summing of
 the previous frames.

@@ -1,5 +1,9 @@
 """The Warp backend: the plan's three passes as NVIDIA Warp kernels (gpu_blur/warp_kernels/).
 
+The passes' host logic is :mod:`gpu_blur.backends.kernel`'s; this module holds the device,
+buffers, streams, launching, prefetched frame stacks, and the choice of Warp kernels for a
+pass configuration.
+
 Devices: ``warp`` (the first CUDA device if there is one, else the CPU), ``warp:cpu``,
 ``warp:cuda:N``. Only the stages a plan keeps are generated (``wp.static`` flags); float32 by
 default, float64 on request. Random draws repeat :mod:`gpu_blur.reference.rng` bit for bit.
