@@ -243,6 +243,19 @@ class KernelBackend:
         return values.data
 
     # -- shared helpers --------------------------------------------------------------------
+    def _stacks_for(self, frames: Sequence[np.ndarray], region: Region, dtype):
+        """How :meth:`_frame_stacks` splits ``frames`` into device stacks.
+
+        Returns:
+            (frames per stack, values per frame, each stack's frame indices, the two device
+            stacks that take turns).
+        """
+        per = min(FRAMES_PER_LAUNCH, len(frames))
+        values = region.h * region.w * 3
+        groups = [range(i, min(i + per, len(frames))) for i in range(0, len(frames), per)]
+        stacks = [self._empty(per * values, dtype) for _ in range(min(2, len(groups)))]
+        return per, values, groups, stacks
+
     def _constant(self, values, dtype=None):
         """A small constant (matrix, polynomial, table) on the device, uploaded once."""
         data = np.ascontiguousarray(np.ravel(values), dtype=dtype or self.np_real)

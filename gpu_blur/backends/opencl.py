@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.backends import FRAMES_PER_LAUNCH, OnDevice, fill_stack
+from gpu_blur.backends import OnDevice, fill_stack
 from gpu_blur.backends.kernel import Arg, KernelBackend, PassConfig, pass_config, source_dtype
 from gpu_blur.plan import Pass, Plan
 from gpu_blur.tiling import Region
@@ -373,10 +373,7 @@ class OpenCLBackend(KernelBackend):
         Without it, copies block on the compute queue.
         """
         dtype = source_dtype(frames[0], self.real)
-        per = min(FRAMES_PER_LAUNCH, len(frames))
-        values = region.h * region.w * 3
-        groups = [range(i, min(i + per, len(frames))) for i in range(0, len(frames), per)]
-        stacks = [self._empty(per * values, dtype) for _ in range(min(2, len(groups)))]
+        per, values, groups, stacks = self._stacks_for(frames, region, dtype)
         read = [None] * len(stacks)  # event: the launch that last read each stack
         for c, group in enumerate(groups):
             slot = c % len(stacks)

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 import numpy as np
 import warp as wp
 
-from gpu_blur.backends import FRAMES_PER_LAUNCH, OnDevice, fill_stack
+from gpu_blur.backends import OnDevice, fill_stack
 from gpu_blur.backends.flows import interpolation_factor
 from gpu_blur.backends.kernel import (
     Arg,
@@ -215,10 +215,7 @@ class WarpBackend(KernelBackend):
         """
         np_dtype = source_dtype(frames[0], self.np_real)
         wp_dtype = self._wp_dtype(np_dtype)
-        per = min(FRAMES_PER_LAUNCH, len(frames))
-        values = region.h * region.w * 3
-        groups = [range(i, min(i + per, len(frames))) for i in range(0, len(frames), per)]
-        stacks = [self._empty(per * values, np_dtype) for _ in range(min(2, len(groups)))]
+        per, values, groups, stacks = self._stacks_for(frames, region, np_dtype)
         compute = wp.get_stream(self.wp_device) if self.overlap else None
         read = [None] * len(stacks)  # event: the launch that last read each stack
         for c, group in enumerate(groups):
