@@ -142,10 +142,7 @@ def parse_devices(text: str, backend: str, precision: str = "float32") -> list[s
 
 def uses_cuda(backend) -> bool:
     """Whether a backend object runs on an NVIDIA GPU (Warp on CUDA, OpenCL on NVIDIA's GPU)."""
-    if str(getattr(backend, "wp_device", "")).startswith("cuda"):
-        return True
-    info = getattr(backend, "info", None)
-    return info is not None and info.kind == "GPU" and "NVIDIA" in info.platform
+    return backend.uses_cuda
 
 
 # -- one worker process per device of this host ---------------------------------------------

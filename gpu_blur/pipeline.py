@@ -13,7 +13,7 @@ from gpu_blur.backends import get_backend, to_host
 from gpu_blur.cameras import Camera, check_float32_response, get_camera
 from gpu_blur.imageio import check_image, read_image, unit_values
 from gpu_blur.params import draw_params
-from gpu_blur.plan import Plan, plan
+from gpu_blur.plan import Plan, StageName, plan, raw_round_trip
 from gpu_blur.reference import transfer
 from gpu_blur.reference.output import crop_border, quantize
 from gpu_blur.scene import Scene, load_scene
@@ -163,13 +163,12 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
     scene = _as_scene(scene)
     runner = (get_backend(backend, scene.output.precision) if isinstance(backend, str)
               else backend)
-    camera = scene_camera(scene, getattr(runner, "name", ""))
+    camera = scene_camera(scene, runner.name)
     with timer("reading"):
         frames, mask, sharp = _gather(inputs, scene)
 
-    static = plan(scene)
     h, w = frames[0].shape[:2]
-    if static.raw_round_trip:
+    if raw_round_trip(scene):
         h, w = h - h % 2, w - w % 2
         if h < 2 or w < 2:
             raise ValueError(f"input of {frames[0].shape[:2]} is too small for the Bayer steps "
@@ -177,17 +176,18 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         frames = [f[:h, :w] for f in frames]
         sharp = sharp[:h, :w]
         mask = None if mask is None else mask[:h, :w]
-
-    # Draws follow the static plan; fixed indices mean the per-sample choice below (auto
-    # saturation) never shifts another draw.
-    params = draw_params(scene, static, camera, seed=seed, sample_index=sample_index,
-                         image_shape=(h, w), overrides=overrides)
     sample_plan = plan(scene, saturated=_reaches_clip_level(frames, mask))
-    if not sample_plan.kept("saturate"):
-        params.pop("alpha", None)
+
+    # Every draw has a fixed index (gpu_blur.params), so a stage the sample skips (auto
+    # saturation) never shifts another draw.
+    if scene.saturation.mode == "auto" and not sample_plan.kept(StageName.SATURATE):
+        # nothing to saturate in this sample: a fixed alpha has nothing to act on
+        overrides = {k: v for k, v in (overrides or {}).items() if k != "alpha"}
+    params = draw_params(scene, sample_plan, camera, seed=seed, sample_index=sample_index,
+                         image_shape=(h, w), overrides=overrides)
 
     if on_device and (schedule.tile is not None or schedule.verify or scene.output.crop
-                      or not hasattr(runner, "device_array")):
+                      or not runner.device_arrays):
         raise ValueError("on_device=True needs a backend that keeps results on a device "
                          "(warp), no tile, no verify and output.crop = 0")
     # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
@@ -201,7 +201,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         sat_mask = crop_border(sat_mask, crop).astype(np.float32, copy=False)
     return Synthesis(out, sharp_out, sat_mask, params,
                      sample_plan, since(before, time.perf_counter() - start), tiled.tiles,
-                     tiled.checked, crop, str(getattr(runner, "device", "")))
+                     tiled.checked, crop, runner.device)
 
 
 def _reaches_clip_level(frames, mask) -> bool:
@@ -234,8 +234,8 @@ def render_sharp(sample_plan: Plan, camera: Camera, sharp: np.ndarray,
     values = unit_values(np.arange(np.iinfo(sharp.dtype).max + 1, dtype=sharp.dtype)
                          if coded else sharp)
     rendered = _render_values(sample_plan, camera, values, runner)
-    if sample_plan.kept("quantize"):
-        rendered = quantize(rendered, sample_plan["quantize"].options["bits"])
+    if sample_plan.kept(StageName.QUANTIZE):
+        rendered = quantize(rendered, sample_plan[StageName.QUANTIZE].options["bits"])
     rendered = rendered.astype(np.float32)
     return rendered[sharp] if coded else rendered
 
@@ -243,7 +243,7 @@ def render_sharp(sample_plan: Plan, camera: Camera, sharp: np.ndarray,
 def _render_values(sample_plan: Plan, camera: Camera, values: np.ndarray,
                    runner) -> np.ndarray:
     """:func:`render_sharp`'s curve on float64 sRGB values in [0, 1], any shape."""
-    if not sample_plan.kept("tone"):
+    if not sample_plan.kept(StageName.TONE):
         return np.clip(transfer.srgb_to_linear(values), 0.0, 1.0)
     return runner.retone(sample_plan, camera, values)
 

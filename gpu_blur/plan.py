@@ -8,14 +8,18 @@ Fig. 7) and fall into three passes, which kernel backends fuse:
 2. ``to_raw``: saturation synthesis, Lin2Cam, mosaic, inverse white balance, Poisson-Gaussian
    noise, white balance (pointwise);
 3. ``finish``: demosaic (5 x 5 stencil), then pointwise Cam2Lin, tone curve, sRGB Gaussian
-   noise, restore of saturated pixels, final re-toning, crop and quantization.
+   noise, restore of saturated pixels, final re-toning and quantization.
 
-Only kept stages are run (and, in kernel backends, compiled).
+After the passes the host crops the outputs (``crop``, :data:`Pass.HOST`): a cut of the
+result, no kernel work. Only kept stages are run (and, in kernel backends, compiled). Stage and
+pass names are the :class:`StageName` and :class:`Pass` constants (plain strings too, so a
+name from a scene or a message compares equal).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import enum
 
 import numpy as np
 
@@ -23,7 +27,43 @@ from gpu_blur.constants import A7R3_CRF_TABLE_X255
 from gpu_blur.reference.transfer import RETONE_CURVES, retone_polynomial
 from gpu_blur.scene import Scene
 
-PASSES = ("accumulate", "to_raw", "finish")
+
+class Pass(enum.StrEnum):
+    """Where a stage runs: one of the three kernel passes, or the host after them."""
+
+    ACCUMULATE = "accumulate"
+    TO_RAW = "to_raw"
+    FINISH = "finish"
+    HOST = "host"
+
+
+#: The kernel passes, in order (every backend runs these; :data:`Pass.HOST` stages run in
+#: gpu_blur.pipeline on the passes' result).
+PASSES = (Pass.ACCUMULATE, Pass.TO_RAW, Pass.FINISH)
+
+
+class StageName(enum.StrEnum):
+    """The stages, in data-flow order.
+
+    The one spelling the reference, every backend and the scheduler use.
+    """
+
+    LINEARIZE = "linearize"
+    BLUR = "blur"
+    SATURATE = "saturate"
+    LINEAR_TO_CAMERA = "linear_to_camera"
+    MOSAIC = "mosaic"
+    INVERSE_WHITE_BALANCE = "inverse_white_balance"
+    POISSON_GAUSSIAN_NOISE = "poisson_gaussian_noise"
+    WHITE_BALANCE = "white_balance"
+    DEMOSAIC = "demosaic"
+    CAMERA_TO_LINEAR = "camera_to_linear"
+    TONE = "tone"
+    GAUSSIAN_NOISE = "gaussian_noise"
+    RESTORE_SATURATED = "restore_saturated"
+    RETONE = "retone"
+    QUANTIZE = "quantize"
+    CROP = "crop"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -32,11 +72,16 @@ class Stage:
 
     Attributes:
         name: the stage's name, shared by the reference and every backend.
-        pass_: which of :data:`PASSES` it belongs to.
+        pass_: the :class:`Pass` that runs it.
         kept: whether it runs.
         reason: why it is kept or skipped, in words.
         variant: which flavour runs (e.g. ``"malvar2004"``), or ``""``.
         options: the settings the stage reads (e.g. ``{"border": "reflect", "clip": False}``).
+        values: scene numbers the pass's kernel takes as arguments for this stage, passed
+            whether the stage runs or not (the kernel's signature does not change); they
+            follow the kernel's own arguments in plan order
+            (:func:`gpu_blur.backends.kernel.stage_values`). A new pointwise stage with a
+            setting passes it here, with no change to the backends.
     """
 
     name: str
@@ -45,6 +90,7 @@ class Stage:
     reason: str
     variant: str = ""
     options: dict = dataclasses.field(default_factory=dict)
+    values: tuple[float, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,7 +124,7 @@ class Plan:
     @property
     def raw_round_trip(self) -> bool:
         """Whether the image goes through camera RAW and back."""
-        return self.kept("mosaic")
+        return self.kept(StageName.MOSAIC)
 
     @property
     def poisson_normal_above(self) -> float | None:
@@ -87,7 +133,7 @@ class Plan:
         None for ``noise.poisson = "exact"``; the ``normal_above`` argument of
         :func:`gpu_blur.reference.noise.add_poisson_gaussian`.
         """
-        options = self["poisson_gaussian_noise"].options
+        options = self[StageName.POISSON_GAUSSIAN_NOISE].options
         return options["normal_above"] if options["sampler"] == "normal" else None
 
     @property
@@ -97,9 +143,9 @@ class Plan:
         ``output.crf`` ``"a7r3"`` and ``"camera"`` are polynomials, ``"a7r3-lut"`` a table
         (:data:`gpu_blur.reference.transfer.RETONE_CURVES`).
         """
-        if not self.kept("retone"):
+        if not self.kept(StageName.RETONE):
             return ""
-        return RETONE_CURVES[self["retone"].options["crf"]]
+        return RETONE_CURVES[self[StageName.RETONE].options["crf"]]
 
     def retone_coefficients(self, camera) -> np.ndarray | None:
         """The camera's fitted response for ``output.crf = "camera"``, else None.
@@ -112,7 +158,7 @@ class Plan:
         Raises:
             ValueError: naming the camera and the fix when it has no fitted response.
         """
-        if self.kept("retone") and self["retone"].options["crf"] == "camera":
+        if self.kept(StageName.RETONE) and self[StageName.RETONE].options["crf"] == "camera":
             return camera.fitted_response()
         return None
 
@@ -124,7 +170,8 @@ class Plan:
         """
         if self.retone_curve != "polynomial":
             return None
-        return retone_polynomial(self["retone"].options["crf"], self.retone_coefficients(camera))
+        return retone_polynomial(self[StageName.RETONE].options["crf"],
+                                 self.retone_coefficients(camera))
 
     def __str__(self) -> str:
         width = max(len(s.name) for s in self.stages)
@@ -142,6 +189,14 @@ class Plan:
         return "\n".join(lines)
 
 
+def raw_round_trip(scene: Scene) -> bool:
+    """Whether ``scene`` sends the image through camera RAW and back (:attr:`Plan.raw_round_trip`).
+
+    Known before the sample's plan: its input is cut to even sizes first (the Bayer 2 x 2 cell).
+    """
+    return scene.noise.model == "poisson-gaussian" or scene.isp.round_trip == "always"
+
+
 def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
     """The stages ``scene`` calls for.
 
@@ -153,12 +208,13 @@ def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
     """
     b, n, isp, out = scene.blur, scene.noise, scene.isp, scene.output
     stages = []
+    S, P = StageName, Pass
 
     def add(name, pass_, kept, reason, variant="", **options):
         stages.append(Stage(name, pass_, bool(kept), reason, variant, options))
 
     # accumulate
-    add("linearize", "accumulate", True, "sRGB input decoded with the sRGB EOTF")
+    add(S.LINEARIZE, P.ACCUMULATE, True, "sRGB input decoded with the sRGB EOTF")
     blurring = b.mode != "none"
     interpolated = b.mode == "average" and b.interpolation > 1
     average = (f"mean of {b.frames} linear frames and their saturation masks"
@@ -167,7 +223,7 @@ def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
                f"saturation masks: {b.frames} frames and {b.interpolation - 1} interpolated in "
                f"each gap ({b.interpolation}x frame rate, {b.flow} optical flow)")
     options = {"interpolation": b.interpolation, "flow": b.flow} if b.mode == "average" else {}
-    add("blur", "accumulate", blurring,
+    add(S.BLUR, P.ACCUMULATE, blurring,
         {"average": average,
          "kernel": "one photo convolved with "
                    + (f"the kernel {b.kernel}" if b.kernel else "a random motion kernel"),
@@ -180,46 +236,46 @@ def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
     sat = scene.saturation.mode == "on" or (scene.saturation.mode == "auto" and saturated
                                             is not False)
     if scene.saturation.mode == "off":
-        add("saturate", "to_raw", False, "saturation.mode = off")
+        add(S.SATURATE, P.TO_RAW, False, "saturation.mode = off")
     elif scene.saturation.mode == "on":
-        add("saturate", "to_raw", True, "saturation.mode = on")
+        add(S.SATURATE, P.TO_RAW, True, "saturation.mode = on")
     elif saturated is None:
-        add("saturate", "to_raw", True,
+        add(S.SATURATE, P.TO_RAW, True,
             "saturation.mode = auto: runs for samples with pixels at the clip level")
     elif saturated:
-        add("saturate", "to_raw", True, "saturation.mode = auto: input reaches the clip level")
+        add(S.SATURATE, P.TO_RAW, True, "saturation.mode = auto: input reaches the clip level")
     else:
-        add("saturate", "to_raw", False,
+        add(S.SATURATE, P.TO_RAW, False,
             "saturation.mode = auto: no input pixel reaches the clip level")
-    raw = n.model == "poisson-gaussian" or isp.round_trip == "always"
+    raw = raw_round_trip(scene)
     why_raw = ("Poisson-Gaussian noise acts on the RAW mosaic" if n.model == "poisson-gaussian"
                else "isp.round_trip = always: demosaic artefacts asked for")
     why_not = f"noise.model = {n.model}: no RAW round trip"
-    add("linear_to_camera", "to_raw", raw, why_raw if raw else why_not,
+    add(S.LINEAR_TO_CAMERA, P.TO_RAW, raw, why_raw if raw else why_not,
         "clip" if raw and isp.clip_camera else "", clip=isp.clip_camera)
-    add("mosaic", "to_raw", raw, why_raw if raw else why_not, isp.pattern if raw else "")
-    add("inverse_white_balance", "to_raw", raw, why_raw if raw else why_not)
+    add(S.MOSAIC, P.TO_RAW, raw, why_raw if raw else why_not, isp.pattern if raw else "")
+    add(S.INVERSE_WHITE_BALANCE, P.TO_RAW, raw, why_raw if raw else why_not)
     pg = n.model == "poisson-gaussian"
     normal = n.poisson == "normal"
-    add("poisson_gaussian_noise", "to_raw", pg,
+    add(S.POISSON_GAUSSIAN_NOISE, P.TO_RAW, pg,
         ("K * Poisson(x / K) + sigma_r * N(0, 1) on the mosaic"
          + (f"; rates above {n.normal_above:g} drawn as a rounded normal" if normal else ""))
         if pg else f"noise.model = {n.model}",
         f"normal above {n.normal_above:g}" if pg and normal else "",
         sampler=n.poisson, normal_above=float(n.normal_above))
-    add("white_balance", "to_raw", raw, why_raw if raw else why_not)
+    add(S.WHITE_BALANCE, P.TO_RAW, raw, why_raw if raw else why_not)
 
     # finish
-    add("demosaic", "finish", raw, why_raw if raw else why_not,
+    add(S.DEMOSAIC, P.FINISH, raw, why_raw if raw else why_not,
         (isp.demosaic + (", clip" if isp.clip_demosaic else "")) if raw else "",
         method=isp.demosaic, border=isp.border, clip=isp.clip_demosaic)
-    add("camera_to_linear", "finish", raw, why_raw if raw else why_not)
-    add("tone", "finish", out.crf != "none",
+    add(S.CAMERA_TO_LINEAR, P.FINISH, raw, why_raw if raw else why_not)
+    add(S.TONE, P.FINISH, out.crf != "none",
         "sRGB OETF, then clip to [0, 1]" if out.crf != "none"
         else "output.crf = none: output stays linear (clipped to [0, 1])")
-    add("gaussian_noise", "finish", n.model == "gaussian",
+    add(S.GAUSSIAN_NOISE, P.FINISH, n.model == "gaussian",
         "sRGB Gaussian noise, then clip" if n.model == "gaussian" else f"noise.model = {n.model}")
-    add("restore_saturated", "finish", sat,
+    add(S.RESTORE_SATURATED, P.FINISH, sat,
         "channels saturated after synthesis set to exactly 1" if sat else "no saturation stage")
     retone = out.crf in RETONE_CURVES
     nodes = out.crf_table_size or A7R3_CRF_TABLE_X255.size
@@ -227,15 +283,16 @@ def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
              "a7r3-lut": f"the A7R3 lookup table ({nodes} nodes)",
              "camera": f"the fitted response (Eq. 6 polynomial, [response] of gpu-blur "
                        f"calibrate) of camera {scene.camera.name}"}.get(out.crf)
-    add("retone", "finish", retone,
+    add(S.RETONE, P.FINISH, retone,
         f"output and sharp re-toned with {curve}" if retone
         else f"output.crf = {out.crf}: no re-toning",
         (out.crf + (f", {out.crf_table_size} nodes" if out.crf_table_size else ""))
         if retone else "",
         crf=out.crf, table_size=out.crf_table_size)
-    add("crop", "finish", out.crop > 0,
-        f"{out.crop} px cut from every side" if out.crop else "output.crop = 0")
-    add("quantize", "finish", out.bits > 0,
+    add(S.QUANTIZE, P.FINISH, out.bits > 0,
         f"{out.bits}-bit, round half up" if out.bits else "output.bits = 0: float output",
         bits=out.bits)
+    add(S.CROP, P.HOST, out.crop > 0,
+        f"{out.crop} px cut from every side of both outputs, on the host after the passes"
+        if out.crop else "output.crop = 0")
     return Plan(tuple(stages), fast_math=out.fast_math)

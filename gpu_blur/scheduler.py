@@ -94,15 +94,17 @@ import re
 
 import numpy as np
 
-from gpu_blur.backends import FRAMES_PER_LAUNCH, to_host
+from gpu_blur.backends import FRAMES_PER_LAUNCH, Backend, to_host
 from gpu_blur.backends.flows import interpolation_factor, with_flows
-from gpu_blur.plan import Plan
-from gpu_blur.reference import bayer, blur, noise, rng
+from gpu_blur.plan import Plan, StageName
+from gpu_blur.reference import blur, rng
 from gpu_blur.reference.demosaic import halo as demosaic_halo
 from gpu_blur.reference.output import quantize
 from gpu_blur.testing import mismatch, tolerance
 from gpu_blur.tiling import Region, tiles
 from gpu_blur.timings import timer
+
+S = StageName
 
 #: The smallest tile side, given (``tile``, ``--tile``) or from a memory budget (smaller images
 #: use their own side). Each tile costs a fixed overhead (measured per tile on a 64 x 64 image:
@@ -255,7 +257,7 @@ class Footprint:
         ``frames`` and ``source_dtype``: how many input frames and their stored dtype
         (uint8/uint16 codes; float input travels in the compute type).
         """
-        mode = sample_plan.variant("blur") or "none"
+        mode = sample_plan.variant(S.BLUR) or "none"
         raw = sample_plan.raw_round_trip
         itemsize = np.dtype(precision).itemsize
         constants = 0
@@ -266,7 +268,7 @@ class Footprint:
         stored = np.dtype(source_dtype) if source_dtype is not None else None
         source = stored.itemsize if stored is not None and stored.kind == "u" else 0
         return cls(height, width, mode, raw,
-                   demosaic_halo(sample_plan["demosaic"].options["method"]) if raw else 0,
+                   demosaic_halo(sample_plan[S.DEMOSAIC].options["method"]) if raw else 0,
                    blur.blur_halo(mode, params, height, width), itemsize, constants,
                    max(int(frames), 1), source, interpolation_factor(sample_plan))
 
@@ -353,8 +355,8 @@ def check_budget(budget, scene_plan: Plan, precision: str) -> int:
     count = parse_bytes(budget)
     raw = scene_plan.raw_round_trip
     factor = interpolation_factor(scene_plan)
-    floor = Footprint(MIN_TILE, MIN_TILE, scene_plan.variant("blur") or "none", raw,
-                      demosaic_halo(scene_plan["demosaic"].options["method"]) if raw else 0, 0,
+    floor = Footprint(MIN_TILE, MIN_TILE, scene_plan.variant(S.BLUR) or "none", raw,
+                      demosaic_halo(scene_plan[S.DEMOSAIC].options["method"]) if raw else 0, 0,
                       np.dtype(precision).itemsize,
                       interpolation=factor).tile_bytes(MIN_TILE, MIN_TILE)
     if count < floor:
@@ -396,8 +398,8 @@ class Tiled:
     checked: int
 
 
-def run(runner, sample_plan: Plan, params: dict, camera, frames, mask, schedule: Schedule, *,
-        seed: int, sample_index: int, on_device: bool = False) -> Tiled:
+def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
+        schedule: Schedule, *, seed: int, sample_index: int, on_device: bool = False) -> Tiled:
     """Run a sample's three passes on ``runner`` over tiles, with spot checks.
 
     Args:
@@ -421,11 +423,11 @@ def run(runner, sample_plan: Plan, params: dict, camera, frames, mask, schedule:
     params = with_flows(sample_plan, params, frames)  # once per sample, for every tile and check
     h, w = frames[0].shape[:2]
     raw = sample_plan.raw_round_trip
-    halo = demosaic_halo(sample_plan["demosaic"].options["method"]) if raw else 0
+    halo = demosaic_halo(sample_plan[S.DEMOSAIC].options["method"]) if raw else 0
     tile = schedule.tile
     if tile is None and schedule.max_device_memory is not None:
         footprint = Footprint.of(sample_plan, params, h, w,
-                                 getattr(runner, "precision", "float64"), len(frames),
+                                 runner.precision, len(frames),
                                  frames[0].dtype)
         tile = footprint.tile_for_budget(schedule.max_device_memory, sample_index)
     regions = list(tiles(h, w, tile))
@@ -462,8 +464,8 @@ def run(runner, sample_plan: Plan, params: dict, camera, frames, mask, schedule:
     return Tiled(out, sat_mask, len(regions), len(chosen))
 
 
-def _passes(runner, sample_plan, params, camera, frames, mask, view: Region, region: Region,
-            seed: int, sample_index: int):
+def _passes(runner: Backend, sample_plan, params, camera, frames, mask, view: Region,
+            region: Region, seed: int, sample_index: int):
     """One tile's three passes: (linear, mask, image, saturated, result).
 
     Outputs are as the backend leaves them: on its device for kernel backends.
@@ -485,15 +487,14 @@ def _without(sample_plan: Plan, stage: str) -> Plan:
 class _SpotCheck:
     """Recomputes checked tiles with the numpy reference and compares pass by pass."""
 
-    def __init__(self, runner, sample_plan: Plan, params: dict, camera, frames, mask, *,
+    def __init__(self, runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask, *,
                  seed: int, sample_index: int):
         from gpu_blur.backends.numpy import NumpyBackend
 
         self.runner, self.plan, self.params, self.camera = runner, sample_plan, params, camera
         self.frames, self.mask, self.seed, self.sample_index = frames, mask, seed, sample_index
         self.reference = NumpyBackend()
-        self.backend = getattr(runner, "name", "numpy")
-        self.dtype = getattr(runner, "precision", "float64")
+        self.backend, self.dtype = runner.name, runner.precision
         if sample_plan.fast_math and self.dtype == "float32":
             self.dtype = "float32-fast"  # the rows of fast maths (gpu_blur.testing)
         self._accumulated = None
@@ -518,7 +519,7 @@ class _SpotCheck:
             problem = mismatch(actual, expected, stage, self.backend, self.dtype, **options)
             if problem:
                 y1, x1 = region.y0 + region.h - 1, region.x0 + region.w - 1
-                device = getattr(self.runner, "device", self.backend)
+                device = self.runner.device
                 raise SpotCheckError(
                     f"{SPOT_CHECK_FAILED}: sample {self.sample_index}, {name} (rows "
                     f"{region.y0}..{y1}, columns {region.x0}..{x1}): the {what} from {device} "
@@ -534,19 +535,19 @@ class _SpotCheck:
                                         view.origin, **kw)
         if p.raw_round_trip:
             outliers, rounded = 0.0, None
-            if p.kept("poisson_gaussian_noise"):
+            if p.kept(S.POISSON_GAUSSIAN_NOISE):
                 outliers = tolerance("to_raw_noisy_outliers", self.backend, self.dtype)[1]
                 rounded = self._rate_rounding(image, ref_image, linear, view_mask, view)
             compare("to_raw pass's RAW mosaic", "to_raw", image, ref_image,
                     allowed_fraction=outliers, accept=rounded)
         compare("to_raw pass's saturated image", "saturate", saturated, ref_sat)
-        unquantized = ref.finish(_without(p, "quantize"), self.params, self.camera, image,
+        unquantized = ref.finish(_without(p, S.QUANTIZE), self.params, self.camera, image,
                                  saturated, view, region, **kw)
         stage = "finish_crf_polynomial" if p.retone_curve == "polynomial" else "finish"
-        if not p.kept("quantize"):
+        if not p.kept(S.QUANTIZE):
             compare("finish pass's image", stage, result, unquantized)
             return
-        bits = p["quantize"].options["bits"]
+        bits = p[S.QUANTIZE].options["bits"]
         top = 2**bits - 1
         exact = np.clip(unquantized, 0.0, 1.0)
         ref_codes = np.floor(exact * top + 0.5)
@@ -573,18 +574,12 @@ class _SpotCheck:
             return None
         params, origin = self.params, view.origin
         kw = {"seed": self.seed, "sample_index": self.sample_index}
-        clean, _ = self.reference.to_raw(_without(self.plan, "poisson_gaussian_noise"), params,
-                                         self.camera, linear, view_mask, origin, **kw)
-        pattern = bayer.BayerPattern(params["pattern"])
-        gains = (params["red_gain"], params["blue_gain"])
-        raw = bayer.inverse_white_balance(clean, pattern, *gains, origin=origin)
+        raw, _ = self.reference.sensor_raw(self.plan, params, self.camera, linear, view_mask,
+                                           origin)
         delta = atol + rtol * np.abs(raw)
         accepted = np.zeros(image.shape, dtype=bool)
         for sign in (-1.0, 1.0):
-            drawn = noise.add_poisson_gaussian(
-                np.maximum(raw + sign * delta, 0.0), params["shot_noise_k"],
-                params["read_noise_std"], origin=origin,
-                poisson_normal_above=self.plan.poisson_normal_above, **kw)
-            drawn = bayer.white_balance(drawn, pattern, *gains, origin=origin)
+            drawn = self.reference.noisy_raw(self.plan, params,
+                                             np.maximum(raw + sign * delta, 0.0), origin, **kw)
             accepted |= np.abs(image - drawn) <= atol + rtol * np.abs(drawn)
         return accepted

@@ -1,14 +1,20 @@
 """One test body per pass and stage, run on every backend against the float64 reference."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from conftest import BACKEND_SPECS, KERNEL_BACKEND_SPECS, make_backend, spec_backend, spec_dtype
 
 import gpu_blur
+from gpu_blur.backends import Backend
+from gpu_blur.backends.kernel import Arg, pass_config, stage_values, to_raw_args
 from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.cameras import get_camera
+from gpu_blur.distributed import uses_cuda
 from gpu_blur.params import draw_params
-from gpu_blur.plan import plan
+from gpu_blur.plan import Pass, plan
+from gpu_blur.plan import StageName as S
 from gpu_blur.scene import scene_from_dict
 from gpu_blur.scheduler import Footprint
 from gpu_blur.testing import assert_close, mismatch, tolerance
@@ -254,3 +260,58 @@ def test_overlapped_and_serial_frame_copies_give_the_same_sample(spec, photo):
     reference = gpu_blur.synthesize(frames, scene, seed=SEED, sample_index=SAMPLE)
     assert_close(results[0].blurred, reference.blurred, "pipeline", spec_backend(spec),
                  spec_dtype(spec))
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+def test_every_backend_implements_the_backend_protocol(spec):
+    backend = make_backend(spec)
+    assert isinstance(backend, Backend)
+    assert backend.name == spec_backend(spec) and isinstance(backend.uses_cuda, bool)
+    assert uses_cuda(backend) is backend.uses_cuda
+
+
+def test_pass_config_carries_each_pass_its_kept_stages_and_options():
+    scene = scene_from_dict({"isp": {"demosaic": "bilinear", "border": "zero"},
+                             "noise": {"poisson": "normal"},
+                             "output": {"crf": "a7r3-lut", "bits": 16, "crop": 4}})
+    p = plan(scene, saturated=False)
+    to_raw = pass_config(p, Pass.TO_RAW)
+    assert to_raw.stages == (S.LINEAR_TO_CAMERA, S.MOSAIC, S.INVERSE_WHITE_BALANCE,
+                             S.POISSON_GAUSSIAN_NOISE, S.WHITE_BALANCE)
+    assert to_raw.poisson_normal and not to_raw.clip_camera
+    finish = pass_config(p, Pass.FINISH)
+    assert (finish.demosaic, finish.zero_border, finish.retone, finish.bits) == (
+        "bilinear", True, "lookup", 16)
+    assert S.CROP not in finish.stages  # the host crops after the passes
+
+
+def test_crop_is_a_host_stage_after_the_passes():
+    p = plan(scene_from_dict({"output": {"crop": 4}}))
+    assert p[S.CROP].kept and p[S.CROP].pass_ == Pass.HOST
+    assert p.stages[-1].name == S.CROP
+    assert all(s.pass_ != Pass.HOST for s in p.stages if s.name != S.CROP)
+
+
+def test_reference_to_raw_is_sensor_raw_then_noisy_raw(photo):
+    h, w = photo.shape[:2]
+    _, p, cam, params = sample({}, (h, w))
+    linear, mask = REFERENCE.accumulate(p, params, [photo], None, Region.whole(h, w))
+    image, sat = REFERENCE.to_raw(p, params, cam, linear, mask, (2, 4), seed=SEED,
+                                  sample_index=SAMPLE)
+    raw, sensor_sat = REFERENCE.sensor_raw(p, params, cam, linear, mask, (2, 4))
+    noisy = REFERENCE.noisy_raw(p, params, raw, (2, 4), seed=SEED, sample_index=SAMPLE)
+    np.testing.assert_array_equal(noisy, image)
+    np.testing.assert_array_equal(sensor_sat, sat)
+
+
+def test_a_stage_s_values_close_its_pass_kernel_s_arguments():
+    p = plan(scene_from_dict({}))
+    stages = tuple(dataclasses.replace(s, values=(0.25, 2.0)) if s.name == S.WHITE_BALANCE
+                   else s for s in p.stages)
+    p = dataclasses.replace(p, stages=stages)
+    params = {"alpha": 1.0, "pattern": "RGGB", "red_gain": 2.0, "blue_gain": 1.5,
+              "shot_noise_k": 0.01, "read_noise_std": 0.001}
+    args = to_raw_args(p, params, (0, 0), 4, 4, ("linear", "mask"), "matrix", ("sat", "raw"),
+                       seed=SEED, sample_index=SAMPLE)
+    assert args[-4:] == ("sat", "raw", Arg("real", 0.25), Arg("real", 2.0))
+    assert stage_values(p, Pass.FINISH) == ()

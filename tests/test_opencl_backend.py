@@ -62,6 +62,12 @@ def test_only_the_stages_a_plan_keeps_are_compiled_in():
     assert "GB_STAGE_GAUSSIAN_NOISE" not in finish
 
 
+def test_crop_is_no_define_of_the_finish_pass():
+    cropped = plan(scene_from_dict({"output": {"crop": 4}}))
+    assert cropped.kept("crop")
+    assert "GB_STAGE_CROP" not in opencl.pass_defines(cropped, "finish")
+
+
 def test_devices_command_lists_numpy_and_every_opencl_device(capsys):
     assert main(["devices"]) == 0
     out = capsys.readouterr().out

@@ -7,6 +7,7 @@ from scipy.ndimage import correlate
 
 import gpu_blur
 from gpu_blur.constants import A7R3_CRF_POLYNOMIAL, SRGB_TO_XYZ, XYZ_TO_SRGB, rsblur_data
+from gpu_blur.plan import plan
 from gpu_blur.scene import scene_from_dict, toml_loads
 from gpu_blur.testing import assert_close
 
@@ -183,6 +184,18 @@ def test_auto_saturation_is_skipped_when_no_pixel_reaches_the_clip_level():
     assert result.plan.kept("saturate") and "alpha" in result.params
 
 
+def test_the_sample_plan_is_built_once_and_a_skipped_saturation_takes_no_alpha(monkeypatch):
+    from gpu_blur import pipeline
+
+    calls = []
+    monkeypatch.setattr(pipeline, "plan", lambda *a, **k: calls.append(k) or plan(*a, **k))
+    dim = np.full((16, 16, 3), 0.5)
+    result = gpu_blur.synthesize([dim], scene_with(blur={"steps": 2}),
+                                 overrides={"alpha": 1.0})
+    assert calls == [{"saturated": False}]
+    assert not result.plan.kept("saturate") and "alpha" not in result.params
+
+
 def test_saturated_channels_are_exactly_one_after_noise():
     image = np.full((16, 16, 3), 0.3)
     mask = np.zeros_like(image)
@@ -278,7 +291,6 @@ def test_sharp_reference_from_codes_is_the_curve_of_every_pixel_bitwise(crf, dty
     from gpu_blur.backends.numpy import NumpyBackend
     from gpu_blur.imageio import unit_values
     from gpu_blur.pipeline import _render_values, render_sharp, scene_camera
-    from gpu_blur.plan import plan
     from gpu_blur.reference.output import quantize
 
     scene = scene_from_dict({"output": {"crf": crf, "bits": bits}})

@@ -1,16 +1,10 @@
-"""Backends: how a plan runs. One small protocol, three implementations.
+"""Backends: how a plan runs. One protocol (:class:`Backend`), three implementations.
 
 A backend carries out the plan's three passes under the stages' names, on the whole image or
-on a region (a tile with its halo):
-
-* ``accumulate(plan, params, frames, mask, region) -> (linear, mask)``: linearize and blur,
-  frames sent to the device a few at a time (never all in device memory at once);
-* ``to_raw(plan, params, camera, linear, mask, origin, *, seed, sample_index)
-  -> (image, saturated)``: saturation to the noisy white-balanced RAW mosaic;
-* ``finish(plan, params, camera, image, saturated, view, out, *, seed, sample_index)
-  -> rgb``: demosaic to the final (quantized) image over the ``out`` region;
-* ``retone(plan, camera, image)``: the output tone curve, also applied to the sharp
-  reference.
+on a region (a tile with its halo); :class:`Backend` lists what every backend offers and every
+caller uses. ``numpy`` is the float64 reference (:mod:`gpu_blur.backends.numpy`); ``opencl``
+and ``warp`` share one kernel backend (:mod:`gpu_blur.backends.kernel`) and differ only in
+devices, buffers, launching and how a pass configuration becomes a kernel build.
 
 Frames come as stored (:func:`gpu_blur.imageio.check_image`: uint8/uint16 codes or float64 in
 [0, 1]). Kernel backends return their outputs as :class:`OnDevice` arrays, which the next pass
@@ -25,6 +19,8 @@ Names: ``numpy`` (float64 reference), ``opencl`` (first usable OpenCL device, GP
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -36,6 +32,48 @@ from gpu_blur.reference.bayer import BayerPattern
 #: summed on the compute stream) and one launch adds them to the running sums in registers.
 #: Two stacks live at once (gpu_blur.scheduler's memory formula counts them).
 FRAMES_PER_LAUNCH = 4
+
+
+@runtime_checkable
+class Backend(Protocol):
+    """What every backend offers (numpy, OpenCL, Warp) and every caller uses.
+
+    Attributes:
+        name: the backend's family, ``numpy``, ``opencl`` or ``warp``.
+        precision: the compute type, ``float32`` or ``float64``.
+        device: the device in words (``Synthesis.device``).
+        uses_cuda: whether it runs on an NVIDIA GPU through CUDA's driver (Ray's GPU
+            resource, gpu_blur.distributed).
+        device_arrays: whether :meth:`device_array` gives a result as a device array other
+            libraries take (Warp: ``torch.from_dlpack``), for ``synthesize(on_device=True)``.
+    """
+
+    name: str
+    precision: str
+    device: str
+    uses_cuda: bool
+    device_arrays: bool
+
+    def accumulate(self, plan, params: dict, frames: Sequence[np.ndarray],
+                   mask: np.ndarray | None, region):
+        """Linearize and blur: (linear, saturation mask) over ``region``.
+
+        Frames are sent to the device a few at a time (never all in device memory at once).
+        """
+
+    def to_raw(self, plan, params: dict, camera, linear, mask, origin: tuple[int, int] = (0, 0),
+               *, seed: int, sample_index: int):
+        """Saturation to the noisy white-balanced RAW mosaic: (image, saturated)."""
+
+    def finish(self, plan, params: dict, camera, image, saturated, view, out, *, seed: int,
+               sample_index: int):
+        """Demosaic to the final (quantized) image over the ``out`` region."""
+
+    def retone(self, plan, camera, image: np.ndarray) -> np.ndarray:
+        """The output tone curve on host values, for the sharp reference."""
+
+    def device_array(self, values):
+        """A result as the device holds it (see ``device_arrays``)."""
 
 
 def to_host(values, dtype=np.float64) -> np.ndarray:
@@ -98,7 +136,7 @@ def cfa_bits(pattern: str | None) -> int:
 
 
 @functools.cache
-def get_backend(name: str, precision: str = "float32"):
+def get_backend(name: str, precision: str = "float32") -> Backend:
     """A backend by name; ``precision`` is the kernels' compute type.
 
     One instance per (name, precision) and process, so devices are opened and kernels built

@@ -14,7 +14,7 @@ import numpy as np
 from gpu_blur.backends.flows import UnitFrames, interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
 from gpu_blur.imageio import unit_values
-from gpu_blur.plan import Plan
+from gpu_blur.plan import Plan, StageName
 from gpu_blur.reference import bayer, blur, demosaic, noise, transfer
 from gpu_blur.reference.color import apply_matrix
 from gpu_blur.reference.interpolate import interpolated_average
@@ -23,6 +23,7 @@ from gpu_blur.reference.saturation import restore_saturated, synthesize_saturati
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
 
+S = StageName
 DEMOSAIC = {"malvar2004": demosaic.demosaic_malvar2004, "bilinear": demosaic.demosaic_bilinear}
 
 
@@ -32,6 +33,12 @@ class NumpyBackend:
     name = "numpy"
     precision = "float64"
     device = "numpy float64 (host CPU)"
+    uses_cuda = False
+    device_arrays = False
+
+    def device_array(self, values: np.ndarray) -> np.ndarray:
+        """The result as it is (a host array: the numpy backend has no device)."""
+        return values
 
     # The passes, timed as the backend's compute ("kernels", gpu_blur.timings).
     def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
@@ -86,7 +93,7 @@ class NumpyBackend:
     def _accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
                     mask: np.ndarray | None, region: Region) -> tuple[np.ndarray, np.ndarray]:
         """The accumulate pass, untimed."""
-        mode = plan.variant("blur") or "none"
+        mode = plan.variant(S.BLUR) or "none"
         if mode == "average" and interpolation_factor(plan) > 1:
             linear, sat_mask = interpolated_average(
                 UnitFrames(frames), interpolation_factor(plan),
@@ -113,30 +120,54 @@ class NumpyBackend:
                 mask: np.ndarray, origin: tuple[int, int] = (0, 0), *, seed: int,
                 sample_index: int) -> tuple[np.ndarray, np.ndarray]:
         """The to_raw pass, untimed."""
-        sat = (synthesize_saturation(linear, mask, params["alpha"]) if plan.kept("saturate")
+        raw, sat = self.sensor_raw(plan, params, camera, linear, mask, origin)
+        if raw is None:
+            return sat, sat
+        return self.noisy_raw(plan, params, raw, origin, seed=seed,
+                              sample_index=sample_index), sat
+
+    def sensor_raw(self, plan: Plan, params: dict, camera: Camera, linear: np.ndarray,
+                   mask: np.ndarray, origin: tuple[int, int] = (0, 0)):
+        """The to_raw pass up to the noise: (RAW mosaic before noise or None, saturated).
+
+        The mosaic is the inverse-white-balanced sensor value Poisson-Gaussian noise draws
+        from (None without a RAW round trip); ``saturated`` is ``B_sat``, H x W x 3. Untimed.
+        """
+        sat = (synthesize_saturation(linear, mask, params["alpha"]) if plan.kept(S.SATURATE)
                else np.asarray(linear, dtype=np.float64))
         if not plan.raw_round_trip:
-            return sat, sat
+            return None, sat
         cam = apply_matrix(sat, camera.linear_to_camera)
-        if plan["linear_to_camera"].options["clip"]:
+        if plan[S.LINEAR_TO_CAMERA].options["clip"]:
             cam = np.clip(cam, 0.0, 1.0)
         pattern = bayer.BayerPattern(params["pattern"])
-        gains = (params["red_gain"], params["blue_gain"])
-        raw = bayer.inverse_white_balance(bayer.mosaic(cam, pattern, origin), pattern, *gains,
+        raw = bayer.inverse_white_balance(bayer.mosaic(cam, pattern, origin), pattern,
+                                          params["red_gain"], params["blue_gain"],
                                           origin=origin)
-        if plan.kept("poisson_gaussian_noise"):
+        return raw, sat
+
+    def noisy_raw(self, plan: Plan, params: dict, raw: np.ndarray,
+                  origin: tuple[int, int] = (0, 0), *, seed: int,
+                  sample_index: int) -> np.ndarray:
+        """The to_raw pass from :meth:`sensor_raw`'s mosaic: noise (when kept), white balance.
+
+        Untimed.
+        """
+        if plan.kept(S.POISSON_GAUSSIAN_NOISE):
             raw = noise.add_poisson_gaussian(
                 raw, params["shot_noise_k"], params["read_noise_std"], seed=seed,
                 sample_index=sample_index, origin=origin,
                 poisson_normal_above=plan.poisson_normal_above)
-        return bayer.white_balance(raw, pattern, *gains, origin=origin), sat
+        pattern = bayer.BayerPattern(params["pattern"])
+        return bayer.white_balance(raw, pattern, params["red_gain"], params["blue_gain"],
+                                   origin=origin)
 
     def _finish(self, plan: Plan, params: dict, camera: Camera, image: np.ndarray,
                 saturated: np.ndarray, view: Region, out: Region, *, seed: int,
                 sample_index: int) -> np.ndarray:
         """The finish pass, untimed."""
         if plan.raw_round_trip:
-            options = plan["demosaic"].options
+            options = plan[S.DEMOSAIC].options
             pattern = bayer.BayerPattern(params["pattern"])
             rgb = DEMOSAIC[options["method"]](image, pattern, border=options["border"],
                                               origin=view.origin)
@@ -145,30 +176,37 @@ class NumpyBackend:
             image = apply_matrix(rgb, camera.camera_to_linear)
         inner = out.within(view)
         image, saturated = image[inner], saturated[inner]
-        if plan.kept("tone"):
+        if plan.kept(S.TONE):
             image = transfer.linear_to_srgb(image)
         image = np.clip(image, 0.0, 1.0)
-        if plan.kept("gaussian_noise"):
+        if plan.kept(S.GAUSSIAN_NOISE):
             image = np.clip(noise.add_gaussian_srgb(
                 image, params["gaussian_std"], seed=seed, sample_index=sample_index,
                 origin=out.origin), 0.0, 1.0)
-        if plan.kept("restore_saturated"):
+        if plan.kept(S.RESTORE_SATURATED):
             image = restore_saturated(image, saturated)
         image = self.retone(plan, camera, image)
-        if plan.kept("quantize"):
-            image = quantize(image, plan["quantize"].options["bits"])
+        if plan.kept(S.QUANTIZE):
+            image = quantize(image, plan[S.QUANTIZE].options["bits"])
         return image
 
     def retone(self, plan: Plan, camera: Camera, image: np.ndarray) -> np.ndarray:
-        """The final re-toning (A7R3 or the camera's fitted response), when the plan keeps it.
+        """The final re-toning, when the plan keeps it (:func:`retone`)."""
+        return retone(plan, camera, image)
 
-        Args:
-            plan: the sample's plan.
-            camera: its camera (``output.crf = "camera"`` re-tones with its response).
-            image: sRGB values in [0, 1], any shape.
-        """
-        if plan.kept("retone"):
-            options = plan["retone"].options
-            return transfer.retone(image, options["crf"], options["table_size"],
-                                   plan.retone_coefficients(camera))
-        return image
+
+def retone(plan: Plan, camera: Camera, image: np.ndarray) -> np.ndarray:
+    """The final re-toning (A7R3 or the camera's fitted response), when the plan keeps it.
+
+    Every backend's ``retone`` (the sharp reference's tone curve, on the host in float64).
+
+    Args:
+        plan: the sample's plan.
+        camera: its camera (``output.crf = "camera"`` re-tones with its response).
+        image: sRGB values in [0, 1], any shape.
+    """
+    if plan.kept(S.RETONE):
+        options = plan[S.RETONE].options
+        return transfer.retone(image, options["crf"], options["table_size"],
+                               plan.retone_coefficients(camera))
+    return image

@@ -222,9 +222,8 @@ def _fast(real, fast_math: bool) -> bool:
 
 
 @functools.cache
-def to_raw_kernel(real, saturate: bool, mosaic: bool, clip_camera: bool, noise: bool,
-                  poisson_normal: bool = False, fast_math: bool = False):
-    """Pass 2, with the kept stages as flags.
+def to_raw_kernel(real, config):
+    """Pass 2 built for ``config`` (gpu_blur.backends.kernel.PassConfig), kept stages as flags.
 
     Stages: saturate, linear_to_camera, mosaic, inverse_white_balance, poisson_gaussian_noise,
     white_balance. ``poisson_normal`` draws counts above the kernel's ``poisson_normal_above``
@@ -233,7 +232,9 @@ def to_raw_kernel(real, saturate: bool, mosaic: bool, clip_camera: bool, noise: 
     module with Warp's fast_math option and draws the read noise with the float32
     random.pixel_normal_fast. Poisson counts are never fast.
     """
-    fast = _fast(real, fast_math)
+    saturate, mosaic = config.kept("saturate"), config.kept("mosaic")
+    clip_camera, noise = config.clip_camera, config.kept("poisson_gaussian_noise")
+    poisson_normal, fast = config.poisson_normal, _fast(real, config.fast_math)
 
     @wp.kernel(module="unique", module_options={"fast_math": fast})
     def to_raw(linear: wp.array(dtype=real), mask: wp.array(dtype=real), x0: int, y0: int,
@@ -293,10 +294,8 @@ def to_raw_kernel(real, saturate: bool, mosaic: bool, clip_camera: bool, noise: 
 
 
 @functools.cache
-def finish_kernel(real, demosaic: str, zero_border: bool, clip_demosaic: bool, tone: bool,
-                  gaussian_noise: bool, restore: bool, retone: str, bits: int,
-                  fast_math: bool = False):
-    """Pass 3, with the kept stages as flags.
+def finish_kernel(real, config):
+    """Pass 3 built for ``config`` (gpu_blur.backends.kernel.PassConfig), kept stages as flags.
 
     Stages: demosaic ("" when there is no RAW round trip), camera_to_linear, tone,
     gaussian_noise, restore_saturated, retone (the plan's ``retone_curve``: "", "polynomial"
@@ -305,9 +304,12 @@ def finish_kernel(real, demosaic: str, zero_border: bool, clip_demosaic: bool, t
     only) builds the module with Warp's fast_math option and draws the sRGB noise with
     random.pixel_normal_fast.
     """
+    demosaic, clip_demosaic = config.demosaic, config.clip_demosaic
+    tone, gaussian_noise = config.kept("tone"), config.kept("gaussian_noise")
+    restore, retone, bits = config.kept("restore_saturated"), config.retone, config.bits
     vec3 = wp.types.vector(length=3, dtype=real)
-    border = 1 if zero_border else 0
-    fast = _fast(real, fast_math)
+    border = 1 if config.zero_border else 0
+    fast = _fast(real, config.fast_math)
 
     @wp.kernel(module="unique", module_options={"fast_math": fast})
     def finish(raw: wp.array(dtype=real), saturated: wp.array(dtype=real), vx0: int, vy0: int,

@@ -1,0 +1,470 @@
+"""The kernel backend written once: the plan's passes as launches, for any kernel language.
+
+:class:`KernelBackend` holds the host logic of the three passes (which kernels run, in what
+order, on which buffers, with which arguments); :mod:`gpu_blur.backends.opencl` and
+:mod:`gpu_blur.backends.warp` subclass it and keep only what differs: devices, buffers,
+queues or streams, launching, and rendering a :class:`PassConfig` into ``-D`` defines or Warp
+static flags.
+
+Two functions carry the plan into the kernels:
+
+* :func:`pass_config`: (plan, pass) -> the settings a pass's kernels are built with;
+* the ``*_args`` functions: the ordered arguments of each kernel, as :class:`Arg` values that
+  name their type, so each language renders them (``np.int64`` for an OpenCL ``long``, a
+  Python ``int`` for Warp). Arguments marked ``extent`` are sizes only OpenCL takes (Warp reads
+  them from the launch grid or the array).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from gpu_blur.backends import FRAMES_PER_LAUNCH, OnDevice, cfa_bits
+from gpu_blur.backends.flows import interpolation_factor, with_flows
+from gpu_blur.cameras import Camera
+from gpu_blur.plan import Pass, Plan, StageName
+from gpu_blur.reference import blur
+from gpu_blur.reference.interpolate import CONSISTENCY_ABSOLUTE_PX2, CONSISTENCY_RELATIVE
+from gpu_blur.reference.rng import key_from_seed
+from gpu_blur.reference.transfer import a7r3_lookup_table
+from gpu_blur.testhooks import fault_planted, planted_fault
+from gpu_blur.tiling import Region
+
+S = StageName
+
+
+@dataclasses.dataclass(frozen=True)
+class PassConfig:
+    """What one pass's kernels are built with (hashable: a cache key).
+
+    Attributes:
+        pass_: the pass.
+        stages: the pass's kept stages, in plan order.
+        fast_math: fast float transcendentals (scene ``output.fast_math``).
+        poisson_normal: to_raw: Poisson counts above the plan's rate by a rounded normal.
+        clip_camera: to_raw: clip after Lin2Cam.
+        demosaic: finish: the demosaic method, ``""`` without a RAW round trip.
+        zero_border: finish: the demosaic reads zeros beyond the image (else reflects).
+        clip_demosaic: finish: clip after demosaicing.
+        retone: finish: the plan's ``retone_curve`` (``"polynomial"``, ``"lookup"``, ``""``).
+        bits: finish: quantization bits, 0 for none.
+    """
+
+    pass_: Pass
+    stages: tuple[StageName, ...]
+    fast_math: bool = False
+    poisson_normal: bool = False
+    clip_camera: bool = False
+    demosaic: str = ""
+    zero_border: bool = False
+    clip_demosaic: bool = False
+    retone: str = ""
+    bits: int = 0
+
+    def kept(self, stage: StageName) -> bool:
+        """Whether ``stage`` is compiled in."""
+        return stage in self.stages
+
+
+def pass_config(plan: Plan, pass_: Pass) -> PassConfig:
+    """The settings of pass ``pass_``'s kernels under ``plan``.
+
+    The one translation of a plan into kernel builds: OpenCL renders it as ``-D`` defines,
+    Warp as its kernel factories' static flags.
+    """
+    stages = tuple(StageName(s.name) for s in plan.stages if s.kept and s.pass_ == pass_)
+    config = PassConfig(Pass(pass_), stages, plan.fast_math)
+    if pass_ == Pass.TO_RAW:
+        noise = plan[S.POISSON_GAUSSIAN_NOISE]
+        return dataclasses.replace(
+            config,
+            poisson_normal=noise.kept and noise.options["sampler"] == "normal",
+            clip_camera=plan.kept(S.LINEAR_TO_CAMERA)
+            and plan[S.LINEAR_TO_CAMERA].options["clip"])
+    if pass_ == Pass.FINISH:
+        demosaic = plan[S.DEMOSAIC]
+        options = demosaic.options if demosaic.kept else {}
+        return dataclasses.replace(
+            config, demosaic=options.get("method", ""),
+            zero_border=options.get("border") == "zero", clip_demosaic=bool(options.get("clip")),
+            retone=plan.retone_curve,
+            bits=plan[S.QUANTIZE].options["bits"] if plan.kept(S.QUANTIZE) else 0)
+    return config
+
+
+class Arg(NamedTuple):
+    """One scalar kernel argument with its type, rendered by each backend.
+
+    Attributes:
+        kind: ``"index"`` (OpenCL ``long``), ``"int"`` (``int``), ``"uint"`` (``uint``),
+            ``"real"`` (the compute type) or ``"position"`` (float64 where the device has it).
+        value: the value.
+        extent: a size only OpenCL takes; Warp leaves it out.
+    """
+
+    kind: str
+    value: object
+    extent: bool = False
+
+
+def _index(*values) -> tuple[Arg, ...]:
+    return tuple(Arg("index", int(v)) for v in values)
+
+
+def _random_key(seed: int, sample_index: int) -> tuple[Arg, ...]:
+    key = key_from_seed(seed)
+    return Arg("uint", int(key[0])), Arg("uint", int(key[1])), Arg("uint", int(sample_index))
+
+
+def _out_geometry(region: Region) -> tuple[Arg, ...]:
+    """Where a 2-D launch writes: the region's origin, width and (OpenCL) height."""
+    return (*_index(region.x0, region.y0, region.w), Arg("index", int(region.h), extent=True))
+
+
+def _view_geometry(view: Region) -> tuple[Arg, ...]:
+    """A source view: its origin and width, and the whole image's width and height."""
+    return _index(view.x0, view.y0, view.w, view.full_w, view.full_h)
+
+
+def stage_values(plan: Plan, pass_: Pass) -> tuple[Arg, ...]:
+    """The pass's stages' :attr:`~gpu_blur.plan.Stage.values`, in plan order, as reals.
+
+    They close the to_raw and finish kernels' argument lists.
+    """
+    return tuple(Arg("real", v) for s in plan.stages if s.pass_ == pass_ for v in s.values)
+
+
+def to_raw_args(plan: Plan, params: dict, origin: tuple[int, int], h: int, w: int, inputs,
+                matrix, outputs, *, seed: int, sample_index: int) -> tuple:
+    """The to_raw kernel's arguments, in order."""
+    real = [Arg("real", params.get(k, d)) for k, d in (
+        ("red_gain", 1.0), ("blue_gain", 1.0), ("shot_noise_k", 1.0), ("read_noise_std", 0.0))]
+    return (*inputs, *_index(origin[1], origin[0], w), Arg("index", h, extent=True),
+            Arg("real", params.get("alpha", 0.0)), matrix,
+            Arg("int", cfa_bits(params.get("pattern"))), *real,
+            Arg("real", plan[S.POISSON_GAUSSIAN_NOISE].options["normal_above"]),
+            *_random_key(seed, sample_index), *outputs, *stage_values(plan, Pass.TO_RAW))
+
+
+def finish_args(plan: Plan, params: dict, view: Region, out: Region, inputs, matrix,
+                polynomial, table, result, *, seed: int, sample_index: int) -> tuple:
+    """The finish kernel's arguments, in order (``polynomial``, ``table``: (buffer, size))."""
+    return (*inputs, *_view_geometry(view), *_out_geometry(out),
+            Arg("int", cfa_bits(params.get("pattern"))), matrix,
+            Arg("real", params.get("gaussian_std", 0.0)), *_random_key(seed, sample_index),
+            polynomial[0], Arg("int", polynomial[1], extent=True), table[0],
+            Arg("int", table[1], extent=True), result, *stage_values(plan, Pass.FINISH))
+
+
+def source_dtype(frame, real) -> np.dtype:
+    """The dtype a frame travels to the device in: its 8/16-bit codes, else the compute type."""
+    dtype = np.dtype(frame.dtype)
+    return dtype if dtype in (np.dtype(np.uint8), np.dtype(np.uint16)) else np.dtype(real)
+
+
+class KernelBackend:
+    """The passes of a plan as kernel launches (see :mod:`gpu_blur.backends`).
+
+    A subclass sets ``name``, ``precision``, ``device``, ``np_real`` (the compute type as a
+    numpy dtype) and ``position_dtype`` (float64 where the device has it), and supplies the
+    primitives below: buffers (``_upload``, ``_empty``, ``_zeros``, ``_write``, ``_fetch``),
+    kernels (``_pass_kernels``, ``_launch``, ``_timed``) and ``_frame_stacks``.
+    """
+
+    name: str
+    precision: str
+    device: str
+    device_arrays = False
+
+    def __init__(self):
+        self._constants: dict = {}  # (bytes, dtype) -> device copy of a small constant
+        self._code_tables: dict = {}  # (config, source dtype) -> the 8-bit linear table
+
+    # -- primitives a language supplies ----------------------------------------------------
+    @property
+    def uses_cuda(self) -> bool:
+        """Whether the device is an NVIDIA GPU run through CUDA's driver."""
+        raise NotImplementedError
+
+    def _upload(self, values, dtype=None):
+        """``values`` on the device, flat: an :class:`OnDevice` as it is, host data copied."""
+        raise NotImplementedError
+
+    def _empty(self, count: int, dtype=None):
+        """An uninitialized flat device buffer of ``count`` values (compute type by default)."""
+        raise NotImplementedError
+
+    def _zeros(self, count: int, dtype=None):
+        """A zeroed flat device buffer."""
+        raise NotImplementedError
+
+    def _write(self, buffer, values: np.ndarray) -> None:
+        """Copy host ``values`` into the device buffer ``buffer`` (after earlier launches)."""
+        raise NotImplementedError
+
+    def _fetch(self, values: OnDevice, dtype) -> np.ndarray:
+        """An output's host copy (timed as ``copies``)."""
+        raise NotImplementedError
+
+    def _pass_kernels(self, config: PassConfig, source=None, interpolate: bool = False):
+        """The kernels built for ``config``, by name.
+
+        ``source``: the frames' dtype (accumulate only); ``interpolate``: the
+        interpolated-averaging kernels instead.
+        """
+        raise NotImplementedError
+
+    def _launch(self, kernels, name: str, grid, *args):
+        """Launch kernel ``name`` over ``grid`` (``n`` values, or ``(rows, columns)``)."""
+        raise NotImplementedError
+
+    def _timed(self, sync: bool = True):
+        """A timer of launches as ``kernels``; ``sync`` waits for them at its end."""
+        raise NotImplementedError
+
+    def _frame_stacks(self, frames: Sequence[np.ndarray], region: Region):
+        """Yield (stack, count): device stacks of up to FRAMES_PER_LAUNCH frames of ``region``.
+
+        The caller launches the stack's sum before asking for the next one.
+        """
+        raise NotImplementedError
+
+    def device_array(self, values: OnDevice):
+        """A result's flat device buffer, as the backend holds it."""
+        return values.data
+
+    # -- shared helpers --------------------------------------------------------------------
+    def _stacks_for(self, frames: Sequence[np.ndarray], region: Region, dtype):
+        """How :meth:`_frame_stacks` splits ``frames`` into device stacks.
+
+        Returns:
+            (frames per stack, values per frame, each stack's frame indices, the two device
+            stacks that take turns).
+        """
+        per = min(FRAMES_PER_LAUNCH, len(frames))
+        values = region.h * region.w * 3
+        groups = [range(i, min(i + per, len(frames))) for i in range(0, len(frames), per)]
+        stacks = [self._empty(per * values, dtype) for _ in range(min(2, len(groups)))]
+        return per, values, groups, stacks
+
+    def _constant(self, values, dtype=None):
+        """A small constant (matrix, polynomial, table) on the device, uploaded once."""
+        data = np.ascontiguousarray(np.ravel(values), dtype=dtype or self.np_real)
+        key = (data.tobytes(), data.dtype.str)
+        if key not in self._constants:
+            self._constants[key] = self._upload(data, data.dtype)
+        return self._constants[key]
+
+    def _out(self, buffer, shape, pass_: Pass, origin) -> OnDevice:
+        """A pass's output, with the :data:`~gpu_blur.testhooks.TEST_FAULT` hook applied."""
+        result = OnDevice(buffer, shape, self._fetch)
+        if fault_planted(pass_):
+            host = planted_fault(pass_, result.numpy(), origin)
+            self._write(buffer, np.ascontiguousarray(host.ravel(), dtype=self.np_real))
+        return result
+
+    def _linear_out(self, linear, sat_mask, shape, region: Region):
+        """The accumulate pass's (linear, mask), left on the device."""
+        return (self._out(linear, shape, Pass.ACCUMULATE, region.origin),
+                OnDevice(sat_mask, shape, self._fetch))
+
+    def _code_table(self, config: PassConfig, source):
+        """The linear value of every 8-bit code, from these kernels' own linearize.
+
+        The average's sum gathers from it instead of evaluating the EOTF per value: the same
+        function of the same 256 codes, so the same bits. Made once per build; a one-value
+        placeholder when the frames are not 8-bit codes (the kernel does not read it).
+        """
+        key = (config, np.dtype(source).str)
+        if key not in self._code_tables:
+            count = 256 if np.dtype(source) == np.uint8 else 1
+            table, indicator = self._empty(count), self._empty(count)
+            if count == 256:
+                codes = self._upload(np.arange(256), np.uint8)
+                with self._timed():
+                    self._launch(self._pass_kernels(config, source), "linearize", count, codes,
+                                 table, indicator)
+            self._code_tables[key] = table
+        return self._code_tables[key]
+
+    # -- pass 1: accumulate ----------------------------------------------------------------
+    def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
+                   mask: np.ndarray | None, region: Region) -> tuple[OnDevice, OnDevice]:
+        """Linearize and blur on the device; (linear, mask) over ``region``, on the device."""
+        config = pass_config(plan, Pass.ACCUMULATE)
+        source = source_dtype(frames[0], self.np_real)
+        k = self._pass_kernels(config, source)
+        mode = plan.variant(S.BLUR) or "none"
+        n = region.h * region.w * 3
+        shape = (region.h, region.w, 3)
+        linear, sat_mask = self._empty(n), self._empty(n)
+        if mode == "average" and interpolation_factor(plan) > 1:
+            self._interpolated_average(plan, config, params, frames, region, linear, sat_mask)
+        elif mode == "average":
+            self._average(config, frames, region, linear, sat_mask)
+        elif mode == "none":
+            indicator = self._empty(n)
+            image = self._upload(region.of(frames[0]), source)
+            with self._timed():
+                self._launch(k, "linearize", n, image, linear, indicator)
+            del image
+            given = np.zeros(shape) if mask is None else region.of(mask)
+            return (self._out(linear, shape, Pass.ACCUMULATE, region.origin),
+                    OnDevice(self._upload(given), shape, self._fetch))
+        else:
+            self._blur_photo(k, mode, params, frames[0], source, region, linear, sat_mask)
+        return self._linear_out(linear, sat_mask, shape, region)
+
+    def _average(self, config: PassConfig, frames, region: Region, linear, sat_mask) -> None:
+        """Mode average: the mean of the frames, a stack of frames per launch."""
+        source = source_dtype(frames[0], self.np_real)
+        k = self._pass_kernels(config, source)
+        n = region.h * region.w * 3
+        # running compensated sums (sum, rounding errors, saturation counts) are only
+        # needed between launches: one stack of frames is summed in registers
+        sums = ((self._empty(n), self._empty(n), self._empty(n, np.uint32))
+                if len(frames) > FRAMES_PER_LAUNCH
+                else (linear, sat_mask, self._empty(1, np.uint32)))
+        done, table = 0, self._code_table(config, source)
+        for stack, count in self._frame_stacks(frames, region):
+            last = done + count == len(frames)
+            with self._timed(sync=last):
+                self._launch(k, "blur_average_add", n, *average_args(
+                    stack, count, n, sums, done == 0, len(frames) if last else 0, linear,
+                    sat_mask, table))
+            done += count
+
+    def _blur_photo(self, k, mode: str, params: dict, photo, source, region: Region, linear,
+                    sat_mask) -> None:
+        """Modes kernel and trajectory: one photo, linearized over the blur's halo, blurred."""
+        view = region.expand(blur.blur_halo(mode, params, region.full_h, region.full_w))
+        vn = view.h * view.w * 3
+        src, indicator = self._empty(vn), self._empty(vn)
+        image = self._upload(view.of(photo), source)
+        with self._timed(sync=False):
+            self._launch(k, "linearize", vn, image, src, indicator)
+        del image
+        grid = (region.h, region.w)
+        if mode == "kernel":
+            kernel = blur.normalize_kernel(params["kernel"])
+            taps = self._upload(np.ravel(kernel))
+            with self._timed():
+                for values, out in ((src, linear), (indicator, sat_mask)):
+                    self._launch(k, "blur_kernel", grid, values, *_view_geometry(view), taps,
+                                 *(Arg("int", s) for s in kernel.shape), out,
+                                 *_out_geometry(region))
+            return
+        # compensated sums of the image and of its indicator: (sum, compensation) each
+        sums = [self._zeros(region.h * region.w * 3) for _ in range(4)]
+        hom = params["homographies"]
+        inverses = [self._upload(np.ravel(np.linalg.inv(h)), self.position_dtype) for h in hom]
+        with self._timed():
+            for hinv in inverses:  # one pose at a time
+                self._launch(k, "blur_trajectory_add", grid, src, indicator,
+                             *_view_geometry(view), hinv, *sums, *_out_geometry(region))
+            self._launch(k, "blur_trajectory_finish", region.h * region.w * 3, *sums,
+                         Arg("uint", len(hom)), linear, sat_mask)
+
+    def _interpolated_average(self, plan: Plan, config: PassConfig, params: dict,
+                              frames: Sequence[np.ndarray], region: Region, linear,
+                              sat_mask) -> None:
+        """Mode average at ``blur.interpolation`` times the frame rate, into linear, sat_mask.
+
+        One gap at a time, in time order: frame i+1 and the gap's two flows upload over the
+        region plus the flows' halo (frame i stays from the gap before), then the original
+        frame and the intermediates after it join one set of compensated sums (the
+        interpolate kernels); intermediate frames are never stored.
+        """
+        source = source_dtype(frames[0], self.np_real)
+        k = self._pass_kernels(config, source, interpolate=True)
+        params = with_flows(plan, params, frames)
+        flows, factor = params["flows"], interpolation_factor(plan)
+        view = region.expand(blur.blur_halo("average", params, region.full_h, region.full_w))
+        n = region.h * region.w * 3
+        sums = (self._zeros(n), self._zeros(n), self._zeros(n))
+        geometry = _index(view.x0, view.y0, view.w)
+        full = _index(region.full_w, region.full_h)
+        test = (Arg("position", CONSISTENCY_RELATIVE), Arg("position", CONSISTENCY_ABSOLUTE_PX2))
+        grid = (region.h, region.w)
+        frame_bufs = [self._empty(view.h * view.w * 3, source) for _ in range(min(2, len(frames)))]
+        flow_bufs = [self._empty(view.h * view.w * 2, np.float32) for _ in range(2)]
+        for i in range(len(frames)):
+            self._write(frame_bufs[i % 2], np.ascontiguousarray(view.of(frames[i]), source))
+            if i > 0:
+                for buf, flow in zip(flow_bufs, flows[i - 1], strict=True):
+                    self._write(buf, np.ascontiguousarray(view.of(flow)))
+            with self._timed(sync=False):
+                for step in range(1, factor if i > 0 else 1):
+                    self._launch(k, "blur_interpolate_add", grid, frame_bufs[(i - 1) % 2],
+                                 frame_bufs[i % 2], *flow_bufs, *geometry, *full,
+                                 Arg("position", step / factor), *test, *sums,
+                                 *_out_geometry(region))
+                self._launch(k, "blur_interpolate_add_frame", grid, frame_bufs[i % 2],
+                             *geometry, *sums, *_out_geometry(region))
+        with self._timed():
+            self._launch(k, "blur_interpolate_finish", n, *sums,
+                         Arg("uint", (len(frames) - 1) * factor + 1), linear, sat_mask)
+
+    # -- pass 2: to_raw --------------------------------------------------------------------
+    def to_raw(self, plan: Plan, params: dict, camera: Camera, linear, mask,
+               origin: tuple[int, int] = (0, 0), *, seed: int,
+               sample_index: int) -> tuple[OnDevice, OnDevice]:
+        """Saturation to noisy RAW on the device (see NumpyBackend.to_raw)."""
+        k = self._pass_kernels(pass_config(plan, Pass.TO_RAW))
+        h, w = linear.shape[:2]
+        saturated = self._empty(h * w * 3)
+        raw = self._empty(h * w if plan.raw_round_trip else 1)
+        inputs = (self._upload(linear), self._upload(mask))
+        matrix = self._constant(camera.linear_to_camera)
+        with self._timed():
+            self._launch(k, "to_raw", (h, w), *to_raw_args(
+                plan, params, origin, h, w, inputs, matrix, (saturated, raw), seed=seed,
+                sample_index=sample_index))
+        del inputs
+        rgb = OnDevice(saturated, (h, w, 3), self._fetch)
+        if not plan.raw_round_trip:
+            return self._out(saturated, (h, w, 3), Pass.TO_RAW, origin), rgb
+        return self._out(raw, (h, w), Pass.TO_RAW, origin), rgb
+
+    # -- pass 3: finish --------------------------------------------------------------------
+    def finish(self, plan: Plan, params: dict, camera: Camera, image, saturated, view: Region,
+               out: Region, *, seed: int, sample_index: int) -> OnDevice:
+        """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
+        k = self._pass_kernels(pass_config(plan, Pass.FINISH))
+        # the kernel takes both curves; the one the plan does not use is never read
+        polynomial = plan.retone_polynomial(camera)
+        polynomial = np.zeros(1) if polynomial is None else polynomial
+        table = a7r3_lookup_table(plan[S.RETONE].options["table_size"]) / 255.0
+        raw = image if plan.raw_round_trip else np.zeros(1)
+        result = self._empty(out.h * out.w * 3)
+        inputs = (self._upload(raw), self._upload(saturated))
+        matrix = self._constant(camera.camera_to_linear)
+        with self._timed():
+            self._launch(k, "finish", (out.h, out.w), *finish_args(
+                plan, params, view, out, inputs, matrix,
+                (self._constant(polynomial), polynomial.size), (self._constant(table),
+                                                                table.size),
+                result, seed=seed, sample_index=sample_index))
+        del inputs
+        return self._out(result, (out.h, out.w, 3), Pass.FINISH, out.origin)
+
+    def retone(self, plan: Plan, camera: Camera, image: np.ndarray) -> np.ndarray:
+        """The output tone curve for the sharp reference (host side, float64)."""
+        from gpu_blur.backends.numpy import retone
+
+        return retone(plan, camera, image)
+
+
+def average_args(stack, count: int, n: int, sums, first: bool, mean_of: int, linear, sat_mask,
+                 table) -> tuple:
+    """The average's summing kernel's arguments, in order.
+
+    ``count`` frames of ``n`` values each from ``stack`` join ``sums``; ``mean_of`` > 0 writes
+    the means instead.
+    """
+    return (stack, Arg("uint", count), Arg("index", n), *sums, Arg("int", int(first)),
+            Arg("uint", mean_of), linear, sat_mask, table)
