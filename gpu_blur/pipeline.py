@@ -26,8 +26,9 @@ class Synthesis:
     """One synthesized sample.
 
     Attributes:
-        blurred: H x W x 3 float32 in [0, 1], the realistic blurred image (on the 8/16-bit grid
-            when the scene quantizes).
+        blurred: H x W x 3 float32 in [0, 1], RGB, the realistic blurred image: multiples of
+            1/255 with the default ``output.bits = 8`` (1/65535 with 16; ``bits = 0`` keeps
+            float values).
         sharp: H x W x 3 float32 in [0, 1], the reference frame (middle frame of an average,
             the photo itself otherwise), toned like ``blurred``.
         mask: H x W x 3 float32 in [0, 1], the blurred saturation mask (fetched from the
@@ -117,7 +118,8 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
     """Synthesize one realistic blurred image.
 
     Args:
-        inputs: sharp sRGB input, H x W x 3 RGB arrays (uint8, uint16 or float in [0, 1]) or
+        inputs: sharp sRGB input, H x W x 3 arrays in RGB order (OpenCV reads BGR: convert
+            with ``cv2.cvtColor(x, cv2.COLOR_BGR2RGB)``; uint8, uint16 or float in [0, 1]) or
             image paths: a sequence of consecutive frames (blur mode ``average``; the middle
             one is the sharp reference), one photo (``kernel``, ``trajectory``), or for mode
             ``none`` a mapping ``{"blurred": ..., "mask": ... (optional), "sharp": ...}``.
@@ -125,9 +127,10 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         seed: dataset seed (0 <= seed < 2**64).
         sample_index: index of this sample (0 <= index < 2**32); with ``seed`` it fixes every
             random draw.
-        backend: ``"numpy"`` (the float64 reference), ``"opencl"`` (first usable device) or
-            ``"opencl:<platform>:<device>"`` (see ``gpu-blur devices``), or a backend object
-            from :func:`gpu_blur.backends.get_backend`.
+        backend: ``"numpy"`` (the float64 reference), ``"opencl"`` (first usable device),
+            ``"opencl:<platform>:<device>"``, ``"warp"`` (CUDA if present, else the CPU),
+            ``"warp:cpu"`` or ``"warp:cuda:<n>"`` (see ``gpu-blur devices``), or a backend
+            object from :func:`gpu_blur.backends.get_backend`.
         overrides: drawn parameters to fix instead (e.g. ``{"alpha": 1.0, "pattern": "RGGB"}``).
         tile: run the image in tiles of at most (rows, columns) pixels, each with its halo;
             the result does not depend on it. Wins over ``max_device_memory``. A

@@ -20,12 +20,13 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+from pathlib import Path
 
 import numpy as np
 
 from gpu_blur.constants import A7R3_CRF_TABLE_X255
 from gpu_blur.reference.transfer import RETONE_CURVES, retone_polynomial
-from gpu_blur.scene import Scene
+from gpu_blur.scene import Scene, load_scene
 
 
 class Pass(enum.StrEnum):
@@ -197,15 +198,18 @@ def raw_round_trip(scene: Scene) -> bool:
     return scene.noise.model == "poisson-gaussian" or scene.isp.round_trip == "always"
 
 
-def plan(scene: Scene, *, saturated: bool | None = None) -> Plan:
+def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None) -> Plan:
     """The stages ``scene`` calls for.
 
     Args:
-        scene: validated settings.
+        scene: validated settings, or what :func:`gpu_blur.scene.load_scene` takes (a TOML
+            file, a built-in scene's name, a dict of sections).
         saturated: whether the sample's input reaches the clip level anywhere (its saturation
             mask is non-zero); ``None`` when not known yet. Only ``saturation.mode = "auto"``
             depends on it.
     """
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
     b, n, isp, out = scene.blur, scene.noise, scene.isp, scene.output
     stages = []
     S, P = StageName, Pass

@@ -18,6 +18,7 @@ Names: ``numpy`` (float64 reference), ``opencl`` (first usable OpenCL device, GP
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from collections.abc import Sequence
 from typing import Protocol, runtime_checkable
@@ -135,6 +136,18 @@ def cfa_bits(pattern: str | None) -> int:
     return sum(c << (2 * i) for i, c in enumerate(BayerPattern(pattern).channels))
 
 
+@contextlib.contextmanager
+def _extra(module: str, extra: str, backend: str):
+    """Turn a missing optional dependency into a RuntimeError that says how to install it."""
+    try:
+        yield
+    except ModuleNotFoundError as e:
+        if e.name != module:
+            raise
+        raise RuntimeError(f"--backend {backend} needs {module}, which is not installed: "
+                           f"pip install 'gpu_blur[{extra}]' (or use --backend numpy)") from None
+
+
 @functools.cache
 def get_backend(name: str, precision: str = "float32") -> Backend:
     """A backend by name; ``precision`` is the kernels' compute type.
@@ -146,11 +159,13 @@ def get_backend(name: str, precision: str = "float32") -> Backend:
     if base == "numpy":
         return NumpyBackend()
     if base == "opencl":
-        from gpu_blur.backends.opencl import OpenCLBackend
+        with _extra("pyopencl", "opencl", name):
+            from gpu_blur.backends.opencl import OpenCLBackend
 
         return OpenCLBackend(name, precision)
     if base == "warp":
-        from gpu_blur.backends.warp import WarpBackend
+        with _extra("warp", "warp", name):
+            from gpu_blur.backends.warp import WarpBackend
 
         return WarpBackend(name, precision)
     raise ValueError(f"unknown backend {name!r}; available: numpy, opencl, "

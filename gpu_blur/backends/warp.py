@@ -15,7 +15,11 @@ copy stream that overlaps the summing of the previous frames.
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
+import functools
+import os
+import sys
 from collections.abc import Sequence
 
 import numpy as np
@@ -44,19 +48,45 @@ wp.config.log_level = wp.LOG_WARNING  # no banner or per-module load lines
 MAX_BUFFER_VALUES = 2**31 - 1
 
 
+@functools.cache
+def _init() -> None:
+    """``wp.init()`` (once) without its notices on machines with no NVIDIA driver.
+
+    Warp's native library prints "Warp CUDA warning: Could not find or load the NVIDIA CUDA
+    driver" when there is none: on a CPU machine that is no news, so the process's standard
+    output and error are closed to that one call (C's buffers flushed before they are opened
+    again). Errors still raise (RuntimeError).
+    """
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    saved = [os.dup(fd) for fd in (1, 2)]
+    try:
+        with open(os.devnull, "w") as devnull:
+            for fd in (1, 2):
+                os.dup2(devnull.fileno(), fd)
+            try:
+                wp.init()
+            finally:
+                ctypes.CDLL(None).fflush(None)
+    finally:
+        for fd, copy in zip((1, 2), saved, strict=True):
+            os.dup2(copy, fd)
+            os.close(copy)
+
+
 def warp_devices() -> list[dict]:
-    """Warp's devices as ``gpu-blur devices`` lists them."""
-    wp.init()
+    """Warp's devices as ``gpu-blur devices`` lists them (memory: CUDA devices only)."""
+    _init()
     found = []
     for d in wp.get_devices():
-        memory = int(getattr(d, "total_memory", 0) or 0)
+        memory = int(d.total_memory) if d.is_cuda else 0  # the CPU's needs psutil
         found.append({"spec": f"warp:{d.alias}", "name": d.name, "kind": "GPU" if d.is_cuda
                       else "CPU", "fp64": True, "memory_bytes": memory})
     return found
 
 
 def _device(spec: str) -> str:
-    wp.init()
+    _init()
     if spec == "warp":
         return "cuda:0" if wp.is_cuda_available() else "cpu"
     alias = spec.split(":", 1)[1]
