@@ -132,6 +132,9 @@ NORMAL_ABOVE = Limit(0, reason=(
     "'exact'"))
 # -- output -------------------------------------------------------------------------------------
 CROP = Limit(0, integer=True, reason="pixels cropped from each side")
+VIGNETTING = Limit(0, 1, reason=(
+    "vignetting strength s: the gain 1 - s (r / r_corner)^2 falls from 1 at the image centre "
+    "to 1 - s at its corners; above 1 it would turn negative"))
 CRF_TABLE_SIZE = Limit(0, 65536, integer=True, reason=(
     "nodes of the re-toning table, 0 = the authors' 2,551"))
 # -- camera files -------------------------------------------------------------------------------

@@ -179,7 +179,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         frames = [f[:h, :w] for f in frames]
         sharp = sharp[:h, :w]
         mask = None if mask is None else mask[:h, :w]
-    sample_plan = plan(scene, saturated=_reaches_clip_level(frames, mask))
+    sample_plan = plan(scene, saturated=_reaches_clip_level(frames, mask), size=(h, w))
 
     # Every draw has a fixed index (gpu_blur.params), so a stage the sample skips (auto
     # saturation) never shifts another draw.

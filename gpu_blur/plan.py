@@ -5,8 +5,8 @@ Fig. 7) and fall into three passes, which kernel backends fuse:
 
 1. ``accumulate``: linearize the sRGB input and blur it (average frames, convolve a kernel, or
    warp along a camera-shake path), with the saturation mask;
-2. ``to_raw``: saturation synthesis, Lin2Cam, mosaic, inverse white balance, Poisson-Gaussian
-   noise, white balance (pointwise);
+2. ``to_raw``: saturation synthesis, lens vignetting, Lin2Cam, mosaic, inverse white balance,
+   Poisson-Gaussian noise, white balance (pointwise);
 3. ``finish``: demosaic (5 x 5 stencil), then pointwise Cam2Lin, tone curve, sRGB Gaussian
    noise, restore of saturated pixels, final re-toning and quantization.
 
@@ -52,6 +52,7 @@ class StageName(enum.StrEnum):
     LINEARIZE = "linearize"
     BLUR = "blur"
     SATURATE = "saturate"
+    VIGNETTING = "vignetting"
     LINEAR_TO_CAMERA = "linear_to_camera"
     MOSAIC = "mosaic"
     INVERSE_WHITE_BALANCE = "inverse_white_balance"
@@ -198,7 +199,8 @@ def raw_round_trip(scene: Scene) -> bool:
     return scene.noise.model == "poisson-gaussian" or scene.isp.round_trip == "always"
 
 
-def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None) -> Plan:
+def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
+         size: tuple[int, int] | None = None) -> Plan:
     """The stages ``scene`` calls for.
 
     Args:
@@ -207,6 +209,9 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None) -> 
         saturated: whether the sample's input reaches the clip level anywhere (its saturation
             mask is non-zero); ``None`` when not known yet. Only ``saturation.mode = "auto"``
             depends on it.
+        size: the sample's (height, width) as the passes see it (after the even cut of the
+            RAW round trip); ``None`` when not known yet. Vignetting is centred on it: a plan
+            without it shows the stages but cannot run a kept vignetting stage.
     """
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
@@ -214,8 +219,8 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None) -> 
     stages = []
     S, P = StageName, Pass
 
-    def add(name, pass_, kept, reason, variant="", **options):
-        stages.append(Stage(name, pass_, bool(kept), reason, variant, options))
+    def add(name, pass_, kept, reason, variant="", values=(), **options):
+        stages.append(Stage(name, pass_, bool(kept), reason, variant, options, values))
 
     # accumulate
     add(S.LINEARIZE, P.ACCUMULATE, True, "sRGB input decoded with the sRGB EOTF")
@@ -251,6 +256,12 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None) -> 
     else:
         add(S.SATURATE, P.TO_RAW, False,
             "saturation.mode = auto: no input pixel reaches the clip level")
+    strength = float(scene.optics.vignetting)
+    full = tuple(float(n) for n in size) if size else (None, None)  # None: not known yet
+    add(S.VIGNETTING, P.TO_RAW, strength > 0,
+        f"linear image times 1 - {strength:g} (r / r_corner)^2 about the image centre"
+        if strength > 0 else "optics.vignetting = 0",
+        values=(strength, *full))
     raw = raw_round_trip(scene)
     why_raw = ("Poisson-Gaussian noise acts on the RAW mosaic" if n.model == "poisson-gaussian"
                else "isp.round_trip = always: demosaic artefacts asked for")

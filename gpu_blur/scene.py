@@ -114,6 +114,11 @@ FIELDS: dict[str, dict[str, Field]] = {
         "clip_demosaic": Field(False, "clip the demosaiced image to [0, 1] (RSBlur TF)",
                                kind=bool),
     },
+    "optics": {
+        "vignetting": Field(0.0, "lens vignetting strength s: linear irradiance times "
+                            "1 - s (r / r_corner)^2, r the distance from the image centre "
+                            "(0: none)", limit=limits.VIGNETTING),
+    },
     "output": {
         "crf": Field("srgb", "final tone: 'srgb' (the ISP's sRGB curve), 'a7r3' (re-tone with "
                      "the A7R3 polynomial), 'a7r3-lut' (its lookup table), 'camera' (re-tone "
@@ -151,9 +156,11 @@ Saturation = _section_class("saturation", "Saturation")
 CameraSettings = _section_class("camera", "CameraSettings")
 Noise = _section_class("noise", "Noise")
 Isp = _section_class("isp", "Isp")
+Optics = _section_class("optics", "Optics")
 Output = _section_class("output", "Output")
 _SECTIONS = {"blur": Blur, "saturation": Saturation, "camera": CameraSettings, "noise": Noise,
-             "isp": Isp, "output": Output}
+             "isp": Isp, "optics": Optics,
+             "output": Output}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -165,6 +172,7 @@ class Scene:
     camera: Any
     noise: Any
     isp: Any
+    optics: Any
     output: Any
     path: Path | None = None  # the file it came from (relative camera/kernel paths use it)
 

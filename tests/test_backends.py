@@ -15,7 +15,8 @@ from gpu_blur.distributed import uses_cuda
 from gpu_blur.params import draw_params
 from gpu_blur.plan import Pass, plan
 from gpu_blur.plan import StageName as S
-from gpu_blur.scene import scene_from_dict
+from gpu_blur.reference.optics import vignette, vignetting_gain
+from gpu_blur.scene import SceneError, scene_from_dict
 from gpu_blur.scheduler import Footprint
 from gpu_blur.testing import assert_close, mismatch, tolerance
 from gpu_blur.tiling import Region
@@ -313,5 +314,86 @@ def test_a_stage_s_values_close_its_pass_kernel_s_arguments():
               "shot_noise_k": 0.01, "read_noise_std": 0.001}
     args = to_raw_args(p, params, (0, 0), 4, 4, ("linear", "mask"), "matrix", ("sat", "raw"),
                        seed=SEED, sample_index=SAMPLE)
-    assert args[-4:] == ("sat", "raw", Arg("real", 0.25), Arg("real", 2.0))
+    vignetting = tuple(Arg("real", v) for v in p[S.VIGNETTING].values)  # before WB in the plan
+    assert args[-7:] == ("sat", "raw", *vignetting, Arg("real", 0.25), Arg("real", 2.0))
     assert stage_values(p, Pass.FINISH) == ()
+
+
+# -- vignetting (scene optics.vignetting), a pointwise stage of the to_raw pass ------------
+def test_gain_is_one_minus_strength_times_squared_radius_over_corner_radius():
+    # a 4 x 6 image: centre (2, 3), corner radius^2 = 2^2 + 3^2 = 13; pixel centres at +1/2
+    gain = vignetting_gain(0.4, 4, 6, np.arange(4)[:, None], np.arange(6)[None, :])
+    assert gain[0, 0] == pytest.approx(1 - 0.4 * (2.5 ** 2 + 1.5 ** 2) / 13, abs=1e-15)
+    assert gain[1, 2] == pytest.approx(1 - 0.4 * (0.5 ** 2 + 0.5 ** 2) / 13, abs=1e-15)
+    assert gain[3, 5] == gain[0, 0]  # symmetric about the centre
+    assert np.all(gain > 1 - 0.4) and np.all(gain <= 1)
+
+
+def test_a_tile_of_the_reference_is_the_whole_images_tile():
+    image = np.random.default_rng(0).random((10, 12, 3))
+    whole = vignette(image, 0.7, 10, 12)
+    assert np.array_equal(vignette(image[3:8, 5:11], 0.7, 10, 12, (3, 5)), whole[3:8, 5:11])
+
+
+def test_plan_skips_vignetting_at_strength_zero_and_compiles_it_only_when_kept():
+    off = plan(scene_from_dict({}))
+    assert not off.kept(S.VIGNETTING) and off[S.VIGNETTING].reason == "optics.vignetting = 0"
+    assert S.VIGNETTING not in pass_config(off, Pass.TO_RAW).stages
+    on = plan(scene_from_dict({"optics": {"vignetting": 0.3}}), size=(20, 30))
+    assert on.kept(S.VIGNETTING) and on[S.VIGNETTING].values == (0.3, 20.0, 30.0)
+    assert S.VIGNETTING in pass_config(on, Pass.TO_RAW).stages
+
+
+@pytest.mark.parametrize("value", [-0.1, 1.5, float("nan")])
+def test_scene_refuses_a_strength_outside_zero_to_one(value):
+    with pytest.raises(SceneError, match="optics.vignetting"):
+        scene_from_dict({"optics": {"vignetting": value}})
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+@pytest.mark.parametrize("raw", [False, True])
+def test_to_raw_pass_with_vignetting_matches_the_reference(spec, raw, coffee_rgb):
+    photo = np.ascontiguousarray(coffee_rgb[220:268, 300:364]) / 255.0
+    h, w = photo.shape[:2]
+    settings = {"optics": {"vignetting": 0.6}, "saturation": {"mode": "on"},
+                "noise": {"model": "none"}, "isp": {"round_trip": "always" if raw else "auto"}}
+    scene = scene_from_dict(settings)
+    # a tile at (3, 5) of a larger image: the gain follows the whole image's centre
+    p = plan(scene, saturated=True, size=(h + 9, w + 14))
+    cam = get_camera("a7r3")
+    params = draw_params(scene, p, cam, seed=SEED, sample_index=SAMPLE, image_shape=(h, w))
+    linear, mask = photo ** 2.2, (photo >= 0.99).astype(np.float64)
+    image, sat = make_backend(spec).to_raw(p, params, cam, linear, mask, (3, 5), seed=SEED,
+                                           sample_index=SAMPLE)
+    ref_image, ref_sat = REFERENCE.to_raw(p, params, cam, linear, mask, (3, 5), seed=SEED,
+                                               sample_index=SAMPLE)
+    unshaded = plan(scene_from_dict({**settings, "optics": {}}), saturated=True)
+    _, plain = REFERENCE.to_raw(unshaded, params, cam, linear, mask, (3, 5), seed=SEED,
+                                     sample_index=SAMPLE)
+    assert not np.allclose(ref_sat, plain)  # the stage acts
+    assert_close(sat, ref_sat, "saturate", spec_backend(spec), spec_dtype(spec))
+    assert_close(image, ref_image, "to_raw", spec_backend(spec), spec_dtype(spec))
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+def test_tiled_vignetting_equals_untiled_bit_for_bit(spec, coffee_rgb):
+    photo = coffee_rgb[230:290, 320:400]
+    scene = scene_from_dict({"blur": {"mode": "kernel"}, "optics": {"vignetting": 0.5},
+                             "output": {"bits": 0, "precision": spec_dtype(spec)}})
+    backend = spec.split("/")[0]
+    whole = gpu_blur.synthesize([photo], scene, seed=SEED, sample_index=SAMPLE, backend=backend)
+    tiled = gpu_blur.synthesize([photo], scene, seed=SEED, sample_index=SAMPLE, backend=backend,
+                                tile=(17, 23))
+    assert whole.plan.kept(S.VIGNETTING)
+    assert np.array_equal(tiled.blurred, whole.blurred)
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+def test_a_vignetting_plan_without_the_image_size_is_refused_not_run(spec):
+    backend = make_backend(spec)
+    scene = scene_from_dict({"optics": {"vignetting": 0.5}, "noise": {"model": "none"},
+                             "saturation": {"mode": "off"}})
+    linear = np.full((4, 6, 3), 0.5)
+    with pytest.raises(ValueError, match="size"):
+        backend.to_raw(plan(scene), {}, get_camera("srgb"), linear, np.zeros_like(linear),
+                       seed=0, sample_index=0)

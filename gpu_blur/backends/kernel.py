@@ -135,7 +135,13 @@ def stage_values(plan: Plan, pass_: Pass) -> tuple[Arg, ...]:
 
     They close the to_raw and finish kernels' argument lists.
     """
-    return tuple(Arg("real", v) for s in plan.stages if s.pass_ == pass_ for v in s.values)
+    stages = [s for s in plan.stages if s.pass_ == pass_ and s.values]
+    for s in stages:
+        if s.kept and None in s.values:
+            raise ValueError(f"the {s.name} stage's numbers are not all known (the plan was "
+                             "built without the sample's size): build it with "
+                             "plan(scene, size=(height, width)), as synthesize does")
+    return tuple(Arg("real", 0.0 if v is None else v) for s in stages for v in s.values)
 
 
 def to_raw_args(plan: Plan, params: dict, origin: tuple[int, int], h: int, w: int, inputs,

@@ -18,6 +18,7 @@ from gpu_blur.plan import Plan, StageName
 from gpu_blur.reference import bayer, blur, demosaic, noise, transfer
 from gpu_blur.reference.color import apply_matrix
 from gpu_blur.reference.interpolate import interpolated_average
+from gpu_blur.reference.optics import vignette
 from gpu_blur.reference.output import quantize
 from gpu_blur.reference.saturation import restore_saturated, synthesize_saturation
 from gpu_blur.tiling import Region
@@ -61,7 +62,7 @@ class NumpyBackend:
     def to_raw(self, plan: Plan, params: dict, camera: Camera, linear: np.ndarray,
                mask: np.ndarray, origin: tuple[int, int] = (0, 0), *, seed: int,
                sample_index: int) -> tuple[np.ndarray, np.ndarray]:
-        """Saturation, Lin2Cam, mosaic, inverse WB, noise, WB.
+        """Saturation, vignetting, Lin2Cam, mosaic, inverse WB, noise, WB.
 
         ``origin`` is the (row, column) of the image's first pixel in the whole image: it keeps
         the Bayer phase and the noise draws of a tile those of the whole image.
@@ -131,10 +132,14 @@ class NumpyBackend:
         """The to_raw pass up to the noise: (RAW mosaic before noise or None, saturated).
 
         The mosaic is the inverse-white-balanced sensor value Poisson-Gaussian noise draws
-        from (None without a RAW round trip); ``saturated`` is ``B_sat``, H x W x 3. Untimed.
+        from (None without a RAW round trip); ``saturated`` is ``B_sat`` (vignetted when the
+        plan keeps it), H x W x 3. Untimed.
         """
         sat = (synthesize_saturation(linear, mask, params["alpha"]) if plan.kept(S.SATURATE)
                else np.asarray(linear, dtype=np.float64))
+        if plan.kept(S.VIGNETTING):
+            strength, full_h, full_w = plan[S.VIGNETTING].values
+            sat = vignette(sat, strength, int(full_h or 0), int(full_w or 0), origin)
         if not plan.raw_round_trip:
             return None, sat
         cam = apply_matrix(sat, camera.linear_to_camera)

@@ -225,14 +225,17 @@ def _fast(real, fast_math: bool) -> bool:
 def to_raw_kernel(real, config):
     """Pass 2 built for ``config`` (gpu_blur.backends.kernel.PassConfig), kept stages as flags.
 
-    Stages: saturate, linear_to_camera, mosaic, inverse_white_balance, poisson_gaussian_noise,
-    white_balance. ``poisson_normal`` draws counts above the kernel's ``poisson_normal_above``
-    rate by the normal approximation (scene ``noise.poisson = "normal"``, the Warp side of
-    -DGB_POISSON_NORMAL); ``fast_math`` (scene ``output.fast_math``, float32 only) builds the
-    module with Warp's fast_math option and draws the read noise with the float32
-    random.pixel_normal_fast. Poisson counts are never fast.
+    Stages: saturate, vignetting, linear_to_camera, mosaic, inverse_white_balance,
+    poisson_gaussian_noise, white_balance; the last arguments are the plan's to_raw stage
+    values (vignetting's strength, the whole image's height and width). ``poisson_normal``
+    draws counts above the kernel's ``poisson_normal_above`` rate by the normal approximation
+    (scene ``noise.poisson = "normal"``, the Warp side of -DGB_POISSON_NORMAL); ``fast_math``
+    (scene ``output.fast_math``, float32 only) builds the module with Warp's fast_math option
+    and draws the read noise with the float32 random.pixel_normal_fast. Poisson counts are
+    never fast.
     """
     saturate, mosaic = config.kept("saturate"), config.kept("mosaic")
+    vignetting_kept = config.kept("vignetting")
     clip_camera, noise = config.clip_camera, config.kept("poisson_gaussian_noise")
     poisson_normal, fast = config.poisson_normal, _fast(real, config.fast_math)
 
@@ -242,7 +245,7 @@ def to_raw_kernel(real, config):
                red_gain: real, blue_gain: real, shot_noise_k: real, read_noise_std: real,
                poisson_normal_above: real, key0: wp.uint32, key1: wp.uint32,
                sample_index: wp.uint32, saturated: wp.array(dtype=real),
-               raw: wp.array(dtype=real)):
+               raw: wp.array(dtype=real), vignetting: real, full_h: real, full_w: real):
         y, x = wp.tid()
         i = y * w + x
         v0 = linear[3 * i]
@@ -252,6 +255,16 @@ def to_raw_kernel(real, config):
             v0 = wp.clamp(v0 + alpha * mask[3 * i], real(0.0), real(1.0))
             v1 = wp.clamp(v1 + alpha * mask[3 * i + 1], real(0.0), real(1.0))
             v2 = wp.clamp(v2 + alpha * mask[3 * i + 2], real(0.0), real(1.0))
+        if wp.static(vignetting_kept):
+            # 1 - s (r / r_corner)^2 about the image centre, as reference.optics.vignetting_gain
+            cy = real(0.5) * full_h
+            cx = real(0.5) * full_w
+            dy = (real(y0 + y) + real(0.5)) - cy
+            dx = (real(x0 + x) + real(0.5)) - cx
+            shade = real(1.0) - vignetting * ((dx * dx + dy * dy) / (cx * cx + cy * cy))
+            v0 = v0 * shade
+            v1 = v1 * shade
+            v2 = v2 * shade
         saturated[3 * i] = v0
         saturated[3 * i + 1] = v1
         saturated[3 * i + 2] = v2

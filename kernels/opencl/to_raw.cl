@@ -1,10 +1,12 @@
 /* to_raw.cl: pass 2 of the plan, pointwise from the linear blurred image to noisy RAW:
- * stages "saturate", "linear_to_camera", "mosaic", "inverse_white_balance",
+ * stages "saturate", "vignetting", "linear_to_camera", "mosaic", "inverse_white_balance",
  * "poisson_gaussian_noise", "white_balance" (each compiled in only when the plan keeps it,
  * GB_STAGE_<NAME>; with GB_POISSON_NORMAL, counts above the rate poisson_normal_above come from
  * the normal approximation, scene noise.poisson = "normal"). Writes B_sat (3 reals per pixel)
  * and, with the RAW round trip, the white-balanced mosaic (1 real per pixel). All buffers cover
- * the same region of the image, whose first pixel is global (x0, y0).
+ * the same region of the image, whose first pixel is global (x0, y0). The last arguments are
+ * the plan's to_raw stage values (gpu_blur.backends.kernel.stage_values): vignetting's
+ * strength and the whole image's height and width.
  */
 #include "gb_common.h"
 #include "gb_random.h"
@@ -14,16 +16,25 @@ __kernel void gb_to_raw(__global const real *linear, __global const real *mask, 
                         int cfa, real red_gain, real blue_gain, real shot_noise_k,
                         real read_noise_std, real poisson_normal_above, uint key_lo,
                         uint key_hi, uint sample_index, __global real *saturated,
-                        __global real *raw)
+                        __global real *raw, real vignetting, real full_h, real full_w)
 {
     long x = get_global_id(0), y = get_global_id(1);
     if (x >= w || y >= h) return;
     long i = y * w + x;
     real v[3];
+#ifdef GB_STAGE_VIGNETTING
+    /* 1 - s (r / r_corner)^2 about the image centre, as reference.optics.vignetting_gain */
+    real cy = GB_REAL(0.5) * full_h, cx = GB_REAL(0.5) * full_w;
+    real dy = ((real)(y0 + y) + GB_REAL(0.5)) - cy, dx = ((real)(x0 + x) + GB_REAL(0.5)) - cx;
+    real shade = GB_REAL(1.0) - vignetting * ((dx * dx + dy * dy) / (cx * cx + cy * cy));
+#endif
     for (int c = 0; c < 3; ++c) {
         v[c] = linear[3 * i + c];
 #ifdef GB_STAGE_SATURATE
         v[c] = clamp(v[c] + alpha * mask[3 * i + c], GB_REAL(0.0), GB_REAL(1.0));
+#endif
+#ifdef GB_STAGE_VIGNETTING
+        v[c] = v[c] * shade;
 #endif
         saturated[3 * i + c] = v[c];
     }
