@@ -162,26 +162,38 @@ def run_benchmark(size: tuple[int, int] | None = None, backends: Sequence[str] |
     tasks = runner.tasks()
     kept = {(r["knob"], r["setting"], r["backend"]): r for r in before.get("rows", [])}
     steps = len(tasks) + len(SIDE_BY_SIDE)
+    done = [(s.knob, s.label, spec) in kept for s, spec in tasks] + [
+        k in before.get("side_by_side", {}) for k in SIDE_BY_SIDE]
     if before:
-        done = sum((s.knob, s.label, spec) in kept for s, spec in tasks) + sum(
-            k in before.get("side_by_side", {}) for k in SIDE_BY_SIDE)
-        log(f"resuming {save_to}: {done} of {steps} steps done (delete it to measure again)")
+        log(f"resuming {save_to}: {sum(done)} of {steps} steps done (delete it to measure "
+            "again)")
     middle = frames[len(frames) // 2]
     side = {"pipeline": runner.pipeline,
             "demosaic": lambda: demosaic_side_by_side(middle, chosen, runs),
             "kernel_blur": lambda: kernel_blur_side_by_side(middle, chosen, runs)}
-    with tqdm(total=steps, desc="bench", unit="step", disable=not progress, file=sys.stderr,
-              dynamic_ncols=True) as bar:
-        for setting, spec in tasks:
+    # the bar counts steps weighted by their expected cost, so its time left holds when the
+    # slow rows (frame interpolation) come late; its text counts the steps themselves
+    weights = [runner.cost(s, spec) for s, spec in tasks] + [1.0] * len(SIDE_BY_SIDE)
+    with tqdm(total=sum(weights), initial=sum(w for w, d in zip(weights, done, strict=True) if d),
+              disable=not progress, file=sys.stderr, dynamic_ncols=True,
+              bar_format="{desc} {percentage:3.0f}%|{bar}| "
+                         "[{elapsed} taken, {remaining} left]") as bar:
+        def finished(step: int) -> None:
+            save()
+            if not done[step]:
+                done[step] = True
+                bar.set_description_str(f"bench: {sum(done)}/{steps} steps", refresh=False)
+                bar.update(weights[step])
+
+        bar.set_description_str(f"bench: {sum(done)}/{steps} steps")
+        for i, (setting, spec) in enumerate(tasks):
             row = kept.get((setting.knob, setting.label, spec)) or runner.row(setting, spec)
             report["rows"].append(row)
-            save()
-            bar.update()
-        for key in SIDE_BY_SIDE:
+            finished(i)
+        for i, key in enumerate(SIDE_BY_SIDE, len(tasks)):
             held = before.get("side_by_side", {}).get(key)
             report["side_by_side"][key] = held if held is not None else side[key]()
-            save()
-            bar.update()
+            finished(i)
     report["load_average"][1] = load_average()
     report["complete"] = True
     save()
