@@ -216,8 +216,8 @@ def add_arguments(p: argparse.ArgumentParser, default_output: Path = Path(".")) 
                    "as the reference), e.g. numpy,opencl:0:0,warp:cpu (default: every usable "
                    "device; see gpu-blur devices)")
     p.add_argument("--quick", action="store_true", help="two settings per knob (its accurate "
-                   "one and one other) at 320x200: about 2 minutes on a 2-core CPU for numpy, "
-                   "two OpenCL runtimes and Warp's CPU device")
+                   "one and one other) at 320x200: 2 to 4 minutes on a 2-core CPU for numpy, "
+                   "two or three OpenCL runtimes and Warp's CPU device (fewer --backends, less)")
     p.add_argument("--knobs", metavar="LIST", type=lambda s: [x.strip() for x in s.split(",")
                    if x.strip()], help="comma list of the knobs to run, e.g. motion or "
                    "\"precision,CRF table\" (default: all; names as in the table)")
