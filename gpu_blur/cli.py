@@ -319,7 +319,7 @@ def _generate(args) -> int:
     from tqdm import tqdm
 
     from gpu_blur.backends import get_backend
-    from gpu_blur.dataset import DatasetWriter, find_samples, library_versions
+    from gpu_blur.dataset import BUILT_IN_INPUT, DatasetWriter, find_samples, library_versions
     from gpu_blur.distributed import pick_executor
     from gpu_blur.generate import Job
     from gpu_blur.scene import load_scene
@@ -334,8 +334,14 @@ def _generate(args) -> int:
     found = find_samples(args.input, scene.blur.mode, scene.blur.frames, per_photo,
                          args.samples_per_sequence, exclude=args.output)
     specs = found.take(args.limit)
+    # the Schedule rides in Job.tile (tile, memory budget, spot checks; see pipeline)
+    schedule = Schedule(tuple(args.tile) if args.tile else None, args.max_device_memory,
+                        args.verify)
+    # how samples run, never what they give: recorded, not checked by --resume
+    how = {"tile": list(schedule.tile) if schedule.tile else None,
+           "max_device_memory": schedule.max_device_memory, "verify": schedule.verify}
     run = {"seed": args.seed, "backend": args.backend, "device": backend.device,
-           "input": str(args.input) if args.input else "built-in: coffee.png",
+           "input": str(args.input) if args.input else BUILT_IN_INPUT, **how,
            "samples_per_photo": per_photo, "samples_per_sequence": args.samples_per_sequence,
            "scene_file": str(args.scene) if args.scene else None, "scene": scene.to_dict(),
            "files": {key: hashlib.sha256(path.read_bytes()).hexdigest()
@@ -349,21 +355,20 @@ def _generate(args) -> int:
         print(f"resuming {args.output}: {done} of {len(specs)} samples done, {len(todo)} to "
               f"make ({writer.retry} failed before, to retry; {writer.torn} torn or invalid "
               "manifest line(s) ignored)")
-    record = {"seed": args.seed, "backend": args.backend, "device": backend.device}
+    record = {"seed": args.seed, "backend": args.backend, "device": backend.device, **how}
     failed, made = [], 0
     totals, writing = RunTotals(), current().seconds["writing"]
     start = time.perf_counter()
     try:
-        # the Schedule rides in Job.tile (tile, memory budget, spot checks; see pipeline)
-        schedule = Schedule(tuple(args.tile) if args.tile else None, args.max_device_memory,
-                            args.verify)
         job = Job(scene, args.seed, args.backend, schedule)
         samples = executor(job, todo)
         for spec, result, error in tqdm(samples, total=len(todo), desc="samples",
                                         unit="sample", disable=args.quiet):
             try:
                 if error is not None:  # this sample's input: record it, go on
-                    failed.append(writer.fail(spec, error, record))
+                    checked = {"spot_check": "failed"} if error.startswith(
+                        SPOT_CHECK_FAILED) else {}
+                    failed.append(writer.fail(spec, error, record | checked))
                 else:
                     with timer("writing"):  # the device of the worker that made it
                         writer.write(spec, result, {**record,

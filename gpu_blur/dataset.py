@@ -68,12 +68,42 @@ class SampleSpec:
     problem: str | None = None
 
 
+#: How the manifest and run.json name the built-in photo: its installed path differs from one
+#: machine or environment to the next, so a set records the name.
+BUILT_IN_INPUT = "built-in: coffee.png"
+#: What each array of ``params/*.npz`` holds, stored beside it as ``<name>_convention`` (a text
+#: entry: ``str(np.load(path)["homographies_convention"])``).
+ARRAY_CONVENTIONS = {
+    "homographies": (
+        "steps x 3 x 3 float64, the camera path: H[s] for the time sample "
+        "t_s = (s + 1/2) / steps - 1/2 of the exposure (time order, t in [-1/2, 1/2], the sharp "
+        "image at t = 0). H[s] maps a pixel of the sharp input image to where its scene point is "
+        "at t_s: (u, v, w) = H[s] @ (x, y, 1), seen at (u / w, v / w); x is the column and y the "
+        "row, in pixels, with pixel centres at integers and (0, 0) the centre of the top-left "
+        "pixel, on the input's grid before output.crop (the saved images' pixel (x, y) is the "
+        "input's (x + crop, y + crop)); H[2, 2] is not normalised. The blurred image is the mean "
+        "over s of the input warped by H[s]: output pixel p takes the input at H[s]^-1 p "
+        "(bilinear, reflect-101 borders; gpu_blur.reference.shake)."),
+    "kernel": (
+        "kh x kw float64 motion kernel, rows y and columns x, odd sides, normalised to sum 1 "
+        "where it is used: a true convolution centred on the middle entry, "
+        "blurred[y, x] = sum over i, j of k[i, j] sharp[y + kh // 2 - i, x + kw // 2 - j], in "
+        "linear RGB, reflect-101 borders, on the input's grid before output.crop "
+        "(gpu_blur.reference.motion_kernel.convolve_kernel)."),
+}
+
+
 def default_photo() -> Path:
     """The built-in input: 'coffee' by Rachel Michetti, CC0, as shipped by scikit-image.
 
     A 600 x 400 photograph whose spoon and cup rim have specular highlights that clip.
     """
     return Path(str(resources.files("gpu_blur").joinpath("data/coffee.png")))
+
+
+def input_label(path: Path) -> str:
+    """How the manifest records an input: its path as found, the built-in photo by name."""
+    return BUILT_IN_INPUT if path == default_photo() else str(path)
 
 
 def _natural(name: str) -> tuple:
@@ -616,7 +646,7 @@ class DatasetWriter:
             line = self.done.get(spec.index)
             if line is None:
                 continue
-            inputs = [str(p) for p in spec.inputs]
+            inputs = [input_label(p) for p in spec.inputs]
             if line.get("name") != spec.name or line.get("inputs") != inputs:
                 raise ValueError(
                     f"--resume: sample {spec.index} of {self.manifest_path} is "
@@ -651,7 +681,12 @@ class DatasetWriter:
         self.manifest.flush()
 
     def write(self, spec: SampleSpec, result, record: dict) -> dict:
-        """Write one sample, then its manifest line (``status`` "ok"); returns the line."""
+        """Write one sample, then its manifest line (``status`` "ok"); returns the line.
+
+        The line holds, besides ``record``, how many tiles the sample ran in and how many of
+        them were spot-checked (``spot_check`` "passed", or "none" when no tile was checked:
+        a failed check fails the sample); its arrays' file holds each array's convention.
+        """
         paths = self._paths(spec.index, spec.name)
         write_image(self.out / paths["blurred"], result.blurred, self.bits)
         write_image(self.out / paths["sharp"], result.sharp, self.bits)
@@ -659,24 +694,29 @@ class DatasetWriter:
         line = {
             "index": spec.index,
             "name": spec.name,
-            "inputs": [str(p) for p in spec.inputs],
+            "inputs": [input_label(p) for p in spec.inputs],
             "blurred": paths["blurred"],
             "sharp": paths["sharp"],
             **record,
+            "tiles": result.tiles,
+            "spot_checked_tiles": result.spot_checks,
+            "spot_check": "passed" if result.spot_checks else "none",
             "status": "ok",
             "params": {k: _jsonable(v) for k, v in result.params.items() if k not in arrays},
             "stages": [s.name for s in result.plan.stages if s.kept],
         }
         if arrays:
             (self.out / "params").mkdir(exist_ok=True)
-            save_arrays(self.out / paths["arrays"], arrays)
+            save_arrays(self.out / paths["arrays"], arrays | {
+                f"{k}_convention": ARRAY_CONVENTIONS[k] for k in arrays})
             line["arrays"] = paths["arrays"]
         self._append(line)
         return line
 
     def fail(self, spec: SampleSpec, reason: str, record: dict) -> dict:
         """Record a sample that could not be made (``status`` "failed", ``error``)."""
-        line = {"index": spec.index, "name": spec.name, "inputs": [str(p) for p in spec.inputs],
+        line = {"index": spec.index, "name": spec.name,
+                "inputs": [input_label(p) for p in spec.inputs],
                 **record, "status": "failed", "error": reason}
         self._append(line)
         return line

@@ -167,3 +167,120 @@ def test_output_files_are_tagged_cpu_or_by_the_first_gpu():
     assert benchmark.device_tag(cpu) == "cpu"
     gpu = cpu | {"opencl:0:0": {"device": "GPU NVIDIA H200 (NVIDIA CUDA)", "kind": "GPU"}}
     assert benchmark.device_tag(gpu) == "nvidia-h200"
+
+
+def test_each_row_times_its_setting_and_the_accurate_one_equally_often(quick_report):
+    report, out = quick_report
+    for r in report["rows"]:
+        if not r["available"]:
+            continue
+        assert len(r["accurate_runs_s"]) == len(r["runs_s"]), r
+        median = sorted(r["runs_s"])[len(r["runs_s"]) // 2]
+        accurate = sorted(r["accurate_runs_s"])[len(r["runs_s"]) // 2]
+        assert r["time_vs_accurate"] == pytest.approx(median / accurate, rel=1e-3), r
+        if r["reference"]:
+            assert r["accurate_runs_s"] == r["runs_s"] and r["time_vs_accurate"] == 1
+    assert "| time / accurate |" in (out / "accuracy_vs_time_test.md").read_text()
+
+
+def test_a_setting_and_its_accurate_one_run_in_turn(monkeypatch):
+    from gpu_blur.analysis.bench import measure
+
+    calls = []
+
+    def fake(spec, frames, setting, *extra):
+        calls.append((setting.label, bool(extra)))
+        return np.zeros((2, 2, 3), np.float32)
+
+    monkeypatch.setattr(measure, "synthesize_setting", fake)
+    knobs = [s for s in benchmark.KNOBS if s.knob == "demosaic"]
+    runner = measure.Runner([np.zeros((48, 64, 3), np.uint8)], {"numpy": {}}, knobs, runs=5,
+                            log=lambda line: None)
+    runner.row(knobs[0], "numpy")
+    calls.clear()
+    runner.row(knobs[1], "numpy")
+    timed = [label for label, clean in calls if not clean]
+    # the warm-up of the new setting, then five rounds of (setting, accurate)
+    assert timed == ["bilinear"] + ["bilinear", "Malvar 2004"] * 5
+
+
+def bench_args(out, *extra):
+    return ["bench", "--size", "64x48", "--backends", "numpy", "--knobs", "demosaic",
+            "--reference-runs", "1", "--output", str(out), "--tag", "t", *extra]
+
+
+def test_an_interrupted_bench_keeps_its_rows_and_the_same_command_goes_on(tmp_path,
+                                                                          monkeypatch, capsys):
+    from gpu_blur.analysis.bench.measure import Runner
+
+    measured, real_row = [], Runner.row
+
+    def row(self, setting, spec):
+        if len(measured) == 1:
+            raise KeyboardInterrupt  # Ctrl-C during the second row
+        measured.append(setting.label)
+        return real_row(self, setting, spec)
+
+    monkeypatch.setattr(Runner, "row", row)
+    path = tmp_path / "accuracy_vs_time_t.json"
+    assert main(bench_args(tmp_path)) == 130
+    assert "run the same command to go on" in capsys.readouterr().err
+    partial = json.loads(path.read_text())
+    assert partial["complete"] is False and [r["setting"] for r in partial["rows"]] == [
+        "Malvar 2004"]
+
+    measured.clear()
+    monkeypatch.setattr(Runner, "row", lambda self, setting, spec: measured.append(
+        setting.label) or real_row(self, setting, spec))
+    assert main(bench_args(tmp_path)) == 0
+    assert measured == ["bilinear"]  # the finished row is kept, not measured again
+    report = json.loads(path.read_text())
+    assert report["complete"] is True and report["rows"][0] == partial["rows"][0]
+    assert [r["setting"] for r in report["rows"]] == ["Malvar 2004", "bilinear"]
+    captured = capsys.readouterr()
+    assert f"resuming {path}: 1 of 5 steps done" in captured.out
+    # the progress bar: steps done of all, elapsed and remaining time
+    assert "bench: 5/5 steps 100%" in captured.err
+    assert "00:00 left]" in captured.err
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--runs", "6"], "another --runs: runs = 5 (this run: 6)"),
+    (["--knobs", "tile"], "another --knobs: settings = "),
+])
+def test_a_rerun_with_other_options_is_refused_naming_the_option(tmp_path, extra, message,
+                                                                 capsys):
+    path = tmp_path / "accuracy_vs_time_t.json"
+    assert main(bench_args(tmp_path)) == 0
+    before = path.read_text()
+    argv = bench_args(tmp_path)
+    if extra[0] == "--knobs":
+        argv[argv.index("--knobs") + 1] = extra[1]
+    else:
+        argv += extra
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"{path} holds a bench run with {message}" in err and "another --output" in err
+    assert path.read_text() == before
+
+
+def test_quick_runs_small_frames_unless_a_size_is_given(monkeypatch, capsys, tmp_path):
+    from gpu_blur.analysis.bench import run
+
+    def stop(width, height):
+        raise ValueError(f"frames of {width} x {height}")
+
+    monkeypatch.setattr(run, "make_frames", stop)
+    for size, expected in ([], benchmark.QUICK_SIZE), (["--size", "96x64"], (96, 64)):
+        assert main(["bench", "--quick", "--backends", "numpy", *size, "--output",
+                     str(tmp_path)]) == 2
+        assert f"frames of {expected[0]} x {expected[1]}" in capsys.readouterr().err
+
+
+def test_the_time_left_weighs_rows_by_their_frame_interpolation():
+    from gpu_blur.analysis.bench.measure import Runner
+
+    motion = [s for s in benchmark.KNOBS if s.knob == "motion"]  # 8x (accurate), 4x, 2x, 1x
+    runner = Runner([np.zeros((48, 64, 3), np.uint8)], {"numpy": {}}, motion, runs=5)
+    # a row runs its setting and the accurate one; k-fold interpolation costs about 3 k
+    assert [runner.cost(s, "numpy") for s in motion] == [24, 12 + 24, 6 + 24, 1 + 24]

@@ -10,6 +10,8 @@ import numpy as np
 
 #: The input's size, width x height, and frame count (blur.mode = "average").
 DEFAULT_SIZE = (1920, 1200)
+#: ``--quick``'s size: a few minutes for every backend of a 2-core CPU (README, bench).
+QUICK_SIZE = (320, 200)
 FRAMES = 9
 #: Pixels the camera pans right per frame: each frame is a window of the upscaled photo.
 PAN_PX = 2
