@@ -314,7 +314,9 @@ def test_a_stage_s_values_close_its_pass_kernel_s_arguments():
               "shot_noise_k": 0.01, "read_noise_std": 0.001}
     args = to_raw_args(p, params, (0, 0), 4, 4, ("linear", "mask"), "matrix", ("sat", "raw"),
                        seed=SEED, sample_index=SAMPLE)
-    vignetting = tuple(Arg("real", v) for v in p[S.VIGNETTING].values)  # before WB in the plan
+    # before WB in the plan; skipped here (strength 0), its unknown image size passed as 0
+    vignetting = (Arg("real", 0.0),) * 3
+    assert p[S.VIGNETTING].values == (0.0, None, None)
     assert args[-7:] == ("sat", "raw", *vignetting, Arg("real", 0.25), Arg("real", 2.0))
     assert stage_values(p, Pass.FINISH) == ()
 
