@@ -78,6 +78,48 @@ def _backend_specs() -> list[str]:
 BACKEND_SPECS = _backend_specs()
 KERNEL_BACKEND_SPECS = [s for s in BACKEND_SPECS if s != "numpy"]
 
+#: GPU_BLUR_REQUIRE's names: the OpenCL platform each stands for (.ci/run sets "pocl,intel").
+REQUIRABLE = {"pocl": "Portable Computing Language", "intel": "Intel(R) OpenCL"}
+
+
+def missing_required(required: str, devices, specs) -> list[str]:
+    """Why each runtime named in ``required`` (GPU_BLUR_REQUIRE, e.g. ``pocl,intel``) has no
+    OpenCL device in ``devices`` whose float32 and float64 runs are among ``specs``."""
+    problems = []
+    for name in filter(None, (x.strip() for x in required.split(","))):
+        if name not in REQUIRABLE:
+            problems.append(f"unknown name {name!r} (known: {', '.join(REQUIRABLE)})")
+            continue
+        platform = REQUIRABLE[name]
+        found = [d for d in devices if platform in d.platform]
+        runs = [d for d in found if d.usable and d.fp64
+                and {f"{d.spec}/float32", f"{d.spec}/float64"} <= set(specs)]
+        if not runs:
+            seen = "; ".join(f"{d.spec}: {d.problem or 'not in GPU_BLUR_BACKENDS or no fp64'}"
+                             for d in found) or "none installed"
+            problems.append(f"{name} ({platform}): no device the tests run on ({seen})")
+    return problems
+
+
+def pytest_sessionstart(session):
+    """Under GPU_BLUR_REQUIRE (CI), a required OpenCL runtime that is missing fails the run
+    instead of leaving its tests out: a green run proves the kernels ran on it."""
+    required = os.environ.get("GPU_BLUR_REQUIRE", "")
+    if not required:
+        return
+    try:
+        from gpu_blur.backends.opencl import opencl_devices
+    except ImportError:
+        devices = []
+    else:
+        devices = opencl_devices()
+    problems = missing_required(required, devices, BACKEND_SPECS)
+    if problems:
+        raise pytest.UsageError(
+            f"GPU_BLUR_REQUIRE={required}: " + "; ".join(problems) + ". Install the runtime "
+            "(README.md, Backends and devices: PoCL on Debian/Ubuntu is apt-get install "
+            "pocl-opencl-icd) or set GPU_BLUR_REQUIRE= to run without it")
+
 
 def make_backend(spec: str):
     """A backend for 'numpy' or 'opencl:P:D/<precision>' (one per session), whose passes
