@@ -39,3 +39,13 @@ def test_the_session_fails_not_skips_when_a_required_runtime_is_missing(monkeypa
         pytest_sessionstart(None)
     monkeypatch.setenv("GPU_BLUR_REQUIRE", "")
     pytest_sessionstart(None)  # not required: nothing to check
+
+
+def test_a_second_cpu_device_of_the_same_runtime_is_left_out():
+    from conftest import one_cpu_device_per_runtime
+
+    pip_pocl = opencl.DeviceInfo("opencl:2:0", "Portable Computing Language", "pthread-cpu",
+                                 "CPU", True, 2**30, True, "")
+    gpus = [opencl.DeviceInfo(f"opencl:3:{i}", "NVIDIA CUDA", "H200", "GPU", True, 2**30, True,
+                              "") for i in range(2)]
+    assert one_cpu_device_per_runtime([POCL, INTEL, pip_pocl, *gpus]) == [POCL, INTEL, *gpus]

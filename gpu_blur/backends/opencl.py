@@ -37,10 +37,11 @@ from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
 
 NO_PLATFORM_HELP = (
-    "no OpenCL platform found. For a CPU device: pip install pocl-binary-distribution (PoCL), "
-    "or pip install intel-opencl-rt intel-cmplr-lib-rt (Intel's CPU runtime, which gpu_blur "
-    "registers by itself); for a GPU, install its vendor's driver (NVIDIA: the CUDA driver "
-    "ships OpenCL)"
+    "no OpenCL platform found. For a CPU device: pip install intel-opencl-rt "
+    "intel-cmplr-lib-rt (Intel's CPU runtime, which gpu_blur registers by itself), or PoCL "
+    "(Debian/Ubuntu: apt-get install pocl-opencl-icd; elsewhere pip install "
+    "pocl-binary-distribution); for a GPU, install its vendor's driver (NVIDIA: the CUDA "
+    "driver ships OpenCL)"
 )
 
 
