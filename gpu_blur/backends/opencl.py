@@ -180,8 +180,11 @@ CPU_RUNTIME_ORDER = ("Intel(R) OpenCL", "Portable Computing Language")
 
 
 def device_rank(device: DeviceInfo) -> tuple[int, int]:
-    """How ``opencl`` ranks a device (lower first): GPUs, then CPU runtimes by speed
-    (:data:`CPU_RUNTIME_ORDER`), then the rest; platform order breaks ties."""
+    """How ``opencl`` ranks a device, lower first.
+
+    GPUs, then CPU runtimes by speed (:data:`CPU_RUNTIME_ORDER`), then the rest; platform
+    order breaks ties.
+    """
     if device.kind == "GPU":
         return (0, 0)
     known = [i for i, name in enumerate(CPU_RUNTIME_ORDER) if name in device.platform]
