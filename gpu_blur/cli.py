@@ -53,8 +53,9 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--seed", type=int, default=0, help="dataset seed; with a sample's index it "
                    "fixes all of that sample's random draws (default 0)")
     g.add_argument("--backend", default="numpy", help="numpy (float64 reference), opencl "
-                   "(first usable device, GPUs first), opencl:<platform>:<device>, warp (CUDA "
-                   "if present, else CPU), warp:cpu or warp:cuda:<n>; see `gpu-blur devices`")
+                   "(a GPU, else the fastest CPU runtime), opencl:<platform>:<device>, warp "
+                   "(CUDA if present, else CPU), warp:cpu or warp:cuda:<n>; see `gpu-blur "
+                   "devices`")
     spread = g.add_mutually_exclusive_group()
     spread.add_argument("--devices", metavar="LIST", help="one worker process per device of "
                         "this host: 'all' (every usable device of --backend: OpenCL GPUs, "
@@ -328,6 +329,7 @@ def _generate(args) -> int:
 
     scene = load_scene(args.scene)
     backend = get_backend(args.backend, scene.output.precision)  # fails before any work
+    print(f"device: {backend.device}", file=sys.stderr)
     _check_setup(args, scene)
     executor = pick_executor(args, scene.output.precision)  # serial, --devices or --ray
     per_photo = args.samples_per_photo or (1 if args.input else 4)

@@ -60,15 +60,14 @@ def _present(kind: str, precision: str) -> tuple[list[str], dict[str, str]]:
     if kind == "numpy":
         return ["numpy"], {}
     if kind == "opencl":
-        from gpu_blur.backends.opencl import opencl_devices
+        from gpu_blur.backends.opencl import device_rank, opencl_devices
 
-        found = opencl_devices()
+        found = sorted(opencl_devices(), key=device_rank)  # the order `opencl` picks in
         usable = [d for d in found if d.usable and (d.fp64 or precision != "float64")]
         unusable = {d.spec: (d.problem and f"cannot build kernels: {d.problem}")
                     or "has no fp64 (cl_khr_fp64), and output.precision is float64"
                     for d in found if d not in usable}
-        gpus = [d.spec for d in usable if d.kind == "GPU"]
-        return gpus + [d.spec for d in usable if d.kind != "GPU"], unusable
+        return [d.spec for d in usable], unusable
     if kind == "warp":
         from gpu_blur.backends.warp import warp_devices
 

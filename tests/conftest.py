@@ -45,6 +45,19 @@ def rocket_rgb() -> np.ndarray:
 
 # -- backends: one test body runs on every backend present -----------------------------------
 
+def one_cpu_device_per_runtime(devices):
+    """``devices`` with only the first CPU device of each platform name: two PoCLs (Debian's
+    and PyPI's) would run every OpenCL test twice on the same cores, for no new coverage
+    (measured here: 160 s each). Not applied when GPU_BLUR_BACKENDS names the devices."""
+    seen, kept = set(), []
+    for d in devices:
+        if d.kind == "CPU" and d.platform in seen:
+            continue
+        seen.add(d.platform)
+        kept.append(d)
+    return kept
+
+
 def _backend_specs() -> list[str]:
     """numpy, every usable OpenCL device in float32 and (with fp64) float64, every Warp device.
 
@@ -57,6 +70,8 @@ def _backend_specs() -> list[str]:
         devices = []
     else:
         devices = [d for d in opencl_devices() if d.usable]
+        if not os.environ.get("GPU_BLUR_BACKENDS"):
+            devices = one_cpu_device_per_runtime(devices)
     for d in devices:
         specs.append(f"{d.spec}/float32")
         if d.fp64:
@@ -77,6 +92,48 @@ def _backend_specs() -> list[str]:
 
 BACKEND_SPECS = _backend_specs()
 KERNEL_BACKEND_SPECS = [s for s in BACKEND_SPECS if s != "numpy"]
+
+#: GPU_BLUR_REQUIRE's names: the OpenCL platform each stands for (.ci/run sets "pocl,intel").
+REQUIRABLE = {"pocl": "Portable Computing Language", "intel": "Intel(R) OpenCL"}
+
+
+def missing_required(required: str, devices, specs) -> list[str]:
+    """Why each runtime named in ``required`` (GPU_BLUR_REQUIRE, e.g. ``pocl,intel``) has no
+    OpenCL device in ``devices`` whose float32 and float64 runs are among ``specs``."""
+    problems = []
+    for name in filter(None, (x.strip() for x in required.split(","))):
+        if name not in REQUIRABLE:
+            problems.append(f"unknown name {name!r} (known: {', '.join(REQUIRABLE)})")
+            continue
+        platform = REQUIRABLE[name]
+        found = [d for d in devices if platform in d.platform]
+        runs = [d for d in found if d.usable and d.fp64
+                and {f"{d.spec}/float32", f"{d.spec}/float64"} <= set(specs)]
+        if not runs:
+            seen = "; ".join(f"{d.spec}: {d.problem or 'not in GPU_BLUR_BACKENDS or no fp64'}"
+                             for d in found) or "none installed"
+            problems.append(f"{name} ({platform}): no device the tests run on ({seen})")
+    return problems
+
+
+def pytest_sessionstart(session):
+    """Under GPU_BLUR_REQUIRE (CI), a required OpenCL runtime that is missing fails the run
+    instead of leaving its tests out: a green run proves the kernels ran on it."""
+    required = os.environ.get("GPU_BLUR_REQUIRE", "")
+    if not required:
+        return
+    try:
+        from gpu_blur.backends.opencl import opencl_devices
+    except ImportError:
+        devices = []
+    else:
+        devices = opencl_devices()
+    problems = missing_required(required, devices, BACKEND_SPECS)
+    if problems:
+        raise pytest.UsageError(
+            f"GPU_BLUR_REQUIRE={required}: " + "; ".join(problems) + ". Install the runtime "
+            "(README.md, Backends and devices: PoCL on Debian/Ubuntu is apt-get install "
+            "pocl-opencl-icd) or set GPU_BLUR_REQUIRE= to run without it")
 
 
 def make_backend(spec: str):

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -80,6 +81,17 @@ def scene_for(case: str, precision: str):
     return scene_from_dict(data)
 
 
+def device_key(device: str) -> str:
+    """A recorded device without its OpenCL platform number, which shifts when another runtime
+    is installed (Debian's PoCL put itself before Intel's runtime): the device, not its slot."""
+    return re.sub(r"^opencl:\d+:\d+ ", "opencl ", device)
+
+
+def by_device(record: dict) -> dict:
+    """A record's entries keyed by :func:`device_key`."""
+    return {device_key(device): cases for device, cases in record.items()}
+
+
 def digest(result) -> str:
     """SHA-256 of a Synthesis: blurred, sharp, mask (float32 bytes) and parameters."""
     h = hashlib.sha256()
@@ -132,10 +144,11 @@ def main(argv=None) -> int:
         args.write.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
         print(f"wrote {args.write}: {', '.join(found)}")
     if args.check:
-        recorded = json.loads(args.check.read_text())
+        recorded = by_device(json.loads(args.check.read_text()))
         changed = [f"{device}: {case}" for device, got in found.items()
-                   for case, value in recorded.get(device, {}).items() if got.get(case) != value]
-        unrecorded = [device for device in found if device not in recorded]
+                   for case, value in recorded.get(device_key(device), {}).items()
+                   if got.get(case) != value]
+        unrecorded = [device for device in found if device_key(device) not in recorded]
         print("\n".join(changed) or "every recorded digest is unchanged")
         if unrecorded:
             print(f"not recorded, not compared: {', '.join(unrecorded)}")

@@ -203,8 +203,11 @@ def test_devices_and_ray_exclude_each_other(tmp_path, photos):
 def test_devices_all_is_every_usable_device_of_the_backend():
     assert parse_devices("all", "numpy") == ["numpy"] * os.cpu_count()
     if OPENCL:
-        gpus = [d.spec for d in OPENCL if d.kind == "GPU"]
-        assert parse_devices("all", "opencl") == (gpus or [d.spec for d in OPENCL])
+        from gpu_blur.backends.opencl import device_rank
+
+        ranked = sorted(OPENCL, key=device_rank)  # the order `opencl` picks in
+        gpus = [d.spec for d in ranked if d.kind == "GPU"]
+        assert parse_devices("all", "opencl") == (gpus or [d.spec for d in ranked])
     if WARP is not None:
         cuda = [d["spec"] for d in WARP if d["spec"].startswith("warp:cuda")]
         assert parse_devices("all", "warp:cpu") == (cuda or ["warp:cpu"])
