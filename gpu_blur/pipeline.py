@@ -127,10 +127,10 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         seed: dataset seed (0 <= seed < 2**64).
         sample_index: index of this sample (0 <= index < 2**32); with ``seed`` it fixes every
             random draw.
-        backend: ``"numpy"`` (the float64 reference), ``"opencl"`` (first usable device),
-            ``"opencl:<platform>:<device>"``, ``"warp"`` (CUDA if present, else the CPU),
-            ``"warp:cpu"`` or ``"warp:cuda:<n>"`` (see ``gpu-blur devices``), or a backend
-            object from :func:`gpu_blur.backends.get_backend`.
+        backend: ``"numpy"`` (the float64 reference), ``"opencl"`` (a GPU, else Intel's CPU
+            runtime, else PoCL), ``"opencl:<platform>:<device>"``, ``"warp"`` (CUDA if
+            present, else the CPU), ``"warp:cpu"`` or ``"warp:cuda:<n>"`` (see ``gpu-blur
+            devices``), or a backend object from :func:`gpu_blur.backends.get_backend`.
         overrides: drawn parameters to fix instead (e.g. ``{"alpha": 1.0, "pattern": "RGGB"}``).
         tile: run the image in tiles of at most (rows, columns) pixels, each with its halo;
             the result does not depend on it. Wins over ``max_device_memory``. A

@@ -11,9 +11,9 @@ Frames come as stored (:func:`gpu_blur.imageio.check_image`: uint8/uint16 codes 
 takes without a copy; ``np.asarray`` (or ``.numpy()``) brings one to the host as float64. The
 numpy backend returns numpy arrays. Any pass also takes host arrays.
 
-Names: ``numpy`` (float64 reference), ``opencl`` (first usable OpenCL device, GPUs first),
-``opencl:<platform>:<device>``, ``warp`` (CUDA if present, else the CPU), ``warp:cpu``,
-``warp:cuda:<n>``.
+Names: ``numpy`` (float64 reference), ``opencl`` (a GPU, else Intel's CPU runtime, else
+PoCL: ``opencl.best_device``), ``opencl:<platform>:<device>``, ``warp`` (CUDA if present,
+else the CPU), ``warp:cpu``, ``warp:cuda:<n>``.
 """
 
 from __future__ import annotations
