@@ -228,3 +228,21 @@ def files(out):
     """{relative path: bytes} of every per-sample file of the set in ``out``."""
     return {p.relative_to(out).as_posix(): p.read_bytes()
             for sub in SETS for p in sorted((out / sub).iterdir())}
+
+
+@pytest.fixture
+def photos(tmp_path):
+    """Two small photos (in/a.png, in/b.png, 24 x 32) and a fast scene (3 camera poses).
+
+    Returns (input folder, scene file): the full default chain in a few ms per sample.
+    """
+    import cv2
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for name in ("a", "b"):
+        cv2.imwrite(str(folder / f"{name}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    scene = tmp_path / "s.toml"
+    scene.write_text("[blur]\nsteps = 3\n")  # the full default chain, 3 camera poses
+    return folder, scene

@@ -215,14 +215,8 @@ def children_of(pid):
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP, signal.SIGKILL],
                          ids=["SIGTERM", "SIGHUP", "SIGKILL"])
 def test_a_signal_to_a_devices_run_ends_its_workers_and_keeps_finished_samples(tmp_path,
-                                                                             signum):
-    folder = tmp_path / "in"
-    folder.mkdir()
-    rng = np.random.default_rng(0)
-    for name in ("a", "b"):
-        cv2.imwrite(str(folder / f"{name}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
-    scene = tmp_path / "s.toml"
-    scene.write_text("[blur]\nsteps = 3\n")
+                                                                             photos, signum):
+    folder, scene = photos
     out = tmp_path / "out"
     command = [sys.executable, "-m", "gpu_blur.cli", "generate", "--input", str(folder),
                "--output", str(out), "--scene", str(scene), "--samples-per-photo", "4",

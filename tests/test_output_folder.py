@@ -21,19 +21,6 @@ from gpu_blur.imageio import write_image
 from gpu_blur.testhooks import TEST_SLEEP_AFTER
 
 
-@pytest.fixture
-def photos(tmp_path):
-    """Two small photos and a fast scene: 4 samples with --samples-per-photo 2."""
-    folder = tmp_path / "in"
-    folder.mkdir()
-    rng = np.random.default_rng(0)
-    for name in ("a", "b"):
-        cv2.imwrite(str(folder / f"{name}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
-    scene = tmp_path / "s.toml"
-    scene.write_text("[blur]\nsteps = 3\n")
-    return folder, scene
-
-
 def args(photos, out, *extra):
     folder, scene = photos
     return ["generate", "--input", str(folder), "--output", str(out), "--scene", str(scene),
