@@ -10,9 +10,10 @@ devices may differ in a last bit), in ``tests/data/golden_outputs.json``:
     python tests/golden.py --check tests/data/golden_outputs.json   # compare, list changes
 
 ``tests/test_golden_outputs.py`` runs the check for every backend present whose device was
-recorded. The record holds the CPU devices of the development machine (recorded at 40370a5)
-and an NVIDIA H100 (OpenCL and Warp CUDA, recorded at 430b3ee, whose outputs on those CPU
-devices are 40370a5's), both before the kernel backends were written once (issue 14).
+recorded. The record holds the CPU devices of the development machine (recorded at 40370a5;
+Debian's PoCL 3.1 at 430b3ee) and an NVIDIA H100 (OpenCL and Warp CUDA, recorded at 430b3ee,
+whose outputs on those CPU devices are 40370a5's), all before the kernel backends were
+written once (issue 14).
 """
 
 from __future__ import annotations
