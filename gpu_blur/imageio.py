@@ -202,6 +202,33 @@ def _jpeg_scan(data: bytes, pos: int, interval: int,
     return ff, None
 
 
+def _decode(path: Path, where: str, fix: str) -> np.ndarray:
+    """An image file decoded by OpenCV as stored (IMREAD_UNCHANGED), after :func:`_damage`.
+
+    Raises:
+        ValueError: ``where``, what is wrong (unreadable, empty, damaged, not an image), then
+            ``fix``.
+    """
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise ValueError(f"{where}: cannot read it ({e.strerror}); check its permissions"
+                         f"{fix}") from None
+    if not data:
+        raise ValueError(f"{where}: the file is empty (0 bytes){fix}")
+    problem = _damage(data)
+    if problem:
+        raise ValueError(f"{where}: {problem}{fix}")
+    try:
+        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        image = None
+    if image is None:
+        raise ValueError(f"{where}: not a readable image (corrupt, truncated or a format OpenCV "
+                         f"does not read){fix}")
+    return image
+
+
 def read_image(path: str | Path) -> np.ndarray:
     """Read an image file as H x W x 3 in RGB order, keeping its codes.
 
@@ -221,22 +248,7 @@ def read_image(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{path}: no such file")
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise ValueError(f"{path}: cannot read it ({e.strerror}); check its permissions") from None
-    if not data:
-        raise ValueError(f"{path}: the file is empty (0 bytes); {_WAY_OUT}")
-    problem = _damage(data)
-    if problem:
-        raise ValueError(f"{path}: {problem}; {_WAY_OUT}")
-    try:
-        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error:
-        image = None
-    if image is None:
-        raise ValueError(f"{path}: not a readable image (corrupt, truncated or a format OpenCV "
-                         f"does not read); {_WAY_OUT}")
+    image = _decode(path, str(path), f"; {_WAY_OUT}")
     if image.ndim == 2:
         image = image[:, :, None]
     channels = image.shape[2]
@@ -420,20 +432,7 @@ def read_kernel(path: str | Path) -> np.ndarray:
             raise ValueError(f"{where}: not a numpy array file ({e}); save the kernel with "
                              "np.save") from None
     else:
-        try:
-            data = path.read_bytes()
-        except OSError as e:
-            raise ValueError(f"{where}: cannot read it ({e.strerror})") from None
-        problem = _damage(data)
-        if problem:
-            raise ValueError(f"{where}: {problem}")
-        try:
-            kernel = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-        except cv2.error:
-            kernel = None
-        if kernel is None:
-            raise ValueError(f"{where}: not a readable image (corrupt, truncated or a format "
-                             "OpenCV does not read)")
+        kernel = _decode(path, where, "")
     try:
         kernel = np.asarray(kernel, dtype=np.float64)
     except (TypeError, ValueError):
