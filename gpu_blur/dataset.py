@@ -3,15 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
-import errno
-import fcntl
 import itertools
 import json
 import math
 import os
 import re
-import socket
-import time
 import zipfile
 from collections.abc import Callable, Iterator
 from importlib import resources
@@ -20,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from gpu_blur.imageio import temporary_path, write_image, write_text
+from gpu_blur.locking import LockHeld, take_lock
 from gpu_blur.params import ARRAY_PARAMS
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
@@ -537,32 +534,18 @@ class DatasetWriter:
                        "--output, or make it a writable folder")
 
     def _take_lock(self) -> int:
-        """Create the folder and lock it for this process; returns the lock file's descriptor.
+        """Create the folder and lock it for this process (:func:`gpu_blur.locking.take_lock`).
 
-        ``flock`` locks belong to the open file, so the lock ends with :meth:`close` or with
-        the process (a killed run's lock file blocks nothing); the file itself stays.
+        Returns the lock file's descriptor; the lock ends with :meth:`close` or the process.
         """
         try:
             self.out.mkdir(parents=True, exist_ok=True)
-            fd = os.open(self.out / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+            return take_lock(self.out / LOCK, f"--output {self.out}", "wait for that run to "
+                             "end, or choose another --output")
+        except LockHeld:
+            raise
         except OSError as e:
             raise self._unwritable(e) from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as e:
-            holder = os.read(fd, 4096).decode(errors="replace").strip()
-            os.close(fd)
-            if e.errno not in (errno.EAGAIN, errno.EACCES):
-                raise self._unwritable(e) from None
-            raise ValueError(
-                f"--output {self.out}: another gpu-blur run is writing this folder (its lock "
-                f"file {self.out / LOCK} says: {holder or 'nothing yet'}); wait for that run "
-                "to end, or choose another --output") from None
-        os.ftruncate(fd, 0)
-        started = time.strftime("%Y-%m-%d %H:%M:%S %z")
-        os.write(fd, f"pid {os.getpid()} on {socket.gethostname()}, started {started}\n"
-                 .encode())
-        return fd
 
     def _make_folders(self) -> None:
         try:

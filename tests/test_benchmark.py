@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 
 import cv2
@@ -284,3 +285,18 @@ def test_the_time_left_weighs_rows_by_their_frame_interpolation():
     runner = Runner([np.zeros((48, 64, 3), np.uint8)], {"numpy": {}}, motion, runs=5)
     # a row runs its setting and the accurate one; k-fold interpolation costs about 3 k
     assert [runner.cost(s, "numpy") for s in motion] == [24, 12 + 24, 6 + 24, 1 + 24]
+
+
+def test_a_second_bench_on_the_same_report_is_refused_while_the_first_runs(tmp_path, capsys):
+    from gpu_blur.locking import take_lock
+
+    path = tmp_path / "accuracy_vs_time_t.json"
+    holder = take_lock(path.with_name(f".{path.name}.lock"), "test", "")  # a first run's lock
+    try:
+        assert main(bench_args(tmp_path)) == 2
+    finally:
+        os.close(holder)
+    err = capsys.readouterr().err
+    assert f"bench report {path}: another gpu-blur run is writing it" in err
+    assert f"pid {os.getpid()}" in err and not path.exists()
+    assert main(bench_args(tmp_path)) == 0  # the lock ends with its holder

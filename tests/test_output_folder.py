@@ -43,7 +43,7 @@ def test_a_second_run_on_a_folder_being_written_stops_at_once_naming_the_holder(
         for again in ([], ["--resume"], ["--overwrite"]):
             assert main(args(photos, out, *again)) == 2
             err = capsys.readouterr().err
-            assert f"--output {out}: another gpu-blur run is writing this folder" in err
+            assert f"--output {out}: another gpu-blur run is writing it" in err
             assert f"pid {first.pid} on " in err
         assert (out / "manifest.jsonl").read_text() == text  # nothing touched
     finally:

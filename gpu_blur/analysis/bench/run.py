@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import re
 import sys
@@ -41,6 +42,7 @@ from gpu_blur.analysis.bench.workload import (
     select_knobs,
 )
 from gpu_blur.imageio import write_text
+from gpu_blur.locking import take_lock
 
 #: The report keys a resumed run must share with the JSON it finishes, and what sets each.
 RESUME_KEYS = {"size": "--size", "devices": "--backends (their devices)", "runs": "--runs",
@@ -238,20 +240,28 @@ def run_from_args(args: argparse.Namespace) -> int:
     knobs = select_knobs(args.knobs) if args.knobs is not None else None
     tag = args.tag or device_tag(choose_backends(args.backends))
     saved = report_paths(args.output, tag)[0]
+    saved.parent.mkdir(parents=True, exist_ok=True)
+    # one run per report: a second one would interleave its rows with this one's
+    lock = take_lock(saved.with_name(f".{saved.name}.lock"), f"bench report {saved}",
+                     "wait for that run to end, or give another --output or --tag")
     print(f"bench: writing {saved} as each row finishes (stopped, the same command goes on "
           "from there)", flush=True)
     try:
-        report = run_benchmark(args.size and tuple(args.size), args.backends, args.quick,
-                               args.runs, knobs=knobs, log=lambda line: print(line, flush=True),
-                               reference_runs=args.reference_runs, save_to=saved,
-                               progress=True)
-    except KeyboardInterrupt:
-        print(f"bench: interrupted; the rows measured so far are in {saved}: run the same "
-              "command to go on", file=sys.stderr)
-        return 130
-    for path in write_report(report, args.output, tag):
-        print(f"wrote {path}")
-    return 0
+        try:
+            report = run_benchmark(args.size and tuple(args.size), args.backends, args.quick,
+                                   args.runs, knobs=knobs,
+                                   log=lambda line: print(line, flush=True),
+                                   reference_runs=args.reference_runs, save_to=saved,
+                                   progress=True)
+        except KeyboardInterrupt:
+            print(f"bench: interrupted; the rows measured so far are in {saved}: run the same "
+                  "command to go on", file=sys.stderr)
+            return 130
+        for path in write_report(report, args.output, tag):
+            print(f"wrote {path}")
+        return 0
+    finally:
+        os.close(lock)
 
 
 def main(argv: Sequence[str] | None = None, default_output: Path = Path(".")) -> int:
