@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from gpu_blur.imageio import temporary_path, write_image, write_text
-from gpu_blur.locking import LockHeld, take_lock
+from gpu_blur.locking import take_lock
 from gpu_blur.params import ARRAY_PARAMS
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
@@ -542,9 +542,7 @@ class DatasetWriter:
             self.out.mkdir(parents=True, exist_ok=True)
             return take_lock(self.out / LOCK, f"--output {self.out}", "wait for that run to "
                              "end, or choose another --output")
-        except LockHeld:
-            raise
-        except OSError as e:
+        except OSError as e:  # LockHeld is a ValueError: it passes through
             raise self._unwritable(e) from None
 
     def _make_folders(self) -> None:

@@ -158,9 +158,8 @@ class WarpBackend(KernelBackend):
         from gpu_blur.warp_kernels.passes import accumulate_kernels, finish_kernel, to_raw_kernel
 
         if config.pass_ == Pass.ACCUMULATE:
-            source = self.real if source is None else wp.dtype_from_numpy(np.dtype(source))
             factory = interpolate_kernels if interpolate else accumulate_kernels
-            return factory(self.real, source)
+            return factory(self.real, self._wp_dtype(source))
         if config.pass_ == Pass.TO_RAW:
             return {"to_raw": to_raw_kernel(self.real, config)}
         return {"finish": finish_kernel(self.real, config)}
