@@ -284,7 +284,7 @@ class OpenCLBackend(KernelBackend):
             raise OpenCLError(f"{self.info.spec} ({self.info.name}) has no fp64 "
                               "(cl_khr_fp64); use output.precision = 'float32'")
         self.precision = precision
-        self.np_real = np.float64 if precision == "float64" else np.float32
+        self.real = self.np_real = np.float64 if precision == "float64" else np.float32
         self.position_dtype = np.float64 if self.info.fp64 else np.float32
         self.device = f"{self.info.spec} {self.info.name} ({self.info.platform}), {precision}"
         self.ctx = cl.Context([self.cl_device])
@@ -366,7 +366,7 @@ class OpenCLBackend(KernelBackend):
         """A kernel argument as OpenCL takes it (:class:`~gpu_blur.backends.kernel.Arg`)."""
         if not isinstance(arg, Arg):
             return arg
-        return {"index": np.int64, "int": np.int32, "uint": np.uint32, "real": self.np_real,
+        return {"index": np.int64, "int": np.int32, "uint": np.uint32, "real": self.real,
                 "position": self.position_dtype}[arg.kind](arg.value)
 
     def _timed(self, sync: bool = True):
@@ -378,18 +378,18 @@ class OpenCLBackend(KernelBackend):
         if isinstance(values, OnDevice):
             return values.data
         with timer("copies"):
-            data = np.ascontiguousarray(values, dtype=dtype or self.np_real)
+            data = np.ascontiguousarray(values, dtype=dtype or self.real)
             return cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                              hostbuf=data)
 
     def _empty(self, count: int, dtype=None) -> cl.Buffer:
-        nbytes = max(count, 1) * np.dtype(dtype or self.np_real).itemsize
+        nbytes = max(count, 1) * np.dtype(dtype or self.real).itemsize
         return cl.Buffer(self.ctx, cl.mem_flags.READ_WRITE, nbytes)
 
     def _zeros(self, count: int, dtype=None) -> cl.Buffer:
-        nbytes = max(count, 1) * np.dtype(dtype or self.np_real).itemsize
+        nbytes = max(count, 1) * np.dtype(dtype or self.real).itemsize
         buf = cl.Buffer(self.ctx, cl.mem_flags.READ_WRITE, nbytes)
-        cl.enqueue_fill_buffer(self.queue, buf, np.zeros(1, dtype or self.np_real), 0, nbytes)
+        cl.enqueue_fill_buffer(self.queue, buf, np.zeros(1, dtype or self.real), 0, nbytes)
         return buf
 
     def _write(self, buffer, values: np.ndarray) -> None:
@@ -398,7 +398,7 @@ class OpenCLBackend(KernelBackend):
 
     def _fetch(self, values: OnDevice, dtype) -> np.ndarray:
         with timer("copies"):
-            out = np.empty(values.shape, dtype=self.np_real)
+            out = np.empty(values.shape, dtype=self.real)
             cl.enqueue_copy(self.queue, out, values.data)
             return out.astype(dtype, copy=False)
 
@@ -410,7 +410,7 @@ class OpenCLBackend(KernelBackend):
         for the upload event, and the next upload into that stack waits for that launch.
         Without it, copies block on the compute queue.
         """
-        dtype = source_dtype(frames[0], self.np_real)
+        dtype = source_dtype(frames[0], self.real)
         per, values, groups, stacks = self._stacks_for(frames, region, dtype)
         read = [None] * len(stacks)  # event: the launch that last read each stack
         for c, group in enumerate(groups):
