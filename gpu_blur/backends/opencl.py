@@ -398,7 +398,7 @@ class OpenCLBackend(KernelBackend):
 
     def _fetch(self, values: OnDevice, dtype) -> np.ndarray:
         with timer("copies"):
-            out = np.empty(values.shape, dtype=self.real)
+            out = np.empty(values.shape, dtype=values.dtype or self.real)
             cl.enqueue_copy(self.queue, out, values.data)
             return out.astype(dtype, copy=False)
 
