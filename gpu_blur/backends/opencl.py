@@ -355,6 +355,11 @@ class OpenCLBackend(KernelBackend):
         return self.kernels("interpolate.cl" if interpolate else SOURCES[config.pass_],
                             defines)
 
+    def _input_kernels(self, config: PassConfig | None, source):
+        defines = {} if config is None else config_defines(config)
+        defines["GB_SOURCE_BITS"] = str(SOURCE_BITS.get(np.dtype(source), 0))
+        return self.kernels("inputs.cl", defines)
+
     def _launch(self, kernels, name: str, grid, *args):
         grid = (grid,) if isinstance(grid, int) else (int(grid[1]), int(grid[0]))
         wait_for, self._wait_for = self._wait_for, None
