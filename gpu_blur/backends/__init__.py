@@ -102,15 +102,18 @@ class OnDevice:
     """A pass's output left on a kernel backend's device.
 
     Attributes:
-        data: the flat device buffer (a ``cl.Buffer`` or a 1-D ``wp.array``) in the
-            backend's precision, row-major, 3 values per pixel for RGB.
+        data: the flat device buffer (a ``cl.Buffer`` or a 1-D ``wp.array``) of ``dtype``,
+            row-major, 3 values per pixel for RGB.
         shape: the image it holds, ``h x w x 3`` or ``h x w`` (the RAW mosaic).
+        dtype: what ``data`` holds: None for the backend's compute type (every pass's
+            output), else a numpy dtype (an input as stored: uint8 or uint16 codes).
     """
 
-    __slots__ = ("data", "shape", "_fetch")
+    __slots__ = ("data", "shape", "_fetch", "dtype")
 
-    def __init__(self, data, shape: tuple[int, ...], fetch):
+    def __init__(self, data, shape: tuple[int, ...], fetch, dtype=None):
         self.data, self.shape, self._fetch = data, tuple(int(n) for n in shape), fetch
+        self.dtype = None if dtype is None else np.dtype(dtype)
 
     @property
     def ndim(self) -> int:

@@ -464,6 +464,113 @@ class KernelBackend:
 
         return retone(plan, camera, image)
 
+    # -- inputs on the device: checks and the sharp reference ------------------------------
+    def _input_kernels(self, config: PassConfig | None, source):
+        """The kernels over input images stored as ``source`` (uint8, uint16, compute type).
+
+        ``config`` None: ``inspect``; else (:func:`sharp_config`) ``render_sharp`` and, for
+        8/16-bit codes, ``gather_codes``, built for it.
+        """
+        raise NotImplementedError
+
+    def _stored_dtype(self, image: OnDevice) -> np.dtype:
+        """The dtype an input image is stored in on the device: uint8, uint16 or the compute type.
+
+        Raises:
+            ValueError: for any other dtype, naming it and the ones allowed.
+        """
+        dtype = np.dtype(self.np_real) if image.dtype is None else image.dtype
+        if dtype not in (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(self.np_real)):
+            raise ValueError(f"an input image on the device holds {dtype} values; the kernels "
+                             f"read uint8, uint16 or {np.dtype(self.np_real)} (the compute "
+                             "type): convert it before the upload")
+        return dtype
+
+    def inspect(self, images: Sequence[OnDevice]) -> np.ndarray:
+        """Counts over input images as stored on the device, for the checks on them.
+
+        One launch per image, all into one small device buffer read back once; no value of
+        the images reaches the host.
+
+        Args:
+            images: ``OnDevice`` images whose ``dtype`` is uint8 or uint16 (codes) or None
+                or the compute type (values), any shape.
+
+        Returns:
+            int64 array ``len(images) x 6``, one row per image, the columns of
+            :data:`INSPECT_COLUMNS`: NaN, infinite, below 0, above 1, at the clip level (>= 1.0
+            for values, the top code 2^bits - 1 for codes: ``gpu_blur.pipeline``'s
+            ``_reaches_clip_level``), above 0 (a mask's "anything to saturate").
+        """
+        if not images:
+            return np.zeros((0, len(INSPECT_COLUMNS)), np.int64)
+        sources = [self._stored_dtype(image) for image in images]
+        # each count as two uint32 words, (low, high)
+        counts = self._zeros(len(images) * len(INSPECT_COLUMNS) * 2, np.uint32)
+        with self._timed():
+            for row, (image, source) in enumerate(zip(images, sources, strict=True)):
+                n = int(np.prod(image.shape))
+                items = inspect_items(n)
+                k = self._input_kernels(None, source)
+                self._launch(k, "inspect", items, image.data, *_index(n, items), counts,
+                             *_index(row))
+        halves = OnDevice(counts, (len(images), len(INSPECT_COLUMNS), 2), self._fetch,
+                          np.uint32).numpy(np.int64)
+        return halves[..., 0] + (halves[..., 1] << 32)
+
+    def render_sharp(self, plan: Plan, camera: Camera, image: OnDevice, out: Region) -> OnDevice:
+        """The sharp reference as the output holds it, rendered on the device.
+
+        As ``gpu_blur.pipeline.render_sharp`` on the host: sRGB values re-toned by the finish
+        pass's device functions when the plan re-tones, linear and clipped without the tone
+        stage, quantized when the plan quantizes.
+
+        Args:
+            plan: the sample's plan.
+            camera: its camera (``output.crf = "camera"``: its fitted response).
+            image: the sharp image as stored on the device, ``H x W x 3``: ``dtype`` uint8 or
+                uint16 (codes, divided on the device as ``linearize`` divides them), or None or
+                the compute type (sRGB values).
+            out: the region of ``image`` to render (the output crop: the image less
+                ``output.crop`` pixels on every side).
+
+        Returns:
+            A new ``out.h x out.w x 3`` image of the compute type on the device.
+
+        Raises:
+            ValueError: when ``out`` does not lie within the image, or for an image of another
+                dtype.
+        """
+        source = self._stored_dtype(image)
+        h, w = image.shape[:2]
+        if not (0 <= out.y0 and 0 <= out.x0 and out.y0 + out.h <= h and out.x0 + out.w <= w
+                and out.h > 0 and out.w > 0):
+            raise ValueError(f"render_sharp: the output region {out.h} x {out.w} at (row "
+                             f"{out.y0}, column {out.x0}) does not lie within the {h} x {w} "
+                             "image: pass a region of the image (e.g. the image less "
+                             "output.crop pixels on every side)")
+        k = self._input_kernels(sharp_config(plan), source)
+        polynomial, table = retone_curves(plan, camera)
+        curves = (self._constant(polynomial), Arg("int", polynomial.size, extent=True),
+                  self._constant(table), Arg("int", table.size, extent=True))
+        result = self._empty(out.h * out.w * 3)
+        with self._timed():
+            if source == self.np_real:
+                self._launch(k, "render_sharp", (out.h, out.w), image.data, *_index(w),
+                             *_out_geometry(out), *curves, result)
+            else:
+                # codes: the curve of every code (one pixel per 3 codes), then a gather, as
+                # the host renders them (gpu_blur.pipeline.render_sharp)
+                top = np.iinfo(source).max
+                every = np.minimum(np.arange(-(-(top + 1) // 3) * 3), top)
+                codes = Region.whole(1, every.size // 3)
+                rendered = self._empty(every.size)
+                self._launch(k, "render_sharp", codes.shape, self._constant(every, source),
+                             *_index(codes.w), *_out_geometry(codes), *curves, rendered)
+                self._launch(k, "gather_codes", (out.h, out.w), image.data, *_index(w),
+                             *_out_geometry(out), rendered, result)
+        return OnDevice(result, (out.h, out.w, 3), self._fetch)
+
 
 def average_args(stack, count: int, n: int, sums, first: bool, mean_of: int, linear, sat_mask,
                  table) -> tuple:
@@ -474,3 +581,44 @@ def average_args(stack, count: int, n: int, sums, first: bool, mean_of: int, lin
     """
     return (stack, Arg("uint", count), Arg("index", n), *sums, Arg("int", int(first)),
             Arg("uint", mean_of), linear, sat_mask, table)
+
+
+#: The columns of :meth:`KernelBackend.inspect`'s counts, in order (kernels/opencl/inputs.cl,
+#: gpu_blur/warp_kernels/inputs.py write them in this order).
+INSPECT_COLUMNS = ("nan", "infinite", "below_0", "above_1", "clip_level", "above_0")
+
+#: Work items of one inspect launch: enough for a GPU's memory system; each counts a strided
+#: share of the image in registers and adds it once per non-zero count (no atomic per value).
+INSPECT_ITEMS = 65536
+
+
+def inspect_items(n: int) -> int:
+    """Work items for inspecting ``n`` values.
+
+    :data:`INSPECT_ITEMS`, fewer for small images, and enough that no item counts 2^32 values
+    (its counts are 32-bit).
+    """
+    return max(min(n, INSPECT_ITEMS), -(-n // (2**32 - 1)), 1)
+
+
+def sharp_config(plan: Plan) -> PassConfig:
+    """The finish pass's configuration cut to what acts on the sharp reference.
+
+    Its tone, retone and quantize stages, the re-toning curve, the bits and fast maths: one
+    build of :meth:`KernelBackend.render_sharp` serves every demosaic and noise setting.
+    """
+    finish = pass_config(plan, Pass.FINISH)
+    stages = tuple(s for s in finish.stages if s in (S.TONE, S.RETONE, S.QUANTIZE))
+    return PassConfig(Pass.FINISH, stages, finish.fast_math, retone=finish.retone,
+                      bits=finish.bits)
+
+
+def retone_curves(plan: Plan, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """(polynomial coefficients, lookup table / 255) of the plan's re-toning, for the kernels.
+
+    Both curves go to the kernels; the one the plan does not use is a placeholder never read.
+    """
+    polynomial = plan.retone_polynomial(camera)
+    polynomial = np.zeros(1) if polynomial is None else polynomial
+    table = a7r3_lookup_table(plan[S.RETONE].options["table_size"]) / 255.0
+    return polynomial, table

@@ -355,6 +355,11 @@ class OpenCLBackend(KernelBackend):
         return self.kernels("interpolate.cl" if interpolate else SOURCES[config.pass_],
                             defines)
 
+    def _input_kernels(self, config: PassConfig | None, source):
+        defines = {} if config is None else config_defines(config)
+        defines["GB_SOURCE_BITS"] = str(SOURCE_BITS.get(np.dtype(source), 0))
+        return self.kernels("inputs.cl", defines)
+
     def _launch(self, kernels, name: str, grid, *args):
         grid = (grid,) if isinstance(grid, int) else (int(grid[1]), int(grid[0]))
         wait_for, self._wait_for = self._wait_for, None
@@ -398,7 +403,7 @@ class OpenCLBackend(KernelBackend):
 
     def _fetch(self, values: OnDevice, dtype) -> np.ndarray:
         with timer("copies"):
-            out = np.empty(values.shape, dtype=self.real)
+            out = np.empty(values.shape, dtype=values.dtype or self.real)
             cl.enqueue_copy(self.queue, out, values.data)
             return out.astype(dtype, copy=False)
 

@@ -164,6 +164,22 @@ class WarpBackend(KernelBackend):
             return {"to_raw": to_raw_kernel(self.real, config)}
         return {"finish": finish_kernel(self.real, config)}
 
+    def _input_kernels(self, config: PassConfig | None, source):
+        """Warp's kernels over stored input images.
+
+        ``inspect`` (``config`` None), else ``render_sharp`` built for ``config`` (and
+        ``gather_codes`` for 8/16-bit codes).
+        """
+        from gpu_blur.warp_kernels import inputs
+
+        source = self._wp_dtype(source)
+        if config is None:
+            return {"inspect": inputs.inspect_kernel(source)}
+        kernels = {"render_sharp": inputs.render_sharp_kernel(self.real, source, config)}
+        if source != self.real:
+            kernels["gather_codes"] = inputs.gather_codes_kernel(self.real, source)
+        return kernels
+
     def _launch(self, kernels, name: str, grid, *args) -> None:
         inputs = [self._render(a) for a in args if not (isinstance(a, Arg) and a.extent)]
         wp.launch(kernels[name], dim=grid, inputs=inputs, device=self.wp_device)

@@ -1,0 +1,142 @@
+"""Kernels over an input image as stored on the device, the Warp port of kernels/opencl/inputs.cl.
+
+No value of the image is read on the host (gpu_blur.backends.kernel.KernelBackend.inspect and
+render_sharp):
+
+* :func:`inspect_kernel`: counts for the input checks and auto saturation's clip test;
+* :func:`render_sharp_kernel`: the sharp reference, toned like the output by the finish
+  kernel's functions (gpu_blur.warp_kernels.pixel);
+* :func:`gather_codes_kernel`: the same for 8/16-bit codes, from a table that
+  ``render_sharp`` made of every code.
+
+``source`` is how the image is stored: ``wp.uint8`` or ``wp.uint16`` codes, or values of the
+compute type (:func:`gpu_blur.warp_kernels.passes.source_value_func`).
+"""
+
+import functools
+
+import warp as wp
+
+from gpu_blur.warp_kernels import pixel
+from gpu_blur.warp_kernels.passes import SOURCE_TOP, _fast, source_value_func
+
+
+@wp.func
+def count_add(counts: wp.array(dtype=wp.uint32), i: int, add: wp.uint32):
+    """counts[i] += add for a count held as two words, counts[i] low and counts[i + 1] high.
+
+    32-bit atomics only, as gb_count_add: the addition that wraps the low word carries.
+    """
+    if add != wp.uint32(0):
+        old = wp.atomic_add(counts, i, add)
+        if old + add < old:
+            wp.atomic_add(counts, i + 1, wp.uint32(1))
+
+
+@functools.cache
+def inspect_kernel(source):
+    """Counts over the ``n`` values of an image into row ``row`` of ``counts``, as gb_inspect.
+
+    Six columns (NaN, infinite, below 0, above 1, at the clip level, above 0), each a 64-bit
+    count as two words (:func:`count_add`); thread i of ``items`` counts values i, i + items,
+    ... in registers and adds each non-zero count once. The clip level is 1.0 for float values
+    and the top code for 8/16-bit codes, which are never NaN, infinite, negative or above 1.
+    """
+    top = int(SOURCE_TOP.get(source, 0))  # 0: float values
+
+    @wp.kernel(module="unique")
+    def inspect(values: wp.array(dtype=source), n: int, items: int,
+                counts: wp.array(dtype=wp.uint32), row: int):
+        nan = wp.uint32(0)
+        inf = wp.uint32(0)
+        below = wp.uint32(0)
+        above = wp.uint32(0)
+        clip = wp.uint32(0)
+        positive = wp.uint32(0)
+        one = wp.uint32(1)
+        for i in range(wp.tid(), n, items):
+            v = values[i]
+            if wp.static(top > 0):
+                if v == source(top):
+                    clip += one
+                if v > source(0):
+                    positive += one
+            else:
+                if wp.isnan(v):
+                    nan += one
+                if wp.isinf(v):
+                    inf += one
+                if v < source(0.0):
+                    below += one
+                if v > source(1.0):
+                    above += one
+                if v >= source(1.0):
+                    clip += one
+                if v > source(0.0):
+                    positive += one
+        out = 12 * row
+        count_add(counts, out, nan)
+        count_add(counts, out + 2, inf)
+        count_add(counts, out + 4, below)
+        count_add(counts, out + 6, above)
+        count_add(counts, out + 8, clip)
+        count_add(counts, out + 10, positive)
+
+    return inspect
+
+
+@functools.cache
+def render_sharp_kernel(real, source, config):
+    """The sharp reference over an output region, as gb_render_sharp.
+
+    ``config`` is the finish pass's configuration (gpu_blur.backends.kernel.PassConfig) cut to
+    the stages that act on the sharp image: each stored sRGB value p (a code divided as
+    ``linearize`` does) becomes clip(EOTF(p), 0, 1) without the tone stage (output.crf = none),
+    the finish kernel's re-toning of it with the retone stage (``config.retone``: "polynomial"
+    or "lookup"), else p; then quantize (``config.bits`` > 0). ``fast_math`` as the finish
+    kernel's.
+    """
+    tone, retone, bits = config.kept("tone"), config.retone, config.bits
+    source_value = source_value_func(real, source)
+
+    @wp.kernel(module="unique", module_options={"fast_math": _fast(real, config.fast_math)})
+    def render_sharp(image: wp.array(dtype=source), iw: int, ox0: int, oy0: int, ow: int,
+                     crf_polynomial: wp.array(dtype=real), crf_table: wp.array(dtype=real),
+                     out: wp.array(dtype=real)):
+        y, x = wp.tid()
+        i = 3 * ((oy0 + y) * iw + ox0 + x)
+        o = 3 * (y * ow + x)
+        for c in range(3):
+            p = source_value(image[i + c])
+            if wp.static(not tone):
+                p = pixel.clip01(pixel.srgb_to_linear(p))
+            if wp.static(retone == "polynomial"):
+                p = pixel.polynomial_crf(pixel.srgb_to_linear(p), crf_polynomial,
+                                         crf_polynomial.shape[0])
+            if wp.static(retone == "lookup"):
+                p = pixel.lookup_crf(pixel.srgb_to_linear(p), crf_table, crf_table.shape[0])
+            if wp.static(bits > 0):
+                p = pixel.quantize(p, bits)
+            out[o + c] = p
+
+    return render_sharp
+
+
+@functools.cache
+def gather_codes_kernel(real, source):
+    """``render_sharp``'s output region of an image of 8/16-bit codes, as gb_gather_codes.
+
+    Values come from ``rendered``, ``render_sharp``'s values of the codes 0 .. 2^bits - 1 (the
+    same function of the same codes, so the same bits, without a curve per value).
+    """
+
+    @wp.kernel(module="unique")
+    def gather_codes(image: wp.array(dtype=source), iw: int, ox0: int, oy0: int, ow: int,
+                     rendered: wp.array(dtype=real), out: wp.array(dtype=real)):
+        y, x = wp.tid()
+        i = 3 * ((oy0 + y) * iw + ox0 + x)
+        o = 3 * (y * ow + x)
+        for c in range(3):
+            out[o + c] = rendered[int(image[i + c])]
+
+    return gather_codes

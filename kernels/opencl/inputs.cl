@@ -1,0 +1,101 @@
+/* inputs.cl: kernels over an input image as stored on the device (gb_source, gb_common.h), so
+ * that no value of it is read on the host (gpu_blur.backends.kernel.KernelBackend.inspect and
+ * render_sharp):
+ *   gb_inspect       counts for the input checks and auto saturation's clip test;
+ *   gb_render_sharp  the sharp reference, toned like the output by finish.cl's functions;
+ *   gb_gather_codes  the same for 8/16-bit codes, from a table gb_render_sharp made of every code.
+ */
+#include "gb_common.h"
+#include "gb_pixel.h"
+
+/* counts[0] += add for a count held as two uints, counts[0] the low word and counts[1] the high
+ * one, with 32-bit atomics only (core OpenCL): the addition that wraps the low word carries. */
+static inline void gb_count_add(__global volatile uint *counts, uint add)
+{
+    if (add == 0) return;
+    uint old = atomic_add(counts, add);
+    if (old + add < old) atomic_inc(counts + 1);
+}
+
+/* Counts over the n values of `values`, into row `row` of `counts`: 6 columns (NaN, infinite,
+ * below 0, above 1, at the clip level, above 0; KernelBackend.INSPECT_COLUMNS), each a 64-bit
+ * count as two uints (gb_count_add). Work item i of `items` counts values i, i + items, ... in
+ * registers (items >= n / 2^32, so each of its counts fits a uint) and adds each non-zero count
+ * once. The clip level is 1.0 for float values and the top code (2^bits - 1) for codes; codes
+ * are never NaN, infinite, negative or above 1. */
+__kernel void gb_inspect(__global const gb_source *values, long n, long items,
+                         __global volatile uint *counts, long row)
+{
+    uint nan = 0, inf = 0, below = 0, above = 0, clip = 0, positive = 0;
+    for (long i = get_global_id(0); i < n; i += items) {
+        gb_source v = values[i];
+#if GB_SOURCE_BITS == 0
+        nan += isnan(v) ? 1u : 0u;
+        inf += isinf(v) ? 1u : 0u;
+        below += v < GB_REAL(0.0) ? 1u : 0u;
+        above += v > GB_REAL(1.0) ? 1u : 0u;
+        clip += v >= GB_REAL(1.0) ? 1u : 0u;
+        positive += v > GB_REAL(0.0) ? 1u : 0u;
+#else
+        clip += v == (gb_source)((1 << GB_SOURCE_BITS) - 1) ? 1u : 0u;
+        positive += v > 0 ? 1u : 0u;
+#endif
+    }
+    __global volatile uint *out = counts + 12 * row;
+    gb_count_add(out, nan);
+    gb_count_add(out + 2, inf);
+    gb_count_add(out + 4, below);
+    gb_count_add(out + 6, above);
+    gb_count_add(out + 8, clip);
+    gb_count_add(out + 10, positive);
+}
+
+/* The sharp reference over the output region (first pixel (ox0, oy0), size ow x oh) of an image
+ * of width iw, 3 values per pixel: each stored sRGB value p (a code divided as gb_linearize does)
+ * becomes, as gpu_blur.pipeline.render_sharp renders it on the host,
+ *   without GB_STAGE_TONE (output.crf = none): clip(EOTF(p), 0, 1);
+ *   with GB_STAGE_RETONE: the camera response of EOTF(p), the polynomial or the lookup table
+ *     (GB_RETONE_LOOKUP) exactly as gb_finish re-tones;
+ *   else p;
+ * then gb_quantize with GB_STAGE_QUANTIZE. The curves' arguments are gb_finish's. */
+__kernel void gb_render_sharp(__global const gb_source *image, long iw, long ox0, long oy0,
+                              long ow, long oh, __constant real *crf_polynomial,
+                              int crf_polynomial_n, __global const real *crf_table,
+                              int crf_table_n, __global real *out)
+{
+    long x = get_global_id(0), y = get_global_id(1);
+    if (x >= ow || y >= oh) return;
+    long i = 3 * ((oy0 + y) * iw + ox0 + x);
+    for (int c = 0; c < 3; ++c) {
+        real p = gb_source_value(image[i + c]);
+#ifndef GB_STAGE_TONE
+        p = gb_clip01(gb_srgb_to_linear(p));
+#endif
+#ifdef GB_STAGE_RETONE
+#ifdef GB_RETONE_LOOKUP
+        p = gb_lookup_crf(gb_srgb_to_linear(p), crf_table, crf_table_n);
+#else
+        p = gb_polynomial_crf(gb_srgb_to_linear(p), crf_polynomial, crf_polynomial_n);
+#endif
+#endif
+#ifdef GB_STAGE_QUANTIZE
+        p = gb_quantize(p, GB_QUANTIZE_BITS);
+#endif
+        out[3 * (y * ow + x) + c] = p;
+    }
+}
+
+#if GB_SOURCE_BITS != 0
+/* gb_render_sharp's output region from `rendered`, gb_render_sharp's values of the codes
+ * 0 .. 2^bits - 1 (the same function of the same codes, so the same bits, without a curve
+ * per value), as gpu_blur.pipeline.render_sharp renders codes on the host. */
+__kernel void gb_gather_codes(__global const gb_source *image, long iw, long ox0, long oy0,
+                              long ow, long oh, __global const real *rendered,
+                              __global real *out)
+{
+    long x = get_global_id(0), y = get_global_id(1);
+    if (x >= ow || y >= oh) return;
+    long i = 3 * ((oy0 + y) * iw + ox0 + x);
+    for (int c = 0; c < 3; ++c) out[3 * (y * ow + x) + c] = rendered[image[i + c]];
+}
+#endif
