@@ -254,6 +254,41 @@ def through_synthesize(make_backend, frames: np.ndarray, samples: int, on_device
     return out
 
 
+def through_batches(backend: str, frames: np.ndarray, samples: int, batch: int,
+                    to_torch: bool) -> dict:
+    """The public batch API, ``gpu_blur.Synthesizer``: B x F x H x W x 3 uint8 numpy frames in
+    host memory (or, with ``to_torch``, torch CUDA tensors) to B results of the same type.
+
+    The first batch builds the kernels; then ``samples`` samples in batches of ``batch``.
+    """
+    scene = scene_from_dict(SCENE)
+    stack = np.ascontiguousarray(np.broadcast_to(frames, (batch, *frames.shape)))
+    if to_torch:
+        import torch
+
+        stack = torch.from_numpy(stack).cuda()
+    synth = gpu_blur.Synthesizer(scene, backend=backend, seed=1)
+
+    def wait(out):
+        if to_torch:
+            torch.cuda.synchronize()
+        return out
+
+    wait(synth(stack, first_index=0))
+    totals: dict[str, float] = {}
+    start = time.perf_counter()
+    done = 0
+    while done < samples:
+        out = wait(synth(stack, first_index=done + batch))
+        for k, v in out.timings.items():
+            totals[k] = totals.get(k, 0.0) + v
+        done += batch
+    elapsed = time.perf_counter() - start
+    return {"samples_per_s": done / elapsed, "ms_per_sample": 1e3 * elapsed / done,
+            "batch": batch, "inputs": "torch CUDA uint8" if to_torch else "numpy uint8",
+            "mean_seconds_per_sample": {k: v / done for k, v in totals.items()}}
+
+
 def section(results: dict, name: str, fn) -> None:
     try:
         results[name] = fn()
@@ -293,6 +328,11 @@ def main() -> int:
             lambda: through_synthesize(warp_backend, frames, samples, on_device=True))
     section(results, "opencl_synthesize_numpy_frames",
             lambda: through_synthesize(opencl_backend, frames, samples, on_device=False))
+    for name in ("warp", "opencl"):
+        section(results, f"{name}_batches_numpy_frames",
+                lambda n=name: through_batches(n, frames, 4 * samples, 16, to_torch=False))
+    section(results, "warp_batches_torch_cuda_frames",
+            lambda: through_batches("warp", frames, 4 * samples, 16, to_torch=True))
     try:
         from gpu_blur.backends.opencl import OpenCLBackend
         results["opencl_device"] = OpenCLBackend("opencl").device

@@ -1,15 +1,17 @@
 """gpu_blur: realistic motion-blur synthesis (RSBlur, Rim et al. ECCV 2022) on CPUs and GPUs.
 
-Start with :func:`synthesize` (one sample), :func:`load_scene` (settings) and :func:`plan`
-(which stages a scene runs); the float64 reference of every stage is :mod:`gpu_blur.reference`.
+Start with :func:`synthesize` (one sample), :class:`Synthesizer` (batches: numpy, torch, CuPy
+or Warp arrays in and out), :func:`load_scene` (settings) and :func:`plan` (which stages a
+scene runs); the float64 reference of every stage is :mod:`gpu_blur.reference`.
 
 One sample, module by module:
 
     scene.py        the scene: validated settings (limits.py: every number's range)
     plan.py         scene -> the ordered stages it calls for, each kept or skipped
     params.py       the sample's random draws (rng: reference/rng.py), or given values
-    pipeline.py     synthesize(): the three passes on a backend; scheduler.py runs them in
-                    tiles (tiling.py) within a memory budget, with spot checks
+    pipeline.py     Synthesizer (synthesize(): a batch of one): the three passes on a
+                    backend; scheduler.py runs them in tiles (tiling.py) within a memory
+                    budget, with spot checks; arrays.py: the array types batches come in
     backends/       numpy (reference/), OpenCL (kernels/opencl/), Warp (warp_kernels/)
     dataset.py      outputs: blurred and sharp images, parameters, the manifest
                     (generate.py and distributed.py make a set's samples)
@@ -21,9 +23,9 @@ the tests' tolerances: :mod:`gpu_blur.testing`.
 
 __version__ = "0.1.0"
 
-from gpu_blur.pipeline import Synthesis, synthesize  # noqa: E402
+from gpu_blur.pipeline import Batch, Synthesis, Synthesizer, synthesize  # noqa: E402
 from gpu_blur.plan import Plan, Stage, plan  # noqa: E402
 from gpu_blur.scene import Scene, SceneError, load_scene  # noqa: E402
 
-__all__ = ["Plan", "Scene", "SceneError", "Stage", "Synthesis", "load_scene", "plan",
-           "synthesize", "__version__"]
+__all__ = ["Batch", "Plan", "Scene", "SceneError", "Stage", "Synthesis", "Synthesizer",
+           "load_scene", "plan", "synthesize", "__version__"]

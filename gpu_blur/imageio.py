@@ -297,16 +297,11 @@ def unit_values(image: np.ndarray) -> np.ndarray:
     return np.asarray(image, dtype=np.float64)
 
 
-def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
-    """An H x W x 3 RGB input as stored: uint8 or uint16 codes, or float64 values in [0, 1].
-
-    Frames stay in their integer codes until a backend reads them (kernels upload 1 or 2
-    bytes per value and divide on the device); floats are checked and made float64.
+def check_layout(image, what: str = "image") -> np.ndarray:
+    """An H x W x 3 RGB input of uint8, uint16 or float values; the values are not read.
 
     Raises:
-        ValueError: naming ``what``, with how many bad values there are, where the first is,
-            and the way out, for a wrong shape or dtype, NaN or infinity, or floats outside
-            [0, 1].
+        ValueError: naming ``what`` and the way out, for a wrong shape or dtype.
     """
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[2] != 3:
@@ -316,36 +311,53 @@ def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
                          f"{hint}")
     if image.size == 0:
         raise ValueError(f"{what}: the image is empty (shape {image.shape})")
+    if image.dtype not in (np.uint8, np.uint16) and not np.issubdtype(image.dtype, np.floating):
+        raise ValueError(f"{what}: unsupported dtype {image.dtype}; use uint8, uint16 or float "
+                         "in [0, 1] (e.g. x.astype(np.uint8) for 0..255 integers)")
+    return image
+
+
+def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
+    """An H x W x 3 RGB input as stored: uint8 or uint16 codes, or float64 values in [0, 1].
+
+    Frames stay in their integer codes until a backend reads them (kernels upload 1 or 2
+    bytes per value and divide on the device); floats are checked and made float64. Kernel
+    backends make the same checks on the device (``KernelBackend.inspect``) and come here
+    only for the message.
+
+    Raises:
+        ValueError: naming ``what``, with how many bad values there are, where the first is,
+            and the way out, for a wrong shape or dtype, NaN or infinity, or floats outside
+            [0, 1].
+    """
+    image = check_layout(image, what)
     if image.dtype in (np.uint8, np.uint16):
         return image
-    if np.issubdtype(image.dtype, np.floating):
-        x = image.astype(np.float64)
-        finite = np.isfinite(x)
-        if not finite.all():
-            nan = int(np.count_nonzero(np.isnan(x)))
-            inf = x.size - int(np.count_nonzero(finite)) - nan
-            raise ValueError(
-                f"{what}: {nan} NaN and {inf} infinite value(s), the first at "
-                f"{_where(~finite)}; float images must be finite sRGB values in [0, 1]: fix "
-                "what produced them, or replace them (np.nan_to_num(x, nan=0.0, posinf=1.0, "
-                "neginf=0.0))")
-        if x.min() < 0:
-            low = x < 0
-            raise ValueError(
-                f"{what}: {np.count_nonzero(low)} negative value(s), the lowest "
-                f"{x.min():.6g}, the first at {_where(low)}; float images must be sRGB values "
-                "in [0, 1] (not mean-subtracted or normalized data): clip rounding errors "
-                "with np.clip(x, 0, 1)")
-        if x.max() > 1:
-            high = x > 1
-            raise ValueError(
-                f"{what}: {np.count_nonzero(high)} value(s) above 1, the highest "
-                f"{x.max():.6g}, the first at {_where(high)}; float images must be sRGB values "
-                "in [0, 1]: pass 0..255 data as uint8 (or divide it by 255), clip small "
-                "overshoots with np.clip(x, 0, 1)")
-        return x
-    raise ValueError(f"{what}: unsupported dtype {image.dtype}; use uint8, uint16 or float in "
-                     "[0, 1] (e.g. x.astype(np.uint8) for 0..255 integers)")
+    x = image.astype(np.float64)
+    finite = np.isfinite(x)
+    if not finite.all():
+        nan = int(np.count_nonzero(np.isnan(x)))
+        inf = x.size - int(np.count_nonzero(finite)) - nan
+        raise ValueError(
+            f"{what}: {nan} NaN and {inf} infinite value(s), the first at "
+            f"{_where(~finite)}; float images must be finite sRGB values in [0, 1]: fix "
+            "what produced them, or replace them (np.nan_to_num(x, nan=0.0, posinf=1.0, "
+            "neginf=0.0))")
+    if x.min() < 0:
+        low = x < 0
+        raise ValueError(
+            f"{what}: {np.count_nonzero(low)} negative value(s), the lowest "
+            f"{x.min():.6g}, the first at {_where(low)}; float images must be sRGB values "
+            "in [0, 1] (not mean-subtracted or normalized data): clip rounding errors "
+            "with np.clip(x, 0, 1)")
+    if x.max() > 1:
+        high = x > 1
+        raise ValueError(
+            f"{what}: {np.count_nonzero(high)} value(s) above 1, the highest "
+            f"{x.max():.6g}, the first at {_where(high)}; float images must be sRGB values "
+            "in [0, 1]: pass 0..255 data as uint8 (or divide it by 255), clip small "
+            "overshoots with np.clip(x, 0, 1)")
+    return x
 
 
 def opencv_reason(error: cv2.error) -> str:

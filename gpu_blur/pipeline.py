@@ -1,7 +1,11 @@
-"""``synthesize``: one realistic blurred sample from sharp input, as a scene describes."""
+"""``Synthesizer``: realistic blurred samples from sharp input, as a scene describes, in batches.
+
+``synthesize`` is a batch of one.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 from collections.abc import Mapping, Sequence
@@ -9,15 +13,20 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.backends import get_backend, to_host
+from gpu_blur import arrays
+from gpu_blur.backends import OnDevice, get_backend, to_host
+from gpu_blur.backends.flows import interpolation_factor
+from gpu_blur.backends.kernel import KernelBackend
+from gpu_blur.backends.numpy import retone
 from gpu_blur.cameras import Camera, check_float32_response, get_camera
-from gpu_blur.imageio import check_image, read_image, unit_values
+from gpu_blur.imageio import check_image, check_layout, read_image, unit_values
 from gpu_blur.params import draw_params
 from gpu_blur.plan import Plan, StageName, plan, raw_round_trip
 from gpu_blur.reference import transfer
 from gpu_blur.reference.output import crop_border, quantize
 from gpu_blur.scene import Scene, load_scene
 from gpu_blur.scheduler import Schedule, run
+from gpu_blur.tiling import Region, tiles
 from gpu_blur.timings import current, since, timer
 
 
@@ -71,10 +80,10 @@ def _as_scene(scene) -> Scene:
 
 
 def _load(item, what: str) -> np.ndarray:
-    """An input as stored (uint8/uint16 codes, or float64 in [0, 1]), checked."""
+    """An input as stored (uint8/uint16 codes, or floats), its layout checked."""
     if isinstance(item, (str, Path)):
-        return check_image(read_image(item), str(item))
-    return check_image(np.asarray(item), what)
+        return check_layout(read_image(item), str(item))
+    return check_layout(np.asarray(item), what)
 
 
 def _name(item, what: str) -> str:
@@ -115,7 +124,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
                backend: str = "numpy", overrides: Mapping | None = None,
                tile: tuple[int, int] | Schedule | None = None, on_device: bool = False,
                max_device_memory: int | str | None = None, verify: float = 0.0) -> Synthesis:
-    """Synthesize one realistic blurred image.
+    """Synthesize one realistic blurred image (a :class:`Synthesizer` batch of one).
 
     Args:
         inputs: sharp sRGB input, H x W x 3 arrays in RGB order (OpenCV reads BGR: convert
@@ -123,7 +132,8 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
             image paths: a sequence of consecutive frames (blur mode ``average``; the middle
             one is the sharp reference), one photo (``kernel``, ``trajectory``), or for mode
             ``none`` a mapping ``{"blurred": ..., "mask": ... (optional), "sharp": ...}``.
-        scene: a :class:`~gpu_blur.scene.Scene`, a path to a scene TOML, or None (defaults).
+        scene: a :class:`~gpu_blur.scene.Scene`, a path to a scene TOML, a built-in scene's
+            name, or None (defaults).
         seed: dataset seed (0 <= seed < 2**64).
         sample_index: index of this sample (0 <= index < 2**32); with ``seed`` it fixes every
             random draw.
@@ -155,7 +165,6 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
             (a ``ValueError``), naming the sample, the tile and the error.
         ValueError: bad input or settings, naming the file or value.
     """
-    start, before = time.perf_counter(), current().snapshot()
     if isinstance(tile, Schedule):
         if max_device_memory is not None or verify:
             raise ValueError("give max_device_memory and verify in the Schedule passed as "
@@ -163,48 +172,446 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         schedule = tile
     else:
         schedule = Schedule(tile, max_device_memory, verify)
-    scene = _as_scene(scene)
-    runner = (get_backend(backend, scene.output.precision) if isinstance(backend, str)
-              else backend)
-    camera = scene_camera(scene, runner.name)
-    with timer("reading"):
-        frames, mask, sharp = _gather(inputs, scene)
+    synthesizer = Synthesizer(scene, backend=backend, seed=seed, overrides=overrides,
+                              schedule=schedule)
+    return synthesizer.sample(inputs, sample_index, on_device=on_device)
 
-    h, w = frames[0].shape[:2]
-    if raw_round_trip(scene):
-        h, w = h - h % 2, w - w % 2
-        if h < 2 or w < 2:
-            raise ValueError(f"input of {frames[0].shape[:2]} is too small for the Bayer steps "
-                             "(need at least 2 x 2)")
-        frames = [f[:h, :w] for f in frames]
-        sharp = sharp[:h, :w]
-        mask = None if mask is None else mask[:h, :w]
-    sample_plan = plan(scene, saturated=_reaches_clip_level(frames, mask), size=(h, w))
 
-    # Every draw has a fixed index (gpu_blur.params), so a stage the sample skips (auto
-    # saturation) never shifts another draw.
-    if scene.saturation.mode == "auto" and not sample_plan.kept(StageName.SATURATE):
-        # nothing to saturate in this sample: a fixed alpha has nothing to act on
-        overrides = {k: v for k, v in (overrides or {}).items() if k != "alpha"}
-    params = draw_params(scene, sample_plan, camera, seed=seed, sample_index=sample_index,
-                         image_shape=(h, w), overrides=overrides)
+@dataclasses.dataclass
+class Batch:
+    """What :class:`Synthesizer` returns for a batch of B samples.
 
-    if on_device and (schedule.tile is not None or schedule.verify or scene.output.crop
-                      or not runner.device_arrays):
-        raise ValueError("on_device=True needs a backend that keeps results on a device "
-                         "(warp), no tile, no verify and output.crop = 0")
-    # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
-    tiled = run(runner, sample_plan, params, camera, frames, mask, schedule, seed=seed,
-                sample_index=sample_index, on_device=on_device)
-    crop = scene.output.crop
-    sharp_out = render_sharp(sample_plan, camera, crop_border(sharp, crop), runner)
-    out = tiled.blurred if on_device else crop_border(tiled.blurred, crop)
-    sat_mask = tiled.mask  # a backend's device array is fetched (and cropped) on first use
-    if isinstance(sat_mask, np.ndarray):
-        sat_mask = crop_border(sat_mask, crop).astype(np.float32, copy=False)
-    return Synthesis(out, sharp_out, sat_mask, params,
-                     sample_plan, since(before, time.perf_counter() - start), tiled.tiles,
-                     tiled.checked, crop, runner.device)
+    Attributes:
+        blurred: B x H' x W' x 3 realistic blurred images in [0, 1], RGB, of the input's
+            array type and device (B x 3 x H' x W' with ``channels_first``); H', W': the
+            input's size less ``output.crop`` on each side (and an odd last row or column
+            for the RAW round trip). float32 in host memory; on a device, the compute type.
+        sharp: the sharp references, the same way.
+        mask: the blurred saturation masks with ``with_mask=True``, else None.
+        params: each sample's drawn values (:data:`gpu_blur.params.DRAW_INDEX`).
+        plans: each sample's plan (auto saturation decides per sample).
+        timings: seconds the batch spent per :mod:`gpu_blur.timings` category.
+    """
+
+    blurred: object
+    sharp: object
+    mask: object
+    params: list
+    plans: list
+    timings: dict
+
+
+@dataclasses.dataclass
+class _Inputs:
+    """One sample's inputs: frames (a stack for mode average), mask, sharp, and their names.
+
+    Host arrays as stored (:func:`gpu_blur.imageio.check_layout`), or after
+    :meth:`Synthesizer._put`, :class:`~gpu_blur.backends.OnDevice` values.
+    """
+
+    frames: object
+    mask: object
+    sharp: object
+    names: dict
+    label: str = ""
+    saturated: bool = False
+
+
+class Synthesizer:
+    """Synthesize batches with one scene on one backend; kernels and buffers are reused.
+
+    ``synthesize`` is a batch of one through the same path. On a kernel backend (OpenCL,
+    Warp) a whole-image batch never touches its pixels on the host: inputs go to the device
+    once (none at all for CUDA arrays on a Warp device), the value checks and auto
+    saturation's clip test are device reductions, the sharp reference is toned by the same
+    device code as the blurred image, and the crop is a device copy. Tiles, memory budgets,
+    spot checks and interpolated averages run from host memory (:mod:`gpu_blur.scheduler`).
+
+    Args:
+        scene: a :class:`~gpu_blur.scene.Scene`, a TOML path, a built-in scene's name, or
+            None (defaults).
+        backend: as :func:`synthesize` takes it.
+        seed: dataset seed (0 <= seed < 2**64).
+        overrides: drawn parameters to fix for every sample.
+        schedule: tiles, memory budget and spot checks (:class:`~gpu_blur.scheduler.Schedule`).
+        channels_first: batches come and go as B x 3 x H x W (torch's layout).
+        with_mask: also return the blurred saturation masks.
+
+    Example::
+
+        synth = gpu_blur.Synthesizer("realblur_j", backend="warp")
+        out = synth(blurred, mask=mask)        # B x H x W x 3 torch CUDA tensors
+        out.blurred, out.sharp                 # torch CUDA tensors, cropped by 4 px
+    """
+
+    def __init__(self, scene=None, *, backend: str = "numpy", seed: int = 0,
+                 overrides: Mapping | None = None, schedule: Schedule | None = None,
+                 channels_first: bool = False, with_mask: bool = False):
+        self.scene = _as_scene(scene)
+        self.runner = (get_backend(backend, self.scene.output.precision)
+                       if isinstance(backend, str) else backend)
+        self.camera = scene_camera(self.scene, self.runner.name)
+        self.seed, self.overrides = seed, overrides
+        self.schedule = schedule or Schedule()
+        self.channels_first, self.with_mask = channels_first, with_mask
+        self.resident = (isinstance(self.runner, KernelBackend)
+                         and self.schedule == Schedule()
+                         and interpolation_factor(plan(self.scene)) == 1)
+
+    # -- one sample (synthesize) -------------------------------------------------------------
+    def sample(self, inputs, sample_index: int = 0, *, on_device: bool = False) -> Synthesis:
+        """One sample from :func:`synthesize`'s ``inputs`` (arrays or paths)."""
+        start, before = time.perf_counter(), current().snapshot()
+        scene = self.scene
+        if on_device and (self.schedule.tile is not None or self.schedule.verify
+                          or scene.output.crop or not self.runner.device_arrays):
+            raise ValueError("on_device=True needs a backend that keeps results on a device "
+                             "(warp), no tile, no verify and output.crop = 0")
+        with timer("reading"):
+            item = _gather(inputs, scene)
+        item = self._prepared([item])[0]
+        blurred, mask, sharp, params, sample_plan, tiled = self._run(
+            item, sample_index, on_device=on_device or self.resident)
+        crop = scene.output.crop
+        if on_device:
+            out = self.runner.device_array(blurred)
+        elif isinstance(blurred, OnDevice):
+            out = self._host(blurred, _inner(blurred.shape, crop))
+        else:
+            out = crop_border(blurred, crop)
+        if isinstance(sharp, OnDevice):
+            sharp = self._host(sharp, _inner(sharp.shape, 0))
+        if isinstance(mask, np.ndarray):  # a device mask is fetched (and cropped) on first use
+            mask = crop_border(mask, crop).astype(np.float32, copy=False)
+        return Synthesis(out, sharp, mask, params, sample_plan,
+                         since(before, time.perf_counter() - start), tiled.tiles,
+                         tiled.checked, crop, self.runner.device)
+
+    def _host(self, values, region: Region) -> np.ndarray:
+        out = np.empty((region.h, region.w, 3), dtype=np.float32)
+        self.runner.export(values, region, out)
+        return out
+
+    # -- a batch -----------------------------------------------------------------------------
+    def __call__(self, batch, *, mask=None, sharp=None, first_index: int = 0) -> Batch:
+        """Synthesize a batch; sample b has sample index ``first_index + b``.
+
+        Args:
+            batch: blur mode average: B x F x H x W x 3 frames; kernel and trajectory:
+                B x H x W x 3 photos; none: B x H x W x 3 blurred images. numpy, torch (CPU
+                or CUDA), CuPy or ``wp.array``; uint8, uint16, float16, float32 or float64
+                (floats: sRGB values in [0, 1]); RGB order.
+            mask: mode none: the saturation masks, as ``batch`` (optional).
+            sharp: mode none: the sharp images, as ``batch`` (optional: the blurred images).
+            first_index: the first sample's index (0 <= index, index + B <= 2**32).
+
+        Returns:
+            A :class:`Batch`; sample b equals ``synthesize`` with ``sample_index =
+            first_index + b`` bit for bit.
+
+        Raises:
+            ValueError: a bad shape, dtype or value, naming the sample (``sample 3 of 16``)
+                and the input; nothing is returned for the batch.
+        """
+        start, before = time.perf_counter(), current().snapshot()
+        lib = arrays.library(batch)
+        with timer("reading"):
+            items = self._split(batch, mask, sharp, lib)
+        items = self._prepared(items)
+        count = len(items)
+        out = None
+        params, plans = [], []
+        pending = []  # a resident sample's results, exported once the next one is queued
+        with self._queued():
+            for b, item in enumerate(items):
+                blurred, sat_mask, sharp_out, drawn, sample_plan, _ = self._run(
+                    item, first_index + b, on_device=self.resident)
+                params.append(drawn)
+                plans.append(sample_plan)
+                crop = self.scene.output.crop
+                if not self.resident:
+                    results = [crop_border(blurred, crop), sharp_out]
+                    if self.with_mask:
+                        results.append(crop_border(np.asarray(sat_mask, np.float32), crop))
+                    if out is None:
+                        h, w = results[0].shape[:2]
+                        out = [np.empty((count, h, w, 3), np.float32) for _ in results]
+                    for slot, values in zip(out, results, strict=False):
+                        slot[b] = values
+                    continue
+                results = [(blurred, _inner(blurred.shape, crop)),
+                           (sharp_out, _inner(sharp_out.shape, 0))]
+                if self.with_mask:
+                    results.append((sat_mask, _inner(sat_mask.shape, crop)))
+                if out is None:
+                    out = self._outputs(count, results[0][1], batch, lib, len(results))
+                for done, values in pending:
+                    self._export(out, done, values)
+                pending = [(b, results)]
+            for done, values in pending:
+                self._export(out, done, values)
+            if self.resident:
+                with timer("kernels"):
+                    self.runner.wait()
+        out = [self._returned(o, lib, batch) for o in out]
+        return Batch(out[0], out[1], out[2] if self.with_mask else None, params, plans,
+                     since(before, time.perf_counter() - start))
+
+    @contextlib.contextmanager
+    def _queued(self):
+        """Resident batches queue every launch without waiting between passes."""
+        if not self.resident:
+            yield
+            return
+        self.runner.sync_passes = False
+        try:
+            yield
+        finally:
+            self.runner.sync_passes = True
+
+    def _export(self, out: list, b: int, results: list) -> None:
+        """Sample ``b``'s device results (values, region) into the batch's outputs."""
+        for slot, (values, region) in zip(out, results, strict=False):
+            self.runner.export(values, region, slot[b])
+
+    def _outputs(self, count: int, region: Region, batch, lib: str, n: int) -> list:
+        """The batch's output arrays: on the device for device batches (Warp), else host."""
+        shape = (count, region.h, region.w, 3)
+        if self._reaches(batch, lib):
+            import warp as wp
+
+            return [wp.empty(shape, dtype=self.runner.real, device=self.runner.wp_device)
+                    for _ in range(n)]
+        return [np.empty(shape, np.float32) for _ in range(n)]
+
+    def _returned(self, out, lib: str, like):
+        """An output array as the batch's type and layout."""
+        if isinstance(out, np.ndarray):
+            result = arrays.from_numpy(out, lib, like)
+        else:
+            result = arrays.from_warp(out, lib, like)
+        return arrays.channels_first(result, lib) if self.channels_first else result
+
+    def _reaches(self, batch, lib: str) -> bool:
+        """Whether the backend takes ``batch`` where it is (Warp, on its device): no copy."""
+        return (self.resident and self.runner.device_arrays
+                and arrays.on_warp_device(batch, lib, self.runner.wp_device))
+
+    def _taken(self, x, lib: str, reached: bool):
+        """One sample's input as the backend takes it: a ``wp.array`` view, or host memory."""
+        if reached:
+            return arrays.as_warp(x, lib)
+        host = arrays.to_numpy(x, lib)
+        return host if self.resident else np.ascontiguousarray(host)
+
+    def _split(self, batch, mask, sharp, lib: str) -> list[_Inputs]:
+        """The batch as per-sample inputs: views of device arrays, else host arrays."""
+        mode = self.scene.blur.mode
+        given = {"batch": batch, "mask": mask, "sharp": sharp}
+        if mode != "none":
+            for key in ("mask", "sharp"):
+                if given[key] is not None:
+                    raise ValueError(f"{key}= is for blur.mode = none; this scene blurs "
+                                     f"(blur.mode = {mode})")
+        parts = {}
+        for key, x in given.items():
+            if x is None:
+                continue
+            if arrays.library(x) != lib:
+                raise ValueError(f"{key} is a {arrays.library(x)} array but the batch is "
+                                 f"{lib}: pass both as the same type")
+            parts[key] = self._normalized(x, key, lib, frames=key == "batch"
+                                          and mode == "average")
+        count = parts["batch"].shape[0]
+        for key, x in parts.items():
+            if tuple(x.shape) != tuple(parts["batch"].shape):
+                raise ValueError(f"{key} has shape {tuple(x.shape)} but the batch "
+                                 f"{tuple(parts['batch'].shape)}: give one of each per sample")
+        reached = self._reaches(parts["batch"], lib)
+        items = []
+        for b in range(count):
+            label = f"sample {b} of {count}: "
+            x = self._taken(parts["batch"][b], lib, reached)
+            if mode == "average":
+                names = {"frames": [f"frame {i}" for i in range(x.shape[0])]}
+                items.append(_Inputs(x, None, None, names, label))
+                continue
+            m = self._taken(parts["mask"][b], lib, reached) if "mask" in parts else None
+            s = self._taken(parts["sharp"][b], lib, reached) if "sharp" in parts else None
+            name = "blurred" if mode == "none" else "photo"
+            items.append(_Inputs([x], m, s, {"frames": [name], "mask": "mask",
+                                           "sharp": "sharp"}, label))
+        return items
+
+    def _normalized(self, x, key: str, lib: str, *, frames: bool):
+        """One batch input checked for layout, channels-last, a kernel dtype, even size."""
+        if self.channels_first:
+            if x.ndim < 4 or x.shape[-3] != 3:
+                raise ValueError(f"{key}: channels_first takes B x 3 x H x W (B x F x 3 x H x "
+                                 f"W for frames); got shape {tuple(x.shape)}")
+            x = arrays.channels_last(x, lib)
+        want = 5 if frames else 4
+        layout = "B x F x H x W x 3" if frames else "B x H x W x 3"
+        if x.ndim != want or x.shape[-1] != 3 or 0 in tuple(x.shape):
+            raise ValueError(f"{key}: blur.mode = {self.scene.blur.mode} takes {layout} "
+                             f"batches; got shape {tuple(x.shape)}")
+        dtype = arrays.dtype_name(x)
+        if dtype not in arrays.DTYPES:
+            raise ValueError(f"{key}: unsupported dtype {dtype}; use one of "
+                             f"{', '.join(arrays.DTYPES)} (floats in [0, 1])")
+        if dtype.startswith("float") and dtype != self.runner.precision and self.resident:
+            x = arrays.as_real(x, lib, self.runner.precision)  # on the array's own device
+        if raw_round_trip(self.scene):
+            h, w = x.shape[-3:-1]
+            if h % 2 or w % 2:
+                x = x[..., :h - h % 2, :w - w % 2, :]
+                x = x.contiguous() if lib == "torch" else x
+        return x
+
+    # -- shared by both ----------------------------------------------------------------------
+    def _prepared(self, items: list[_Inputs]) -> list[_Inputs]:
+        """Inputs checked (and on a kernel backend put on its device), with the clip test."""
+        if not self.resident:
+            return [self._checked_on_host(item) for item in items]
+        put = [self._put(item) for item in items]
+        images = []  # (sample, which, image): each input once (a default sharp is a frame)
+        for i, (item, p) in enumerate(zip(items, put, strict=True)):
+            images += [(i, key, getattr(p, key)) for key in ("frames", "mask", "sharp")
+                       if getattr(item, key) is not None]
+        with timer("checks"):
+            counts = self.runner.inspect([image for _, _, image in images])
+        for (i, key, image), row in zip(images, counts, strict=True):
+            if row[:4].any():  # the host says exactly what is wrong, and where
+                _bad_values(image, put[i], key)
+            if key == "mask" and row[5]:
+                put[i].saturated = True
+            if key == "frames" and put[i].mask is None and row[4]:
+                put[i].saturated = True
+        return put
+
+    def _checked_on_host(self, item: _Inputs) -> _Inputs:
+        names, label = item.names, item.label
+        try:
+            frames = [check_image(f, n) for f, n in zip(item.frames, names["frames"],
+                                                        strict=True)]
+            mask = None if item.mask is None else unit_values(check_image(item.mask,
+                                                                          names["mask"]))
+            sharp = (frames[len(frames) // 2] if item.sharp is None
+                     else check_image(item.sharp, names["sharp"]))
+        except ValueError as e:
+            raise ValueError(f"{label}{e}") from None
+        if len({f.dtype for f in frames}) > 1:
+            frames = [unit_values(f) for f in frames]
+        h, w = frames[0].shape[:2]
+        if raw_round_trip(self.scene):
+            h, w = h - h % 2, w - w % 2
+            _big_enough(h, w, frames[0].shape)
+            frames = [f[:h, :w] for f in frames]
+            sharp = sharp[:h, :w]
+            mask = None if mask is None else mask[:h, :w]
+        return _Inputs(frames, mask, sharp, names, label, _reaches_clip_level(frames, mask))
+
+    def _put(self, item: _Inputs) -> _Inputs:
+        """A sample's inputs on the kernel backend's device (frames: one stack in mode average)."""
+        runner = self.runner
+        frames = item.frames
+        if isinstance(frames, (list, tuple)):  # synthesize's host frames
+            frames = frames[0] if len(frames) == 1 and self.scene.blur.mode != "average" \
+                else np.stack(frames)
+        h, w = frames.shape[-3:-1]
+        if raw_round_trip(self.scene):
+            _big_enough(h - h % 2, w - w % 2, frames.shape[-3:])
+            if h % 2 or w % 2:
+                frames = np.ascontiguousarray(frames[..., :h - h % 2, :w - w % 2, :])
+        stack = runner.put(frames)
+        mask = None if item.mask is None else runner.put(_even(item.mask, stack))
+        if item.sharp is not None:
+            sharp = runner.put(_even(item.sharp, stack))
+        elif stack.ndim == 4:
+            sharp = runner.frame(stack, stack.shape[0] // 2)
+        else:
+            sharp = stack
+        return _Inputs(stack, mask, sharp, item.names, item.label)
+
+    def _run(self, item: _Inputs, sample_index: int, *, on_device: bool):
+        """A prepared sample's passes: (blurred, mask, sharp, params, plan, tiled)."""
+        scene = self.scene
+        frames = item.frames
+        h, w = (frames.shape[-3:-1] if isinstance(frames, OnDevice)
+                else frames[0].shape[:2])
+        sample_plan = plan(scene, saturated=item.saturated, size=(h, w))
+        # Every draw has a fixed index (gpu_blur.params), so a stage the sample skips (auto
+        # saturation) never shifts another draw.
+        overrides = self.overrides
+        if scene.saturation.mode == "auto" and not sample_plan.kept(StageName.SATURATE):
+            # nothing to saturate in this sample: a fixed alpha has nothing to act on
+            overrides = {k: v for k, v in (overrides or {}).items() if k != "alpha"}
+        params = draw_params(scene, sample_plan, self.camera, seed=self.seed,
+                             sample_index=sample_index, image_shape=(h, w), overrides=overrides)
+        # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
+        tiled = run(self.runner, sample_plan, params, self.camera, frames, item.mask,
+                    self.schedule, seed=self.seed, sample_index=sample_index,
+                    on_device=on_device)
+        crop = scene.output.crop
+        if isinstance(item.sharp, OnDevice):
+            sharp = self.runner.render_sharp(sample_plan, self.camera, item.sharp,
+                                             _inner((h, w), crop))
+        elif isinstance(self.runner, KernelBackend):
+            sharp = self._rendered_in_bands(sample_plan, crop_border(item.sharp, crop))
+        else:
+            sharp = render_sharp(sample_plan, self.camera, crop_border(item.sharp, crop))
+        return tiled.blurred, tiled.mask, sharp, params, sample_plan, tiled
+
+    def _rendered_in_bands(self, sample_plan: Plan, sharp: np.ndarray) -> np.ndarray:
+        """A host sharp image rendered by the device code (as resident runs render it).
+
+        In bands of the schedule's tile rows, so a tiled run holds no more on the device than
+        a tile; the rendering is pointwise, so the bands do not change it.
+        """
+        h, w = sharp.shape[:2]
+        rows = self.schedule.tile[0] if self.schedule.tile else h
+        out = np.empty((h, w, 3), np.float32)
+        for band in tiles(h, w, (rows, w)):
+            image = self.runner.put(np.ascontiguousarray(band.of(sharp)))
+            whole = Region.whole(band.h, band.w)
+            rendered = self.runner.render_sharp(sample_plan, self.camera, image, whole)
+            self.runner.export(rendered, whole, band.of(out))
+        return out
+
+
+def _inner(shape, crop: int) -> Region:
+    """The region of an ``h x w (x 3)`` image left after cutting ``crop`` pixels per side."""
+    h, w = shape[:2]
+    return Region(crop, crop, h - 2 * crop, w - 2 * crop, h, w)
+
+
+def _even(image, like: OnDevice):
+    """A host mask or sharp image cut to the frames' (even) size."""
+    if isinstance(image, np.ndarray):
+        h, w = like.shape[-3:-1]
+        return np.ascontiguousarray(image[:h, :w])
+    return image
+
+
+def _big_enough(h: int, w: int, shape) -> None:
+    if h < 2 or w < 2:
+        raise ValueError(f"input of {tuple(shape[:2])} is too small for the Bayer steps (need "
+                         "at least 2 x 2)")
+
+
+def _bad_values(image: OnDevice, item: _Inputs, key: str):
+    """Raise check_image's message for a device input whose counts found bad values."""
+    names = item.names
+    host = image.numpy(image.dtype)
+    parts = [host] if host.ndim == 3 else list(host)
+    labels = ([names["frames"][0]] if host.ndim == 3 else names["frames"]) \
+        if key == "frames" else [names[key]]
+    for part, name in zip(parts, labels, strict=True):
+        try:
+            check_image(part, name)
+        except ValueError as e:
+            raise ValueError(f"{item.label}{e}") from None
+    raise ValueError(f"{item.label}{key}: values outside [0, 1] or not finite")
 
 
 def _reaches_clip_level(frames, mask) -> bool:
@@ -215,9 +622,11 @@ def _reaches_clip_level(frames, mask) -> bool:
     return any(bool(np.any(f >= top)) for f in frames)
 
 
-def render_sharp(sample_plan: Plan, camera: Camera, sharp: np.ndarray,
-                 runner) -> np.ndarray:
+def render_sharp(sample_plan: Plan, camera: Camera, sharp: np.ndarray) -> np.ndarray:
     """The sharp reference as the output holds it: float32, quantized when the plan quantizes.
+
+    The numpy backend's, in float64; kernel backends render it with the finish pass's device
+    functions (``KernelBackend.render_sharp``), bit for bit the same whatever the tiles.
 
     In the output's encoding: sRGB, linear, or re-toned.
 
@@ -231,56 +640,53 @@ def render_sharp(sample_plan: Plan, camera: Camera, sharp: np.ndarray,
         sample_plan: the sample's plan.
         camera: its camera (``output.crf = "camera"`` re-tones with its fitted response).
         sharp: sRGB image as stored (:func:`gpu_blur.imageio.check_image`), H x W x 3.
-        runner: the backend (its host-side ``retone``).
     """
     coded = sharp.dtype in (np.uint8, np.uint16)
     values = unit_values(np.arange(np.iinfo(sharp.dtype).max + 1, dtype=sharp.dtype)
                          if coded else sharp)
-    rendered = _render_values(sample_plan, camera, values, runner)
+    rendered = _render_values(sample_plan, camera, values)
     if sample_plan.kept(StageName.QUANTIZE):
         rendered = quantize(rendered, sample_plan[StageName.QUANTIZE].options["bits"])
     rendered = rendered.astype(np.float32)
     return rendered[sharp] if coded else rendered
 
 
-def _render_values(sample_plan: Plan, camera: Camera, values: np.ndarray,
-                   runner) -> np.ndarray:
+def _render_values(sample_plan: Plan, camera: Camera, values: np.ndarray) -> np.ndarray:
     """:func:`render_sharp`'s curve on float64 sRGB values in [0, 1], any shape."""
     if not sample_plan.kept(StageName.TONE):
         return np.clip(transfer.srgb_to_linear(values), 0.0, 1.0)
-    return runner.retone(sample_plan, camera, values)
+    return retone(sample_plan, camera, values)
 
 
-def _gather(inputs, scene: Scene):
-    """(frames, mask, sharp), validated against the blur mode.
+def _gather(inputs, scene: Scene) -> _Inputs:
+    """:func:`synthesize`'s inputs, read, laid out as the blur mode wants, values unchecked.
 
-    Frames and sharp keep their stored dtype (uint8/uint16 codes, or float64 in [0, 1]; one
-    dtype per sample: mixed inputs become float64); the mask is float64 in [0, 1].
+    Frames keep their stored dtype (uint8/uint16 codes, or floats in [0, 1]).
     """
     mode = scene.blur.mode
     if mode == "none":
         if not isinstance(inputs, Mapping) or "blurred" not in inputs:
             raise ValueError("blur.mode = none takes a mapping {'blurred': image, 'mask': "
                              "optional mask, 'sharp': optional sharp image}")
-        blurred = _load(inputs["blurred"], "blurred image")
-        mask = None if inputs.get("mask") is None else _load(inputs["mask"], "mask")
-        sharp = blurred if inputs.get("sharp") is None else _load(inputs["sharp"], "sharp")
-        given = [(blurred, _name(inputs["blurred"], "blurred"))]
-        given += [(x, _name(inputs[k], k)) for x, k in ((mask, "mask"), (sharp, "sharp"))
-                  if inputs.get(k) is not None]
-        _same_shape([x for x, _ in given], [n for _, n in given])
-        return [blurred], None if mask is None else unit_values(mask), sharp
+        given = [k for k in ("blurred", "mask", "sharp") if inputs.get(k) is not None]
+        names = {k: _name(inputs[k], "blurred image" if k == "blurred" else k) for k in given}
+        loaded = {k: _load(inputs[k], names[k]) for k in given}
+        _same_shape(list(loaded.values()), [_name(inputs[k], k) for k in given])
+        return _Inputs([loaded["blurred"]], loaded.get("mask"), loaded.get("sharp"),
+                       {"frames": [names["blurred"]], "mask": names.get("mask"),
+                        "sharp": names.get("sharp")})
     if isinstance(inputs, (str, Path, np.ndarray)):
         inputs = [inputs]
     if not isinstance(inputs, Sequence) or len(inputs) == 0:
         raise ValueError(f"blur.mode = {mode} needs a non-empty list of images")
     if mode != "average" and len(inputs) != 1:
         raise ValueError(f"blur.mode = {mode} blurs one photo; got {len(inputs)} images")
-    frames = [_load(x, f"frame {i}") for i, x in enumerate(inputs)]
-    _same_shape(frames, [_name(x, f"frame {i}") for i, x in enumerate(inputs)])
-    if len({f.dtype for f in frames}) > 1:
-        frames = [unit_values(f) for f in frames]
-    return frames, None, frames[len(frames) // 2]
+    names = [_name(x, f"frame {i}") for i, x in enumerate(inputs)]
+    frames = [_load(x, n) for x, n in zip(inputs, names, strict=True)]
+    _same_shape(frames, names)
+    if len({f.dtype for f in frames}) > 1:  # one dtype per sample
+        frames = [unit_values(check_image(f, n)) for f, n in zip(frames, names, strict=True)]
+    return _Inputs(frames, None, None, {"frames": names})
 
 
 def _same_shape(images, names):

@@ -94,7 +94,7 @@ import re
 
 import numpy as np
 
-from gpu_blur.backends import FRAMES_PER_LAUNCH, Backend, to_host
+from gpu_blur.backends import FRAMES_PER_LAUNCH, Backend, OnDevice, to_host
 from gpu_blur.backends.flows import interpolation_factor, with_flows
 from gpu_blur.plan import Plan, StageName
 from gpu_blur.reference import blur, rng
@@ -385,7 +385,8 @@ class Tiled:
     """What :func:`run` returns.
 
     Attributes:
-        blurred: ``h x w x 3`` float32 (or the backend's device array with ``on_device``).
+        blurred: ``h x w x 3`` float32 (with ``on_device``, the result as the backend left it:
+            an :class:`~gpu_blur.backends.OnDevice` for kernel backends).
         mask: ``h x w x 3``, the blurred saturation mask: float32, or for a whole-image run
             what the backend returned (:func:`gpu_blur.backends.to_host` fetches it).
         tiles: how many tiles ran.
@@ -408,7 +409,8 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
         params: its drawn parameters.
         camera: its camera.
         frames: the input frames, ``H x W x 3`` as stored (uint8/uint16 codes, or float64
-            in [0, 1]; :func:`gpu_blur.imageio.check_image`), in host memory.
+            in [0, 1]; :func:`gpu_blur.imageio.check_image`), in host memory; or inputs a
+            kernel backend put on its device (``put``: whole images only).
         mask: blur mode none: the given saturation mask, or None.
         schedule: tile size, memory budget and spot-check fraction.
         seed: dataset seed.
@@ -420,8 +422,11 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
         ValueError: the budget is too small for the smallest tile, or ``on_device`` with
             several tiles or spot checks.
     """
-    params = with_flows(sample_plan, params, frames)  # once per sample, for every tile and check
-    h, w = frames[0].shape[:2]
+    if isinstance(frames, OnDevice):  # inputs put on the device: whole images, as they are
+        h, w = frames.shape[-3:-1]
+    else:
+        params = with_flows(sample_plan, params, frames)  # once per sample, for every tile
+        h, w = frames[0].shape[:2]
     raw = sample_plan.raw_round_trip
     halo = demosaic_halo(sample_plan[S.DEMOSAIC].options["method"]) if raw else 0
     tile = schedule.tile
@@ -447,7 +452,7 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
             with timer("checks"):
                 check.tile("tile 1 of 1", region, view, linear, view_mask, image, saturated,
                            result)
-        blurred = runner.device_array(result) if on_device else to_host(result, np.float32)
+        blurred = result if on_device else to_host(result, np.float32)
         return Tiled(blurred, view_mask, 1, len(chosen))
     out = np.empty((h, w, 3), dtype=np.float32)
     sat_mask = np.empty((h, w, 3), dtype=np.float32)

@@ -141,6 +141,9 @@ def main(argv=None) -> int:
     found = dict(run_cases(spec) for spec in BACKEND_SPECS)
     if args.write:
         record = json.loads(args.write.read_text()) if args.write.is_file() else {}
+        rerun = {device_key(device) for device in found}  # under its platform number now
+        record = {device: cases for device, cases in record.items()
+                  if device_key(device) not in rerun}
         record.update(found)
         args.write.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
         print(f"wrote {args.write}: {', '.join(found)}")

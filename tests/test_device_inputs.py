@@ -13,7 +13,6 @@ from conftest import KERNEL_BACKEND_SPECS, spec_backend, spec_dtype
 
 from gpu_blur.backends import OnDevice, get_backend
 from gpu_blur.backends.kernel import INSPECT_COLUMNS, INSPECT_ITEMS, Arg
-from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.imageio import unit_values
 from gpu_blur.pipeline import _render_values, render_sharp, scene_camera
 from gpu_blur.plan import StageName as S
@@ -119,7 +118,7 @@ OUTPUTS = {
 
 def host_render(sample_plan, camera, image: np.ndarray) -> np.ndarray:
     """The host's float64 sharp reference (pipeline.render_sharp before its float32 cast)."""
-    values = _render_values(sample_plan, camera, unit_values(image), NumpyBackend())
+    values = _render_values(sample_plan, camera, unit_values(image))
     if sample_plan.kept(S.QUANTIZE):
         values = quantize(values, sample_plan[S.QUANTIZE].options["bits"])
     return values
@@ -185,8 +184,7 @@ def test_render_sharp_of_8_bit_codes_to_8_bits_is_the_codes_themselves(spec, cof
     real = backend.np_real
     np.testing.assert_array_equal(got, out.of(image).astype(real) / real(255))
     if real == np.float32:  # what synthesize returns today, bit for bit
-        np.testing.assert_array_equal(got, render_sharp(sample_plan, camera, out.of(image),
-                                                        NumpyBackend()))
+        np.testing.assert_array_equal(got, render_sharp(sample_plan, camera, out.of(image)))
 
 
 @pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS[:1])

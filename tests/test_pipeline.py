@@ -288,7 +288,6 @@ def test_8_bit_frames_give_the_sharp_reference_of_their_float_values(retone, cof
 @pytest.mark.parametrize("bits", [0, 8, 16])
 def test_sharp_reference_from_codes_is_the_curve_of_every_pixel_bitwise(crf, dtype, bits):
     """render_sharp evaluates the curve once per code and gathers: the same values."""
-    from gpu_blur.backends.numpy import NumpyBackend
     from gpu_blur.imageio import unit_values
     from gpu_blur.pipeline import _render_values, render_sharp, scene_camera
     from gpu_blur.reference.output import quantize
@@ -297,9 +296,9 @@ def test_sharp_reference_from_codes_is_the_curve_of_every_pixel_bitwise(crf, dty
     top = np.iinfo(dtype).max
     codes = np.random.default_rng(5).integers(0, top + 1, (24, 32, 3), dtype=dtype)
     codes[0, :2] = ((0,), (top,))  # both ends of the table
-    p, camera, runner = plan(scene), scene_camera(scene), NumpyBackend()
-    got = render_sharp(p, camera, codes, runner)
-    expected = _render_values(p, camera, unit_values(codes), runner)
+    p, camera = plan(scene), scene_camera(scene)
+    got = render_sharp(p, camera, codes)
+    expected = _render_values(p, camera, unit_values(codes))
     expected = (quantize(expected, bits) if bits else expected).astype(np.float32)
     assert got.dtype == np.float32 and got.shape == codes.shape
     assert np.array_equal(got, expected)

@@ -70,9 +70,6 @@ class Backend(Protocol):
                sample_index: int):
         """Demosaic to the final (quantized) image over the ``out`` region."""
 
-    def retone(self, plan, camera, image: np.ndarray) -> np.ndarray:
-        """The output tone curve on host values, for the sharp reference."""
-
     def device_array(self, values):
         """A result as the device holds it (see ``device_arrays``)."""
 
@@ -102,11 +99,12 @@ class OnDevice:
     """A pass's output left on a kernel backend's device.
 
     Attributes:
-        data: the flat device buffer (a ``cl.Buffer`` or a 1-D ``wp.array``) of ``dtype``,
-            row-major, 3 values per pixel for RGB.
-        shape: the image it holds, ``h x w x 3`` or ``h x w`` (the RAW mosaic).
-        dtype: what ``data`` holds: None for the backend's compute type (every pass's
-            output), else a numpy dtype (an input as stored: uint8 or uint16 codes).
+        data: the flat device buffer (a ``cl.Buffer`` or a 1-D ``wp.array``), row-major, 3
+            values per pixel for RGB.
+        shape: the image it holds, ``h x w x 3`` or ``h x w`` (the RAW mosaic); an input put
+            on the device (:meth:`~gpu_blur.backends.kernel.KernelBackend.put`) may be a
+            stack of frames, ``n x h x w x 3``.
+        dtype: the values' numpy dtype; None for the backend's compute type (pass outputs).
     """
 
     __slots__ = ("data", "shape", "_fetch", "dtype")

@@ -185,6 +185,10 @@ class KernelBackend:
     precision: str
     device: str
     device_arrays = False
+    #: Whether each pass waits for its launches (its "kernels" time is then device time).
+    #: False queues every launch back to back (a batch: :class:`gpu_blur.Synthesizer`, or a
+    #: CUDA graph capture: bench/gpu_targets.py); timings then hold launch times only.
+    sync_passes = True
 
     def __init__(self):
         self._constants: dict = {}  # (bytes, dtype) -> device copy of a small constant
@@ -194,6 +198,10 @@ class KernelBackend:
     @property
     def uses_cuda(self) -> bool:
         """Whether the device is an NVIDIA GPU run through CUDA's driver."""
+        raise NotImplementedError
+
+    def wait(self) -> None:
+        """Wait for every launch and copy queued so far."""
         raise NotImplementedError
 
     def _upload(self, values, dtype=None):
@@ -300,7 +308,14 @@ class KernelBackend:
     # -- pass 1: accumulate ----------------------------------------------------------------
     def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
                    mask: np.ndarray | None, region: Region) -> tuple[OnDevice, OnDevice]:
-        """Linearize and blur on the device; (linear, mask) over ``region``, on the device."""
+        """Linearize and blur on the device; (linear, mask) over ``region``, on the device.
+
+        ``frames``: host frames as stored (streamed a few at a time, any region), or inputs
+        already on the device (:meth:`put`, whole images only): an ``n x H x W x 3`` stack
+        for mode average, one ``H x W x 3`` image otherwise; ``mask`` likewise.
+        """
+        if isinstance(frames, OnDevice):
+            return self._accumulate_put(plan, params, frames, mask, region)
         config = pass_config(plan, Pass.ACCUMULATE)
         source = source_dtype(frames[0], self.np_real)
         k = self._pass_kernels(config, source)
@@ -324,6 +339,81 @@ class KernelBackend:
         else:
             self._blur_photo(k, mode, params, frames[0], source, region, linear, sat_mask)
         return self._linear_out(linear, sat_mask, shape, region)
+
+    def _accumulate_put(self, plan: Plan, params: dict, frames: OnDevice,
+                        mask: OnDevice | None, region: Region) -> tuple[OnDevice, OnDevice]:
+        """:meth:`accumulate` of inputs on the device, over the whole image."""
+        mode = plan.variant(S.BLUR) or "none"
+        h, w = frames.shape[-3:-1]
+        if (region.h, region.w) != (h, w) or region.origin != (0, 0):
+            raise ValueError(f"inputs on the device run whole images; got the region {region} "
+                             f"of a {h} x {w} image")
+        if (frames.ndim == 4) != (mode == "average"):
+            wanted = "an n x H x W x 3 stack of frames" if mode == "average" else "one image"
+            raise ValueError(f"blur.mode = {mode} takes {wanted} on the device, got shape "
+                             f"{frames.shape}")
+        if mode == "average" and interpolation_factor(plan) > 1:
+            raise ValueError("blur.interpolation > 1 needs the frames in host memory (its "
+                             "optical flows are computed there)")
+        config = pass_config(plan, Pass.ACCUMULATE)
+        source = frames.dtype or np.dtype(self.np_real)
+        k = self._pass_kernels(config, source)
+        n = h * w * 3
+        shape = (h, w, 3)
+        linear, sat_mask = self._empty(n), self._empty(n)
+        if mode == "average":  # one launch sums every frame of the stack
+            count = frames.shape[0]
+            spare = self._empty(1, np.uint32)
+            with self._timed():
+                self._launch(k, "blur_average_add", n, *average_args(
+                    frames.data, count, n, (linear, sat_mask, spare), True, count, linear,
+                    sat_mask, self._code_table(config, source)))
+        elif mode == "none":
+            with self._timed(sync=False):
+                self._launch(k, "linearize", n, frames.data, linear, sat_mask)
+            return (self._out(linear, shape, Pass.ACCUMULATE, region.origin),
+                    self._mask_values(plan, mask, n, shape))
+        else:
+            self._blur_photo(k, mode, params, frames, source, region, linear, sat_mask)
+        return self._linear_out(linear, sat_mask, shape, region)
+
+    def _mask_values(self, plan: Plan, mask: OnDevice | None, n: int, shape) -> OnDevice:
+        """Mode none's given mask as compute-type values on the device (zeros without one)."""
+        if mask is None:
+            return OnDevice(self._zeros(n), shape, self._fetch)
+        if mask.dtype is None or mask.dtype == np.dtype(self.np_real):
+            return OnDevice(mask.data, shape, self._fetch)
+        values = self._empty(n)
+        k = self._pass_kernels(pass_config(plan, Pass.ACCUMULATE), mask.dtype)
+        with self._timed(sync=False):
+            self._launch(k, "unit_values", n, mask.data, values)
+        return OnDevice(values, shape, self._fetch)
+
+    def put(self, image) -> OnDevice:
+        """An input on the device in its stored dtype, for :meth:`accumulate` and the checks.
+
+        Args:
+            image: ``H x W x 3`` (or an ``n x H x W x 3`` stack of frames) as stored: uint8 or
+                uint16 codes go as they are, floats as the compute type; a host array is
+                copied once.
+        """
+        dtype = source_dtype(image, self.np_real)
+        stored = None if dtype == np.dtype(self.np_real) else dtype
+        return OnDevice(self._upload(image, dtype), np.shape(image), self._fetch, stored)
+
+    def frame(self, stack: OnDevice, index: int) -> OnDevice:
+        """Frame ``index`` of an ``n x H x W x 3`` stack :meth:`put` on the device."""
+        n = int(np.prod(stack.shape[1:]))
+        return OnDevice(self._part(stack.data, index * n, n, stack.dtype), stack.shape[1:],
+                        self._fetch, stack.dtype)
+
+    def _part(self, buffer, start: int, count: int, dtype):
+        """Values ``start .. start + count`` of a device buffer (a view, or a device copy)."""
+        raise NotImplementedError
+
+    def export(self, values: OnDevice, region: Region, into) -> None:
+        """Copy ``region`` of a whole-image device result into ``into``, a host array."""
+        np.copyto(into, region.of(values.numpy(into.dtype)))
 
     def _average(self, config: PassConfig, frames, region: Region, linear, sat_mask) -> None:
         """Mode average: the mean of the frames, a stack of frames per launch."""
@@ -350,7 +440,7 @@ class KernelBackend:
         view = region.expand(blur.blur_halo(mode, params, region.full_h, region.full_w))
         vn = view.h * view.w * 3
         src, indicator = self._empty(vn), self._empty(vn)
-        image = self._upload(view.of(photo), source)
+        image = self._upload(photo if isinstance(photo, OnDevice) else view.of(photo), source)
         with self._timed(sync=False):
             self._launch(k, "linearize", vn, image, src, indicator)
         del image
@@ -457,12 +547,6 @@ class KernelBackend:
                 result, seed=seed, sample_index=sample_index))
         del inputs
         return self._out(result, (out.h, out.w, 3), Pass.FINISH, out.origin)
-
-    def retone(self, plan: Plan, camera: Camera, image: np.ndarray) -> np.ndarray:
-        """The output tone curve for the sharp reference (host side, float64)."""
-        from gpu_blur.backends.numpy import retone
-
-        return retone(plan, camera, image)
 
     # -- inputs on the device: checks and the sharp reference ------------------------------
     def _input_kernels(self, config: PassConfig | None, source):

@@ -375,8 +375,15 @@ class OpenCLBackend(KernelBackend):
                 "position": self.position_dtype}[arg.kind](arg.value)
 
     def _timed(self, sync: bool = True):
-        """Time launches as "kernels"; ``sync`` waits for them (``queue.finish()``) at the end."""
-        return timer("kernels", self.queue.finish if sync else None)
+        """Time launches as "kernels"; ``sync`` waits for them (``queue.finish()``) at the end.
+
+        With ``sync_passes`` False nothing waits.
+        """
+        return timer("kernels", self.queue.finish if sync and self.sync_passes else None)
+
+    def wait(self) -> None:
+        """Wait for every launch and copy queued so far."""
+        self.queue.finish()
 
     # -- buffers (uploads and downloads are timed as "copies", gpu_blur.timings) --------------
     def _upload(self, values, dtype=None) -> cl.Buffer:
@@ -400,6 +407,13 @@ class OpenCLBackend(KernelBackend):
     def _write(self, buffer, values: np.ndarray) -> None:
         with timer("copies"):  # waits for the launches that read the buffer before
             cl.enqueue_copy(self.queue, buffer, values)
+
+    def _part(self, buffer, start: int, count: int, dtype) -> cl.Buffer:
+        size = np.dtype(dtype or self.real).itemsize
+        part = self._empty(count, dtype)
+        cl.enqueue_copy(self.queue, part, buffer, src_offset=start * size,
+                        byte_count=count * size)
+        return part
 
     def _fetch(self, values: OnDevice, dtype) -> np.ndarray:
         with timer("copies"):

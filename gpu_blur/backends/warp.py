@@ -26,13 +26,10 @@ import numpy as np
 import warp as wp
 
 from gpu_blur.backends import OnDevice, fill_stack
-from gpu_blur.backends.flows import interpolation_factor
 from gpu_blur.backends.kernel import (
     Arg,
     KernelBackend,
     PassConfig,
-    average_args,
-    pass_config,
     source_dtype,
 )
 from gpu_blur.plan import Pass, Plan, StageName
@@ -141,7 +138,6 @@ class WarpBackend(KernelBackend):
         self._copier = wp.Stream(self.wp_device) if self.overlap else None
         self._staging: dict = {}  # slot -> pinned host buffer (kept across samples)
         self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
-        self.sync_passes = True
         self._prefetch_turn = 0
         self._prefetch_stacks: dict = {}  # slot -> device stack of prefetched frames
         self._prefetch_read: dict = {}  # slot -> event: the accumulate that read it
@@ -201,6 +197,10 @@ class WarpBackend(KernelBackend):
         so the passes can be captured in a CUDA graph (bench/gpu_targets.py).
         """
         return timer("kernels", self._synchronize if sync and self.sync_passes else None)
+
+    def wait(self) -> None:
+        """Wait for every launch and copy queued so far."""
+        self._synchronize()
 
     def _synchronize(self) -> None:
         if self.overlap:  # the compute stream only: a prefetch may still be copying
@@ -327,63 +327,67 @@ class WarpBackend(KernelBackend):
         """An output as an ``h x w x 3`` ``wp.array`` on the device (``torch.from_dlpack``)."""
         return values.data.reshape(values.shape)
 
-    # -- pass 1 from frames Warp reaches (a wp.array stack, or a prefetch) -------------------
-    def accumulate(self, plan: Plan, params: dict, frames, mask: np.ndarray | None,
-                   region: Region) -> tuple[OnDevice, OnDevice]:
+    # -- inputs Warp reaches: wp.arrays (this device, pinned host memory), prefetches ---------
+    def put(self, image) -> OnDevice:
+        """:meth:`KernelBackend.put`; a ``wp.array`` on this device is taken as it is (no copy).
+
+        A ``wp.array`` elsewhere (pinned host memory) is copied once, on the copy stream when
+        overlapping.
+        """
+        if not isinstance(image, wp.array):
+            return super().put(image)
+        if not image.is_contiguous:
+            raise ValueError(f"a wp.array input must be contiguous; got strides {image.strides} "
+                             f"for shape {image.shape}: pass a contiguous copy")
+        dtype = np.dtype(wp.dtype_to_numpy(image.dtype))
+        if dtype not in (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(self.np_real)):
+            raise ValueError(f"a wp.array input must hold uint8, uint16 or {self.precision} "
+                             f"values (this backend's precision); got {dtype}")
+        flat = image.flatten()
+        if str(image.device) != str(wp.get_device(self.wp_device)):
+            on_device = self._empty(flat.size, dtype)
+            with timer("copies"):
+                if self.overlap:
+                    wp.copy(on_device, flat, stream=self._copier)
+                    wp.get_stream(self.wp_device).wait_event(self._copier.record_event())
+                else:
+                    wp.copy(on_device, flat)
+            flat = on_device
+        return OnDevice(flat, image.shape, self._fetch,
+                        None if dtype == np.dtype(self.np_real) else dtype)
+
+    def accumulate(self, plan: Plan, params: dict, frames, mask, region: Region
+                   ) -> tuple[OnDevice, OnDevice]:
         """Linearize and blur on the device; (linear, mask) over ``region``, on the device.
 
-        Besides host frames (:meth:`KernelBackend.accumulate`), mode average takes a
-        ``wp.array`` stack of frames or a :class:`Prefetched` one.
+        Besides host frames and inputs put on the device (:meth:`KernelBackend.accumulate`),
+        takes a ``wp.array`` (an ``n x H x W x 3`` stack for mode average) or a
+        :class:`Prefetched` stack.
         """
         prefetched = frames if isinstance(frames, Prefetched) else None
         if prefetched is not None:
             if prefetched.ready is not None:
                 wp.get_stream(self.wp_device).wait_event(prefetched.ready)
             frames = prefetched.frames
-        if not isinstance(frames, wp.array):
-            return super().accumulate(plan, params, frames, mask, region)
-        if interpolation_factor(plan) > 1:
-            raise ValueError("blur.interpolation > 1 needs the frames in host memory (its "
-                             "optical flows are computed there), not a wp.array stack")
-        n = region.h * region.w * 3
-        linear, sat_mask = self._empty(n), self._empty(n)
-        self._average_stack(plan, frames, region, linear, sat_mask)
+        if isinstance(frames, wp.array):
+            frames = self.put(frames)
+        result = super().accumulate(plan, params, frames, mask, region)
         if prefetched is not None and prefetched.slot is not None:  # the stack is free
             self._prefetch_read[prefetched.slot] = wp.get_stream(self.wp_device).record_event()
-        return self._linear_out(linear, sat_mask, (region.h, region.w, 3), region)
+        return result
 
-    def _average_stack(self, plan: Plan, frames: wp.array, region: Region, linear,
-                       sat_mask) -> None:
-        """Mode average over frames already in memory Warp reaches: one launch for them all.
+    @staticmethod
+    def _part(buffer, start: int, count: int, dtype) -> wp.array:
+        return buffer[start:start + count]
 
-        ``frames`` is an ``n x H x W x 3`` ``wp.array`` (uint8, uint16 or the compute type)
-        on this device (no copy at all) or in pinned host memory (one asynchronous copy on the
-        copy stream); whole images only.
+    def export(self, values: OnDevice, region: Region, into) -> None:
+        """Copy ``region`` of a whole-image result into ``into``.
+
+        ``into``: a host array, or a ``wp.array`` of the compute type on this device (one
+        strided copy, no trip through the host).
         """
-        if plan.variant(S.BLUR) != "average":
-            raise ValueError("a wp.array stack of frames is for blur.mode = average")
-        if frames.ndim != 4 or tuple(frames.shape[1:]) != (region.full_h, region.full_w, 3) \
-                or (region.h, region.w) != (region.full_h, region.full_w):
-            raise ValueError(f"a wp.array stack of frames must be n x H x W x 3 and run whole "
-                             f"images (no tiles); got shape {frames.shape} for a "
-                             f"{region.full_h} x {region.full_w} image")
-        config = pass_config(plan, Pass.ACCUMULATE)
-        source = wp.dtype_to_numpy(frames.dtype)
-        k = self._pass_kernels(config, source)
-        table = self._code_table(config, source)
-        count, values = frames.shape[0], region.h * region.w * 3
-        stack = frames.flatten()
-        if str(frames.device) != str(wp.get_device(self.wp_device)):
-            on_device = self._empty(count * values, source)
-            with timer("copies"):
-                if self.overlap:
-                    wp.copy(on_device, stack, stream=self._copier)
-                    wp.get_stream(self.wp_device).wait_event(self._copier.record_event())
-                else:
-                    wp.copy(on_device, stack)
-            stack = on_device
-        spare = self._empty(1, np.uint32)
-        with self._timed():
-            self._launch(k, "blur_average_add", values, *average_args(
-                stack, count, values, (linear, sat_mask, spare), True, count, linear, sat_mask,
-                table))
+        if not isinstance(into, wp.array):
+            return super().export(values, region, into)
+        whole = values.data.reshape(values.shape)
+        with timer("copies"):
+            wp.copy(into, whole[region.y0:region.y0 + region.h, region.x0:region.x0 + region.w])

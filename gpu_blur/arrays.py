@@ -1,0 +1,144 @@
+"""The array types a batch comes in and goes back as: numpy, torch, CuPy and ``wp.array``.
+
+:class:`gpu_blur.Synthesizer` takes a batch in any of them and returns its results in the same
+type on the same device (torch in, torch out). Arrays on a CUDA device reach a Warp backend on
+that device through DLPack without a copy; every other pairing goes through host memory.
+torch, CuPy and Warp are imported only when an array of theirs is passed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Input dtypes a batch may have (floats are sRGB values in [0, 1]).
+DTYPES = ("uint8", "uint16", "float16", "float32", "float64")
+
+
+def library(x) -> str:
+    """Which library an array belongs to: ``numpy``, ``torch``, ``cupy`` or ``warp``.
+
+    Raises:
+        TypeError: for anything else, naming its type.
+    """
+    if isinstance(x, np.ndarray):
+        return "numpy"
+    module = type(x).__module__.split(".")[0]
+    if module in ("torch", "cupy", "warp"):
+        return module
+    raise TypeError(f"a batch must be a numpy array, a torch tensor, a CuPy array or a "
+                    f"wp.array; got {type(x).__name__}")
+
+
+def dtype_name(x) -> str:
+    """The array's dtype as numpy names it (``uint8``, ``float32``, ...)."""
+    if library(x) == "warp":
+        import warp as wp
+
+        return np.dtype(wp.dtype_to_numpy(x.dtype)).name
+    return str(x.dtype).removeprefix("torch.")
+
+
+def cuda_device(x) -> int | None:
+    """The CUDA device ordinal an array lives on, None for host memory."""
+    lib = library(x)
+    if lib == "torch":
+        return x.device.index if x.device.type == "cuda" else None
+    if lib == "cupy":
+        return x.device.id
+    if lib == "warp":
+        return x.device.ordinal if x.device.is_cuda else None
+    return None
+
+
+def channels_last(x, lib: str):
+    """A ``B x 3 x H x W`` batch as ``B x H x W x 3``, contiguous, on its own device."""
+    if lib == "torch":
+        return x.permute(0, 2, 3, 1).contiguous()
+    if lib == "warp":
+        raise ValueError("channels_first is for torch, numpy and CuPy batches; a wp.array "
+                         "batch must be B x H x W x 3 (or B x F x H x W x 3)")
+    module = np if lib == "numpy" else __import__("cupy")
+    return module.ascontiguousarray(module.moveaxis(x, -3, -1))
+
+
+def channels_first(x, lib: str):
+    """A ``B x H x W x 3`` result as a ``B x 3 x H x W`` view."""
+    if lib == "torch":
+        return x.permute(0, 3, 1, 2)
+    module = np if lib == "numpy" else __import__("cupy")
+    return module.moveaxis(x, -1, -3)
+
+
+def as_real(x, lib: str, real: str):
+    """A float batch as ``real`` (``float32``, ``float64``), converted on its own device."""
+    if lib == "torch":
+        import torch
+
+        return x.to(getattr(torch, real))
+    if lib == "warp":
+        raise ValueError(f"a wp.array batch must hold uint8, uint16 or {real} values (the "
+                         f"backend's precision); got {dtype_name(x)}")
+    return x.astype(real)
+
+
+def to_numpy(x, lib: str) -> np.ndarray:
+    """A host copy (or view, for host memory) of an array."""
+    if lib == "numpy":
+        return x
+    if lib == "torch":
+        return x.detach().cpu().numpy()
+    if lib == "cupy":
+        return x.get()
+    return x.numpy()
+
+
+def on_warp_device(x, lib: str, device: str) -> bool:
+    """Whether ``x`` lives on Warp device ``device`` (a Warp backend takes it without a copy)."""
+    import warp as wp
+
+    if lib == "warp":
+        return str(x.device) == str(wp.get_device(device))
+    ordinal = cuda_device(x)
+    return ordinal is not None and f"cuda:{ordinal}" == str(wp.get_device(device))
+
+
+def as_warp(x, lib: str):
+    """A ``wp.array`` view of an array on a CUDA device (at most 4 dimensions, Warp's limit)."""
+    import warp as wp
+
+    if lib == "warp":
+        return x
+    if lib == "torch":
+        return wp.from_torch(x)
+    return wp.from_dlpack(x)
+
+
+def from_warp(out, lib: str, like):
+    """A ``wp.array`` result as the input's type (no copy for torch and CuPy)."""
+    import warp as wp
+
+    if lib == "torch":
+        return wp.to_torch(out)
+    if lib == "cupy":
+        import cupy
+
+        return cupy.from_dlpack(out)
+    return out
+
+
+def from_numpy(out: np.ndarray, lib: str, like):
+    """A host result as the input's type, on the input's device."""
+    if lib == "numpy":
+        return out
+    if lib == "torch":
+        import torch
+
+        return torch.from_numpy(out).to(like.device)
+    if lib == "cupy":
+        import cupy
+
+        with cupy.cuda.Device(like.device.id):
+            return cupy.asarray(out)
+    import warp as wp
+
+    return wp.array(out, device=like.device)

@@ -1,0 +1,164 @@
+"""The batch API: gpu_blur.Synthesizer against synthesize, array types, layouts, bad input."""
+
+import numpy as np
+import pytest
+import torch
+from conftest import BACKEND_SPECS
+
+import gpu_blur
+from gpu_blur.scene import scene_from_dict
+
+H, W = 36, 34
+
+
+def scene_for(mode: str, **output):
+    if mode == "none":
+        return gpu_blur.load_scene("realblur_j")
+    data = {"blur": {"mode": mode}, "saturation": {"mode": "auto"}, "output": output}
+    if mode == "average":
+        data["blur"]["frames"] = 3
+    if mode == "kernel":
+        data["blur"]["kernel_size"] = [3, 5]
+    return scene_from_dict(data)
+
+
+def batch_for(mode: str, count: int, rng, dtype=np.uint8) -> dict:
+    """A batch for ``mode``: uint8 codes (with clipped pixels) or floats in [0, 1]."""
+    shape = (count, 3, H, W, 3) if mode == "average" else (count, H, W, 3)
+    codes = rng.integers(0, 256, size=shape, dtype=np.uint8)
+    codes[0, ..., 2, 3, :] = 255  # the first sample reaches the clip level, the rest need not
+    images = codes if dtype == np.uint8 else (codes / 255.0).astype(dtype)
+    if mode != "none":
+        return {"batch": images}
+    mask = (rng.random((count, H, W, 3)) < 0.1).astype(dtype)
+    return {"batch": images, "mask": mask}
+
+
+def one_sample(mode: str, given: dict, b: int):
+    if mode == "average":
+        return list(given["batch"][b])
+    if mode == "none":
+        return {"blurred": given["batch"][b], "mask": given["mask"][b]}
+    return given["batch"][b]
+
+
+def spec_parts(spec: str):
+    name, _, precision = spec.partition("/")
+    return name, precision or "float64"
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+@pytest.mark.parametrize("mode", ["average", "kernel", "trajectory", "none"])
+def test_a_batch_equals_synthesize_sample_by_sample_bit_for_bit(spec, mode):
+    name, precision = spec_parts(spec)
+    scene = scene_for(mode, precision=precision)
+    given = batch_for(mode, 3, np.random.default_rng(1))
+    synth = gpu_blur.Synthesizer(scene, backend=name, seed=7, with_mask=True)
+    out = synth(given["batch"], mask=given.get("mask"), first_index=5)
+    assert out.blurred.shape == out.sharp.shape == out.mask.shape
+    for b in range(3):
+        one = gpu_blur.synthesize(one_sample(mode, given, b), scene, seed=7, sample_index=5 + b,
+                                  backend=name)
+        assert np.array_equal(out.blurred[b], one.blurred), b
+        assert np.array_equal(out.sharp[b], one.sharp), b
+        assert np.array_equal(out.mask[b], one.mask), b
+        assert out.params[b].keys() == one.params.keys()
+        assert out.plans[b] == one.plan
+
+
+@pytest.mark.parametrize("name", ["warp:cpu", "opencl", "numpy"])
+def test_numpy_torch_and_warp_batches_give_the_same_bits_and_come_back_as_they_came(name):
+    import warp as wp
+
+    scene = scene_for("none", precision="float32")
+    given = batch_for("none", 2, np.random.default_rng(2), dtype=np.float32)
+    synth = gpu_blur.Synthesizer(scene, backend=name)
+    ref = synth(given["batch"], mask=given["mask"])
+    as_torch = synth(torch.from_numpy(given["batch"]), mask=torch.from_numpy(given["mask"]))
+    assert isinstance(as_torch.blurred, torch.Tensor) and as_torch.blurred.device.type == "cpu"
+    assert np.array_equal(as_torch.blurred.numpy(), ref.blurred)
+    assert np.array_equal(as_torch.sharp.numpy(), ref.sharp)
+    as_warp = synth(wp.array(given["batch"], device="cpu"),
+                    mask=wp.array(given["mask"], device="cpu"))
+    assert isinstance(as_warp.blurred, wp.array)
+    assert np.array_equal(as_warp.blurred.numpy(), ref.blurred)
+
+
+def test_channels_first_batches_come_back_channels_first():
+    scene = scene_for("trajectory", precision="float32")
+    photos = batch_for("trajectory", 2, np.random.default_rng(3))["batch"]
+    last = gpu_blur.Synthesizer(scene, backend="warp:cpu")(torch.from_numpy(photos))
+    first = gpu_blur.Synthesizer(scene, backend="warp:cpu", channels_first=True)(
+        torch.from_numpy(photos).permute(0, 3, 1, 2))
+    assert first.blurred.shape == (2, 3, H, W)
+    assert torch.equal(first.blurred.permute(0, 2, 3, 1), last.blurred)
+
+
+@pytest.mark.parametrize("name", ["numpy", "opencl", "warp:cpu"])
+def test_float16_and_float64_batches_give_what_their_float32_values_give(name):
+    scene = scene_for("kernel", precision="float32")
+    photos = batch_for("kernel", 2, np.random.default_rng(4), dtype=np.float16)["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend=name)
+    half = synth(photos)
+    single = synth(photos.astype(np.float32))
+    assert np.array_equal(half.blurred, single.blurred)
+    assert np.array_equal(synth(photos.astype(np.float64)).blurred, single.blurred)
+
+
+@pytest.mark.parametrize("name", ["numpy", "opencl", "warp:cpu"])
+@pytest.mark.parametrize("bad, words", [(np.nan, "1 NaN and 0 infinite value(s)"),
+                                        (-0.5, "1 negative value(s), the lowest -0.5"),
+                                        (3.0, "1 value(s) above 1, the highest 3")])
+def test_a_bad_value_names_its_sample_and_where_it_is(name, bad, words):
+    scene = scene_for("average", precision="float32")
+    frames = batch_for("average", 3, np.random.default_rng(5), dtype=np.float32)["batch"]
+    frames[1, 2, 4, 5, 1] = bad
+    with pytest.raises(ValueError) as e:
+        gpu_blur.Synthesizer(scene, backend=name)(frames)
+    assert str(e.value).startswith("sample 1 of 3: frame 2: " + words)
+    assert "row 4, column 5, channel 1" in str(e.value)
+
+
+def test_a_mask_of_another_shape_or_type_is_refused_by_name():
+    scene = scene_for("none")
+    given = batch_for("none", 2, np.random.default_rng(6))
+    synth = gpu_blur.Synthesizer(scene)
+    with pytest.raises(ValueError, match=r"mask has shape \(2, 20, 34, 3\) but the batch"):
+        synth(given["batch"], mask=given["mask"][:, :20])
+    with pytest.raises(ValueError, match="mask is a torch array but the batch is numpy"):
+        synth(given["batch"], mask=torch.from_numpy(given["mask"]))
+    with pytest.raises(ValueError, match="takes B x H x W x 3 batches; got shape"):
+        synth(given["batch"][0])
+    with pytest.raises(ValueError, match="mask= is for blur.mode = none"):
+        gpu_blur.Synthesizer(scene_for("kernel"))(given["batch"], mask=given["mask"])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (run on the GPU "
+                    "machine; CI has none)")
+@pytest.mark.parametrize("mode", ["average", "none"])
+def test_cuda_tensors_stay_on_the_gpu_and_give_what_host_arrays_give(mode):
+    scene = scene_for(mode, precision="float32")
+    given = batch_for(mode, 2, np.random.default_rng(7), dtype=np.float32)
+    synth = gpu_blur.Synthesizer(scene, backend="warp:cuda:0", with_mask=True)
+    host = synth(given["batch"], mask=given.get("mask"))
+    cuda = synth(torch.from_numpy(given["batch"]).cuda(),
+                 mask=None if mode != "none" else torch.from_numpy(given["mask"]).cuda())
+    for name in ("blurred", "sharp", "mask"):
+        tensor = getattr(cuda, name)
+        assert tensor.is_cuda
+        assert np.array_equal(tensor.cpu().numpy(), getattr(host, name)), name
+
+
+@pytest.mark.parametrize("spec", [s for s in BACKEND_SPECS if s != "numpy"])
+@pytest.mark.parametrize("mode", ["average", "trajectory", "none"])
+def test_device_resident_runs_equal_runs_from_host_memory_in_tiles(spec, mode):
+    """Inputs put on the device (no tile) and streamed from the host in tiles: same bits."""
+    name, precision = spec_parts(spec)
+    scene = scene_for(mode, precision=precision)
+    given = batch_for(mode, 1, np.random.default_rng(8), dtype=np.float32)
+    inputs = one_sample(mode, given, 0)
+    whole = gpu_blur.synthesize(inputs, scene, seed=3, backend=name)
+    tiled = gpu_blur.synthesize(inputs, scene, seed=3, backend=name, tile=(16, 20))
+    assert tiled.tiles > 1
+    for key in ("blurred", "sharp", "mask"):
+        assert np.array_equal(getattr(whole, key), getattr(tiled, key)), key
