@@ -32,6 +32,24 @@ with "status": "failed" and why; fix them and rerun with --resume); 2 nothing co
 SHOW_FAILED = 20
 
 
+def _verbosity_arguments(p: argparse.ArgumentParser) -> None:
+    """--quiet / --verbose: how much the command says on stderr besides errors."""
+    said = p.add_mutually_exclusive_group()
+    said.add_argument("--quiet", action="store_true", help="no progress bar and no notices "
+                      "(the device line, errors and the summary remain)")
+    said.add_argument("--verbose", action="store_true", help="also each kernel build's time "
+                      "(by default one line per device says when kernels compile on first "
+                      "use)")
+
+
+def _verbosity(args) -> int:
+    """The notice level (:mod:`gpu_blur.notices`) that --quiet / --verbose ask for."""
+    from gpu_blur import notices
+
+    return (notices.QUIET if args.quiet else notices.VERBOSE if args.verbose
+            else notices.NORMAL)
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="gpu-blur", epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -98,7 +116,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="finish the set in --output that a run with the same settings "
                        "started (killed, or with failed samples): keeps finished samples "
                        "untouched, makes the missing ones and retries the failed ones")
-    g.add_argument("--quiet", action="store_true", help="no progress bar")
+    _verbosity_arguments(g)
 
     pl = sub.add_parser("plan", help="print the stages a scene runs, kept or skipped, with why")
     pl.add_argument("scene", type=Path, nargs="?", help="scene TOML, or a built-in scene's "
@@ -110,12 +128,14 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("cameras", help="list the built-in cameras")
     from gpu_blur.analysis.bench.run import add_arguments as bench_arguments
 
-    bench_arguments(sub.add_parser(
+    b = sub.add_parser(
         "bench", help="accuracy against time of every accuracy knob on every backend",
         description="Time every accuracy knob's settings on numpy and every OpenCL and Warp "
         "device, with the error against the numpy float64 reference; writes "
         "accuracy_vs_time_<tag>.json, .md (tables) and .png (Pareto plot). See "
-        "gpu_blur/analysis/bench/."))
+        "gpu_blur/analysis/bench/.")
+    bench_arguments(b)
+    _verbosity_arguments(b)
 
     c = sub.add_parser(
         "compare", help="score a synthesized blurred image against a real one (PSNR, SSIM, "
@@ -404,7 +424,7 @@ def _generate(args) -> int:
     print(f"wrote {made} samples ({len(failed)} failed) to {args.output} in {took:.1f} s "
           f"({made / max(took, 1e-9):.2f} samples/s){before}; manifest: {writer.manifest_path}")
     totals.add({"writing": current().seconds["writing"] - writing})
-    print("\n".join(totals.summary(took)))
+    print("\n".join(totals.summary(took, on_host=backend.name == "numpy")))
     if not failed:
         return 0
     print(f"gpu-blur: {len(failed)} of {len(todo)} samples failed; each is in the manifest with "
@@ -702,16 +722,20 @@ def _generate_until_stopped(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``gpu-blur``; returns the exit status."""
+    from gpu_blur import notices
+
     args = _parser().parse_args(argv)
     try:
         if args.command == "generate":
-            return _generate_until_stopped(args)
+            with notices.verbosity_set(_verbosity(args)):
+                return _generate_until_stopped(args)
         if args.command == "calibrate":
             return _calibrate(args)
         if args.command == "bench":
             from gpu_blur.analysis.bench.run import run_from_args
 
-            return run_from_args(args)
+            with notices.verbosity_set(_verbosity(args)):
+                return run_from_args(args, progress=not args.quiet)
         if args.command == "plan":
             from gpu_blur.pipeline import scene_camera
             from gpu_blur.plan import plan

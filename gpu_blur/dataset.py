@@ -80,7 +80,8 @@ ARRAY_CONVENTIONS = {
         "pixel, on the input's grid before output.crop (the saved images' pixel (x, y) is the "
         "input's (x + crop, y + crop)); H[2, 2] is not normalised. The blurred image is the mean "
         "over s of the input warped by H[s]: output pixel p takes the input at H[s]^-1 p "
-        "(bilinear, reflect-101 borders; gpu_blur.reference.shake)."),
+        "(bilinear; where that leaves the input, only the samples' weight on the input counts "
+        "and the mean is over that weight: gpu_blur.reference.shake.shake_blur)."),
     "kernel": (
         "kh x kw float64 motion kernel, rows y and columns x, odd sides, normalised to sum 1 "
         "where it is used: a true convolution centred on the middle entry, "

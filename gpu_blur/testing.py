@@ -365,6 +365,10 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # float64 positions; the order of operations moves positions by ~1e-14 px (measured
     # <= 6e-15 on values in [0, 1]).
     ("blur_warp_bilinear", "independent", "float64"): (0.0, 2e-14),
+    # A float32 output of the float64 reference (a float TIFF of `gpu-blur generate`) against
+    # the same maths computed independently in float64: the cast's rounding, at most half an
+    # ulp of values <= 1 (2^-25 = 2.98e-8), and ~1e-14 of float64 order (measured 2.98e-8).
+    ("float32_output", "independent", "float64"): (0.0, 3e-8),
     # A motion kernel's sum after normalisation, and a blurred point's mass.
     ("kernel_sum", "numpy", "float64"): (0.0, 1e-14),
     # A motion kernel's centroid against its centre pixel, in pixels (asked: 0.5; bilinear

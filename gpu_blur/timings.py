@@ -9,7 +9,8 @@ executor in another process can send it back). Categories:
 * ``kernels``: the passes' compute, from launch to a synchronize at the end of each pass
   (``queue.finish()`` on OpenCL, ``wp.synchronize_device`` on Warp; the numpy backend's
   passes are its compute); a transfer a driver defers to the first kernel that uses the
-  buffer is counted here too;
+  buffer is counted here too, and so is a kernel's build on its first use in a process
+  (:mod:`gpu_blur.notices`);
 * ``checks``: spot checks against the numpy reference (:mod:`gpu_blur.scheduler`);
 * ``writing``: encoding outputs (measured by ``gpu-blur generate``, not by ``synthesize``).
 
@@ -103,11 +104,14 @@ def since(before: dict[str, float], total: float) -> dict[str, float]:
     return spent
 
 
+#: What "kernels" holds for the numpy backend, whose passes run on the host.
+HOST_COMPUTE = "the passes on the CPU (numpy float64 reference)"
+
 #: What each category of the run summary holds, in words.
 MEANING = {
     "reading": "decoding input images",
     "copies": "host <-> device transfers",
-    "kernels": "device compute (synchronized after each pass)",
+    "kernels": "device compute, synchronized after each pass (with first use's kernel builds)",
     "checks": "spot checks against the numpy reference",
     "writing": "encoding and writing outputs",
     "other": "drawing parameters, the sharp reference, scheduling, bookkeeping",
@@ -125,21 +129,23 @@ class RunTotals:
         for category in CATEGORIES:
             self.seconds[category] += float(spent.get(category, 0.0))
 
-    def summary(self, wall: float) -> list[str]:
+    def summary(self, wall: float, on_host: bool = False) -> list[str]:
         """Lines saying where ``wall`` seconds went: each category, then ``other``.
 
         ``other`` is the wall time the categories leave (at least 0). Workers in other
         processes or threads add their own time, so the categories may then exceed the wall
-        time; a last line says so.
+        time; a last line says so. ``on_host``: the passes ran on the CPU (numpy backend),
+        so ``kernels`` is no device's compute.
         """
         spent = dict(self.seconds)
         counted = sum(spent.values())
         spent["other"] = max(wall - counted, 0.0)
         scale = max(wall, counted, 1e-12)
         lines = [f"where the time went ({wall:.2f} s):"]
+        meaning = {**MEANING, "kernels": HOST_COMPUTE} if on_host else MEANING
         for category, seconds in spent.items():
             lines.append(f"  {category:<8} {seconds:9.3f} s {100 * seconds / scale:5.1f} %  "
-                         f"{MEANING[category]}")
+                         f"{meaning[category]}")
         if counted > wall * 1.01:
             lines.append(f"  (parallel workers: {counted:.2f} s of work in {wall:.2f} s)")
         return lines

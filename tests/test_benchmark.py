@@ -300,3 +300,77 @@ def test_a_second_bench_on_the_same_report_is_refused_while_the_first_runs(tmp_p
     assert f"bench report {path}: another gpu-blur run is writing it" in err
     assert f"pid {os.getpid()}" in err and not path.exists()
     assert main(bench_args(tmp_path)) == 0  # the lock ends with its holder
+
+
+POCL = "CPU pthread-skylake-avx512-AMD EPYC (Portable Computing Language)"  # 66 characters
+
+
+def crowded_rows() -> list[dict]:
+    """Rows whose Pareto front is five points within 10 % in time and error, on a device with
+    a long name, beside a slow numpy reference."""
+    def row(backend, device, knob, setting, ms, error):
+        return {"knob": knob, "setting": setting, "backend": backend, "device": device,
+                "available": True, "ms_per_megapixel": ms, "max_abs_error": error,
+                "residual_kl": error / 10}
+
+    rows = [row("opencl:1:0", POCL, "CRF table", f"{n} nodes", 20 + 0.5 * i, 3e-9 - 1e-10 * i)
+            for i, n in enumerate((256, 512, 1024, 2048, 4096))]
+    rows += [row("opencl:1:0", POCL, "precision", "float64", 40.0, 0.0),
+             row("numpy", "numpy float64 on AMD EPYC", "precision", "float64", 2000.0, 0.0),
+             row("numpy", "numpy float64 on AMD EPYC", "demosaic", "bilinear", 1900.0, 0.3)]
+    return rows
+
+
+def overlapping(boxes) -> list[tuple[int, int]]:
+    """Pairs of (x0, y0, x1, y1) boxes that share area."""
+    return [(i, j) for i, a in enumerate(boxes) for j, b in enumerate(boxes[:i])
+            if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]]
+
+
+def test_plot_labels_every_front_point_apart_and_keeps_the_legend_off_the_panels():
+    pytest.importorskip("matplotlib")
+    from matplotlib.text import Text
+
+    from gpu_blur.analysis.bench import plot
+
+    fig = plot.figure(crowded_rows(), "title")
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    for ax in fig.axes:
+        labels = [t for t in ax.texts if t.get_text()]
+        assert sorted(t.get_text() for t in labels) == sorted(
+            [f"opencl:1:0 CRF table: {n} nodes" for n in (256, 512, 1024, 2048, 4096)]
+            + ["opencl:1:0 precision: float64"])
+        # the text itself (an annotation's own extent takes in its leader line)
+        boxes = [tuple(Text.get_window_extent(t, renderer).extents) for t in labels]
+        assert overlapping(boxes) == []
+    legend_text = [t.get_text() for legend in fig.legends for t in legend.get_texts()]
+    assert f"opencl:1:0: {POCL}" in legend_text and "CRF table" in legend_text
+    panels = [tuple(ax.get_window_extent(renderer).extents) for ax in fig.axes]
+    legends = [tuple(legend.get_window_extent(renderer).extents) for legend in fig.legends]
+    assert overlapping(panels + legends) == []
+
+
+def test_opencv_plot_writes_every_name_in_full_and_every_label_apart_inside_the_image(
+        tmp_path, monkeypatch):
+    from gpu_blur.analysis.bench import plot
+
+    written, put_text = [], cv2.putText
+
+    def record(img, text, org, font, scale, colour, thickness=1, *rest):
+        (w, h), base = cv2.getTextSize(text, font, scale, thickness)
+        written.append((text, (org[0], org[1] - h, org[0] + w, org[1] + base)))
+        return put_text(img, text, org, font, scale, colour, thickness, *rest)
+
+    monkeypatch.setattr(cv2, "putText", record)
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    path = tmp_path / "plot.png"
+    assert plot.write_plot(crowded_rows(), path, "title") == "cv2"
+    height, width = cv2.imread(str(path)).shape[:2]
+    texts = [t for t, _ in written]
+    assert f"opencl:1:0: {POCL}" in texts and "numpy: numpy float64 on AMD EPYC" in texts
+    labels = [box for t, box in written if t.startswith("opencl:1:0 ")]
+    assert len(labels) == 2 * 6  # both panels label their six front points
+    assert overlapping(labels[:6]) == [] and overlapping(labels[6:]) == []
+    for text, (x0, y0, x1, y1) in written:
+        assert 0 <= x0 and x1 <= width and 0 <= y0 and y1 <= height, text

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import json
 import math
 
 import cv2
@@ -555,7 +556,20 @@ def test_shake_blur_with_zero_extent_returns_the_image_and_its_indicator(coffee_
     assert 0 < mask.mean() < 1
 
 
-def test_shake_blur_of_integer_translations_is_a_kernel_convolution(coffee_rgb):
+def shifted_on_image(image: np.ndarray, tx: int, ty: int) -> tuple[np.ndarray, np.ndarray]:
+    """``image`` moved by (tx, ty) with zeros where it came from outside, and where it did not."""
+    h, w = image.shape[:2]
+    padded = np.zeros((h + 2 * 8, w + 2 * 8) + image.shape[2:])
+    padded[8:-8, 8:-8] = image
+    seen = np.zeros((h + 2 * 8, w + 2 * 8))
+    seen[8:-8, 8:-8] = 1.0
+    rows, cols = slice(8 - ty, 8 - ty + h), slice(8 - tx, 8 - tx + w)
+    return padded[rows, cols], seen[rows, cols]
+
+
+def test_shake_blur_of_integer_translations_averages_the_shifts_that_stay_on_the_image(coffee_rgb):
+    """Inside: the kernel convolution. At the edges: the mean over the shifts whose source
+    pixel is on the image (no mirrored content), i.e. normalized convolution."""
     image = coffee_rgb[100:150, 260:330] * 1.5  # about a quarter of the values >= 1
     shifts = [(0, 0), (1, 0), (2, 1), (3, 1), (3, 2), (-1, 3), (-2, 3)]
     hom = np.stack([translation(tx, ty) for tx, ty in shifts])
@@ -563,11 +577,51 @@ def test_shake_blur_of_integer_translations_is_a_kernel_convolution(coffee_rgb):
     for tx, ty in shifts:
         kernel[3 + ty, 3 + tx] += 1.0
     blurred, mask = shake_blur(image, hom)
-    assert_close(blurred, convolve_kernel(image, kernel), "blur_convolve", "independent")
-    assert_close(
-        mask, convolve_kernel(saturation_indicator(image), kernel), "blur_convolve", "independent"
-    )
+    for values, out in ((image, blurred), (saturation_indicator(image), mask)):
+        moved = [shifted_on_image(values, tx, ty) for tx, ty in shifts]
+        total = sum(v for v, _ in moved)
+        count = sum(c for _, c in moved)[..., None]
+        assert_close(out, total / count, "blur_convolve", "independent")
+        # away from the edges (3 px, the kernel's reach) it is the kernel convolution
+        assert_close(out[3:-3, 3:-3], convolve_kernel(values, kernel)[3:-3, 3:-3],
+                     "blur_convolve", "independent")
     assert 0 < mask.max() and mask.min() < 1
+
+
+def test_shake_blur_never_shows_mirrored_content_at_the_edges():
+    """A path that leaves the image over its top edge: the top rows average only the rows the
+    image holds along the path (a mirrored border would bring the dark rows back up)."""
+    h, w = 20, 12
+    image = np.zeros((h, w, 3))
+    image[:2] = 1.0  # a bright band along the top edge ...
+    image[2:6] = 0.25  # ... over dark rows
+    hom = np.stack([translation(0, float(t)) for t in range(0, 9)])  # content moves down 0..8
+    blurred, mask = shake_blur(image, hom)
+    # row y sees rows y, y - 1, ..., y - 8 of the image, those >= 0 only
+    for y in range(h):
+        rows = [y - t for t in range(9) if y - t >= 0]
+        np.testing.assert_allclose(blurred[y], image[rows].mean(axis=0), rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(blurred[0], 1.0)  # the edge row: only itself, bright
+    np.testing.assert_array_equal(mask[0], 1.0)
+
+
+def test_shake_blur_at_fractional_positions_weighs_taps_by_their_share_on_the_image():
+    """A half-pixel shift out of the image: the edge pixel keeps its own value, weighted by the
+    half of its bilinear weight that falls on the image."""
+    image = np.arange(1.0, 4.0)[None, :, None] * np.ones((1, 1, 3))  # 1 x 3: 1, 2, 3
+    hom = np.stack([np.eye(3), translation(0.5, 0.0)])  # content moves right by 0, 1/2
+    blurred, _ = shake_blur(image, hom)
+    # column 0: itself (weight 1) and half of pixel 0 (weight 1/2): 1; column 1: 2 and 1.5
+    np.testing.assert_array_equal(blurred[0, :, 0], [1.0, (2.0 + 1.5) / 2, (3.0 + 2.5) / 2])
+
+
+def test_shake_blur_is_zero_where_no_pose_sees_the_image():
+    """Two poses, both moving the content 2 px right: the first two columns see nothing."""
+    image = np.ones((4, 6, 3))
+    blurred, mask = shake_blur(image, np.stack([translation(2, 0), translation(2, 0)]))
+    np.testing.assert_array_equal(blurred[:, :2], 0.0)
+    np.testing.assert_array_equal(blurred[:, 2:], 1.0)
+    np.testing.assert_array_equal(mask[:, 2:], 1.0)
 
 
 def test_shake_blur_mask_is_the_blurred_indicator():
@@ -638,3 +692,41 @@ def test_auto_shake_steps_keep_every_pixel_within_about_a_pixel_per_pose():
     p = np.einsum("sij,nj->sni", hom, corners)
     step_px = np.linalg.norm(np.diff(p[..., :2] / p[..., 2:], axis=0), axis=-1)
     assert step_px.max() <= 1.05  # measured <= 0.994 over 60 draws
+
+
+def test_generate_blurs_only_what_the_photo_holds_at_its_edges(tmp_path, coffee_rgb):
+    """``gpu-blur generate``: the saved blurred image is, to the edges, the mean of the photo's
+    samples along each saved pose over their weight on the photo (scipy's bilinear sampling of
+    the zero-extended photo and of its support), not a mirrored continuation."""
+    from scipy.ndimage import map_coordinates
+
+    from gpu_blur.cli import main
+    from gpu_blur.imageio import read_image
+    from gpu_blur.reference.transfer import linear_to_srgb, srgb_to_linear
+
+    photo = np.round(coffee_rgb[120:168, 180:244] * 255).astype(np.uint8)
+    (tmp_path / "in").mkdir()
+    cv2.imwrite(str(tmp_path / "in" / "p.png"), cv2.cvtColor(photo, cv2.COLOR_RGB2BGR))
+    scene = tmp_path / "shake.toml"
+    scene.write_text('[blur]\nmode = "trajectory"\nextent = [14.0, 14.0]\nroll = 3.0\n'
+                     '[saturation]\nmode = "off"\n[noise]\nmodel = "none"\n[output]\nbits = 0\n')
+    out = tmp_path / "out"
+    assert main(["generate", "--input", str(tmp_path / "in"), "--output", str(out),
+                 "--scene", str(scene), "--quiet"]) == 0
+    line = json.loads((out / "manifest.jsonl").read_text().splitlines()[0])
+    blurred = read_image(out / line["blurred"]).astype(np.float64)
+    with np.load(out / line["arrays"]) as arrays:
+        homographies = arrays["homographies"]
+    linear = srgb_to_linear(photo / 255.0)
+    h, w = photo.shape[:2]
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    total, weight = np.zeros((h, w, 3)), np.zeros((h, w))
+    for m in homographies:
+        q = np.linalg.inv(m) @ np.stack([xs.ravel(), ys.ravel(), np.ones(h * w)])
+        where = [(q[1] / q[2]).reshape(h, w), (q[0] / q[2]).reshape(h, w)]
+        for values, into in [(np.ones((h, w)), weight)] + [
+                (linear[..., c], total[..., c]) for c in range(3)]:
+            into += map_coordinates(values, where, order=1, mode="grid-constant", cval=0.0)
+    assert weight.min() < len(homographies) - 1  # the path leaves the photo somewhere
+    expected = linear_to_srgb(np.clip(total / weight[..., None], 0.0, 1.0))
+    assert_close(blurred, expected, "float32_output", "independent")

@@ -284,6 +284,34 @@ def test_camera_path_of_1000_poses_stays_within_the_stated_bound(spec, coffee_rg
     check("accumulate_long_sum", spec, mask, ref_mask)
 
 
+def shift(tx: float, ty: float) -> np.ndarray:
+    """The homography of a translation: content moves by (tx, ty) pixels."""
+    return np.array([[1.0, 0.0, tx], [0.0, 1.0, ty], [0.0, 0.0, 1.0]])
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+def test_camera_path_leaving_the_image_reads_only_the_image(spec, coffee_rgb):
+    """Poses that move the content past every edge, by whole and fractional pixels, two of them
+    so far right that the first 4 columns see no image: every backend and tile gives the
+    reference's edge rule (reference.shake.shake_blur, "Edges"), 0 where nothing is seen."""
+    photo = np.ascontiguousarray(coffee_rgb[250:274, 330:362])
+    h, w = photo.shape[:2]
+    hom = np.stack([shift(4.5, -2.25), shift(6.0, 3.0), shift(4.25, 0.5)])
+    p, _, params = prepare(spec, {"blur": {"mode": "trajectory"}}, (h, w),
+                           overrides={"homographies": hom})
+    ref_linear, ref_mask = REFERENCE.accumulate(p, params, [photo], None, Region.whole(h, w))
+    ref_linear = np.asarray(ref_linear).reshape(h, w, 3)
+    assert np.all(ref_linear[:, :4] == 0.0) and np.all(ref_linear[:, 4:] > 0.0)
+    backend = make_backend(spec)
+    for y0, x0, th, tw in [(0, 0, h, w), (0, 0, 10, 12), (10, 12, 14, 20)]:
+        region = Region(y0, x0, th, tw, h, w)
+        linear, mask = backend.accumulate(p, params, [photo], None, region)
+        inside = (slice(y0, y0 + th), slice(x0, x0 + tw))
+        check("accumulate", spec, np.asarray(linear).reshape(th, tw, 3), ref_linear[inside])
+        check("accumulate", spec, np.asarray(mask).reshape(th, tw, 3),
+              np.asarray(ref_mask).reshape(h, w, 3)[inside])
+
+
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 @pytest.mark.parametrize("crf", ["srgb", "a7r3"])
 def test_all_white_frames_give_exactly_white(spec, crf):

@@ -454,16 +454,18 @@ class KernelBackend:
                                  *(Arg("int", s) for s in kernel.shape), out,
                                  *_out_geometry(region))
             return
-        # compensated sums of the image and of its indicator: (sum, compensation) each
-        sums = [self._zeros(region.h * region.w * 3) for _ in range(4)]
+        # compensated sums (sum, compensation) of the image and of its indicator, 3 values a
+        # pixel, and of the poses' weights on the image, 1 a pixel (reference.shake, "Edges")
+        pixels = region.h * region.w
+        sums = ([self._zeros(3 * pixels) for _ in range(4)]
+                + [self._zeros(pixels) for _ in range(2)])
         hom = params["homographies"]
         inverses = [self._upload(np.ravel(np.linalg.inv(h)), self.position_dtype) for h in hom]
         with self._timed():
             for hinv in inverses:  # one pose at a time
                 self._launch(k, "blur_trajectory_add", grid, src, indicator,
                              *_view_geometry(view), hinv, *sums, *_out_geometry(region))
-            self._launch(k, "blur_trajectory_finish", region.h * region.w * 3, *sums,
-                         Arg("uint", len(hom)), linear, sat_mask)
+            self._launch(k, "blur_trajectory_finish", 3 * pixels, *sums, linear, sat_mask)
 
     def _interpolated_average(self, plan: Plan, config: PassConfig, params: dict,
                               frames: Sequence[np.ndarray], region: Region, linear,

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gpu_blur import notices
 from gpu_blur.backends import OnDevice, fill_stack
 from gpu_blur.backends.kernel import Arg, KernelBackend, PassConfig, pass_config, source_dtype
 from gpu_blur.kernel_constants import opencl_header
@@ -336,8 +337,8 @@ class OpenCLBackend(KernelBackend):
         # #line keeps the compiler's line numbers those of the source
         text = f"{opencl_header()}#line 1\n{text}"
         try:
-            with warnings.catch_warnings():  # a banner or warnings; failures raise below
-                warnings.simplefilter("ignore", cl.CompilerWarning)
+            with warnings.catch_warnings(), notices.building(name, self.info.spec):
+                warnings.simplefilter("ignore", cl.CompilerWarning)  # a banner or warnings
                 return cl.Program(self.ctx, text).build(options=options)
         except cl.RuntimeError as e:
             raise OpenCLError(f"building {name} for {self.device} failed.\n"

@@ -25,6 +25,7 @@ from collections.abc import Sequence
 import numpy as np
 import warp as wp
 
+from gpu_blur import notices
 from gpu_blur.backends import OnDevice, fill_stack
 from gpu_blur.backends.kernel import (
     Arg,
@@ -39,6 +40,9 @@ from gpu_blur.timings import timer
 S = StageName
 
 wp.config.log_level = wp.LOG_WARNING  # no banner or per-module load lines
+
+#: (kernel, device) pairs whose module this process has loaded (built or read from Warp's cache).
+_LOADED: set = set()
 
 #: Warp arrays have int32 shapes, and the kernels index with Warp ``int``: one buffer holds at
 #: most this many values (an RGB region ~715 M pixels). OpenCL kernels index with 64 bits.
@@ -178,7 +182,12 @@ class WarpBackend(KernelBackend):
 
     def _launch(self, kernels, name: str, grid, *args) -> None:
         inputs = [self._render(a) for a in args if not (isinstance(a, Arg) and a.extent)]
-        wp.launch(kernels[name], dim=grid, inputs=inputs, device=self.wp_device)
+        kernel = kernels[name]
+        if (kernel, self.wp_device) not in _LOADED:  # the first launch compiles or loads it
+            with notices.building(f"the {name} kernel", f"warp:{self.wp_device}"):
+                wp.load_module(kernel.module, device=self.wp_device)
+            _LOADED.add((kernel, self.wp_device))
+        wp.launch(kernel, dim=grid, inputs=inputs, device=self.wp_device)
 
     def _render(self, arg):
         """A kernel argument as Warp takes it (:class:`~gpu_blur.backends.kernel.Arg`)."""

@@ -27,11 +27,13 @@ Conventions shared by the blur kinds:
       (:data:`gpu_blur.reference.average.SATURATION_LEVEL`). The RSBlur issue tests ``== 1``
       on 8-bit frames, where no linear value exceeds 1, so the two agree there; ``>= 1`` also
       counts values above 1 from float inputs.
-    * Boundary rule everywhere: mirror **without** repeating the edge pixel, i.e. numpy's
-      ``pad(mode="reflect")``, OpenCV's ``BORDER_REFLECT_101`` and scipy's ``"mirror"``:
-      ``... c b | a b c ... | b a ...``. The extension is periodic with period ``2 (n - 1)``,
-      so it is defined arbitrarily far outside; an axis of length 1 is constant
-      (:mod:`gpu_blur.reference.sampling`).
+    * Boundary rule of kernels and interpolated frames: mirror **without** repeating the edge
+      pixel, i.e. numpy's ``pad(mode="reflect")``, OpenCV's ``BORDER_REFLECT_101`` and scipy's
+      ``"mirror"``: ``... c b | a b c ... | b a ...``. The extension is periodic with period
+      ``2 (n - 1)``, so it is defined arbitrarily far outside; an axis of length 1 is constant
+      (:mod:`gpu_blur.reference.sampling`). Camera shake, whose path can leave the photo by
+      many pixels, reads only the photo instead (:func:`~gpu_blur.reference.shake.shake_blur`,
+      "Edges"): a mirror would show reflected copies of the content near the edges.
     * Randomness arrives as 1-D arrays of uniforms in the open interval (0, 1), drawn by the
       caller; ``KERNEL_UNIFORMS`` and ``SHAKE_UNIFORMS`` say how many each function consumes,
       always exactly that many, whatever the draws turn out to be.

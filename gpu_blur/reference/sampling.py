@@ -1,6 +1,7 @@
 """Shared by the blur kinds: argument checks, the reflect-101 border and bilinear sampling.
 
-The border rule is that of every blur kind (:mod:`gpu_blur.reference.blur`, "Conventions").
+The border rule is that of kernels and interpolated frames (:mod:`gpu_blur.reference.blur`,
+"Conventions"); camera shake reads only the photo (:func:`gpu_blur.reference.shake.shake_blur`).
 """
 
 from __future__ import annotations

@@ -252,12 +252,11 @@ def _check_in_front(homographies: np.ndarray, height: int, width: int) -> None:
             )
 
 
-def _warp_stack(stack: np.ndarray, homography: np.ndarray) -> np.ndarray:
-    """Warp an ``H x W x C`` float64 stack by a validated 3 x 3 homography (see warp_homography)."""
-    h, w, c = stack.shape
+def _positions(homography: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where each output pixel samples: ``H^-1 (x, y, 1)`` dehomogenised, ``(px, py)``."""
     inv = np.linalg.inv(homography)
-    xs = np.arange(w, dtype=np.float64)[None, :]
-    ys = np.arange(h, dtype=np.float64)[:, None]
+    xs = np.arange(width, dtype=np.float64)[None, :]
+    ys = np.arange(height, dtype=np.float64)[:, None]
     den = inv[2, 0] * xs + inv[2, 1] * ys + inv[2, 2]
     if not (den > 0).all():
         raise ValueError("homography maps part of the image through infinity (w <= 0)")
@@ -267,8 +266,59 @@ def _warp_stack(stack: np.ndarray, homography: np.ndarray) -> np.ndarray:
         raise ValueError("homography maps pixels to non-finite positions")
     if max(np.abs(px).max(), np.abs(py).max()) >= 2.0**52:
         raise ValueError("homography maps pixels too far outside the image to mirror exactly")
+    return px, py
+
+
+def _warp_stack(stack: np.ndarray, homography: np.ndarray) -> np.ndarray:
+    """Warp an ``H x W x C`` float64 stack by a validated 3 x 3 homography (see warp_homography)."""
+    h, w, c = stack.shape
+    px, py = _positions(homography, h, w)
     out = bilinear_sample(stack.reshape(h * w, c), h, w, px, py)
     return out.reshape(h, w, c)
+
+
+def _inside_share(first: np.ndarray, frac: np.ndarray, n: int) -> np.ndarray:
+    """The weight of the taps ``first``, ``first + 1`` (``1 - frac``, ``frac``) inside ``[0, n)``.
+
+    Exactly 1 when both are inside: a sample that reads only the image keeps its weight.
+    """
+    in0 = (first >= 0) & (first < n)
+    in1 = (first >= -1) & (first < n - 1)
+    return np.where(in0 & in1, 1.0, np.where(in1, frac, np.where(in0, 1.0 - frac, 0.0)))
+
+
+def _warp_inside(stack: np.ndarray, homography: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Warp a stack reading only pixels inside the image: ``(values, weights)``.
+
+    ``values`` is the bilinear sample of the image extended by zeros, interpolated as
+    :func:`~gpu_blur.reference.sampling.bilinear_sample` does (``a + f (b - a)`` along x, then
+    y), and ``weights`` (``H x W x 1``) the share of the sample's bilinear weight that falls
+    on pixels of the image: the bilinear sample of a certainty that is 1 inside, 0 outside.
+    A sample whose four taps are inside gives the bilinear sample itself and weight exactly 1.
+    """
+    h, w, c = stack.shape
+    px, py = _positions(homography, h, w)
+    x0, y0 = np.floor(px), np.floor(py)
+    fx, fy = px - x0, py - y0
+    xi, yi = x0.astype(np.intp), y0.astype(np.intp)
+    flat = stack.reshape(h * w, c)
+
+    def taps(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+        index = np.clip(rows, 0, h - 1) * w + np.clip(cols, 0, w - 1)
+        return np.take(flat, index, axis=0) * inside[..., None]
+
+    def lerp(a: np.ndarray, b: np.ndarray, f: np.ndarray) -> np.ndarray:
+        b -= a
+        b *= f[..., None]
+        a += b
+        return a
+
+    top = lerp(taps(yi, xi), taps(yi, xi + 1), fx)
+    bottom = lerp(taps(yi + 1, xi), taps(yi + 1, xi + 1), fx)
+    values = lerp(top, bottom, fy)
+    weights = _inside_share(xi, fx, w) * _inside_share(yi, fy, h)
+    return values, weights[..., None]
 
 
 def _as_homography(homography) -> np.ndarray:
@@ -317,13 +367,25 @@ def shake_blur(image, homographies) -> tuple[np.ndarray, np.ndarray]:
     """Spatially varying blur: the mean of the sharp image warped along a camera path.
 
     ``blurred = mean_t warp(image, H_t)`` and ``mask = mean_t warp([image >= 1], H_t)``, with
-    :func:`warp_homography` (bilinear, reflect-101). The mask is the same spatially varying
-    blur applied to the sharp image's saturation indicator, i.e. the indicator convolved with
-    each pixel's local kernel, just as the kernel case blurs ``[I >= 1]`` with ``K``; it is not
-    the fraction of saturated warped frames (which :class:`FrameAccumulator` would give and
-    which bilinear resampling would make depend on interpolated values). The image and the
-    indicator are warped together as one ``2C``-channel stack, summed in float64 one step at a
-    time (no warped frame is kept; relative error ``<= (steps - 1) * 2**-53``).
+    bilinear inverse mapping as in :func:`warp_homography`. The mask is the same spatially
+    varying blur applied to the sharp image's saturation indicator, i.e. the indicator
+    convolved with each pixel's local kernel, just as the kernel case blurs ``[I >= 1]`` with
+    ``K``; it is not the fraction of saturated warped frames (which :class:`FrameAccumulator`
+    would give and which bilinear resampling would make depend on interpolated values). The
+    image and the indicator are warped together as one ``2C``-channel stack, summed in float64
+    one step at a time (no warped frame is kept; relative error ``<= (steps - 1) * 2**-53``).
+
+    Edges: where a pixel's path leaves the photo, the camera saw content the photo does not
+    hold, so nothing is made up for it (a mirrored border would show a reflected copy of the
+    content near the edge). Each pixel averages what the photo holds along its path: the sum
+    of its samples of the image extended by zeros over the sum of their weights on the image
+    (each sample's bilinear weight that falls on pixels of the photo, 1 for a sample inside).
+    This is normalized convolution (Knutsson and Westin, "Normalized and differential
+    convolution", CVPR 1993) with a certainty of 1 on the photo and 0 outside. Blur near an
+    edge is thus the part of the path inside the photo, and a pixel whose samples all lie
+    inside gets the plain mean, exactly. A pixel with no weight on the photo at any pose gets
+    0: that needs an even ``steps`` (no identity pose) too few for the path, never the odd
+    automatic choice (:func:`auto_shake_steps`), whose middle pose is the identity.
 
     Args:
         image: sharp linear image, ``H x W x C`` (or ``H x W``), finite.
@@ -343,9 +405,13 @@ def shake_blur(image, homographies) -> tuple[np.ndarray, np.ndarray]:
     c = stack.shape[2]
     both = np.concatenate([stack, saturation_indicator(stack)], axis=2)
     total = np.zeros_like(both)
+    weight = np.zeros(both.shape[:2] + (1,))
     for m in hom:
-        total += _warp_stack(both, _as_homography(m))
-    total /= hom.shape[0]
+        values, weights = _warp_inside(both, _as_homography(m))
+        total += values
+        weight += weights
+    seen = np.broadcast_to(weight > 0.0, total.shape)
+    total = np.divide(total, weight, out=np.zeros_like(total), where=seen)
     return (
         np.ascontiguousarray(total[:, :, :c]).reshape(img.shape),
         np.ascontiguousarray(total[:, :, c:]).reshape(img.shape),
@@ -359,7 +425,7 @@ def shake_halo(homographies, height: int, width: int) -> int:
     ``p`` covering the image at most 8 pixels apart, edges and corners included, rounded up,
     plus 1 for the bilinear neighbour and 1 for the curvature between grid points (the maps
     are within a hair of affine for the accepted shakes, and an affine displacement peaks at
-    a corner). As for kernels, the halo must come from the full image's mirrored extension.
+    a corner). The blur reads only pixels of the full image (:func:`shake_blur`, "Edges").
 
     Args:
         homographies: ``(steps, 3, 3)``.

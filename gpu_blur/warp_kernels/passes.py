@@ -165,13 +165,42 @@ def accumulate_kernels(real, source=None) -> dict:
         dst[o + 1] = acc1
         dst[o + 2] = acc2
 
+    @wp.func
+    def tap(v: wp.array(dtype=real), o: int, c: int) -> real:
+        # channel c of the pixel at view offset o, 0 for o < 0 (a tap outside the full image)
+        if o < 0:
+            return real(0.0)
+        return v[3 * o + c]
+
+    @wp.func
+    def inside_share(first: int, f: real, n: int) -> real:
+        # the share of taps first, first + 1 (weights 1 - f, f) inside [0, n): 1 when both are
+        in0 = first >= 0 and first < n
+        in1 = first >= -1 and first < n - 1
+        if in0 and in1:
+            return real(1.0)
+        if in1:
+            return f
+        if in0:
+            return real(1.0) - f
+        return real(0.0)
+
+    @wp.func
+    def offset(inside: bool, gx: int, gy: int, sx0: int, sy0: int, sw: int) -> int:
+        # a tap's pixel offset in the view, -1 outside the full image
+        if inside:
+            return (gy - sy0) * sw + (gx - sx0)
+        return -1
+
     @wp.kernel(module="unique")
     def blur_trajectory_add(src: wp.array(dtype=real), ind: wp.array(dtype=real), sx0: int,
                             sy0: int, sw: int, full_w: int, full_h: int,
                             hinv: wp.array(dtype=wp.float64), total: wp.array(dtype=real),
                             total_comp: wp.array(dtype=real), total_ind: wp.array(dtype=real),
-                            total_ind_comp: wp.array(dtype=real), dx0: int, dy0: int, dw: int):
-        # bilinear sample at H^-1 (gx, gy, 1), positions in float64, reflect-101 neighbours
+                            total_ind_comp: wp.array(dtype=real), weight: wp.array(dtype=real),
+                            weight_comp: wp.array(dtype=real), dx0: int, dy0: int, dw: int):
+        # bilinear sample at H^-1 (gx, gy, 1), positions in float64, of the image extended by
+        # zeros, and the share of its weight on the image (reference.shake.shake_blur, "Edges")
         y, x = wp.tid()
         gx = wp.float64(dx0 + x)
         gy = wp.float64(dy0 + y)
@@ -184,35 +213,48 @@ def accumulate_kernels(real, source=None) -> dict:
         fy = real(py - fy0)
         xi = int(fx0)
         yi = int(fy0)
-        c0 = pixel.reflect101(xi, full_w) - sx0
-        c1 = pixel.reflect101(xi + 1, full_w) - sx0
-        r0 = (pixel.reflect101(yi, full_h) - sy0) * sw
-        r1 = (pixel.reflect101(yi + 1, full_h) - sy0) * sw
-        o = 3 * (y * dw + x)
+        in_c0 = xi >= 0 and xi < full_w
+        in_c1 = xi >= -1 and xi < full_w - 1
+        in_r0 = yi >= 0 and yi < full_h
+        in_r1 = yi >= -1 and yi < full_h - 1
+        o00 = offset(in_r0 and in_c0, xi, yi, sx0, sy0, sw)
+        o01 = offset(in_r0 and in_c1, xi + 1, yi, sx0, sy0, sw)
+        o10 = offset(in_r1 and in_c0, xi, yi + 1, sx0, sy0, sw)
+        o11 = offset(in_r1 and in_c1, xi + 1, yi + 1, sx0, sy0, sw)
+        p = y * dw + x
+        o = 3 * p
         for c in range(3):
-            a = src[3 * (r0 + c0) + c]
-            b = src[3 * (r0 + c1) + c]
+            a = tap(src, o00, c)
+            b = tap(src, o01, c)
             top = a + (b - a) * fx
-            a = src[3 * (r1 + c0) + c]
-            b = src[3 * (r1 + c1) + c]
+            a = tap(src, o10, c)
+            b = tap(src, o11, c)
             bottom = a + (b - a) * fx
             add_compensated(total, total_comp, o + c, top + (bottom - top) * fy)
-            a = ind[3 * (r0 + c0) + c]
-            b = ind[3 * (r0 + c1) + c]
+            a = tap(ind, o00, c)
+            b = tap(ind, o01, c)
             top = a + (b - a) * fx
-            a = ind[3 * (r1 + c0) + c]
-            b = ind[3 * (r1 + c1) + c]
+            a = tap(ind, o10, c)
+            b = tap(ind, o11, c)
             bottom = a + (b - a) * fx
             add_compensated(total_ind, total_ind_comp, o + c, top + (bottom - top) * fy)
+        add_compensated(weight, weight_comp, p,
+                        inside_share(xi, fx, full_w) * inside_share(yi, fy, full_h))
 
     @wp.kernel(module="unique")
     def blur_trajectory_finish(total: wp.array(dtype=real), total_comp: wp.array(dtype=real),
                                total_ind: wp.array(dtype=real),
-                               total_ind_comp: wp.array(dtype=real), count: int,
+                               total_ind_comp: wp.array(dtype=real),
+                               weight: wp.array(dtype=real), weight_comp: wp.array(dtype=real),
                                linear: wp.array(dtype=real), mask: wp.array(dtype=real)):
+        # the sums over the poses divided by the pixel's total weight; 0 where it is 0
         i = wp.tid()
-        linear[i] = (total[i] + total_comp[i]) / real(count)
-        mask[i] = (total_ind[i] + total_ind_comp[i]) / real(count)
+        w = weight[i // 3] + weight_comp[i // 3]
+        linear[i] = real(0.0)
+        mask[i] = real(0.0)
+        if w > real(0.0):
+            linear[i] = (total[i] + total_comp[i]) / w
+            mask[i] = (total_ind[i] + total_ind_comp[i]) / w
 
     return {
         "linearize": linearize, "unit_values": unit_values,

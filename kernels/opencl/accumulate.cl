@@ -105,16 +105,34 @@ __kernel void gb_blur_kernel(__global const real *src, long sx0, long sy0, long 
     dst[o + 2] = acc2;
 }
 
+/* Channel c of the pixel at offset o of a view (gb_offset), 0 for o < 0: a tap outside the full
+ * image, which the trajectory blur reads as nothing. */
+static inline real gb_tap(__global const real *v, long o, int c)
+{
+    return o < 0 ? GB_REAL(0.0) : v[3 * o + c];
+}
+
+/* The share of the bilinear taps first and first + 1 (weights 1 - f and f) inside [0, n):
+ * exactly 1 when both are. */
+static inline real gb_inside_share(long first, real f, long n)
+{
+    int in0 = first >= 0 && first < n, in1 = first >= -1 && first < n - 1;
+    return in0 && in1 ? GB_REAL(1.0) : in1 ? f : in0 ? GB_REAL(1.0) - f : GB_REAL(0.0);
+}
+
 /* blur, variant trajectory: add the linear image and its indicator warped by one pose to their
- * compensated sums. Output pixel (gx, gy) samples src bilinearly at H^-1 (gx, gy, 1) (hinv
- * row-major), with reflect-101 neighbours, as gpu_blur.reference.shake.warp_homography.
- * Positions are computed in double where the device has it. src and ind are views holding every
- * pixel the region's inverse mapping reads. */
+ * compensated sums, and the pose's weight to the weight's. Output pixel (gx, gy) samples src
+ * bilinearly at H^-1 (gx, gy, 1) (hinv row-major), the image extended by zeros: taps outside
+ * the full image read nothing, and the weight is the share of the bilinear weight on the image
+ * (1 when every tap is inside), as gpu_blur.reference.shake.shake_blur ("Edges"). Positions are
+ * computed in double where the device has it. src and ind are views holding every pixel of
+ * the image the region's inverse mapping reads. The weights are one value per pixel. */
 __kernel void gb_blur_trajectory_add(__global const real *src, __global const real *ind,
                                      long sx0, long sy0, long sw, long full_w, long full_h,
                                      __constant gb_pos *hinv, __global real *sum,
                                      __global real *sum_comp, __global real *sum_ind,
-                                     __global real *sum_ind_comp, long dx0, long dy0, long dw,
+                                     __global real *sum_ind_comp, __global real *weight,
+                                     __global real *weight_comp, long dx0, long dy0, long dw,
                                      long dh)
 {
     long x = get_global_id(0), y = get_global_id(1);
@@ -126,28 +144,43 @@ __kernel void gb_blur_trajectory_add(__global const real *src, __global const re
     gb_pos fx0 = floor(px), fy0 = floor(py);
     real fx = (real)(px - fx0), fy = (real)(py - fy0);
     long xi = (long)fx0, yi = (long)fy0;
-    long c0 = gb_reflect101(xi, full_w), c1 = gb_reflect101(xi + 1, full_w);
-    long r0 = gb_reflect101(yi, full_h), r1 = gb_reflect101(yi + 1, full_h);
-    long o00 = 3 * gb_offset(c0, r0, sx0, sy0, sw), o01 = 3 * gb_offset(c1, r0, sx0, sy0, sw);
-    long o10 = 3 * gb_offset(c0, r1, sx0, sy0, sw), o11 = 3 * gb_offset(c1, r1, sx0, sy0, sw);
-    long o = 3 * (y * dw + x);
+    int in_c0 = xi >= 0 && xi < full_w, in_c1 = xi >= -1 && xi < full_w - 1;
+    int in_r0 = yi >= 0 && yi < full_h, in_r1 = yi >= -1 && yi < full_h - 1;
+    long o00 = in_r0 && in_c0 ? gb_offset(xi, yi, sx0, sy0, sw) : -1;
+    long o01 = in_r0 && in_c1 ? gb_offset(xi + 1, yi, sx0, sy0, sw) : -1;
+    long o10 = in_r1 && in_c0 ? gb_offset(xi, yi + 1, sx0, sy0, sw) : -1;
+    long o11 = in_r1 && in_c1 ? gb_offset(xi + 1, yi + 1, sx0, sy0, sw) : -1;
+    long p = y * dw + x, o = 3 * p;
     for (int c = 0; c < 3; ++c) {
-        real top = src[o00 + c] + (src[o01 + c] - src[o00 + c]) * fx;
-        real bottom = src[o10 + c] + (src[o11 + c] - src[o10 + c]) * fx;
+        real a = gb_tap(src, o00, c), b = gb_tap(src, o01, c);
+        real top = a + (b - a) * fx;
+        a = gb_tap(src, o10, c);
+        b = gb_tap(src, o11, c);
+        real bottom = a + (b - a) * fx;
         gb_add_compensated(sum, sum_comp, o + c, top + (bottom - top) * fy);
-        real itop = ind[o00 + c] + (ind[o01 + c] - ind[o00 + c]) * fx;
-        real ibottom = ind[o10 + c] + (ind[o11 + c] - ind[o10 + c]) * fx;
-        gb_add_compensated(sum_ind, sum_ind_comp, o + c, itop + (ibottom - itop) * fy);
+        a = gb_tap(ind, o00, c);
+        b = gb_tap(ind, o01, c);
+        top = a + (b - a) * fx;
+        a = gb_tap(ind, o10, c);
+        b = gb_tap(ind, o11, c);
+        bottom = a + (b - a) * fx;
+        gb_add_compensated(sum_ind, sum_ind_comp, o + c, top + (bottom - top) * fy);
     }
+    gb_add_compensated(weight, weight_comp, p,
+                       gb_inside_share(xi, fx, full_w) * gb_inside_share(yi, fy, full_h));
 }
 
-/* blur, variant trajectory: the means over the poses (compensated totals over the count). */
+/* blur, variant trajectory: the sums over the poses divided by the pixel's total weight (the
+ * pose count where every tap was inside); 0 where the weight is 0. */
 __kernel void gb_blur_trajectory_finish(__global const real *sum, __global const real *sum_comp,
                                         __global const real *sum_ind,
-                                        __global const real *sum_ind_comp, uint count,
+                                        __global const real *sum_ind_comp,
+                                        __global const real *weight,
+                                        __global const real *weight_comp,
                                         __global real *linear, __global real *mask)
 {
     size_t i = get_global_id(0);
-    linear[i] = (sum[i] + sum_comp[i]) / (real)count;
-    mask[i] = (sum_ind[i] + sum_ind_comp[i]) / (real)count;
+    real w = weight[i / 3] + weight_comp[i / 3];
+    linear[i] = w > GB_REAL(0.0) ? (sum[i] + sum_comp[i]) / w : GB_REAL(0.0);
+    mask[i] = w > GB_REAL(0.0) ? (sum_ind[i] + sum_ind_comp[i]) / w : GB_REAL(0.0);
 }

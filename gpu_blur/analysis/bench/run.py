@@ -235,8 +235,11 @@ def add_arguments(p: argparse.ArgumentParser, default_output: Path = Path(".")) 
     p.add_argument("--tag", help="file name tag (default: cpu, or the first GPU's name)")
 
 
-def run_from_args(args: argparse.Namespace) -> int:
-    """Run ``gpu-blur bench`` with parsed options; returns the exit status."""
+def run_from_args(args: argparse.Namespace, progress: bool = True) -> int:
+    """Run ``gpu-blur bench`` with parsed options; returns the exit status.
+
+    ``progress``: show the progress bar on stderr.
+    """
     knobs = select_knobs(args.knobs) if args.knobs is not None else None
     tag = args.tag or device_tag(choose_backends(args.backends))
     saved = report_paths(args.output, tag)[0]
@@ -252,7 +255,7 @@ def run_from_args(args: argparse.Namespace) -> int:
                                    args.runs, knobs=knobs,
                                    log=lambda line: print(line, flush=True),
                                    reference_runs=args.reference_runs, save_to=saved,
-                                   progress=True)
+                                   progress=progress)
         except KeyboardInterrupt:
             print(f"bench: interrupted; the rows measured so far are in {saved}: run the same "
                   "command to go on", file=sys.stderr)
