@@ -290,7 +290,8 @@ class Footprint:
             "average": average,
             "none": 3 * view * (b + 3 * s),
             "kernel": 3 * (source * b + 2 * source * s + 2 * view * s),
-            "trajectory": 3 * (source * b + 2 * source * s + 6 * view * s),
+            # + the weight each output pixel's poses give the image, and its compensation
+            "trajectory": 3 * (source * b + 2 * source * s + 6 * view * s) + 2 * view * s,
         }[self.mode] + self.blur_constants
         return {"accumulate": accumulate, "to_raw": 10 * view * s + 9 * s,
                 "finish": (10 * view + 3 * rows * cols + _FINISH_CONSTANTS) * s}

@@ -69,11 +69,13 @@ def test_the_budget_formula_counts_halos_precision_and_streamed_frames():
     f = footprint()
     # to_raw of a 100 x 100 tile: view (100 + 2 * 2 + 2)^2 pixels, 10 values each
     assert f.pass_bytes(100, 100)["to_raw"] == 10 * 106 * 106 * 4 + 9 * 4
-    # accumulate (trajectory): 3 (S b + 2 S s + 6 V s), S the view grown by the blur halo; a
-    # float frame uploads in the compute type (b = s), an 8-bit one in its codes (b = 1)
-    assert f.pass_bytes(100, 100)["accumulate"] == 3 * 4 * (3 * 126 * 126 + 6 * 106 * 106)
+    # accumulate (trajectory): 3 (S b + 2 S s + 6 V s) + 2 V s, S the view grown by the blur
+    # halo, 2 V s the poses' weight sums; a float frame uploads in the compute type (b = s),
+    # an 8-bit one in its codes (b = 1)
+    assert f.pass_bytes(100, 100)["accumulate"] == 3 * 4 * (3 * 126 * 126 + 6 * 106 * 106) + (
+        2 * 106 * 106 * 4)
     assert footprint(source_itemsize=1).pass_bytes(100, 100)["accumulate"] == 3 * (
-        126 * 126 + 2 * 126 * 126 * 4 + 6 * 106 * 106 * 4)
+        126 * 126 + 2 * 126 * 126 * 4 + 6 * 106 * 106 * 4) + 2 * 106 * 106 * 4
     assert footprint(blur_halo=30).tile_bytes(100, 100) > f.tile_bytes(100, 100)
     assert footprint(itemsize=8).tile_bytes(100, 100) == pytest.approx(
         2 * f.tile_bytes(100, 100), rel=0.01)
