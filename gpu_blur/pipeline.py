@@ -254,6 +254,7 @@ class Synthesizer:
         self.seed, self.overrides = seed, overrides
         self.schedule = schedule or Schedule()
         self.channels_first, self.with_mask = channels_first, with_mask
+        self._plans: dict = {}
         self.resident = (isinstance(self.runner, KernelBackend)
                          and self.schedule == Schedule()
                          and interpolation_factor(plan(self.scene)) == 1)
@@ -275,8 +276,8 @@ class Synthesizer:
         crop = scene.output.crop
         if on_device:
             out = self.runner.device_array(blurred)
-        elif isinstance(blurred, OnDevice):
-            out = self._host(blurred, _inner(blurred.shape, crop))
+        elif isinstance(blurred, OnDevice):  # cropped by its finish pass
+            out = self._host(blurred, _inner(blurred.shape, 0))
         else:
             out = crop_border(blurred, crop)
         if isinstance(sharp, OnDevice):
@@ -339,7 +340,7 @@ class Synthesizer:
                     for slot, values in zip(out, results, strict=False):
                         slot[b] = values
                     continue
-                results = [(blurred, _inner(blurred.shape, crop)),
+                results = [(blurred, _inner(blurred.shape, 0)),  # cropped by its finish
                            (sharp_out, _inner(sharp_out.shape, 0))]
                 if self.with_mask:
                     results.append((sat_mask, _inner(sat_mask.shape, crop)))
@@ -474,10 +475,13 @@ class Synthesizer:
         if not self.resident:
             return [self._checked_on_host(item) for item in items]
         put = [self._put(item) for item in items]
+        clip_test = self.scene.saturation.mode == "auto"
         images = []  # (sample, which, image): each input once (a default sharp is a frame)
         for i, (item, p) in enumerate(zip(items, put, strict=True)):
+            # float values are checked; 8/16-bit codes only looked at for the clip test
             images += [(i, key, getattr(p, key)) for key in ("frames", "mask", "sharp")
-                       if getattr(item, key) is not None]
+                       if getattr(item, key) is not None and (
+                           getattr(p, key).dtype is None or (clip_test and key != "sharp"))]
         with timer("checks"):
             counts = self.runner.inspect([image for _, _, image in images])
         for (i, key, image), row in zip(images, counts, strict=True):
@@ -539,7 +543,10 @@ class Synthesizer:
         frames = item.frames
         h, w = (frames.shape[-3:-1] if isinstance(frames, OnDevice)
                 else frames[0].shape[:2])
-        sample_plan = plan(scene, saturated=item.saturated, size=(h, w))
+        key = (item.saturated, h, w)
+        if key not in self._plans:  # a plan depends on the scene, the clip test and the size
+            self._plans[key] = plan(scene, saturated=item.saturated, size=(h, w))
+        sample_plan = self._plans[key]
         # Every draw has a fixed index (gpu_blur.params), so a stage the sample skips (auto
         # saturation) never shifts another draw.
         overrides = self.overrides
@@ -549,10 +556,10 @@ class Synthesizer:
         params = draw_params(scene, sample_plan, self.camera, seed=self.seed,
                              sample_index=sample_index, image_shape=(h, w), overrides=overrides)
         # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
+        crop = scene.output.crop
         tiled = run(self.runner, sample_plan, params, self.camera, frames, item.mask,
                     self.schedule, seed=self.seed, sample_index=sample_index,
-                    on_device=on_device)
-        crop = scene.output.crop
+                    on_device=on_device, crop=crop if on_device else 0)
         if isinstance(item.sharp, OnDevice):
             sharp = self.runner.render_sharp(sample_plan, self.camera, item.sharp,
                                              _inner((h, w), crop))

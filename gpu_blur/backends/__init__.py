@@ -81,6 +81,39 @@ def to_host(values, dtype=np.float64) -> np.ndarray:
     return np.asarray(values, dtype=dtype)
 
 
+#: Values below which :func:`copy_values` copies in one piece (threads cost more than they
+#: gain on small arrays).
+PARALLEL_COPY_VALUES = 1 << 20
+
+
+@functools.cache
+def _copy_threads():
+    """(a thread pool, its size) for :func:`copy_values`: up to 8 of the host's cores."""
+    import concurrent.futures
+    import os
+
+    workers = min(8, os.cpu_count() or 1)
+    return concurrent.futures.ThreadPoolExecutor(workers, "gpu_blur-copy"), workers
+
+
+def copy_values(into: np.ndarray, values: np.ndarray) -> None:
+    """``into[...] = values``: same size, any shapes, converted to ``into``'s dtype.
+
+    Large copies go in slices on up to 8 threads: numpy copies without holding the GIL, so a
+    copy to or from pinned staging memory runs at several cores' memory bandwidth.
+    """
+    dst, src = into.reshape(-1), np.ascontiguousarray(values).reshape(-1)
+    pool, workers = _copy_threads()
+    if dst.size < PARALLEL_COPY_VALUES or workers == 1:
+        np.copyto(dst, src, casting="same_kind")
+        return
+    edges = np.linspace(0, dst.size, workers + 1).astype(int)
+    parts = [pool.submit(np.copyto, dst[a:b], src[a:b], casting="same_kind")
+             for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    for part in parts:
+        part.result()
+
+
 def fill_stack(host: np.ndarray, frames, indices: range, region) -> None:
     """Write ``region`` of frames ``indices`` one after another into the flat array ``host``.
 

@@ -26,7 +26,7 @@ import numpy as np
 import warp as wp
 
 from gpu_blur import notices
-from gpu_blur.backends import OnDevice, fill_stack
+from gpu_blur.backends import OnDevice, copy_values, fill_stack
 from gpu_blur.backends.kernel import (
     Arg,
     KernelBackend,
@@ -143,6 +143,7 @@ class WarpBackend(KernelBackend):
         self._staging: dict = {}  # slot -> pinned host buffer (kept across samples)
         self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
         self._prefetch_turn = 0
+        self._put_turn = 0  # which of the two pinned input buffers put() fills next
         self._prefetch_stacks: dict = {}  # slot -> device stack of prefetched frames
         self._prefetch_read: dict = {}  # slot -> event: the accumulate that read it
 
@@ -344,7 +345,9 @@ class WarpBackend(KernelBackend):
         overlapping.
         """
         if not isinstance(image, wp.array):
-            return super().put(image)
+            if not self.overlap:
+                return super().put(image)
+            return self._put_through_staging(np.asarray(image))
         if not image.is_contiguous:
             raise ValueError(f"a wp.array input must be contiguous; got strides {image.strides} "
                              f"for shape {image.shape}: pass a contiguous copy")
@@ -364,6 +367,27 @@ class WarpBackend(KernelBackend):
             flat = on_device
         return OnDevice(flat, image.shape, self._fetch,
                         None if dtype == np.dtype(self.np_real) else dtype)
+
+    def _put_through_staging(self, image: np.ndarray) -> OnDevice:
+        """A host input to CUDA: copied by threads into a pinned buffer, then on the copy stream.
+
+        Two pinned buffers take turns, so filling one overlaps the other's upload; the compute
+        stream waits for the upload before any launch reads the input.
+        """
+        dtype = source_dtype(image, self.np_real)
+        count = image.size
+        self._check_size(count)
+        slot = ("put", self._put_turn)
+        self._put_turn ^= 1
+        with timer("copies"):
+            staging = self._staging_buffer(slot, count, self._wp_dtype(dtype))
+            copy_values(staging.numpy()[:count], image)
+            data = self._empty(count, dtype)
+            wp.copy(data, staging, count=count, stream=self._copier)
+            self._staged[slot] = self._copier.record_event()
+            wp.get_stream(self.wp_device).wait_event(self._staged[slot])
+        stored = None if dtype == np.dtype(self.np_real) else dtype
+        return OnDevice(data, image.shape, self._fetch, stored)
 
     def accumulate(self, plan: Plan, params: dict, frames, mask, region: Region
                    ) -> tuple[OnDevice, OnDevice]:
@@ -395,8 +419,19 @@ class WarpBackend(KernelBackend):
         ``into``: a host array, or a ``wp.array`` of the compute type on this device (one
         strided copy, no trip through the host).
         """
-        if not isinstance(into, wp.array):
-            return super().export(values, region, into)
         whole = values.data.reshape(values.shape)
-        with timer("copies"):
-            wp.copy(into, whole[region.y0:region.y0 + region.h, region.x0:region.x0 + region.w])
+        part = whole[region.y0:region.y0 + region.h, region.x0:region.x0 + region.w]
+        if isinstance(into, wp.array):
+            with timer("copies"):
+                wp.copy(into, part)
+            return None
+        if not self.overlap:
+            return super().export(values, region, into)
+        with timer("copies"):  # through a pinned buffer, copied out by threads
+            if not part.is_contiguous:
+                part = wp.clone(part)
+            staging = self._staging_buffer("export", part.size, self.real)
+            wp.copy(staging, part.flatten(), count=part.size)
+            self._synchronize()
+            copy_values(into, staging.numpy()[:part.size])
+        return None
