@@ -90,6 +90,11 @@ def _parser() -> argparse.ArgumentParser:
                    "(lost worker or node) is run again before the run stops (default 3)")
     g.add_argument("--ray-batch", type=int, metavar="K", help="with --ray: samples per task "
                    "(default 1; 32 on GPUs, where each task starts a fresh process)")
+    g.add_argument("--io-threads", type=int, metavar="N", help="threads that decode the next "
+                   "samples' inputs and encode and write finished ones while the device "
+                   "synthesizes (default: the host's cores, at most 32; 1: one thread does "
+                   "each step in turn); memory: at most 2 x N samples wait decoded and 2 x N "
+                   "wait to be written; same files either way; not with --devices or --ray")
     g.add_argument("--tile", type=int, nargs=2, metavar=("ROWS", "COLS"),
                    help="run each image in tiles of at most ROWS x COLS (bounds device memory; "
                    "the output does not change)")
@@ -299,6 +304,11 @@ def _check_setup(args, scene) -> None:
                          "where generate writes and removes the set's files; give an --output "
                          "outside the input (one inside it is fine: it is left out of the "
                          "input)")
+    if args.io_threads is not None and args.io_threads < 1:
+        raise ValueError(f"--io-threads {args.io_threads}: must be >= 1 (1: no I/O threads)")
+    if args.io_threads is not None and (args.devices or args.ray):
+        raise ValueError("--io-threads applies to a run on one device; --devices and --ray "
+                         "workers read their own inputs: leave it out")
     if not 0.0 <= args.verify <= 1.0:
         raise ValueError(f"--verify {args.verify}: the fraction of tiles to check, 0 to 1")
     if args.strict and not args.verify:
@@ -336,16 +346,32 @@ def _scene_files(scene) -> dict[str, Path]:
             for key, path in named.items()}
 
 
+def _cannot_write(output: Path, spec, error: OSError) -> OSError:
+    """The error that stops a run which cannot write a sample: the sample and the way out."""
+    return OSError(f"--output {output}: cannot write sample {spec.index} ({spec.name}): "
+                   f"{error}; the samples finished so far are kept: free space or fix the "
+                   "folder, then run the same command with --resume")
+
+
 def _generate(args) -> int:
+    from concurrent.futures import ThreadPoolExecutor
+
     from tqdm import tqdm
 
     from gpu_blur.backends import get_backend
     from gpu_blur.dataset import BUILT_IN_INPUT, DatasetWriter, find_samples, library_versions
     from gpu_blur.distributed import pick_executor
-    from gpu_blur.generate import Job
+    from gpu_blur.generate import (
+        QUEUE_PER_THREAD,
+        Job,
+        WriteBehind,
+        default_io_threads,
+        run_pipelined,
+        run_serial,
+    )
     from gpu_blur.scene import load_scene
     from gpu_blur.scheduler import SPOT_CHECK_FAILED, Schedule
-    from gpu_blur.timings import RunTotals, current, timer
+    from gpu_blur.timings import PoolTimes, RunTotals, current, timer
 
     scene = load_scene(args.scene)
     backend = get_backend(args.backend, scene.output.precision)  # fails before any work
@@ -380,40 +406,67 @@ def _generate(args) -> int:
     record = {"seed": args.seed, "backend": args.backend, "device": backend.device, **how}
     failed, made = [], 0
     totals, writing = RunTotals(), current().seconds["writing"]
+    threads = args.io_threads or (default_io_threads() if executor is run_serial else 1)
+    io = PoolTimes(threads) if threads > 1 else None  # else one thread does every step
+
+    def save(spec, result) -> dict:  # a made sample's files, in an I/O thread if there are
+        try:  # the device of the worker that made it
+            return writer.save(spec, result, {**record,
+                                              "device": result.device or record["device"]})
+        except OSError as e:
+            raise _cannot_write(args.output, spec, e) from None
+
+    def finish(spec, error, line) -> None:  # each sample once written, in order
+        nonlocal made
+        try:
+            if error is not None:  # this sample's input: record it, go on
+                checked = {"spot_check": "failed"} if error.startswith(
+                    SPOT_CHECK_FAILED) else {}
+                failed.append(writer.fail(spec, error, record | checked))
+            else:
+                writer.add(line)
+                made += 1
+        except OSError as e:  # a full disk, a folder gone
+            raise _cannot_write(args.output, spec, e) from None
+        testhooks.sleep_after(spec.index)
+
+    pool = ThreadPoolExecutor(threads, thread_name_prefix="gpu-blur-io") if io else None
+    behind = WriteBehind(save, pool, QUEUE_PER_THREAD * threads, io)
     start = time.perf_counter()
     try:
         job = Job(scene, args.seed, args.backend, schedule)
-        samples = executor(job, todo)
+        samples = (run_pipelined(job, todo, pool, io, QUEUE_PER_THREAD * threads) if io
+                   else executor(job, todo))
         for spec, result, error in tqdm(samples, total=len(todo), desc="samples",
                                         unit="sample", disable=args.quiet):
-            try:
-                if error is not None:  # this sample's input: record it, go on
-                    checked = {"spot_check": "failed"} if error.startswith(
-                        SPOT_CHECK_FAILED) else {}
-                    failed.append(writer.fail(spec, error, record | checked))
-                else:
-                    with timer("writing"):  # the device of the worker that made it
-                        writer.write(spec, result, {**record,
-                                                    "device": result.device or record["device"]})
-            except OSError as e:  # a full disk, a folder gone
-                raise OSError(f"--output {args.output}: cannot write sample {spec.index} "
-                              f"({spec.name}): {e}; the samples finished so far are kept: free "
-                              "space or fix the folder, then run the same command with "
-                              "--resume") from None
             if error is None:
                 totals.add(result.timings)
-                made += 1
-            elif args.strict and error.startswith(SPOT_CHECK_FAILED):
+            with timer("writing"):
+                for written in behind.put(spec, result, error):
+                    finish(*written)
+            if args.strict and error is not None and error.startswith(SPOT_CHECK_FAILED):
+                with timer("writing"):
+                    for written in behind.drain():
+                        finish(*written)
                 print(f"gpu-blur: error: --strict: sample {spec.index} ({spec.name}): "
                       f"{error}; the run stopped (samples made so far are kept; --resume "
                       "goes on)", file=sys.stderr)
                 return 2
-            testhooks.sleep_after(spec.index)
+        with timer("writing"):
+            for written in behind.drain():
+                finish(*written)
     except KeyboardInterrupt:
+        # the samples made so far are written first; a second Ctrl-C or a failing write
+        # stops that (--resume makes them again)
+        with contextlib.suppress(KeyboardInterrupt, OSError):
+            for written in behind.drain():
+                finish(*written)
         print(f"gpu-blur: interrupted after {made} new samples; run the same command with "
               "--resume to finish the set", file=sys.stderr)
         return 130
     finally:
+        if pool is not None:  # no thread may write once the folder's lock is released
+            pool.shutdown(cancel_futures=True)
         if sys.exc_info()[1] is None:
             writer.close()
         else:  # the error that stopped the run is the one to report, not a failing flush
@@ -423,8 +476,13 @@ def _generate(args) -> int:
     before = f", {done} were done before" if done else ""
     print(f"wrote {made} samples ({len(failed)} failed) to {args.output} in {took:.1f} s "
           f"({made / max(took, 1e-9):.2f} samples/s){before}; manifest: {writer.manifest_path}")
-    totals.add({"writing": current().seconds["writing"] - writing})
+    totals.add({"writing": current().seconds["writing"] - writing,
+                "reading": io.waited_for_inputs if io else 0.0})
     print("\n".join(totals.summary(took, on_host=backend.name == "numpy")))
+    if io is not None:
+        print(io.summary(took))
+    if executor is run_serial:  # the device's time is this thread's
+        print(totals.bound(took, io))
     if not failed:
         return 0
     print(f"gpu-blur: {len(failed)} of {len(todo)} samples failed; each is in the manifest with "

@@ -663,11 +663,17 @@ class DatasetWriter:
         self.manifest.flush()
 
     def write(self, spec: SampleSpec, result, record: dict) -> dict:
-        """Write one sample, then its manifest line (``status`` "ok"); returns the line.
+        """Write one sample, then its manifest line (``status`` "ok"); returns the line."""
+        return self.add(self.save(spec, result, record))
+
+    def save(self, spec: SampleSpec, result, record: dict) -> dict:
+        """Write one sample's files; returns its manifest line, for :meth:`add` to write.
 
         The line holds, besides ``record``, how many tiles the sample ran in and how many of
         them were spot-checked (``spot_check`` "passed", or "none" when no tile was checked:
         a failed check fails the sample); its arrays' file holds each array's convention.
+        Threads may save different samples at once (each file has its own temporary name);
+        only :meth:`add` and :meth:`fail` touch the manifest, from one thread.
         """
         paths = self._paths(spec.index, spec.name)
         write_image(self.out / paths["blurred"], result.blurred, self.bits)
@@ -692,6 +698,10 @@ class DatasetWriter:
             save_arrays(self.out / paths["arrays"], arrays | {
                 f"{k}_convention": ARRAY_CONVENTIONS[k] for k in arrays})
             line["arrays"] = paths["arrays"]
+        return line
+
+    def add(self, line: dict) -> dict:
+        """Write the manifest line of a sample :meth:`save` wrote; returns it."""
         self._append(line)
         return line
 

@@ -4,20 +4,49 @@ The driver (``gpu-blur generate``) owns the output folder and the manifest; exec
 make samples and hand them back as ``(spec, result, error)``, in any order. A sample's output
 depends only on (seed, sample index, scene), so any executor, worker or device gives the same
 files.
+
+On one device the driver runs a pipeline (``--io-threads``): a pool of threads decodes the
+next samples' input files (:func:`run_pipelined`) and encodes and writes the finished ones
+(:class:`WriteBehind`) while this thread synthesizes; OpenCV's decoders and encoders, zlib and
+file I/O release the GIL, so those threads run beside synthesis. Queues of
+:data:`QUEUE_PER_THREAD` samples per thread on each side bound the memory.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable, Iterator
+import itertools
+import os
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Executor, Future
 
 import cv2
+import numpy as np
 
 from gpu_blur.dataset import SampleSpec
-from gpu_blur.imageio import opencv_reason
+from gpu_blur.imageio import check_image, opencv_reason, read_image
 from gpu_blur.pipeline import Synthesis, synthesize
 from gpu_blur.scene import Scene
 from gpu_blur.scheduler import Schedule
+from gpu_blur.timings import PoolTimes
+
+#: Samples per I/O thread that may wait on each side of synthesis: decoded (or being decoded)
+#: ahead of the sample being made, and made but not yet written behind it. With N threads at
+#: most 2 N samples' inputs and 2 N samples' outputs are held, besides the one being made.
+QUEUE_PER_THREAD = 2
+#: The most I/O threads ``--io-threads`` takes by default, however many cores the host has:
+#: enough to decode 9 PNG frames of 1920 x 1200 for a few hundred samples a second, while the
+#: queues stay within a few GB (such a sample holds 62 MB of frames and 55 MB of outputs).
+MAX_DEFAULT_IO_THREADS = 32
+
+
+def default_io_threads() -> int:
+    """``--io-threads``' default: the cores this process may run on, at most 32."""
+    cores = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+             else os.cpu_count())
+    return max(1, min(cores or 1, MAX_DEFAULT_IO_THREADS))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,8 +59,12 @@ class Job:
     schedule: Schedule | None = None  # tiles, memory budget, spot checks
 
 
-def make_sample(job: Job, spec: SampleSpec) -> tuple[SampleSpec, Synthesis | None, str | None]:
+def make_sample(job: Job, spec: SampleSpec, inputs: tuple[np.ndarray, ...] | None = None
+                ) -> tuple[SampleSpec, Synthesis | None, str | None]:
     """One sample: ``(spec, result, None)``, or ``(spec, None, reason)`` for bad input.
+
+    ``inputs`` are the sample's files already decoded (:func:`decode`), else its paths are
+    read here.
 
     What fails only this sample (the reason goes to the manifest and the run goes on) is what
     this sample's inputs and size cause: ValueError (a check refused an input or a value),
@@ -44,8 +77,9 @@ def make_sample(job: Job, spec: SampleSpec) -> tuple[SampleSpec, Synthesis | Non
     try:
         if spec.problem:
             raise ValueError(spec.problem)
-        result = synthesize(list(spec.inputs), job.scene, seed=job.seed,
-                            sample_index=spec.index, backend=job.backend, tile=job.schedule)
+        result = synthesize(list(spec.inputs if inputs is None else inputs), job.scene,
+                            seed=job.seed, sample_index=spec.index, backend=job.backend,
+                            tile=job.schedule)
     except (ValueError, OSError) as e:
         return spec, None, str(e)
     except cv2.error as e:
@@ -62,3 +96,107 @@ def run_serial(job: Job, specs: Iterable[SampleSpec]) -> Iterator[tuple]:
     """Make the samples one after another in this process."""
     for spec in specs:
         yield make_sample(job, spec)
+
+
+def decode(spec: SampleSpec) -> tuple[np.ndarray, ...] | None:
+    """A sample's input files as ``synthesize`` reads them, or None when one fails a check.
+
+    Each file goes through :func:`~gpu_blur.imageio.read_image` and
+    :func:`~gpu_blur.imageio.check_image` (named by its path), and all must have one size; the
+    arrays are read_image's, as ``synthesize`` gets them from a path. When anything fails, the
+    sample is made from its paths instead, so ``synthesize`` reads them again and refuses them
+    in its own words, naming the file: a bad sample is read twice, a good one once.
+    """
+    if spec.problem:
+        return None
+    try:
+        images = tuple(read_image(path) for path in spec.inputs)
+        for path, image in zip(spec.inputs, images, strict=True):
+            check_image(image, str(path))
+    except Exception:  # synthesize meets it again, and says what it is
+        return None
+    if len({image.shape for image in images}) > 1:
+        return None
+    return images
+
+
+def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: PoolTimes,
+                  depth: int) -> Iterator[tuple]:
+    """Make the samples in this thread, in order, while ``pool`` decodes the next ones' inputs.
+
+    At most ``depth`` samples are decoded or being decoded ahead of the one being made. The
+    results are :func:`run_serial`'s; the time this thread waits for inputs is added to
+    ``times.waited_for_inputs``, the pool's decoding to ``times.busy["decode"]``.
+    """
+    rest = iter(specs)
+    ahead: deque[tuple[SampleSpec, Future]] = deque()
+    try:
+        while True:
+            for spec in itertools.islice(rest, depth - len(ahead)):
+                ahead.append((spec, pool.submit(times.run, "decode", decode, spec)))
+            if not ahead:
+                return
+            spec, decoding = ahead[0]
+            start = time.perf_counter()
+            inputs = decoding.result()
+            times.waited_for_inputs += time.perf_counter() - start
+            ahead.popleft()
+            yield make_sample(job, spec, inputs)
+    finally:  # stopped early: nothing more is decoded
+        for _, decoding in ahead:
+            decoding.cancel()
+
+
+class WriteBehind:
+    """Writes made samples in a pool while the next ones are made; hands them back in order.
+
+    Args:
+        save: ``save(spec, result)`` writes a made sample's files and returns its manifest
+            line (in a pool thread).
+        pool: the I/O threads, or None to save each sample at once in this thread.
+        depth: how many samples may wait for or be in writing; :meth:`put` waits for the
+            oldest beyond that.
+        times: where the pool's writing time is added (with a pool).
+    """
+
+    def __init__(self, save: Callable[[SampleSpec, Synthesis], dict],
+                 pool: Executor | None = None, depth: int = 1, times: PoolTimes | None = None):
+        self._save, self._pool, self._depth, self._times = save, pool, depth, times
+        self._queue: deque[tuple[SampleSpec, str | None, object]] = deque()
+
+    def put(self, spec: SampleSpec, result: Synthesis | None,
+            error: str | None) -> Iterator[tuple]:
+        """Queue an executor's ``(spec, result, error)``; returns the samples now written.
+
+        They come as ``(spec, error, line)``, oldest first (``line`` None for a failed
+        sample): those at the head of the queue whose files are written, and the oldest
+        ones, waited for, while more than ``depth`` wait. A failed write raises its error.
+        Only the pool holds a result, until its files are written.
+        """
+        if error is not None:
+            saving = None
+        elif self._pool is None:
+            saving = self._save(spec, result)
+        else:
+            saving = self._pool.submit(self._times.run, "write", self._save, spec, result)
+        self._queue.append((spec, error, saving))
+        return self._written()
+
+    def _written(self) -> Iterator[tuple]:
+        while self._queue and (len(self._queue) > self._depth or _ready(self._queue[0][2])):
+            yield self._next()
+
+    def drain(self) -> Iterator[tuple]:
+        """Yields every sample still queued, as :meth:`put` does, waiting for its files."""
+        while self._queue:
+            yield self._next()
+
+    def _next(self) -> tuple:
+        spec, error, saving = self._queue[0]
+        line = saving.result() if isinstance(saving, Future) else saving
+        self._queue.popleft()  # only once written: a stop while waiting keeps it queued
+        return spec, error, line
+
+
+def _ready(saving) -> bool:
+    return not isinstance(saving, Future) or saving.done()

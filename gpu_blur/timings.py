@@ -14,6 +14,10 @@ executor in another process can send it back). Categories:
 * ``checks``: spot checks against the numpy reference (:mod:`gpu_blur.scheduler`);
 * ``writing``: encoding outputs (measured by ``gpu-blur generate``, not by ``synthesize``).
 
+With I/O threads (``gpu-blur generate --io-threads``) decoding and encoding run in a pool
+beside synthesis: the run's ``reading`` and ``writing`` are then the time the driver thread
+waited for them, and :class:`PoolTimes` holds the threads' own work.
+
 Timers do not nest: inside a running timer another one records nothing, so the outermost
 category gets the time (a spot check's reference passes count as ``checks``, not
 ``kernels``). Each timer costs about a microsecond.
@@ -24,6 +28,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 CATEGORIES = ("reading", "copies", "kernels", "checks", "writing")
 
@@ -149,3 +154,59 @@ class RunTotals:
         if counted > wall * 1.01:
             lines.append(f"  (parallel workers: {counted:.2f} s of work in {wall:.2f} s)")
         return lines
+
+    def bound(self, wall: float, pool: PoolTimes | None = None) -> str:
+        """Which stage bounded a one-device run of ``wall`` seconds, as a summary line.
+
+        The driver thread's time (these totals) splits into decoding inputs (``reading``),
+        encoding and writing outputs (``writing``) and synthesis on the device (the rest:
+        copies, kernels, checks, other). Run one after another (no ``pool``), the largest is
+        the bound; with an I/O pool decoding and writing are the driver's waits for the pool,
+        and the stage it waited on most is the bound.
+        """
+        spent = {"decode": self.seconds["reading"], "encode/write": self.seconds["writing"]}
+        spent["device"] = max(wall - sum(spent.values()), 0.0)
+        stage = max(spent, key=spent.get)
+        share = 100 * spent[stage] / max(wall, 1e-12)
+        if pool is None:
+            return (f"bound by: {stage} ({share:.0f} % of the run; one thread decodes, "
+                    "synthesizes and writes in turn)")
+        how = {"decode": f"the device waited {share:.0f} % of the run for decoded inputs",
+               "encode/write": f"the device waited {share:.0f} % of the run for writes",
+               "device": f"the device busy {share:.0f} % of the run"}[stage]
+        return f"bound by: {stage} ({how}; I/O threads busy {pool.busy_share(wall):.0f} %)"
+
+
+class PoolTimes:
+    """Seconds a pool of I/O threads spent per stage, and what the driver waited for it.
+
+    Attributes:
+        threads: the pool's threads.
+        busy: seconds of ``decode`` and ``write`` work, summed over the threads.
+        waited_for_inputs: seconds the driver thread waited for decoded inputs.
+    """
+
+    def __init__(self, threads: int):
+        self.threads = threads
+        self.busy = {"decode": 0.0, "write": 0.0}
+        self.waited_for_inputs = 0.0
+        self._lock = threading.Lock()
+
+    def run(self, stage: str, work: Callable[..., Any], *args) -> Any:
+        """``work(*args)`` in a pool thread, its time added to ``busy[stage]``."""
+        start = time.perf_counter()
+        try:
+            return work(*args)
+        finally:
+            with self._lock:
+                self.busy[stage] += time.perf_counter() - start
+
+    def busy_share(self, wall: float) -> float:
+        """Percent of the threads' time over ``wall`` seconds they spent working."""
+        return 100 * sum(self.busy.values()) / max(self.threads * wall, 1e-12)
+
+    def summary(self, wall: float) -> str:
+        """One line: the threads, what they did, and how busy they were."""
+        return (f"I/O threads ({self.threads}): decoding {self.busy['decode']:.2f} s, encoding "
+                f"and writing {self.busy['write']:.2f} s; busy {self.busy_share(wall):.0f} % of "
+                "the run")

@@ -1,0 +1,229 @@
+"""``gpu-blur generate`` on one device decodes ahead and writes behind in I/O threads
+(``--io-threads``, issue 15): the same bytes as one thread doing each step in turn, bad inputs
+failing only their samples with the same messages, and nothing lost or half-written when a
+write fails or the run is stopped.
+
+Small images and the numpy backend throughout.
+"""
+
+import os
+import re
+import threading
+import time
+
+import cv2
+import numpy as np
+import pytest
+from conftest import KERNEL_BACKEND_SPECS, files, manifest_lines
+
+import gpu_blur.dataset
+import gpu_blur.generate
+import gpu_blur.imageio
+import gpu_blur.pipeline
+import gpu_blur.testhooks
+from gpu_blur.cli import main
+from gpu_blur.dataset import LOCK
+
+IO_THREAD = "gpu-blur-io"
+
+
+def args(folder, scene, out, *extra):
+    return ["generate", "--input", str(folder), "--output", str(out), "--scene", str(scene),
+            "--quiet", *extra]
+
+
+@pytest.fixture
+def bad_photos(tmp_path):
+    """Six photos of 24 x 32, three of them bad: truncated, empty, float values above 1."""
+    folder = tmp_path / "in"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for name in ("a", "b", "c", "d"):
+        cv2.imwrite(str(folder / f"{name}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    (folder / "b.png").write_bytes((folder / "b.png").read_bytes()[:60])
+    (folder / "e.png").write_bytes(b"")
+    cv2.imwrite(str(folder / "f.tiff"), np.full((24, 32, 3), 1.5, np.float32))
+    scene = tmp_path / "s.toml"
+    scene.write_text("[blur]\nsteps = 3\n")
+    return folder, scene
+
+
+@pytest.fixture
+def bad_sequences(tmp_path):
+    """Three 3-frame sequences: a good one, one with a frame of another size, one with NaN."""
+    folder = tmp_path / "seqs"
+    rng = np.random.default_rng(1)
+    for name in ("a_good", "b_sizes", "c_nan"):
+        (folder / name / "sharp").mkdir(parents=True)
+        for i in range(3):
+            shape = (20, 28) if name == "b_sizes" and i == 2 else (24, 32)
+            cv2.imwrite(str(folder / name / "sharp" / f"{i}.png"),
+                        rng.integers(0, 256, (*shape, 3), np.uint8))
+    frame = rng.random((24, 32, 3)).astype(np.float32)
+    frame[3, 4, 1] = np.nan
+    (folder / "c_nan" / "sharp" / "1.png").unlink()
+    cv2.imwrite(str(folder / "c_nan" / "sharp" / "1.tiff"), frame)
+    scene = tmp_path / "avg.toml"
+    scene.write_text('[blur]\nmode = "average"\nframes = 3\n')
+    return folder, scene
+
+
+def written(out):
+    """{relative path: bytes} of every file in ``out`` but its lock (which names the run)."""
+    return {p.relative_to(out).as_posix(): p.read_bytes() for p in sorted(out.rglob("*"))
+            if p.is_file() and p.name != LOCK}
+
+
+def assert_same_set(out, reference):
+    assert written(out) == written(reference)  # manifest, run.json, samples; no stray file
+
+
+@pytest.mark.parametrize("backend", ["numpy", *KERNEL_BACKEND_SPECS[:1]])
+def test_io_threads_write_the_bytes_of_one_thread_and_fail_only_bad_photos(
+        tmp_path, bad_photos, monkeypatch, backend):
+    folder, scene = bad_photos
+    run = ["--backend", backend.split("/")[0]]
+    assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
+    readers, writers = set(), set()
+    read, write = gpu_blur.generate.read_image, gpu_blur.dataset.write_image
+
+    def reading(path):
+        readers.add(threading.current_thread().name.startswith(IO_THREAD))
+        return read(path)
+
+    def writing(*a):
+        writers.add(threading.current_thread().name.startswith(IO_THREAD))
+        return write(*a)
+
+    monkeypatch.setattr(gpu_blur.generate, "read_image", reading)
+    monkeypatch.setattr(gpu_blur.dataset, "write_image", writing)
+    assert main(args(folder, scene, tmp_path / "three", *run, "--io-threads", "3")) == 1
+    assert readers == {True} and writers == {True}  # decoded and written in the pool
+    assert_same_set(tmp_path / "three", tmp_path / "one")
+    errors = {x["name"]: x.get("error") for x in manifest_lines(tmp_path / "one")}
+    assert errors["a"] is None and errors["c"] is None and errors["d"] is None
+    assert errors["b"].startswith(f"{folder / 'b.png'}: truncated PNG")
+    assert errors["e"].startswith(f"{folder / 'e.png'}: the file is empty")
+    assert errors["f"].startswith(f"{folder / 'f.tiff'}: ") and "above 1" in errors["f"]
+
+
+def test_io_threads_write_the_bytes_of_one_thread_and_fail_only_bad_sequences(
+        tmp_path, bad_sequences):
+    folder, scene = bad_sequences
+    assert main(args(folder, scene, tmp_path / "one", "--io-threads", "1")) == 1
+    assert main(args(folder, scene, tmp_path / "three", "--io-threads", "3")) == 1
+    assert_same_set(tmp_path / "three", tmp_path / "one")
+    errors = {x["name"].split("/")[0]: x.get("error") for x in manifest_lines(tmp_path / "one")}
+    assert errors["a_good"] is None
+    sharp = folder / "b_sizes" / "sharp"
+    assert errors["b_sizes"].startswith(f"{sharp / '2.png'} is 28 x 20 (width x height) but "
+                                        f"{sharp / '0.png'} is 32 x 24")
+    assert errors["c_nan"].startswith(f"{folder / 'c_nan' / 'sharp' / '1.tiff'}: 1 NaN")
+
+
+@pytest.mark.parametrize("threads", ["1", "3"])
+def test_a_failing_write_stops_the_run_and_loses_nothing(tmp_path, photos, monkeypatch,
+                                                         capsys, threads):
+    folder, scene = photos
+    reference = tmp_path / "reference"
+    assert main(args(folder, scene, reference, "--samples-per-photo", "4")) == 0
+    expected = (reference / "manifest.jsonl").read_text().splitlines(keepends=True)
+    imwrite = cv2.imwrite
+
+    def encoder_fails_on_sample_3(name, image, *rest):
+        if os.path.basename(name).startswith(".000003_"):
+            with open(name, "wb") as f:  # half an image under the temporary name
+                f.write(b"\x89PNG half")
+            return False
+        return imwrite(name, image, *rest)
+
+    monkeypatch.setattr(gpu_blur.imageio.cv2, "imwrite", encoder_fails_on_sample_3)
+    out = tmp_path / "out"
+    run = args(folder, scene, out, "--samples-per-photo", "4", "--io-threads", threads)
+    assert main(run) == 2
+    assert "cannot write sample 3 (a_3)" in capsys.readouterr().err
+    assert (out / "manifest.jsonl").read_text().splitlines(keepends=True) == expected[:3]
+    made = files(reference)
+    for name, data in files(out).items():  # listed or not, every file is whole
+        assert data == made[name], name
+    monkeypatch.undo()
+    assert main([*run, "--resume"]) == 0
+    assert_same_set(out, reference)
+
+
+def test_ctrl_c_writes_the_samples_made_and_resume_finishes_the_set(tmp_path, photos,
+                                                                    monkeypatch):
+    folder, scene = photos
+    reference = tmp_path / "reference"
+    assert main(args(folder, scene, reference, "--samples-per-photo", "4")) == 0
+    write = gpu_blur.dataset.write_image
+
+    def slowly(*a):  # writes lag behind synthesis, so made samples queue up
+        time.sleep(0.05)
+        return write(*a)
+
+    def ctrl_c_after(index):  # Ctrl-C once sample 1 is recorded
+        if index == 1:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(gpu_blur.dataset, "write_image", slowly)
+    monkeypatch.setattr(gpu_blur.testhooks, "sleep_after", ctrl_c_after)
+    out = tmp_path / "out"
+    run = args(folder, scene, out, "--samples-per-photo", "4", "--io-threads", "3")
+    assert main(run) == 130
+    kept = manifest_lines(out)  # 0, 1 and those made before the stop, written on the way out
+    assert [x["index"] for x in kept] == list(range(len(kept))) and len(kept) >= 3
+    made = files(reference)
+    assert set(files(out)) == {x[k] for x in kept for k in ("blurred", "sharp", "arrays")}
+    for name, data in files(out).items():
+        assert data == made[name], name
+    monkeypatch.undo()
+    assert main([*run, "--resume"]) == 0
+    assert_same_set(out, reference)
+
+
+@pytest.mark.parametrize("slow, threads, bound", [
+    ("read_image", "2", "bound by: decode (the device waited"),
+    ("write_image", "2", "bound by: encode/write (the device waited"),
+    (None, "2", "bound by: device (the device busy"),
+    ("read_image", "1", "bound by: decode ("),
+])
+def test_the_summary_says_which_stage_bounded_the_run(tmp_path, photos, monkeypatch, capsys,
+                                                      slow, threads, bound):
+    folder, scene = photos
+    users = {"read_image": [gpu_blur.generate, gpu_blur.pipeline],  # pipelined, serial
+             "write_image": [gpu_blur.dataset]}.get(slow, [])
+    for module in users:
+        work = getattr(module, slow)
+
+        def slowly(*a, work=work):
+            time.sleep(0.25)
+            return work(*a)
+
+        monkeypatch.setattr(module, slow, slowly)
+    if slow is None:  # synthesis is slow
+        make = gpu_blur.generate.synthesize
+
+        def slowly(*a, **k):
+            time.sleep(0.25)
+            return make(*a, **k)
+
+        monkeypatch.setattr(gpu_blur.generate, "synthesize", slowly)
+    assert main(args(folder, scene, tmp_path / "out", "--io-threads", threads)) == 0
+    out = capsys.readouterr().out
+    assert bound in out, out
+    wall = float(re.search(r"where the time went \(([\d.]+) s\):", out)[1])
+    spent = re.findall(r"^  [a-z]+ +([\d.]+) s +[\d.]+ %", out, re.MULTILINE)
+    assert len(spent) == 6 and sum(map(float, spent)) == pytest.approx(wall, abs=0.01)
+    assert ("I/O threads (2): decoding" in out) == (threads == "2")
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--io-threads", "0"], "--io-threads 0: must be >= 1"),
+    (["--io-threads", "2", "--devices", "numpy,numpy"], "--io-threads applies to a run on one"),
+])
+def test_bad_io_threads_are_refused_before_any_work(tmp_path, photos, capsys, extra, message):
+    folder, scene = photos
+    assert main(args(folder, scene, tmp_path / "out", *extra)) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
