@@ -108,7 +108,7 @@ def as_warp(x, lib: str):
 
     if lib == "warp":
         return x
-    if lib == "torch":
+    if lib == "torch" and dtype_name(x) != "uint16":  # from_torch knows no uint16
         return wp.from_torch(x)
     return wp.from_dlpack(x)
 

@@ -315,6 +315,10 @@ class Synthesizer:
                 and the input; nothing is returned for the batch.
         """
         start, before = time.perf_counter(), current().snapshot()
+        if isinstance(batch, (list, tuple)):
+            raise ValueError("a batch is one array (B x H x W x 3, or B x F x H x W x 3 for "
+                             "frames), every sample of one size: stack same-size samples "
+                             "(np.stack, torch.stack), and call once per size for mixed sizes")
         lib = arrays.library(batch)
         with timer("reading"):
             items = self._split(batch, mask, sharp, lib)
@@ -423,6 +427,8 @@ class Synthesizer:
                                  f"{lib}: pass both as the same type")
             parts[key] = self._normalized(x, key, lib, frames=key == "batch"
                                           and mode == "average")
+        if mode == "average":
+            _frame_count(parts["batch"].shape[1], self.scene)
         count = parts["batch"].shape[0]
         for key, x in parts.items():
             if tuple(x.shape) != tuple(parts["batch"].shape):
@@ -688,12 +694,23 @@ def _gather(inputs, scene: Scene) -> _Inputs:
         raise ValueError(f"blur.mode = {mode} needs a non-empty list of images")
     if mode != "average" and len(inputs) != 1:
         raise ValueError(f"blur.mode = {mode} blurs one photo; got {len(inputs)} images")
+    if mode == "average":
+        _frame_count(len(inputs), scene)
     names = [_name(x, f"frame {i}") for i, x in enumerate(inputs)]
     frames = [_load(x, n) for x, n in zip(inputs, names, strict=True)]
     _same_shape(frames, names)
     if len({f.dtype for f in frames}) > 1:  # one dtype per sample
         frames = [unit_values(check_image(f, n)) for f, n in zip(frames, names, strict=True)]
     return _Inputs(frames, None, None, {"frames": names})
+
+
+def _frame_count(count: int, scene: Scene) -> None:
+    """Refuse a sample of mode average whose frame count is not the scene's ``blur.frames``."""
+    wanted = scene.blur.frames
+    if count != wanted:
+        where = f"scene file {scene.path}" if scene.path else "the scene"
+        raise ValueError(f"blur.frames = {wanted} ({where}) but this sample has {count} "
+                         f"frames: pass {wanted}, or set blur.frames = {count}")
 
 
 def _same_shape(images, names):

@@ -37,7 +37,7 @@ CASES: dict[str, tuple[str | None, dict, str]] = {
     "default": (None, {}, "photo"),
     "kernel_lut16": (None, {"blur": {"mode": "kernel"}, "saturation": {"mode": "on"},
                             "output": {"crf": "a7r3-lut", "bits": 16}}, "photo"),
-    "interpolated": (None, {"blur": {"mode": "average", "frames": 3, "interpolation": 2},
+    "interpolated": (None, {"blur": {"mode": "average", "frames": 9, "interpolation": 2},
                             "output": {"crf": "none", "bits": 0}}, "frames"),
     "gaussian_noise": (None, {"noise": {"model": "gaussian"}, "isp": {"round_trip": "always"},
                               "output": {"crf": "a7r3"}}, "photo"),

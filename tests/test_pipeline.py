@@ -209,11 +209,21 @@ def test_saturated_channels_are_exactly_one_after_noise():
 def test_averaging_uses_the_middle_frame_as_sharp_and_counts_saturation_per_channel():
     frames = [np.full((8, 8, 3), v) for v in (0.1, 0.2, 0.3)]
     frames[0][..., 2] = 1.0
-    scene = scene_with("minimal.toml", blur={"mode": "average"}, output={"bits": 0,
-                                                                         "crf": "srgb"})
+    scene = scene_with("minimal.toml", blur={"mode": "average", "frames": 3},
+                       output={"bits": 0, "crf": "srgb"})
     result = gpu_blur.synthesize(frames, scene)
     assert np.array_equal(result.sharp, frames[1].astype(np.float32))
     assert np.allclose(result.mask[..., 2], 1 / 3) and np.all(result.mask[..., :2] == 0)
+
+
+def test_a_sample_with_another_frame_count_than_blur_frames_is_refused():
+    frames = [np.full((8, 8, 3), 0.5)] * 4
+    scene = scene_with("minimal.toml", blur={"mode": "average", "frames": 3})
+    with pytest.raises(ValueError, match=r"blur.frames = 3 \(the scene\) but this sample has "
+                       r"4 frames: pass 3, or set blur.frames = 4"):
+        gpu_blur.synthesize(frames, scene)
+    with pytest.raises(ValueError, match="but this sample has 4 frames"):
+        gpu_blur.Synthesizer(scene)(np.stack(frames)[None])
 
 
 def test_odd_sizes_lose_the_last_row_and_column_only_with_a_raw_round_trip():

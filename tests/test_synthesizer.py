@@ -129,16 +129,22 @@ def test_a_mask_of_another_shape_or_type_is_refused_by_name():
         synth(given["batch"], mask=torch.from_numpy(given["mask"]))
     with pytest.raises(ValueError, match="takes B x H x W x 3 batches; got shape"):
         synth(given["batch"][0])
+    with pytest.raises(ValueError, match="call once per size for mixed sizes"):
+        synth([given["batch"][0], given["batch"][1, :20]])
     with pytest.raises(ValueError, match="mask= is for blur.mode = none"):
         gpu_blur.Synthesizer(scene_for("kernel"))(given["batch"], mask=given["mask"])
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (run on the GPU "
                     "machine; CI has none)")
+@pytest.mark.parametrize("dtype", [np.float32, np.uint8, np.uint16])
 @pytest.mark.parametrize("mode", ["average", "none"])
-def test_cuda_tensors_stay_on_the_gpu_and_give_what_host_arrays_give(mode):
+def test_cuda_tensors_stay_on_the_gpu_and_give_what_host_arrays_give(mode, dtype):
     scene = scene_for(mode, precision="float32")
     given = batch_for(mode, 2, np.random.default_rng(7), dtype=np.float32)
+    if dtype != np.float32:
+        top = np.iinfo(dtype).max
+        given = {k: np.round(v * top).astype(dtype) for k, v in given.items()}
     synth = gpu_blur.Synthesizer(scene, backend="warp:cuda:0", with_mask=True)
     host = synth(given["batch"], mask=given.get("mask"))
     cuda = synth(torch.from_numpy(given["batch"]).cuda(),
@@ -147,6 +153,18 @@ def test_cuda_tensors_stay_on_the_gpu_and_give_what_host_arrays_give(mode):
         tensor = getattr(cuda, name)
         assert tensor.is_cuda
         assert np.array_equal(tensor.cpu().numpy(), getattr(host, name)), name
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (run on the GPU "
+                    "machine; CI has none)")
+def test_cupy_arrays_come_back_as_cupy_arrays_on_the_gpu():
+    cupy = pytest.importorskip("cupy")
+    scene = scene_for("trajectory", precision="float32")
+    photos = batch_for("trajectory", 2, np.random.default_rng(9))["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend="warp:cuda:0")
+    out = synth(cupy.asarray(photos))
+    assert isinstance(out.blurred, cupy.ndarray)
+    assert np.array_equal(cupy.asnumpy(out.blurred), synth(photos).blurred)
 
 
 @pytest.mark.parametrize("spec", [s for s in BACKEND_SPECS if s != "numpy"])

@@ -1,0 +1,105 @@
+"""``gpu-blur generate`` from PNG files against the host's decode-plus-encode bound.
+
+Writes a GoPro-style sequence (``seq/sharp/000000.png ...``, 1920 x 1200 frames of the built-in
+photo panned 2 px per frame), then runs ``gpu-blur generate --scene rsblur`` over it with one
+I/O thread and with one per core, and measures the bound: a sample decodes 9 PNG frames and
+encodes 2 PNG outputs, so with every core busy the host makes at most ``cores / (9 t_decode +
+2 t_encode)`` samples per second (single-core times measured here on the same images).
+
+    PYTHONPATH=$PWD python3 bench/generate_gpu.py --backend warp --samples 32 --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+
+from gpu_blur.dataset import default_photo
+
+H, W, FRAMES = 1200, 1920, 9
+
+
+def write_sequence(folder: Path, count: int) -> list[Path]:
+    """``count`` frames of the built-in photo, resized to W x H and panned 2 px per frame."""
+    photo = cv2.resize(cv2.imread(str(default_photo())), (W + 2 * count, H))
+    sharp = folder / "seq" / "sharp"
+    sharp.mkdir(parents=True)
+    paths = []
+    for i in range(count):
+        path = sharp / f"{i:06d}.png"
+        cv2.imwrite(str(path), photo[:, 2 * i:2 * i + W])
+        paths.append(path)
+    return paths
+
+
+def single_core_seconds(paths: list[Path]) -> dict:
+    """Median seconds to decode one frame and to encode one 8-bit output, on one core."""
+    cv2.setNumThreads(1)
+    decode = []
+    for path in paths[:5]:
+        start = time.perf_counter()
+        cv2.imread(str(path))
+        decode.append(time.perf_counter() - start)
+    image = cv2.imread(str(paths[0]))[4:-4, 4:-4]
+    encode = []
+    for _ in range(5):
+        start = time.perf_counter()
+        cv2.imencode(".png", image)
+        encode.append(time.perf_counter() - start)
+    return {"decode": statistics.median(decode), "encode": statistics.median(encode)}
+
+
+def generate(root: Path, out: Path, backend: str, samples: int, threads: int) -> dict:
+    """One ``gpu-blur generate`` run: its samples per second and its summary lines."""
+    command = [sys.executable, "-m", "gpu_blur.cli", "generate", "--input", str(root),
+               "--output", str(out), "--scene", "rsblur", "--backend", backend,
+               "--limit", str(samples), "--io-threads", str(threads), "--quiet",
+               "--overwrite"]
+    start = time.perf_counter()
+    done = subprocess.run(command, capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - start
+    if done.returncode:
+        raise RuntimeError(done.stderr[-2000:])
+    return {"threads": threads, "seconds": wall, "samples_per_s": samples / wall,
+            "summary": (done.stdout + done.stderr).strip().splitlines()[-8:]}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--backend", default="warp", help="backend (default warp)")
+    p.add_argument("--samples", type=int, default=32, help="samples per run (default 32)")
+    p.add_argument("--json", help="write the results here")
+    args = p.parse_args(argv)
+    cores = len(os.sched_getaffinity(0))
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) / "in"
+        paths = write_sequence(root, args.samples * FRAMES)
+        per = single_core_seconds(paths)
+        bound = cores / (FRAMES * per["decode"] + 2 * per["encode"])
+        runs = [generate(root, Path(tmp) / f"out{t}", args.backend, args.samples, t)
+                for t in (1, cores)]
+    result = {"backend": args.backend, "cores": cores, "image": [W, H], "frames": FRAMES,
+              "single_core_seconds": per, "bound_samples_per_s": bound, "runs": runs,
+              "ratio_to_bound": runs[-1]["samples_per_s"] / bound}
+    for run in runs:
+        print(f"io-threads {run['threads']:>2}: {run['samples_per_s']:.2f} samples/s")
+    print(f"bound: {bound:.2f} samples/s ({cores} cores; decode {1e3 * per['decode']:.1f} ms, "
+          f"encode {1e3 * per['encode']:.1f} ms per image on one core); "
+          f"{100 * result['ratio_to_bound']:.0f} % of it")
+    print("\n".join(runs[-1]["summary"]))
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
