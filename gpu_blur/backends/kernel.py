@@ -533,10 +533,7 @@ class KernelBackend:
                out: Region, *, seed: int, sample_index: int) -> OnDevice:
         """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
         k = self._pass_kernels(pass_config(plan, Pass.FINISH))
-        # the kernel takes both curves; the one the plan does not use is never read
-        polynomial = plan.retone_polynomial(camera)
-        polynomial = np.zeros(1) if polynomial is None else polynomial
-        table = a7r3_lookup_table(plan[S.RETONE].options["table_size"]) / 255.0
+        polynomial, table = retone_curves(plan, camera)
         raw = image if plan.raw_round_trip else np.zeros(1)
         result = self._empty(out.h * out.w * 3)
         inputs = (self._upload(raw), self._upload(saturated))
