@@ -11,7 +11,8 @@ One sample, module by module:
     params.py       the sample's random draws (rng: reference/rng.py), or given values
     pipeline.py     Synthesizer (synthesize(): a batch of one): the three passes on a
                     backend; scheduler.py runs them in tiles (tiling.py) within a memory
-                    budget, with spot checks; arrays.py: the array types batches come in
+                    budget, with spot checks; arrays.py: the array types batches come in;
+                    torch.py: RealisticBlur, the batch API as a training transform
     backends/       numpy (reference/), OpenCL (kernels/opencl/), Warp (warp_kernels/)
     dataset.py      outputs: blurred and sharp images, parameters, the manifest
                     (generate.py and distributed.py make a set's samples)

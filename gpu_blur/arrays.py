@@ -51,9 +51,13 @@ def cuda_device(x) -> int | None:
 
 
 def channels_last(x, lib: str):
-    """A ``B x 3 x H x W`` batch as ``B x H x W x 3``, contiguous, on its own device."""
+    """A channels-first batch as channels-last, contiguous, on its own device.
+
+    ``B x 3 x H x W`` becomes ``B x H x W x 3``; frame stacks ``B x F x 3 x H x W`` become
+    ``B x F x H x W x 3``.
+    """
     if lib == "torch":
-        return x.permute(0, 2, 3, 1).contiguous()
+        return x.movedim(-3, -1).contiguous()
     if lib == "warp":
         raise ValueError("channels_first is for torch, numpy and CuPy batches; a wp.array "
                          "batch must be B x H x W x 3 (or B x F x H x W x 3)")
@@ -64,7 +68,7 @@ def channels_last(x, lib: str):
 def channels_first(x, lib: str):
     """A ``B x H x W x 3`` result as a ``B x 3 x H x W`` view."""
     if lib == "torch":
-        return x.permute(0, 3, 1, 2)
+        return x.movedim(-1, -3)
     module = np if lib == "numpy" else __import__("cupy")
     return module.moveaxis(x, -1, -3)
 

@@ -294,7 +294,8 @@ class Synthesizer:
         return out
 
     # -- a batch -----------------------------------------------------------------------------
-    def __call__(self, batch, *, mask=None, sharp=None, first_index: int = 0) -> Batch:
+    def __call__(self, batch, *, mask=None, sharp=None, first_index: int = 0,
+                 indices: Sequence[int] | None = None) -> Batch:
         """Synthesize a batch; sample b has sample index ``first_index + b``.
 
         Args:
@@ -305,6 +306,8 @@ class Synthesizer:
             mask: mode none: the saturation masks, as ``batch`` (optional).
             sharp: mode none: the sharp images, as ``batch`` (optional: the blurred images).
             first_index: the first sample's index (0 <= index, index + B <= 2**32).
+            indices: each sample's index instead (B of them, any order: a shuffled
+                DataLoader's), for ``first_index``.
 
         Returns:
             A :class:`Batch`; sample b equals ``synthesize`` with ``sample_index =
@@ -322,15 +325,20 @@ class Synthesizer:
         lib = arrays.library(batch)
         with timer("reading"):
             items = self._split(batch, mask, sharp, lib)
-        items = self._prepared(items)
         count = len(items)
+        if indices is None:
+            indices = range(first_index, first_index + count)
+        elif len(indices) != count:
+            raise ValueError(f"indices: {len(indices)} sample indices for a batch of {count}; "
+                             "give one per sample")
+        items = self._prepared(items)
         out = None
         params, plans = [], []
         pending = []  # a resident sample's results, exported once the next one is queued
         with self._queued():
             for b, item in enumerate(items):
                 blurred, sat_mask, sharp_out, drawn, sample_plan, _ = self._run(
-                    item, first_index + b, on_device=self.resident)
+                    item, int(indices[b]), on_device=self.resident)
                 params.append(drawn)
                 plans.append(sample_plan)
                 crop = self.scene.output.crop

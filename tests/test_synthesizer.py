@@ -180,3 +180,16 @@ def test_device_resident_runs_equal_runs_from_host_memory_in_tiles(spec, mode):
     assert tiled.tiles > 1
     for key in ("blurred", "sharp", "mask"):
         assert np.array_equal(getattr(whole, key), getattr(tiled, key)), key
+
+
+def test_indices_in_any_order_give_those_samples():
+    scene = scene_for("kernel", precision="float32")
+    photos = batch_for("kernel", 3, np.random.default_rng(10))["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend="warp:cpu", seed=2)
+    shuffled = synth(photos, indices=[7, 2, 40])
+    for b, index in enumerate([7, 2, 40]):
+        one = gpu_blur.synthesize(photos[b], scene, seed=2, sample_index=index,
+                                  backend="warp:cpu")
+        assert np.array_equal(shuffled.blurred[b], one.blurred)
+    with pytest.raises(ValueError, match="indices: 2 sample indices for a batch of 3"):
+        synth(photos, indices=[1, 2])

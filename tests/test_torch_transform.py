@@ -1,0 +1,57 @@
+"""gpu_blur.torch.RealisticBlur: the batch API as a training-loop transform."""
+
+import numpy as np
+import pytest
+import torch
+
+import gpu_blur
+from gpu_blur.scene import scene_from_dict
+from gpu_blur.torch import RealisticBlur, epoch_seed
+
+
+def photos(count=3, h=20, w=24):
+    codes = np.random.default_rng(0).integers(0, 256, (count, 3, h, w), dtype=np.uint8)
+    return torch.from_numpy(codes)
+
+
+SCENE = scene_from_dict({"blur": {"mode": "kernel", "kernel_size": [3, 5]}})
+
+
+def test_a_sample_is_fixed_by_seed_epoch_and_index():
+    blur = RealisticBlur(SCENE, seed=4)
+    batch = photos()
+    blurred, sharp = blur(batch, indices=torch.tensor([9, 0, 5]), epoch=2)
+    assert blurred.shape == sharp.shape == (3, 3, 20, 24) and blurred.dtype == torch.float32
+    for b, index in enumerate([9, 0, 5]):
+        one = gpu_blur.synthesize(batch[b].permute(1, 2, 0).numpy(), SCENE,
+                                  seed=epoch_seed(4, 2), sample_index=index, backend="warp:cpu")
+        assert np.array_equal(blurred[b].permute(1, 2, 0).numpy(), one.blurred)
+    again, _ = RealisticBlur(SCENE, seed=4)(batch, indices=[9, 0, 5], epoch=2)
+    assert torch.equal(again, blurred)
+    other_epoch, _ = blur(batch, indices=[9, 0, 5], epoch=3)
+    assert not torch.equal(other_epoch, blurred)
+
+
+def test_without_indices_samples_are_numbered_in_call_order():
+    batch = photos(2)
+    blur = RealisticBlur(SCENE)
+    first, _ = blur(batch)
+    second, _ = blur(batch)
+    by_index, _ = RealisticBlur(SCENE)(torch.cat([batch, batch]), indices=[0, 1, 2, 3])
+    assert torch.equal(torch.cat([first, second]), by_index)
+
+
+def test_frame_stacks_come_channels_first_too():
+    scene = scene_from_dict({"blur": {"mode": "average", "frames": 3}})
+    frames = photos(6).reshape(2, 3, 3, 20, 24)  # B x F x 3 x H x W
+    blurred, sharp = RealisticBlur(scene)(frames)
+    assert blurred.shape == (2, 3, 20, 24)
+    assert torch.equal(sharp[0].permute(1, 2, 0),
+                       frames[0, 1].permute(1, 2, 0).float() / 255)
+
+
+def test_epoch_seeds_differ_and_bad_seeds_are_refused():
+    assert len({epoch_seed(1, e) for e in range(1000)}) == 1000
+    assert epoch_seed(1, 0) != epoch_seed(2, 0)
+    with pytest.raises(ValueError, match="seed must be in"):
+        epoch_seed(-1, 0)
