@@ -159,21 +159,22 @@ class RunTotals:
         """Which stage bounded a one-device run of ``wall`` seconds, as a summary line.
 
         The driver thread's time (these totals) splits into decoding inputs (``reading``),
-        encoding and writing outputs (``writing``) and synthesis on the device (the rest:
-        copies, kernels, checks, other). Run one after another (no ``pool``), the largest is
-        the bound; with an I/O pool decoding and writing are the driver's waits for the pool,
-        and the stage it waited on most is the bound.
+        encoding and writing outputs (``writing``) and synthesis (the rest: copies, kernels,
+        checks, and the host's part of a sample: draws, plans, launches). Run one after
+        another (no ``pool``), the largest is the bound; with an I/O pool decoding and writing
+        are the driver's waits for the pool, and the stage it waited on most is the bound.
         """
         spent = {"decode": self.seconds["reading"], "encode/write": self.seconds["writing"]}
-        spent["device"] = max(wall - sum(spent.values()), 0.0)
+        spent["synthesis"] = max(wall - sum(spent.values()), 0.0)
         stage = max(spent, key=spent.get)
         share = 100 * spent[stage] / max(wall, 1e-12)
         if pool is None:
             return (f"bound by: {stage} ({share:.0f} % of the run; one thread decodes, "
                     "synthesizes and writes in turn)")
-        how = {"decode": f"the device waited {share:.0f} % of the run for decoded inputs",
-               "encode/write": f"the device waited {share:.0f} % of the run for writes",
-               "device": f"the device busy {share:.0f} % of the run"}[stage]
+        how = {"decode": f"synthesis waited {share:.0f} % of the run for decoded inputs",
+               "encode/write": f"synthesis waited {share:.0f} % of the run for writes",
+               "synthesis": f"synthesizing {share:.0f} % of the run, on the host and the "
+                            "device"}[stage]
         return f"bound by: {stage} ({how}; I/O threads busy {pool.busy_share(wall):.0f} %)"
 
 

@@ -183,9 +183,9 @@ def test_ctrl_c_writes_the_samples_made_and_resume_finishes_the_set(tmp_path, ph
 
 
 @pytest.mark.parametrize("slow, threads, bound", [
-    ("read_image", "2", "bound by: decode (the device waited"),
-    ("write_image", "2", "bound by: encode/write (the device waited"),
-    (None, "2", "bound by: device (the device busy"),
+    ("read_image", "2", "bound by: decode (synthesis waited"),
+    ("write_image", "2", "bound by: encode/write (synthesis waited"),
+    (None, "2", "bound by: synthesis (synthesizing"),
     ("read_image", "1", "bound by: decode ("),
 ])
 def test_the_summary_says_which_stage_bounded_the_run(tmp_path, photos, monkeypatch, capsys,
