@@ -334,25 +334,17 @@ class Synthesizer:
         items = self._prepared(items)
         out = None
         params, plans = [], []
-        pending = []  # a resident sample's results, exported once the next one is queued
+        pending = []  # a sample's results, exported once the next sample is queued
+        crop = self.scene.output.crop
         with self._queued():
             for b, item in enumerate(items):
                 blurred, sat_mask, sharp_out, drawn, sample_plan, _ = self._run(
                     item, int(indices[b]), on_device=self.resident)
                 params.append(drawn)
                 plans.append(sample_plan)
-                crop = self.scene.output.crop
-                if not self.resident:
-                    results = [crop_border(blurred, crop), sharp_out]
-                    if self.with_mask:
-                        results.append(crop_border(np.asarray(sat_mask, np.float32), crop))
-                    if out is None:
-                        h, w = results[0].shape[:2]
-                        out = [np.empty((count, h, w, 3), np.float32) for _ in results]
-                    for slot, values in zip(out, results, strict=False):
-                        slot[b] = values
-                    continue
-                results = [(blurred, _inner(blurred.shape, 0)),  # cropped by its finish
+                # (values, the region of them that goes out): a resident blurred image is
+                # already cropped by its finish pass, a sharp one by its rendering
+                results = [(blurred, _inner(blurred.shape, 0 if self.resident else crop)),
                            (sharp_out, _inner(sharp_out.shape, 0))]
                 if self.with_mask:
                     results.append((sat_mask, _inner(sat_mask.shape, crop)))
@@ -383,9 +375,12 @@ class Synthesizer:
             self.runner.sync_passes = True
 
     def _export(self, out: list, b: int, results: list) -> None:
-        """Sample ``b``'s device results (values, region) into the batch's outputs."""
-        for slot, (values, region) in zip(out, results, strict=False):
-            self.runner.export(values, region, slot[b])
+        """Sample ``b``'s results, (values, region) each, into the batch's outputs."""
+        for slot, (values, region) in zip(out, results, strict=True):
+            if isinstance(values, OnDevice):
+                self.runner.export(values, region, slot[b])
+            else:
+                np.copyto(slot[b], region.of(np.asarray(values)), casting="same_kind")
 
     def _outputs(self, count: int, region: Region, batch, lib: str, n: int) -> list:
         """The batch's output arrays: on the device for device batches (Warp), else host."""
