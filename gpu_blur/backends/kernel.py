@@ -193,6 +193,7 @@ class KernelBackend:
     def __init__(self):
         self._constants: dict = {}  # (bytes, dtype) -> device copy of a small constant
         self._code_tables: dict = {}  # (config, source dtype) -> the 8-bit linear table
+        self._sharp_tables: dict = {}  # (config, curves, source dtype) -> every code rendered
 
     # -- primitives a language supplies ----------------------------------------------------
     @property
@@ -642,16 +643,19 @@ class KernelBackend:
                 self._launch(k, "render_sharp", (out.h, out.w), image.data, *_index(w),
                              *_out_geometry(out), *curves, result)
             else:
-                # codes: the curve of every code (one pixel per 3 codes), then a gather, as
-                # the host renders them (gpu_blur.pipeline.render_sharp)
-                top = np.iinfo(source).max
-                every = np.minimum(np.arange(-(-(top + 1) // 3) * 3), top)
-                codes = Region.whole(1, every.size // 3)
-                rendered = self._empty(every.size)
-                self._launch(k, "render_sharp", codes.shape, self._constant(every, source),
-                             *_index(codes.w), *_out_geometry(codes), *curves, rendered)
+                # codes: the curve of every code (one pixel per 3 codes; once per build and
+                # curve), then a gather, as the host renders them (pipeline.render_sharp)
+                key = (sharp_config(plan), polynomial.tobytes(), table.size, source.str)
+                if key not in self._sharp_tables:
+                    top = np.iinfo(source).max
+                    every = np.minimum(np.arange(-(-(top + 1) // 3) * 3), top)
+                    codes = Region.whole(1, every.size // 3)
+                    rendered = self._empty(every.size)
+                    self._launch(k, "render_sharp", codes.shape, self._constant(every, source),
+                                 *_index(codes.w), *_out_geometry(codes), *curves, rendered)
+                    self._sharp_tables[key] = rendered
                 self._launch(k, "gather_codes", (out.h, out.w), image.data, *_index(w),
-                             *_out_geometry(out), rendered, result)
+                             *_out_geometry(out), self._sharp_tables[key], result)
         return OnDevice(result, (out.h, out.w, 3), self._fetch)
 
 
