@@ -168,12 +168,16 @@ def test_cupy_arrays_come_back_as_cupy_arrays_on_the_gpu():
 
 
 @pytest.mark.parametrize("spec", [s for s in BACKEND_SPECS if s != "numpy"])
-@pytest.mark.parametrize("mode", ["average", "trajectory", "none"])
-def test_device_resident_runs_equal_runs_from_host_memory_in_tiles(spec, mode):
-    """Inputs put on the device (no tile) and streamed from the host in tiles: same bits."""
+@pytest.mark.parametrize("mode, dtype", [("average", np.float32), ("trajectory", np.float32),
+                                         ("none", np.float32), ("none", np.uint8)])
+def test_device_resident_runs_equal_runs_from_host_memory_in_tiles(spec, mode, dtype):
+    """Inputs put on the device (no tile) and streamed from the host in tiles: same bits.
+
+    A uint8 mask is divided on the device (unit_values) and on the host (imageio.unit_values).
+    """
     name, precision = spec_parts(spec)
     scene = scene_for(mode, precision=precision)
-    given = batch_for(mode, 1, np.random.default_rng(8), dtype=np.float32)
+    given = batch_for(mode, 1, np.random.default_rng(8), dtype=dtype)
     inputs = one_sample(mode, given, 0)
     whole = gpu_blur.synthesize(inputs, scene, seed=3, backend=name)
     tiled = gpu_blur.synthesize(inputs, scene, seed=3, backend=name, tile=(16, 20))

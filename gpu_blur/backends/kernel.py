@@ -373,19 +373,20 @@ class KernelBackend:
             with self._timed(sync=False):
                 self._launch(k, "linearize", n, frames.data, linear, sat_mask)
             return (self._out(linear, shape, Pass.ACCUMULATE, region.origin),
-                    self._mask_values(plan, mask, n, shape))
+                    self._mask_values(mask, n, shape))
         else:
             self._blur_photo(k, mode, params, frames, source, region, linear, sat_mask)
         return self._linear_out(linear, sat_mask, shape, region)
 
-    def _mask_values(self, plan: Plan, mask: OnDevice | None, n: int, shape) -> OnDevice:
+    def _mask_values(self, mask: OnDevice | None, n: int, shape) -> OnDevice:
         """Mode none's given mask as compute-type values on the device (zeros without one)."""
         if mask is None:
             return OnDevice(self._zeros(n), shape, self._fetch)
-        if mask.dtype is None or mask.dtype == np.dtype(self.np_real):
+        source = self._stored_dtype(mask)
+        if source == np.dtype(self.np_real):
             return OnDevice(mask.data, shape, self._fetch)
         values = self._empty(n)
-        k = self._pass_kernels(pass_config(plan, Pass.ACCUMULATE), mask.dtype)
+        k = self._input_kernels(None, source)
         with self._timed(sync=False):
             self._launch(k, "unit_values", n, mask.data, values)
         return OnDevice(values, shape, self._fetch)
@@ -552,8 +553,8 @@ class KernelBackend:
     def _input_kernels(self, config: PassConfig | None, source):
         """The kernels over input images stored as ``source`` (uint8, uint16, compute type).
 
-        ``config`` None: ``inspect``; else (:func:`sharp_config`) ``render_sharp`` and, for
-        8/16-bit codes, ``gather_codes``, built for it.
+        ``config`` None: ``inspect`` and ``unit_values``; else (:func:`sharp_config`)
+        ``render_sharp`` and, for 8/16-bit codes, ``gather_codes``, built for it.
         """
         raise NotImplementedError
 

@@ -168,14 +168,15 @@ class WarpBackend(KernelBackend):
     def _input_kernels(self, config: PassConfig | None, source):
         """Warp's kernels over stored input images.
 
-        ``inspect`` (``config`` None), else ``render_sharp`` built for ``config`` (and
-        ``gather_codes`` for 8/16-bit codes).
+        ``inspect`` and ``unit_values`` (``config`` None), else ``render_sharp`` built for
+        ``config`` (and ``gather_codes`` for 8/16-bit codes).
         """
         from gpu_blur.warp_kernels import inputs
 
         source = self._wp_dtype(source)
         if config is None:
-            return {"inspect": inputs.inspect_kernel(source)}
+            return {"inspect": inputs.inspect_kernel(source),
+                    "unit_values": inputs.unit_values_kernel(self.real, source)}
         kernels = {"render_sharp": inputs.render_sharp_kernel(self.real, source, config)}
         if source != self.real:
             kernels["gather_codes"] = inputs.gather_codes_kernel(self.real, source)

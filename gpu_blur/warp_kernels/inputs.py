@@ -4,6 +4,7 @@ No value of the image is read on the host (gpu_blur.backends.kernel.KernelBacken
 render_sharp):
 
 * :func:`inspect_kernel`: counts for the input checks and auto saturation's clip test;
+* :func:`unit_values_kernel`: stored values as reals in [0, 1] (blur mode none's mask);
 * :func:`render_sharp_kernel`: the sharp reference, toned like the output by the finish
   kernel's functions (gpu_blur.warp_kernels.pixel);
 * :func:`gather_codes_kernel`: the same for 8/16-bit codes, from a table that
@@ -83,6 +84,22 @@ def inspect_kernel(source):
         count_add(counts, out + 10, positive)
 
     return inspect
+
+
+@functools.cache
+def unit_values_kernel(real, source):
+    """Stored values as reals in [0, 1], as gb_unit_values: a mask given in its stored dtype.
+
+    Codes are divided by 2^bits - 1 as ``linearize`` divides them.
+    """
+    source_value = source_value_func(real, source)
+
+    @wp.kernel(module="unique")
+    def unit_values(stored: wp.array(dtype=source), values: wp.array(dtype=real)):
+        i = wp.tid()
+        values[i] = source_value(stored[i])
+
+    return unit_values
 
 
 @functools.cache

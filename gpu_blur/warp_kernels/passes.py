@@ -97,12 +97,6 @@ def accumulate_kernels(real, source=None) -> dict:
             indicator[i] = real(1.0)
 
     @wp.kernel(module="unique")
-    def unit_values(stored: wp.array(dtype=source), values: wp.array(dtype=real)):
-        # stored values as reals in [0, 1] (codes / (2^bits - 1)): a mask in its stored dtype
-        i = wp.tid()
-        values[i] = source_value(stored[i])
-
-    @wp.kernel(module="unique")
     def blur_average_add(frames: wp.array(dtype=source), count: int, stride: int,
                          total: wp.array(dtype=real), compensation: wp.array(dtype=real),
                          saturated: wp.array(dtype=wp.uint32), first: int, mean_of: int,
@@ -257,8 +251,8 @@ def accumulate_kernels(real, source=None) -> dict:
             mask[i] = (total_ind[i] + total_ind_comp[i]) / w
 
     return {
-        "linearize": linearize, "unit_values": unit_values,
-        "blur_average_add": blur_average_add, "blur_kernel": blur_kernel,
+        "linearize": linearize, "blur_average_add": blur_average_add,
+        "blur_kernel": blur_kernel,
         "blur_trajectory_add": blur_trajectory_add,
         "blur_trajectory_finish": blur_trajectory_finish,
     }

@@ -20,14 +20,6 @@ __kernel void gb_linearize(__global const gb_source *srgb, __global real *linear
     indicator[i] = v >= GB_SATURATION_LEVEL ? GB_REAL(1.0) : GB_REAL(0.0);
 }
 
-/* unit_values: stored values as reals in [0, 1] (codes / (2^bits - 1)): a mask given in its
- * stored dtype. */
-__kernel void gb_unit_values(__global const gb_source *stored, __global real *values)
-{
-    size_t i = get_global_id(0);
-    values[i] = gb_source_value(stored[i]);
-}
-
 /* The linear value of a stored frame value at frames[i]. 8-bit codes: a gather from `table`,
  * the value of each code that gb_linearize computed from codes 0..255 (the same function, so
  * the same bits, without a pow per value); other sources: the sRGB EOTF. */

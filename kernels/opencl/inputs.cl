@@ -2,6 +2,7 @@
  * that no value of it is read on the host (gpu_blur.backends.kernel.KernelBackend.inspect and
  * render_sharp):
  *   gb_inspect       counts for the input checks and auto saturation's clip test;
+ *   gb_unit_values   stored values as reals in [0, 1] (blur mode none's mask);
  *   gb_render_sharp  the sharp reference, toned like the output by finish.cl's functions;
  *   gb_gather_codes  the same for 8/16-bit codes, from a table gb_render_sharp made of every code.
  */
@@ -48,6 +49,14 @@ __kernel void gb_inspect(__global const gb_source *values, long n, long items,
     gb_count_add(out + 6, above);
     gb_count_add(out + 8, clip);
     gb_count_add(out + 10, positive);
+}
+
+/* Stored values as reals in [0, 1] (codes / (2^bits - 1), as gb_linearize divides them): a mask
+ * given in its stored dtype. */
+__kernel void gb_unit_values(__global const gb_source *stored, __global real *values)
+{
+    size_t i = get_global_id(0);
+    values[i] = gb_source_value(stored[i]);
 }
 
 /* The sharp reference over the output region (first pixel (ox0, oy0), size ow x oh) of an image
