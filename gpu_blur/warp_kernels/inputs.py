@@ -19,7 +19,12 @@ import functools
 import warp as wp
 
 from gpu_blur.warp_kernels import pixel
-from gpu_blur.warp_kernels.passes import SOURCE_TOP, _fast, source_value_func
+from gpu_blur.warp_kernels.passes import (
+    SOURCE_TOP,
+    _fast,
+    retone_quantize_func,
+    source_value_func,
+)
 
 
 @wp.func
@@ -113,8 +118,9 @@ def render_sharp_kernel(real, source, config):
     or "lookup"), else p; then quantize (``config.bits`` > 0). ``fast_math`` as the finish
     kernel's.
     """
-    tone, retone, bits = config.kept("tone"), config.retone, config.bits
+    tone = config.kept("tone")
     source_value = source_value_func(real, source)
+    retone_quantize = retone_quantize_func(real, config.retone, config.bits)
 
     @wp.kernel(module="unique", module_options={"fast_math": _fast(real, config.fast_math)})
     def render_sharp(image: wp.array(dtype=source), iw: int, ox0: int, oy0: int, ow: int,
@@ -127,14 +133,7 @@ def render_sharp_kernel(real, source, config):
             p = source_value(image[i + c])
             if wp.static(not tone):
                 p = pixel.clip01(pixel.srgb_to_linear(p))
-            if wp.static(retone == "polynomial"):
-                p = pixel.polynomial_crf(pixel.srgb_to_linear(p), crf_polynomial,
-                                         crf_polynomial.shape[0])
-            if wp.static(retone == "lookup"):
-                p = pixel.lookup_crf(pixel.srgb_to_linear(p), crf_table, crf_table.shape[0])
-            if wp.static(bits > 0):
-                p = pixel.quantize(p, bits)
-            out[o + c] = p
+            out[o + c] = retone_quantize(p, crf_polynomial, crf_table)
 
     return render_sharp
 

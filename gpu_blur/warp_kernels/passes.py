@@ -349,6 +349,31 @@ def to_raw_kernel(real, config):
 
 
 @functools.cache
+def retone_quantize_func(real, retone: str, bits: int):
+    """``retone_quantize(p, crf_polynomial, crf_table) -> real``: the finish pass's last stages.
+
+    As gb_retone_quantize: "retone" of an sRGB value ``p`` (the camera response of its EOTF by
+    ``retone``, "polynomial" or "lookup"; "" keeps it), then "quantize" to ``bits`` (0: none).
+    The finish kernel and the sharp reference (warp_kernels.inputs) end with it.
+    """
+
+    @wp.func
+    def retone_quantize(p: real, crf_polynomial: wp.array(dtype=real),
+                        crf_table: wp.array(dtype=real)) -> real:
+        q = p
+        if wp.static(retone == "polynomial"):
+            q = pixel.polynomial_crf(pixel.srgb_to_linear(q), crf_polynomial,
+                                     crf_polynomial.shape[0])
+        if wp.static(retone == "lookup"):
+            q = pixel.lookup_crf(pixel.srgb_to_linear(q), crf_table, crf_table.shape[0])
+        if wp.static(bits > 0):
+            q = pixel.quantize(q, bits)
+        return q
+
+    return retone_quantize
+
+
+@functools.cache
 def finish_kernel(real, config):
     """Pass 3 built for ``config`` (gpu_blur.backends.kernel.PassConfig), kept stages as flags.
 
@@ -361,7 +386,8 @@ def finish_kernel(real, config):
     """
     demosaic, clip_demosaic = config.demosaic, config.clip_demosaic
     tone, gaussian_noise = config.kept("tone"), config.kept("gaussian_noise")
-    restore, retone, bits = config.kept("restore_saturated"), config.retone, config.bits
+    restore = config.kept("restore_saturated")
+    retone_quantize = retone_quantize_func(real, config.retone, config.bits)
     vec3 = wp.types.vector(length=3, dtype=real)
     border = 1 if config.zero_border else 0
     fast = _fast(real, config.fast_math)
@@ -409,13 +435,6 @@ def finish_kernel(real, config):
             if wp.static(restore):
                 if saturated[v + c] >= real(1.0):
                     p = real(1.0)
-            if wp.static(retone == "polynomial"):
-                p = pixel.polynomial_crf(pixel.srgb_to_linear(p), crf_polynomial,
-                                         crf_polynomial.shape[0])
-            if wp.static(retone == "lookup"):
-                p = pixel.lookup_crf(pixel.srgb_to_linear(p), crf_table, crf_table.shape[0])
-            if wp.static(bits > 0):
-                p = pixel.quantize(p, bits)
-            out[o + c] = p
+            out[o + c] = retone_quantize(p, crf_polynomial, crf_table)
 
     return finish

@@ -50,16 +50,7 @@ __kernel void gb_finish(__global const real *raw, __global const real *saturated
 #ifdef GB_STAGE_RESTORE_SATURATED
         if (saturated[v + c] >= GB_REAL(1.0)) p = GB_REAL(1.0);
 #endif
-#ifdef GB_STAGE_RETONE
-#ifdef GB_RETONE_LOOKUP
-        p = gb_lookup_crf(gb_srgb_to_linear(p), crf_table, crf_table_n);
-#else
-        p = gb_polynomial_crf(gb_srgb_to_linear(p), crf_polynomial, crf_polynomial_n);
-#endif
-#endif
-#ifdef GB_STAGE_QUANTIZE
-        p = gb_quantize(p, GB_QUANTIZE_BITS);
-#endif
-        out[3 * (y * ow + x) + c] = p;
+        out[3 * (y * ow + x) + c] = gb_retone_quantize(p, crf_polynomial, crf_polynomial_n,
+                                                       crf_table, crf_table_n);
     }
 }

@@ -63,10 +63,9 @@ __kernel void gb_unit_values(__global const gb_source *stored, __global real *va
  * of width iw, 3 values per pixel: each stored sRGB value p (a code divided as gb_linearize does)
  * becomes, as gpu_blur.pipeline.render_sharp renders it on the host,
  *   without GB_STAGE_TONE (output.crf = none): clip(EOTF(p), 0, 1);
- *   with GB_STAGE_RETONE: the camera response of EOTF(p), the polynomial or the lookup table
- *     (GB_RETONE_LOOKUP) exactly as gb_finish re-tones;
  *   else p;
- * then gb_quantize with GB_STAGE_QUANTIZE. The curves' arguments are gb_finish's. */
+ * then gb_finish's own last stages, gb_retone_quantize (re-toning with GB_STAGE_RETONE,
+ * quantization with GB_STAGE_QUANTIZE). The curves' arguments are gb_finish's. */
 __kernel void gb_render_sharp(__global const gb_source *image, long iw, long ox0, long oy0,
                               long ow, long oh, __constant real *crf_polynomial,
                               int crf_polynomial_n, __global const real *crf_table,
@@ -80,17 +79,8 @@ __kernel void gb_render_sharp(__global const gb_source *image, long iw, long ox0
 #ifndef GB_STAGE_TONE
         p = gb_clip01(gb_srgb_to_linear(p));
 #endif
-#ifdef GB_STAGE_RETONE
-#ifdef GB_RETONE_LOOKUP
-        p = gb_lookup_crf(gb_srgb_to_linear(p), crf_table, crf_table_n);
-#else
-        p = gb_polynomial_crf(gb_srgb_to_linear(p), crf_polynomial, crf_polynomial_n);
-#endif
-#endif
-#ifdef GB_STAGE_QUANTIZE
-        p = gb_quantize(p, GB_QUANTIZE_BITS);
-#endif
-        out[3 * (y * ow + x) + c] = p;
+        out[3 * (y * ow + x) + c] = gb_retone_quantize(p, crf_polynomial, crf_polynomial_n,
+                                                       crf_table, crf_table_n);
     }
 }
 

@@ -9,6 +9,8 @@
  *   gb_apply_matrix                       gpu_blur.reference.color.apply_matrix
  *   gb_clip01, gb_quantize(_code)         np.clip(x, 0, 1), gpu_blur.reference.output.quantize /
  *                                         to_integers
+ *   gb_retone_quantize                    the finish pass's retone and quantize stages
+ *                                         (gpu_blur.backends.numpy.retone, then quantize)
  * NaN goes through every function as NaN (as in numpy), except gb_quantize_code, where the code of
  * a NaN is undefined (numpy's cast of NaN to an integer is too).
  *
@@ -138,6 +140,27 @@ static inline uint gb_quantize_code(real x, int bits)
 static inline real gb_quantize(real x, int bits)
 {
     return (real)gb_quantize_code(x, bits) / (real)((1 << bits) - 1);
+}
+
+/* The finish pass's last stages on an sRGB value p, as the build's defines keep them: "retone"
+ * (GB_STAGE_RETONE: the camera response of its EOTF, by the polynomial or, with
+ * GB_RETONE_LOOKUP, the table), then "quantize" (GB_STAGE_QUANTIZE, GB_QUANTIZE_BITS).
+ * gb_finish and gb_render_sharp end with it; without those defines it returns p. */
+static inline real gb_retone_quantize(real p, __constant real *crf_polynomial,
+                                      int crf_polynomial_n, __global const real *crf_table,
+                                      int crf_table_n)
+{
+#ifdef GB_STAGE_RETONE
+#ifdef GB_RETONE_LOOKUP
+    p = gb_lookup_crf(gb_srgb_to_linear(p), crf_table, crf_table_n);
+#else
+    p = gb_polynomial_crf(gb_srgb_to_linear(p), crf_polynomial, crf_polynomial_n);
+#endif
+#endif
+#ifdef GB_STAGE_QUANTIZE
+    p = gb_quantize(p, GB_QUANTIZE_BITS);
+#endif
+    return p;
 }
 
 #endif
