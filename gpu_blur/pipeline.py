@@ -471,11 +471,10 @@ class Synthesizer:
                              f"{', '.join(arrays.DTYPES)} (floats in [0, 1])")
         if dtype.startswith("float") and dtype != self.runner.precision and self.resident:
             x = arrays.as_real(x, lib, self.runner.precision)  # on the array's own device
-        if raw_round_trip(self.scene):
-            h, w = x.shape[-3:-1]
-            if h % 2 or w % 2:
-                x = x[..., :h - h % 2, :w - w % 2, :]
-                x = x.contiguous() if lib == "torch" else x
+        h, w = self._kept_size(x.shape)
+        if (h, w) != tuple(x.shape[-3:-1]):
+            x = x[..., :h, :w, :]
+            x = x.contiguous() if lib == "torch" else x
         return x
 
     # -- shared by both ----------------------------------------------------------------------
@@ -515,14 +514,24 @@ class Synthesizer:
             raise ValueError(f"{label}{e}") from None
         if len({f.dtype for f in frames}) > 1:
             frames = [unit_values(f) for f in frames]
-        h, w = frames[0].shape[:2]
+        h, w = self._kept_size(frames[0].shape)
+        frames = [f[:h, :w] for f in frames]
+        sharp = sharp[:h, :w]
+        mask = None if mask is None else mask[:h, :w]
+        return _Inputs(frames, mask, sharp, names, label, _reaches_clip_level(frames, mask))
+
+    def _kept_size(self, shape) -> tuple[int, int]:
+        """The (height, width) of ``... x H x W x 3`` inputs that a sample keeps.
+
+        The RAW round trip keeps even sides (the Bayer 2 x 2 cell), and refuses less than 2 x 2.
+        """
+        h, w = shape[-3:-1]
         if raw_round_trip(self.scene):
             h, w = h - h % 2, w - w % 2
-            _big_enough(h, w, frames[0].shape)
-            frames = [f[:h, :w] for f in frames]
-            sharp = sharp[:h, :w]
-            mask = None if mask is None else mask[:h, :w]
-        return _Inputs(frames, mask, sharp, names, label, _reaches_clip_level(frames, mask))
+            if h < 2 or w < 2:
+                raise ValueError(f"input of {tuple(shape[-3:-1])} is too small for the Bayer "
+                                 "steps (need at least 2 x 2)")
+        return h, w
 
     def _put(self, item: _Inputs) -> _Inputs:
         """A sample's inputs on the kernel backend's device (frames: one stack in mode average)."""
@@ -531,11 +540,9 @@ class Synthesizer:
         if isinstance(frames, (list, tuple)):  # synthesize's host frames
             frames = frames[0] if len(frames) == 1 and self.scene.blur.mode != "average" \
                 else np.stack(frames)
-        h, w = frames.shape[-3:-1]
-        if raw_round_trip(self.scene):
-            _big_enough(h - h % 2, w - w % 2, frames.shape[-3:])
-            if h % 2 or w % 2:
-                frames = np.ascontiguousarray(frames[..., :h - h % 2, :w - w % 2, :])
+        h, w = self._kept_size(frames.shape)
+        if (h, w) != tuple(frames.shape[-3:-1]):
+            frames = np.ascontiguousarray(frames[..., :h, :w, :])
         stack = runner.put(frames)
         mask = None if item.mask is None else runner.put(_even(item.mask, stack))
         if item.sharp is not None:
@@ -607,12 +614,6 @@ def _even(image, like: OnDevice):
         h, w = like.shape[-3:-1]
         return np.ascontiguousarray(image[:h, :w])
     return image
-
-
-def _big_enough(h: int, w: int, shape) -> None:
-    if h < 2 or w < 2:
-        raise ValueError(f"input of {tuple(shape[:2])} is too small for the Bayer steps (need "
-                         "at least 2 x 2)")
 
 
 def _bad_values(image: OnDevice, item: _Inputs, key: str):

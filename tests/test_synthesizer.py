@@ -129,6 +129,8 @@ def test_a_mask_of_another_shape_or_type_is_refused_by_name():
         synth(given["batch"], mask=torch.from_numpy(given["mask"]))
     with pytest.raises(ValueError, match="takes B x H x W x 3 batches; got shape"):
         synth(given["batch"][0])
+    with pytest.raises(ValueError, match=r"input of \(1, 34\) is too small for the Bayer"):
+        synth(given["batch"][:, :1], mask=given["mask"][:, :1])
     with pytest.raises(ValueError, match="call once per size for mixed sizes"):
         synth([given["batch"][0], given["batch"][1, :20]])
     with pytest.raises(ValueError, match="mask= is for blur.mode = none"):
