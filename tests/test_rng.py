@@ -555,3 +555,20 @@ def test_poisson_tile_equals_whole_image_and_seed_changes_draws():
     np.testing.assert_array_equal(tile, whole[12:31, 5:22])
     other = rng.poisson(rate, SEED + 1, 2, rows, cols)
     assert np.count_nonzero(other != whole) > 0.8 * whole.size
+
+
+def test_image_uniforms_of_a_few_blocks_equal_the_vectorized_philox():
+    """The Python-int path for a sample's few draws gives philox4x32's words exactly."""
+    for seed in (0, 1, 2**64 - 1, 12345678901234):
+        for index in (0, 7, 2**32 - 1):
+            for stream in (rng.Stream.PARAMS, rng.Stream.KERNEL, rng.Stream.TRAJECTORY):
+                for count in (0, 1, 5, 9, 32, 33):
+                    blocks = -(-count // 4)
+                    counter = np.zeros((blocks, 4), np.uint64)
+                    counter[:, 0] = np.arange(blocks)
+                    counter[:, 2] = index
+                    counter[:, 3] = int(stream) << 24
+                    want = rng.uniform_from_bits(
+                        rng.philox4x32(counter, rng.key_from_seed(seed)).reshape(-1)[:count])
+                    got = rng.image_uniforms(seed, index, stream, count)
+                    assert got.dtype == np.float64 and np.array_equal(got, want)

@@ -194,6 +194,7 @@ class KernelBackend:
         self._constants: dict = {}  # (bytes, dtype) -> device copy of a small constant
         self._code_tables: dict = {}  # (config, source dtype) -> the 8-bit linear table
         self._sharp_tables: dict = {}  # (config, curves, source dtype) -> every code rendered
+        self._derived: dict = {}  # id(plan), id(camera) -> (plan, camera, what they give)
 
     # -- primitives a language supplies ----------------------------------------------------
     @property
@@ -253,6 +254,26 @@ class KernelBackend:
         return values.data
 
     # -- shared helpers --------------------------------------------------------------------
+    def _of_plan(self, plan: Plan, camera: Camera | None = None) -> dict:
+        """What a plan (and camera) give the kernels, worked out once per plan object.
+
+        Its passes' :func:`pass_config`, :func:`sharp_config` and, with a camera,
+        :func:`retone_curves`: a batch runs the same plan object for many samples
+        (``gpu_blur.Synthesizer`` caches plans), and these cost about 0.1 ms a sample.
+        """
+        key = (id(plan), id(camera))
+        entry = self._derived.get(key)
+        if entry is None or entry[0] is not plan or entry[1] is not camera:
+            if len(self._derived) >= 64:
+                self._derived.clear()
+            derived = {p: pass_config(plan, p) for p in (Pass.ACCUMULATE, Pass.TO_RAW,
+                                                         Pass.FINISH)}
+            derived["sharp"] = sharp_config(plan)
+            if camera is not None:
+                derived["curves"] = retone_curves(plan, camera)
+            entry = self._derived[key] = (plan, camera, derived)
+        return entry[2]
+
     def _stacks_for(self, frames: Sequence[np.ndarray], region: Region, dtype):
         """How :meth:`_frame_stacks` splits ``frames`` into device stacks.
 
@@ -317,7 +338,7 @@ class KernelBackend:
         """
         if isinstance(frames, OnDevice):
             return self._accumulate_put(plan, params, frames, mask, region)
-        config = pass_config(plan, Pass.ACCUMULATE)
+        config = self._of_plan(plan)[Pass.ACCUMULATE]
         source = source_dtype(frames[0], self.np_real)
         k = self._pass_kernels(config, source)
         mode = plan.variant(S.BLUR) or "none"
@@ -356,7 +377,7 @@ class KernelBackend:
         if mode == "average" and interpolation_factor(plan) > 1:
             raise ValueError("blur.interpolation > 1 needs the frames in host memory (its "
                              "optical flows are computed there)")
-        config = pass_config(plan, Pass.ACCUMULATE)
+        config = self._of_plan(plan)[Pass.ACCUMULATE]
         source = frames.dtype or np.dtype(self.np_real)
         k = self._pass_kernels(config, source)
         n = h * w * 3
@@ -514,7 +535,7 @@ class KernelBackend:
                origin: tuple[int, int] = (0, 0), *, seed: int,
                sample_index: int) -> tuple[OnDevice, OnDevice]:
         """Saturation to noisy RAW on the device (see NumpyBackend.to_raw)."""
-        k = self._pass_kernels(pass_config(plan, Pass.TO_RAW))
+        k = self._pass_kernels(self._of_plan(plan)[Pass.TO_RAW])
         h, w = linear.shape[:2]
         saturated = self._empty(h * w * 3)
         raw = self._empty(h * w if plan.raw_round_trip else 1)
@@ -534,8 +555,9 @@ class KernelBackend:
     def finish(self, plan: Plan, params: dict, camera: Camera, image, saturated, view: Region,
                out: Region, *, seed: int, sample_index: int) -> OnDevice:
         """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
-        k = self._pass_kernels(pass_config(plan, Pass.FINISH))
-        polynomial, table = retone_curves(plan, camera)
+        derived = self._of_plan(plan, camera)
+        k = self._pass_kernels(derived[Pass.FINISH])
+        polynomial, table = derived["curves"]
         raw = image if plan.raw_round_trip else np.zeros(1)
         result = self._empty(out.h * out.w * 3)
         inputs = (self._upload(raw), self._upload(saturated))
@@ -634,8 +656,9 @@ class KernelBackend:
                              f"{out.y0}, column {out.x0}) does not lie within the {h} x {w} "
                              "image: pass a region of the image (e.g. the image less "
                              "output.crop pixels on every side)")
-        k = self._input_kernels(sharp_config(plan), source)
-        polynomial, table = retone_curves(plan, camera)
+        derived = self._of_plan(plan, camera)
+        k = self._input_kernels(derived["sharp"], source)
+        polynomial, table = derived["curves"]
         curves = (self._constant(polynomial), Arg("int", polynomial.size, extent=True),
                   self._constant(table), Arg("int", table.size, extent=True))
         result = self._empty(out.h * out.w * 3)
@@ -646,7 +669,7 @@ class KernelBackend:
             else:
                 # codes: the curve of every code (one pixel per 3 codes; once per build and
                 # curve), then a gather, as the host renders them (pipeline.render_sharp)
-                key = (sharp_config(plan), polynomial.tobytes(), table.size, source.str)
+                key = (derived["sharp"], polynomial.tobytes(), table.size, source.str)
                 if key not in self._sharp_tables:
                     top = np.iinfo(source).max
                     every = np.minimum(np.arange(-(-(top + 1) // 3) * 3), top)

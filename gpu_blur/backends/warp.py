@@ -433,6 +433,7 @@ class WarpBackend(KernelBackend):
                 part = wp.clone(part)
             staging = self._staging_buffer("export", part.size, self.real)
             wp.copy(staging, part.flatten(), count=part.size)
-            self._synchronize()
+            # wait for this copy only: launches queued after it (the next sample) run on
+            wp.synchronize_event(wp.get_stream(self.wp_device).record_event())
             copy_values(into, staging.numpy()[:part.size])
         return None

@@ -307,12 +307,37 @@ def image_uniforms(seed: int, sample_index: int, stream: Stream, count: int) -> 
     blocks = -(-int(count) // 4)
     if blocks > _UINT32_LIMIT:
         raise ValueError(f"count must be at most 4 * 2**32; got {count}")
+    if blocks <= _SCALAR_BLOCKS:  # a sample's few draws: Python ints beat numpy's set-up
+        k0, k1 = int(key[0]), int(key[1])
+        words = [w for b in range(blocks)
+                 for w in _philox4x32_ints(b, 0, sample_index, int(stream) << 24, k0, k1)]
+        shift = int(_UNIFORM_SHIFT)
+        return np.array([((w >> shift) + 0.5) * _UNIFORM_SCALE for w in words[:count]])
     counter = np.zeros((blocks, 4), dtype=np.uint64)
     counter[:, 0] = np.arange(blocks, dtype=np.uint64)
     counter[:, 2] = sample_index
     counter[:, 3] = int(stream) << 24
     bits = philox4x32(counter, key)
     return uniform_from_bits(bits.reshape(-1)[:count])
+
+
+#: Blocks up to which :func:`image_uniforms` runs Philox on Python ints (a sample's parameter
+#: draws: 3 blocks, about 40 us instead of 150 us through numpy's per-call overheads).
+_SCALAR_BLOCKS = 8
+
+
+def _philox4x32_ints(c0: int, c1: int, c2: int, c3: int, k0: int, k1: int
+                     ) -> tuple[int, int, int, int]:
+    """:func:`philox4x32` (10 rounds) of one counter on Python ints: the same exact words."""
+    m0, m1, w0, w1 = (int(c) for c in (PHILOX_M4X32_0, PHILOX_M4X32_1, PHILOX_W32_0,
+                                       PHILOX_W32_1))
+    mask = int(_MASK32)
+    for r in range(10):
+        if r > 0:
+            k0, k1 = (k0 + w0) & mask, (k1 + w1) & mask
+        p0, p1 = m0 * c0, m1 * c2
+        c0, c1, c2, c3 = (p1 >> 32) ^ c1 ^ k0, p1 & mask, (p0 >> 32) ^ c3 ^ k1, p0 & mask
+    return c0, c1, c2, c3
 
 
 def pixel_bits(seed: int, sample_index: int, stream: Stream, y, x, round: int = 0) -> np.ndarray:
