@@ -537,12 +537,13 @@ class Synthesizer:
         """A sample's inputs on the kernel backend's device (frames: one stack in mode average)."""
         runner = self.runner
         frames = item.frames
-        if isinstance(frames, (list, tuple)):  # synthesize's host frames
-            frames = frames[0] if len(frames) == 1 and self.scene.blur.mode != "average" \
-                else np.stack(frames)
-        h, w = self._kept_size(frames.shape)
-        if (h, w) != tuple(frames.shape[-3:-1]):
-            frames = np.ascontiguousarray(frames[..., :h, :w, :])
+        if isinstance(frames, (list, tuple)):  # synthesize's host frames, a stack when averaged
+            frames = frames[0] if self.scene.blur.mode != "average" else list(frames)
+        first = frames[0] if isinstance(frames, list) else frames
+        h, w = self._kept_size(first.shape)
+        if (h, w) != tuple(first.shape[-3:-1]):
+            frames = ([f[:h, :w] for f in frames] if isinstance(frames, list)
+                      else np.ascontiguousarray(frames[..., :h, :w, :]))
         stack = runner.put(frames)
         mask = None if item.mask is None else runner.put(_even(item.mask, stack))
         if item.sharp is not None:

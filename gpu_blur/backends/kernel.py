@@ -416,10 +416,12 @@ class KernelBackend:
         """An input on the device in its stored dtype, for :meth:`accumulate` and the checks.
 
         Args:
-            image: ``H x W x 3`` (or an ``n x H x W x 3`` stack of frames) as stored: uint8 or
-                uint16 codes go as they are, floats as the compute type; a host array is
-                copied once.
+            image: ``H x W x 3`` (or an ``n x H x W x 3`` stack of frames, or a list of ``n``
+                frames of one size and dtype) as stored: uint8 or uint16 codes go as they
+                are, floats as the compute type; a host array is copied once.
         """
+        if isinstance(image, (list, tuple)):
+            image = np.stack(image)
         dtype = source_dtype(image, self.np_real)
         stored = None if dtype == np.dtype(self.np_real) else dtype
         return OnDevice(self._upload(image, dtype), np.shape(image), self._fetch, stored)

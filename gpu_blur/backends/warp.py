@@ -348,7 +348,7 @@ class WarpBackend(KernelBackend):
         if not isinstance(image, wp.array):
             if not self.overlap:
                 return super().put(image)
-            return self._put_through_staging(np.asarray(image))
+            return self._put_through_staging(image)
         if not image.is_contiguous:
             raise ValueError(f"a wp.array input must be contiguous; got strides {image.strides} "
                              f"for shape {image.shape}: pass a contiguous copy")
@@ -369,26 +369,32 @@ class WarpBackend(KernelBackend):
         return OnDevice(flat, image.shape, self._fetch,
                         None if dtype == np.dtype(self.np_real) else dtype)
 
-    def _put_through_staging(self, image: np.ndarray) -> OnDevice:
+    def _put_through_staging(self, image) -> OnDevice:
         """A host input to CUDA: copied by threads into a pinned buffer, then on the copy stream.
 
-        Two pinned buffers take turns, so filling one overlaps the other's upload; the compute
-        stream waits for the upload before any launch reads the input.
+        ``image``: an array, or a list of frames (copied one after another into the buffer:
+        no stacked host copy). Two pinned buffers take turns, so filling one overlaps the
+        other's upload; the compute stream waits for the upload before any launch reads it.
         """
-        dtype = source_dtype(image, self.np_real)
-        count = image.size
+        parts = list(image) if isinstance(image, (list, tuple)) else [np.asarray(image)]
+        shape = (len(parts), *parts[0].shape) if isinstance(image, (list, tuple)) \
+            else parts[0].shape
+        dtype = source_dtype(parts[0], self.np_real)
+        size = parts[0].size
+        count = size * len(parts)
         self._check_size(count)
         slot = ("put", self._put_turn)
         self._put_turn ^= 1
         with timer("copies"):
             staging = self._staging_buffer(slot, count, self._wp_dtype(dtype))
-            copy_values(staging.numpy()[:count], image)
+            for i, part in enumerate(parts):
+                copy_values(staging.numpy()[i * size:(i + 1) * size], part)
             data = self._empty(count, dtype)
             wp.copy(data, staging, count=count, stream=self._copier)
             self._staged[slot] = self._copier.record_event()
             wp.get_stream(self.wp_device).wait_event(self._staged[slot])
         stored = None if dtype == np.dtype(self.np_real) else dtype
-        return OnDevice(data, image.shape, self._fetch, stored)
+        return OnDevice(data, shape, self._fetch, stored)
 
     def accumulate(self, plan: Plan, params: dict, frames, mask, region: Region
                    ) -> tuple[OnDevice, OnDevice]:
