@@ -321,7 +321,62 @@ def _windows(count: int, size: int, per_sequence: int | None) -> Iterator[int]:
     return (round(j * last / (per_sequence - 1)) for j in range(per_sequence))
 
 
-def _sequence_samples(sequences, size: int, per_sequence: int | None) -> Iterator[SampleSpec]:
+def find_realblur_pairs(root: Path) -> list[BlurredSample]:
+    """RealBlur's evaluation pairs under ``root``, in natural order.
+
+    ``<scene>/blur/blur_<n>.png`` with ``<scene>/gt/gt_<n>.png`` (RealBlur_J and RealBlur_R,
+    Rim et al. ECCV 2020), named ``<scene>/blur_<n>``; a blurred image without its ground
+    truth has ``problem`` set, naming the file expected.
+    """
+    pairs = []
+    for folder, is_dir in _walk(root, None):
+        if not (is_dir and folder.name == "blur"):
+            continue
+        prefix = "" if folder.parent == root else folder.parent.relative_to(root).as_posix() + "/"
+        for blurred in _images(folder):
+            if not blurred.stem.startswith("blur_"):
+                continue
+            sharp = folder.parent / "gt" / ("gt_" + blurred.stem[5:] + blurred.suffix)
+            problem = None if sharp.is_file() else (
+                f"{blurred}: its ground truth {sharp} is missing (RealBlur pairs "
+                "<scene>/blur/blur_<n> with <scene>/gt/gt_<n>)")
+            pairs.append(BlurredSample(prefix + blurred.stem, blurred, None,
+                                       sharp if problem is None else None, problem))
+    return pairs
+
+
+def read_datalist(path: Path, root: Path) -> list[BlurredSample]:
+    """The pairs of a datalist as the RSBlur authors ship them (``datalist/*.txt``).
+
+    One ``<sharp> <blurred>`` line each, paths relative to ``root``; named by the blurred path
+    without its suffix. A pair whose file is missing has ``problem`` set.
+
+    Raises:
+        ValueError: naming the file and line when a line is not two paths.
+    """
+    pairs = []
+    for number, line in enumerate(Path(path).read_text().splitlines(), 1):
+        fields = line.split()
+        if not fields:
+            continue
+        if len(fields) != 2:
+            raise ValueError(f"{path}, line {number}: {len(fields)} field(s) in {line!r}; a "
+                             "datalist line is '<sharp path> <blurred path>', relative to the "
+                             "data folder")
+        sharp, blurred = root / fields[0], root / fields[1]
+        missing = [str(p) for p in (blurred, sharp) if not p.is_file()]
+        problem = (f"{path}, line {number}: {' and '.join(missing)} not found (paths are "
+                   f"relative to {root})") if missing else None
+        pairs.append(BlurredSample(Path(fields[1]).with_suffix("").as_posix(), blurred, None,
+                                   sharp, problem))
+    return pairs
+
+
+def sequence_samples(sequences, size: int, per_sequence: int | None) -> Iterator[SampleSpec]:
+    """The windows of ``size`` frames of :func:`find_sequences`' sequences, numbered in order.
+
+    See :func:`find_samples`; a sequence too short gives one sample with ``problem``.
+    """
     index = 0
     for name, frames in sequences:
         if len(frames) < size:
@@ -449,7 +504,7 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int,
                     "trajectory or kernel")
             total = sum(1 if len(frames) < size else samples_per_sequence or len(frames) // size
                         for _, frames in seqs)
-            return Samples(total, lambda: _sequence_samples(seqs, size, samples_per_sequence))
+            return Samples(total, lambda: sequence_samples(seqs, size, samples_per_sequence))
         if mode == "none":
             found = find_blurred(root, masks, exclude)
             if not found:
@@ -476,8 +531,10 @@ def discover(root: Path | None, mode: str, frames_per_sample: int,
 
 
 def _inputs(spec: SampleSpec) -> dict:
-    """A manifest line's ``inputs`` (as :func:`input_label` names them), with their
-    ``input_roles`` (``blurred``, ``mask``, ``sharp``) in blur mode none."""
+    """A manifest line's ``inputs`` (:func:`input_label`), and in mode none ``input_roles``.
+
+    The roles are ``blurred``, ``mask`` and ``sharp``, in the order of the inputs.
+    """
     line = {"inputs": [input_label(p) for p in spec.inputs]}
     if spec.roles:
         line["input_roles"] = list(spec.roles)

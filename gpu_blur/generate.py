@@ -108,9 +108,10 @@ def decode(spec: SampleSpec) -> tuple[np.ndarray, ...] | None:
     Each file goes through :func:`~gpu_blur.imageio.read_image` and
     :func:`~gpu_blur.imageio.check_image` (named by its path), and all must have one size; the
     arrays are read_image's, as ``synthesize`` gets them from a path (a mode none mask's 8-bit
-    codes, like its image's, become value / 255 there, as the RSBlur authors read them). When anything fails, the
-    sample is made from its paths instead, so ``synthesize`` reads them again and refuses them
-    in its own words, naming the file: a bad sample is read twice, a good one once.
+    codes, like its image's, become value / 255 there, as the RSBlur authors read them). When
+    anything fails, the sample is made from its paths instead, so ``synthesize`` reads them
+    again and refuses them in its own words, naming the file: a bad sample is read twice, a
+    good one once.
     """
     if spec.problem:
         return None
