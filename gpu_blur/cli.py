@@ -112,7 +112,8 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--strict", action="store_true", help="with --verify: stop the run at the "
                    "first spot-check mismatch (exit status 2)")
     g.add_argument("--samples-per-photo", type=int, default=None, metavar="K",
-                   help="samples drawn from each photo (default 1; 4 for the built-in photo)")
+                   help="samples drawn from each photo, or each blurred image in blur.mode = none "
+                   "(default 1; 4 for the built-in photo)")
     g.add_argument("--samples-per-sequence", type=int, default=None, metavar="K",
                    help="blur.mode = average: K windows per sequence, spread evenly from first "
                    "to last (overlapping when needed; default: every non-overlapping window)")
