@@ -62,7 +62,10 @@ def _parser() -> argparse.ArgumentParser:
         description="Synthesize realistic blurred/sharp PNG pairs and a JSONL manifest. "
         "With no --input, blurs the built-in photograph along camera-shake paths.")
     g.add_argument("--input", type=Path, help="folder of GoPro-style sequences "
-                   "(<seq>/sharp/*.png, blur.mode = average) or of photos (kernel, trajectory)")
+                   "(<seq>/sharp/*.png, blur.mode = average), of photos (kernel, trajectory), "
+                   "or of already-blurred images with saturation masks (none: "
+                   "GoPro_INTER_ABME avg_inter_img/, RSBlur avg65_img/, GoPro_U "
+                   "centroid_blurred_img/)")
     g.add_argument("--output", type=Path, required=True, help="folder for blur/, sharp/, "
                    "params/, manifest.jsonl and run.json")
     g.add_argument("--scene", type=Path, help="scene TOML, or a built-in scene's name "
@@ -109,7 +112,8 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--strict", action="store_true", help="with --verify: stop the run at the "
                    "first spot-check mismatch (exit status 2)")
     g.add_argument("--samples-per-photo", type=int, default=None, metavar="K",
-                   help="samples drawn from each photo (default 1; 4 for the built-in photo)")
+                   help="samples drawn from each photo, or each blurred image in blur.mode = none "
+                   "(default 1; 4 for the built-in photo)")
     g.add_argument("--samples-per-sequence", type=int, default=None, metavar="K",
                    help="blur.mode = average: K windows per sequence, spread evenly from first "
                    "to last (overlapping when needed; default: every non-overlapping window)")
@@ -380,7 +384,8 @@ def _generate(args) -> int:
     executor = pick_executor(args, scene.output.precision)  # serial, --devices or --ray
     per_photo = args.samples_per_photo or (1 if args.input else 4)
     found = find_samples(args.input, scene.blur.mode, scene.blur.frames, per_photo,
-                         args.samples_per_sequence, exclude=args.output)
+                         args.samples_per_sequence, exclude=args.output,
+                         masks=scene.saturation.mode != "off")
     specs = found.take(args.limit)
     # the Schedule rides in Job.tile (tile, memory budget, spot checks; see pipeline)
     schedule = Schedule(tuple(args.tile) if args.tile else None, args.max_device_memory,

@@ -55,14 +55,17 @@ RESUME_KEYS = {"seed": "--seed", "scene": "--scene", "backend": "--backend",
 class SampleSpec:
     """One sample to make: its index (which, with the seed, fixes its draws) and its inputs.
 
-    ``problem`` says why the sample cannot be made (a sequence shorter than ``blur.frames``);
-    such a sample keeps its index, so fixing its input later moves no other sample's draws.
+    ``problem`` says why the sample cannot be made (a sequence shorter than ``blur.frames``,
+    a blurred image without its mask); such a sample keeps its index, so fixing its input
+    later moves no other sample's draws. ``roles`` names each input for blur mode none
+    (``blurred``, ``mask``, ``sharp``); empty for frames and photos.
     """
 
     index: int
     name: str
     inputs: tuple[Path, ...]
     problem: str | None = None
+    roles: tuple[str, ...] = ()
 
 
 #: How the manifest and run.json name the built-in photo: its installed path differs from one
@@ -194,6 +197,120 @@ def find_sequences(root: Path, exclude: Path | None = None) -> list[tuple[str, l
     return seqs
 
 
+@dataclasses.dataclass(frozen=True)
+class BlurredLayout:
+    """Where a published layout of already-blurred images keeps each sample's files.
+
+    Every ``.../<blurred>/`` folder holds blurred images; each image's saturation mask has the
+    same file name in the folder beside it named as :attr:`mask` says, and its sharp reference
+    is in the ``<sharp>/`` folder beside both (RSBlur authors' README and datalists; layouts in
+    ``RSBLUR_PIPELINE.md`` Sec. 2).
+    """
+
+    dataset: str
+    blurred: str
+    sharp: str
+    #: (end of a blurred file's stem, end of its sharp file's stem): the sharp file's name;
+    #: None: the sharp folder holds the one sharp image of its sample.
+    sharp_stem: tuple[str, str] | None = None
+
+    @property
+    def mask(self) -> str:
+        """The mask folder: the authors' loaders replace ``_img`` by ``_mask_100``."""
+        return self.blurred.removesuffix("_img") + "_mask_100"
+
+
+#: The already-blurred layouts blur mode none reads: GoPro_INTER_ABME's
+#: ``<seq>/<id>/avg_inter_img/avg_blur.png`` (sharp ``<id>/gt/gt_sharp.png``), RSBlur's
+#: ``<session>/<id>/avg65_img/avg_blur.png`` (sharp in ``gt/`` too) and GoPro_U's
+#: ``centroid_blurred_img/<name>_blurred.png`` (sharp ``target_img/<name>_gt.png``).
+BLURRED_LAYOUTS = (
+    BlurredLayout("GoPro_INTER_ABME", "avg_inter_img", "gt"),
+    BlurredLayout("RSBlur", "avg65_img", "gt"),
+    BlurredLayout("GoPro_U", "centroid_blurred_img", "target_img", ("_blurred", "_gt")),
+)
+#: What blur mode none looks for, for messages.
+BLURRED_EXPECTED = ("already-blurred images in " + ", ".join(
+    f"{lay.blurred}/ (masks in {lay.mask}/, {lay.dataset})" for lay in BLURRED_LAYOUTS))
+
+
+@dataclasses.dataclass(frozen=True)
+class BlurredSample:
+    """One already-blurred image with its saturation mask and sharp reference (when found).
+
+    ``problem`` says why it cannot be used (no mask; a sharp folder without its image).
+    """
+
+    name: str
+    blurred: Path
+    mask: Path | None
+    sharp: Path | None
+    problem: str | None = None
+
+
+def _sharp_of(blurred: Path, layout: BlurredLayout) -> tuple[Path | None, str | None]:
+    """(sharp reference, problem) of a blurred image: (None, None) without a sharp folder."""
+    folder = blurred.parent.parent / layout.sharp
+    if not folder.is_dir():
+        return None, None
+    if layout.sharp_stem is not None:
+        end, sharp_end = layout.sharp_stem
+        stem = blurred.stem.removesuffix(end) + sharp_end if blurred.stem.endswith(end) \
+            else blurred.stem
+        path = folder / (stem + blurred.suffix)
+        if path.is_file():
+            return path, None
+        return None, (f"{blurred}: its sharp reference {path} is missing ({layout.dataset} "
+                      f"names it <name>{sharp_end}{blurred.suffix} in {layout.sharp}/); add "
+                      f"it, or move {folder} away to use the blurred image as the reference")
+    images = _images(folder)
+    if len(images) == 1:
+        return images[0], None
+    return None, (f"{blurred}: {folder} holds {len(images)} images where {layout.dataset} "
+                  f"keeps the one sharp reference of this sample (gt_sharp.png); leave one "
+                  f"there, or move {folder} away to use the blurred image as the reference")
+
+
+def find_blurred(root: Path, masks: bool = True,
+                 exclude: Path | None = None) -> list[BlurredSample]:
+    """Already-blurred images under ``root`` in the layouts of :data:`BLURRED_LAYOUTS`.
+
+    Every image directly in a ``<blurred>/`` folder is a sample, in natural order, named by
+    its path relative to ``root`` without the ``<blurred>/`` folder and the suffix
+    (``GOPR0372_07_00/000001/avg_blur``). Its mask is the file of the same name in the mask
+    folder beside it (``avg65_mask_100/avg_blur.png``), read as the authors do (8-bit value /
+    255). A sharp folder beside them (``gt/``, ``target_img/``) must hold the sample's sharp
+    reference; without that folder the sample has none (blur mode none then uses the blurred
+    image as the reference).
+
+    Args:
+        root: the input folder.
+        masks: look for masks; a blurred image without its mask is a sample with its
+            ``problem`` set. False: masks are not read (no saturation synthesis).
+        exclude: a folder under ``root`` left out with all it holds (the output folder).
+    """
+    by_folder = {lay.blurred: lay for lay in BLURRED_LAYOUTS}
+    samples = []
+    for folder, is_dir in _walk(root, _identity(exclude)):
+        layout = by_folder.get(folder.name) if is_dir else None
+        if layout is None:
+            continue
+        base = folder.parent
+        prefix = "" if base == root else base.relative_to(root).as_posix() + "/"
+        for blurred in _images(folder):
+            name = prefix + blurred.stem
+            mask = base / layout.mask / blurred.name if masks else None
+            sharp, problem = _sharp_of(blurred, layout)
+            if mask is not None and not mask.is_file():
+                problem = (f"{blurred}: no saturation mask {mask} ({layout.dataset} keeps it "
+                           f"under the same name in {layout.mask}/); add it, or run "
+                           "without masks: saturation.mode = off for gpu-blur generate, "
+                           "masks=False for gpu_blur.datasets")
+                mask = None
+            samples.append(BlurredSample(name, blurred, mask, sharp, problem))
+    return samples
+
+
 def _windows(count: int, size: int, per_sequence: int | None) -> Iterator[int]:
     """First frames of a sequence's windows, in order (see :func:`find_samples`)."""
     if per_sequence is None:
@@ -204,7 +321,62 @@ def _windows(count: int, size: int, per_sequence: int | None) -> Iterator[int]:
     return (round(j * last / (per_sequence - 1)) for j in range(per_sequence))
 
 
-def _sequence_samples(sequences, size: int, per_sequence: int | None) -> Iterator[SampleSpec]:
+def find_realblur_pairs(root: Path) -> list[BlurredSample]:
+    """RealBlur's evaluation pairs under ``root``, in natural order.
+
+    ``<scene>/blur/blur_<n>.png`` with ``<scene>/gt/gt_<n>.png`` (RealBlur_J and RealBlur_R,
+    Rim et al. ECCV 2020), named ``<scene>/blur_<n>``; a blurred image without its ground
+    truth has ``problem`` set, naming the file expected.
+    """
+    pairs = []
+    for folder, is_dir in _walk(root, None):
+        if not (is_dir and folder.name == "blur"):
+            continue
+        prefix = "" if folder.parent == root else folder.parent.relative_to(root).as_posix() + "/"
+        for blurred in _images(folder):
+            if not blurred.stem.startswith("blur_"):
+                continue
+            sharp = folder.parent / "gt" / ("gt_" + blurred.stem[5:] + blurred.suffix)
+            problem = None if sharp.is_file() else (
+                f"{blurred}: its ground truth {sharp} is missing (RealBlur pairs "
+                "<scene>/blur/blur_<n> with <scene>/gt/gt_<n>)")
+            pairs.append(BlurredSample(prefix + blurred.stem, blurred, None,
+                                       sharp if problem is None else None, problem))
+    return pairs
+
+
+def read_datalist(path: Path, root: Path) -> list[BlurredSample]:
+    """The pairs of a datalist as the RSBlur authors ship them (``datalist/*.txt``).
+
+    One ``<sharp> <blurred>`` line each, paths relative to ``root``; named by the blurred path
+    without its suffix. A pair whose file is missing has ``problem`` set.
+
+    Raises:
+        ValueError: naming the file and line when a line is not two paths.
+    """
+    pairs = []
+    for number, line in enumerate(Path(path).read_text().splitlines(), 1):
+        fields = line.split()
+        if not fields:
+            continue
+        if len(fields) != 2:
+            raise ValueError(f"{path}, line {number}: {len(fields)} field(s) in {line!r}; a "
+                             "datalist line is '<sharp path> <blurred path>', relative to the "
+                             "data folder")
+        sharp, blurred = root / fields[0], root / fields[1]
+        missing = [str(p) for p in (blurred, sharp) if not p.is_file()]
+        problem = (f"{path}, line {number}: {' and '.join(missing)} not found (paths are "
+                   f"relative to {root})") if missing else None
+        pairs.append(BlurredSample(Path(fields[1]).with_suffix("").as_posix(), blurred, None,
+                                   sharp, problem))
+    return pairs
+
+
+def sequence_samples(sequences, size: int, per_sequence: int | None) -> Iterator[SampleSpec]:
+    """The windows of ``size`` frames of :func:`find_sequences`' sequences, numbered in order.
+
+    See :func:`find_samples`; a sequence too short gives one sample with ``problem``.
+    """
     index = 0
     for name, frames in sequences:
         if len(frames) < size:
@@ -221,6 +393,16 @@ def _sequence_samples(sequences, size: int, per_sequence: int | None) -> Iterato
             previous = start
             yield SampleSpec(index, f"{name}/{window[0].stem}{repeat}", window)
             index += 1
+
+
+def _blurred_samples(found: list[BlurredSample], per_photo: int) -> Iterator[SampleSpec]:
+    for i, sample in enumerate(found):
+        files = {"blurred": sample.blurred, "mask": sample.mask, "sharp": sample.sharp}
+        roles = tuple(k for k, path in files.items() if path is not None)
+        for k in range(per_photo):
+            suffix = f"_{k}" if per_photo > 1 else ""
+            yield SampleSpec(i * per_photo + k, f"{sample.name}{suffix}",
+                             tuple(files[r] for r in roles), sample.problem, roles)
 
 
 def _photo_samples(photos, per_photo: int) -> Iterator[SampleSpec]:
@@ -255,7 +437,7 @@ class Samples:
 
 def find_samples(root: Path | None, mode: str, frames_per_sample: int,
                  samples_per_photo: int = 1, samples_per_sequence: int | None = None,
-                 exclude: Path | None = None) -> Samples:
+                 exclude: Path | None = None, masks: bool = True) -> Samples:
     """The samples a folder yields for a blur mode, counted at once and made when taken.
 
     Args:
@@ -266,9 +448,13 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int,
             blurred image directly in the folder; ``avg*/``, ``gt/``, ``real_blur/`` and other
             subfolders ignored), frames and sequences in natural order (``2.png`` before
             ``10.png``). ``kernel`` and ``trajectory`` take every image under ``root``
-            (recursively, in the same natural order) as a photo.
+            (recursively, in the same natural order) as a photo. ``none`` takes the
+            already-blurred images :func:`find_blurred` finds (GoPro_INTER_ABME, RSBlur and
+            GoPro_U layouts); a sample's inputs are its (blurred, mask, sharp) files, those
+            found, named by ``roles``.
         frames_per_sample: frames per window (mode ``average``).
-        samples_per_photo: samples made from each photo (each with its own draws).
+        samples_per_photo: samples made from each photo, or each blurred image in mode
+            ``none`` (each with its own draws).
         samples_per_sequence: mode ``average``: None (default) takes every consecutive,
             non-overlapping window (``n // frames`` per sequence of ``n`` frames); ``K`` takes
             exactly ``K`` windows per sequence, their first frames spread evenly from the first
@@ -278,6 +464,8 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int,
             named by their first frame, plus ``_<j>`` for a repeat.
         exclude: a folder under ``root`` whose images are never taken (the output folder:
             a set written inside its input is not read back as input).
+        masks: mode ``none``: each blurred image needs its mask (without one its sample has
+            ``problem`` set); False reads no masks (for ``saturation.mode = off``).
 
     A sequence with fewer than ``frames_per_sample`` frames gives one sample with its
     ``problem`` set (reported as failed), unless no sequence is long enough. Samples are
@@ -286,14 +474,13 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int,
     Raises:
         ValueError: naming the folder when it is missing, not a folder, or yields no sample.
     """
-    if mode == "none":
-        raise ValueError("gpu-blur generate makes blur from sharp input; blur.mode = none "
-                         "(already blurred input) is available from Python: "
-                         "gpu_blur.synthesize({'blurred': ..., 'mask': ...}, scene)")
     if root is None:
         if mode == "average":
             raise ValueError("the built-in input is a single photo; blur.mode = average needs "
                              "--input with <seq>/sharp/*.png sequences")
+        if mode == "none":
+            raise ValueError(f"the built-in input is a sharp photo; blur.mode = none needs "
+                             f"--input with {BLURRED_EXPECTED}")
         photos = [("coffee", default_photo())]
     else:
         if not root.exists():
@@ -317,7 +504,13 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int,
                     "trajectory or kernel")
             total = sum(1 if len(frames) < size else samples_per_sequence or len(frames) // size
                         for _, frames in seqs)
-            return Samples(total, lambda: _sequence_samples(seqs, size, samples_per_sequence))
+            return Samples(total, lambda: sequence_samples(seqs, size, samples_per_sequence))
+        if mode == "none":
+            found = find_blurred(root, masks, exclude)
+            if not found:
+                raise ValueError(f"--input {root}: blur.mode = none found no {BLURRED_EXPECTED}")
+            return Samples(len(found) * samples_per_photo,
+                           lambda: _blurred_samples(found, samples_per_photo))
         photos = [(p.relative_to(root).with_suffix("").as_posix(), p)
                   for p, is_dir in _walk(root, _identity(exclude))
                   if not is_dir and p.suffix.lower() in IMAGE_SUFFIXES]
@@ -330,10 +523,22 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int,
 
 def discover(root: Path | None, mode: str, frames_per_sample: int,
              samples_per_photo: int = 1, samples_per_sequence: int | None = None,
-             limit: int | None = None, exclude: Path | None = None) -> list[SampleSpec]:
+             limit: int | None = None, exclude: Path | None = None,
+             masks: bool = True) -> list[SampleSpec]:
     """The first ``limit`` (default: all) samples of :func:`find_samples`, as a list."""
     return find_samples(root, mode, frames_per_sample, samples_per_photo, samples_per_sequence,
-                        exclude).take(limit)
+                        exclude, masks).take(limit)
+
+
+def _inputs(spec: SampleSpec) -> dict:
+    """A manifest line's ``inputs`` (:func:`input_label`), and in mode none ``input_roles``.
+
+    The roles are ``blurred``, ``mask`` and ``sharp``, in the order of the inputs.
+    """
+    line = {"inputs": [input_label(p) for p in spec.inputs]}
+    if spec.roles:
+        line["input_roles"] = list(spec.roles)
+    return line
 
 
 def _jsonable(value):
@@ -682,7 +887,7 @@ class DatasetWriter:
         line = {
             "index": spec.index,
             "name": spec.name,
-            "inputs": [input_label(p) for p in spec.inputs],
+            **_inputs(spec),
             "blurred": paths["blurred"],
             "sharp": paths["sharp"],
             **record,
@@ -707,8 +912,7 @@ class DatasetWriter:
 
     def fail(self, spec: SampleSpec, reason: str, record: dict) -> dict:
         """Record a sample that could not be made (``status`` "failed", ``error``)."""
-        line = {"index": spec.index, "name": spec.name,
-                "inputs": [input_label(p) for p in spec.inputs],
+        line = {"index": spec.index, "name": spec.name, **_inputs(spec),
                 **record, "status": "failed", "error": reason}
         self._append(line)
         return line

@@ -64,7 +64,8 @@ def make_sample(job: Job, spec: SampleSpec, inputs: tuple[np.ndarray, ...] | Non
     """One sample: ``(spec, result, None)``, or ``(spec, None, reason)`` for bad input.
 
     ``inputs`` are the sample's files already decoded (:func:`decode`), else its paths are
-    read here.
+    read here. In blur mode none they go to ``synthesize`` as the mapping its ``roles`` name
+    (``{"blurred": ..., "mask": ..., "sharp": ...}``).
 
     What fails only this sample (the reason goes to the manifest and the run goes on) is what
     this sample's inputs and size cause: ValueError (a check refused an input or a value),
@@ -77,7 +78,10 @@ def make_sample(job: Job, spec: SampleSpec, inputs: tuple[np.ndarray, ...] | Non
     try:
         if spec.problem:
             raise ValueError(spec.problem)
-        result = synthesize(list(spec.inputs if inputs is None else inputs), job.scene,
+        given = list(spec.inputs if inputs is None else inputs)
+        if spec.roles:
+            given = dict(zip(spec.roles, given, strict=True))
+        result = synthesize(given, job.scene,
                             seed=job.seed, sample_index=spec.index, backend=job.backend,
                             tile=job.schedule)
     except (ValueError, OSError) as e:
@@ -103,9 +107,11 @@ def decode(spec: SampleSpec) -> tuple[np.ndarray, ...] | None:
 
     Each file goes through :func:`~gpu_blur.imageio.read_image` and
     :func:`~gpu_blur.imageio.check_image` (named by its path), and all must have one size; the
-    arrays are read_image's, as ``synthesize`` gets them from a path. When anything fails, the
-    sample is made from its paths instead, so ``synthesize`` reads them again and refuses them
-    in its own words, naming the file: a bad sample is read twice, a good one once.
+    arrays are read_image's, as ``synthesize`` gets them from a path (a mode none mask's 8-bit
+    codes, like its image's, become value / 255 there, as the RSBlur authors read them). When
+    anything fails, the sample is made from its paths instead, so ``synthesize`` reads them
+    again and refuses them in its own words, naming the file: a bad sample is read twice, a
+    good one once.
     """
     if spec.problem:
         return None

@@ -5,6 +5,9 @@ images or frame stacks (or, for blur mode none, blurred images and their masks) 
 the CPU or a CUDA device, channels-first as torchvision has them; blurred and sharp tensors
 back on the same device. A sample's draws are fixed by (seed, epoch, index), so a run can be
 repeated and each epoch sees new blur, noise and ISP draws. torch is imported only here.
+
+The data sets of :mod:`gpu_blur.datasets` (GoPro, RSBlur, RealBlur layouts; seeded crops and
+flips) are re-exported here; they need no torch and run in DataLoader workers.
 """
 
 from __future__ import annotations
@@ -13,25 +16,14 @@ from collections.abc import Mapping, Sequence
 
 import torch
 
+from gpu_blur.datasets import (  # noqa: F401  (re-exported: the data side of the transform)
+    BlurredImages,
+    Photos,
+    RealBlurPairs,
+    SharpSequences,
+    epoch_seed,
+)
 from gpu_blur.pipeline import Synthesizer
-
-_MASK64 = (1 << 64) - 1
-
-
-def epoch_seed(seed: int, epoch: int) -> int:
-    """The dataset seed of one epoch: SplitMix64 of ``seed`` mixed with ``epoch``.
-
-    SplitMix64's constants and steps (Steele, Lea and Flood, OOPSLA 2014), applied to the
-    seed plus the epoch times the golden-ratio increment: epochs 0, 1, 2, ... of one seed get
-    unrelated 64-bit seeds.
-    """
-    if not (0 <= seed < 2**64) or epoch < 0:
-        raise ValueError(f"seed must be in [0, 2**64) and epoch >= 0; got seed {seed}, epoch "
-                         f"{epoch}")
-    z = (seed + (epoch + 1) * 0x9E3779B97F4A7C15) & _MASK64
-    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
-    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK64
-    return z ^ (z >> 31)
 
 
 class RealisticBlur(torch.nn.Module):
