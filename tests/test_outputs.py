@@ -7,15 +7,18 @@ import json
 import cv2
 import numpy as np
 import pytest
+import tifffile
 from conftest import BACKEND_SPECS
 
 import gpu_blur
-from gpu_blur.outputs import RAW_BLACK_LEVEL, RAW_WHITE_LEVEL, jpeg_round_trip
+from gpu_blur.cli import main
+from gpu_blur.outputs import RAW_BLACK_LEVEL, RAW_WHITE_LEVEL, jpeg_round_trip, raw_codes
 from gpu_blur.params import DRAW_INDEX, draw_params
 from gpu_blur.pipeline import scene_camera
 from gpu_blur.plan import StageName, plan
 from gpu_blur.reference import rng
 from gpu_blur.reference.bayer import BayerPattern
+from gpu_blur.reference.output import to_integers
 from gpu_blur.scene import SceneError, scene_from_dict
 from gpu_blur.scheduler import _passes
 from gpu_blur.tiling import Region
@@ -167,3 +170,69 @@ def test_with_raw_needs_the_raw_round_trip():
                                          r"= 'gaussian', isp.round_trip = 'auto'\); set"):
         gpu_blur.Synthesizer(scene, with_raw=True)
     assert gpu_blur.synthesize([PHOTOS[0]], scene).raw is None
+
+
+# -- generate --save -----------------------------------------------------------------------------
+
+@pytest.fixture
+def photo_folder(tmp_path):
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for i, photo in enumerate(PHOTOS):
+        cv2.imwrite(str(folder / f"p{i}.png"), photo[:, :, ::-1])
+    scene = tmp_path / "s.toml"
+    scene.write_text('[blur]\nmode = "kernel"\nkernel_size = [3, 5]\n[output]\ncrop = 3\n'
+                     "jpeg_quality = [40, 80]\n")
+    return folder, scene
+
+
+def test_generate_save_mask_raw_writes_what_the_pipeline_held(tmp_path, photo_folder):
+    folder, scene_path = photo_folder
+    out = tmp_path / "set"
+    assert main(["generate", "--input", str(folder), "--output", str(out), "--scene",
+                 str(scene_path), "--seed", "9", "--save", "raw,mask", "--quiet"]) == 0
+    lines = [json.loads(t) for t in (out / "manifest.jsonl").read_text().splitlines()]
+    assert len(lines) == 2
+    synth = gpu_blur.Synthesizer(scene_path, seed=9, with_raw=True)
+    for line in lines:
+        made = synth.sample(str(folder / f"{line['name']}.png"), line["index"])
+        assert line["params"]["jpeg_quality"] == made.params["jpeg_quality"]
+        assert "jpeg" in line["stages"]
+        # the mask: 16-bit PNG codes of the pipeline's mask, cropped like the pair
+        mask = cv2.imread(str(out / line["mask"]), cv2.IMREAD_UNCHANGED)[:, :, ::-1]
+        assert mask.dtype == np.uint16 and mask.shape == made.blurred.shape
+        np.testing.assert_array_equal(mask, to_integers(made.mask, 16))
+        # the RAW: a CFA DNG whose codes give back the pipeline's mosaic
+        info = line["raw_info"]
+        assert info == json.loads(json.dumps(made.raw_info))
+        with tifffile.TiffFile(out / line["raw"]) as dng:
+            page = dng.pages[0]
+            codes = page.asarray()
+            tags = {tag.code: tag.value for tag in page.tags}
+        assert codes.dtype == np.uint16 and codes.shape == made.raw.shape
+        np.testing.assert_array_equal(codes, raw_codes(made.raw, made.raw_info))
+        gains = np.array(info["wb_gains"])
+        channel = np.array(["RGB".index(c) for c in info["cfa_pattern"]]).reshape(2, 2)
+        sites = np.tile(channel, (codes.shape[0] // 2 + 1, codes.shape[1] // 2 + 1))
+        sites = sites[:codes.shape[0], :codes.shape[1]]
+        back = (codes - 2048.0) / 2**14 * gains[sites]
+        np.testing.assert_allclose(back, made.raw, rtol=0, atol=0.5 / 2**14 * gains.max())
+        assert info["cfa_pattern"] == BayerPattern(made.params["pattern"]).shifted(3, 3).value
+        assert tags[33422] == bytes("RGB".index(c) for c in info["cfa_pattern"])
+        assert tags[262] == 32803  # PhotometricInterpretation: CFA
+        assert (tags[50714], tags[50717]) == (RAW_BLACK_LEVEL, RAW_WHITE_LEVEL)
+        neutral = np.array(tags[50728], float).reshape(3, 2)
+        np.testing.assert_allclose(neutral[:, 0] / neutral[:, 1], 1 / gains, atol=1e-6)
+        assert info["wb_gains"] == [made.params["red_gain"], 1.0, made.params["blue_gain"]]
+
+
+def test_generate_save_refuses_raw_without_the_round_trip_and_unknown_names(tmp_path, capsys):
+    scene = tmp_path / "g.toml"
+    scene.write_text('[noise]\nmodel = "gaussian"\n')
+    assert main(["generate", "--output", str(tmp_path / "a"), "--scene", str(scene),
+                 "--save", "raw", "--quiet"]) == 2
+    assert f"--save raw: scene file {scene} has no RAW round trip" in capsys.readouterr().err
+    assert main(["generate", "--output", str(tmp_path / "b"), "--save", "mask,jpeg",
+                 "--quiet"]) == 2
+    assert "--save mask,jpeg: 'jpeg' is not an output; allowed: a comma list of mask, raw" in \
+        capsys.readouterr().err
