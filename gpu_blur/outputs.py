@@ -14,6 +14,10 @@ import cv2
 import numpy as np
 
 
+#: float32(c / 255) for every 8-bit code c, as quantization gives them (a gather, not a divide).
+_CODE_VALUES = (np.arange(256) / 255.0).astype(np.float32)
+
+
 def jpeg_round_trip(image: np.ndarray, quality: int) -> np.ndarray:
     """``image`` encoded as a JPEG of ``quality`` and decoded again.
 
@@ -25,7 +29,8 @@ def jpeg_round_trip(image: np.ndarray, quality: int) -> np.ndarray:
     Returns:
         H x W x 3 float32 in [0, 1], multiples of 1/255.
     """
-    codes = np.rint(np.asarray(image, dtype=np.float64) * 255.0).astype(np.uint8)
+    image = np.asarray(image)
+    codes = np.rint(image * image.dtype.type(255)).astype(np.uint8)  # exact: c / 255 * 255
     ok, data = cv2.imencode(".jpg", np.ascontiguousarray(codes[:, :, ::-1]),
                             [cv2.IMWRITE_JPEG_QUALITY, int(quality),
                              cv2.IMWRITE_JPEG_SAMPLING_FACTOR,
@@ -34,7 +39,7 @@ def jpeg_round_trip(image: np.ndarray, quality: int) -> np.ndarray:
         raise ValueError(f"OpenCV could not encode a {codes.shape[1]} x {codes.shape[0]} "
                          f"image as JPEG (quality {quality})")
     decoded = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
-    return (decoded[:, :, ::-1] / 255.0).astype(np.float32)  # as quantize's c / 255
+    return _CODE_VALUES[decoded[:, :, ::-1]]
 
 
 # -- the RAW mosaic ------------------------------------------------------------------------------

@@ -122,6 +122,12 @@ def test_jpeg_quality_override_is_held_to_its_range():
     assert [p["jpeg_quality"] for p in fixed(PHOTOS).params] == [5, 5]
 
 
+def test_on_device_results_refuse_the_host_jpeg_stage():
+    with pytest.raises(ValueError, match=r"no output.jpeg_quality \(a host stage\)"):
+        gpu_blur.synthesize([PHOTOS[0]], _scene(jpeg_quality=[70, 90]), backend="warp:cpu",
+                            on_device=True)
+
+
 def test_plan_lists_the_jpeg_stage_kept_or_skipped_with_why():
     stage = plan(_scene(jpeg_quality=[70, 90]))[StageName.JPEG]
     assert stage.kept and stage.pass_ == "host" and "[70, 90]" in stage.reason
