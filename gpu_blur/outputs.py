@@ -13,7 +13,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-
 #: float32(c / 255) for every 8-bit code c, as quantization gives them (a gather, not a divide).
 _CODE_VALUES = (np.arange(256) / 255.0).astype(np.float32)
 
