@@ -390,6 +390,18 @@ def library_versions(backend: str) -> dict[str, str]:
     return versions
 
 
+def _set_keys(scene):
+    """A recorded scene without its None-valued keys.
+
+    A key added to the scene format since a set was made is absent from its run.json, and
+    None means the same (a stage off, or the camera's level).
+    """
+    if not isinstance(scene, dict):
+        return scene
+    return {section: ({k: v for k, v in keys.items() if v is not None}
+                      if isinstance(keys, dict) else keys) for section, keys in scene.items()}
+
+
 def _difference(name: str, old, new) -> str:
     """Where two JSON values first differ, as ``name.key = old (this run: new)``."""
     if isinstance(old, dict) and isinstance(new, dict):
@@ -590,6 +602,8 @@ class DatasetWriter:
                              "use another --output")
         for key, option in RESUME_KEYS.items():
             was, now = _plain(old.get(key)), _plain(run.get(key))
+            if key == "scene":  # a key added since (output.jpeg_quality) is absent there
+                was, now = _set_keys(was), _set_keys(now)
             if was != now:
                 raise ValueError(
                     f"--resume: the set in {self.out} was made with another {option}: "
