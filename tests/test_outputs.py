@@ -122,6 +122,16 @@ def test_jpeg_quality_override_is_held_to_its_range():
     assert [p["jpeg_quality"] for p in fixed(PHOTOS).params] == [5, 5]
 
 
+def test_jpeg_stage_reaches_device_batches():
+    wp = pytest.importorskip("warp")  # a test dependency: there whenever the suite runs
+    scene = _scene(jpeg_quality=[30, 60])
+    on_device = gpu_blur.Synthesizer(scene, backend="warp:cpu", seed=4)(
+        wp.array(PHOTOS, dtype=wp.uint8, device="cpu"))
+    assert isinstance(on_device.blurred, wp.array)
+    host = gpu_blur.Synthesizer(scene, backend="warp:cpu", seed=4)(PHOTOS)
+    np.testing.assert_array_equal(on_device.blurred.numpy(), host.blurred)
+
+
 def test_on_device_results_refuse_the_host_jpeg_stage():
     with pytest.raises(ValueError, match=r"no output.jpeg_quality \(a host stage\)"):
         gpu_blur.synthesize([PHOTOS[0]], _scene(jpeg_quality=[70, 90]), backend="warp:cpu",
