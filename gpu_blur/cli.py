@@ -118,6 +118,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="blur.mode = average: K windows per sequence, spread evenly from first "
                    "to last (overlapping when needed; default: every non-overlapping window)")
     g.add_argument("--limit", type=int, default=None, metavar="N", help="make at most N samples")
+    g.add_argument("--save", default="", metavar="LIST", help="also write, per pair, a comma "
+                   "list of: mask (the blurred saturation mask, 16-bit PNG in mask/), raw (the "
+                   "noisy Bayer mosaic before demosaicing, 16-bit DNG in raw/, its CFA pattern, "
+                   "levels, gains and matrix also in the manifest's raw_info; needs the RAW "
+                   "round trip); default: the pair only")
     again = g.add_mutually_exclusive_group()
     again.add_argument("--overwrite", action="store_true",
                        help="replace an existing set in --output")
@@ -292,6 +297,7 @@ def _check_setup(args, scene) -> None:
     """Fail before any sample for what every sample would fail on (exit status 2)."""
     from gpu_blur.imageio import read_kernel
     from gpu_blur.pipeline import scene_camera
+    from gpu_blur.plan import raw_round_trip
     from gpu_blur.scheduler import check_tile
 
     if not 0 <= args.seed < 2**64:
@@ -315,6 +321,13 @@ def _check_setup(args, scene) -> None:
                          "workers read their own inputs: leave it out")
     if not 0.0 <= args.verify <= 1.0:
         raise ValueError(f"--verify {args.verify}: the fraction of tiles to check, 0 to 1")
+    extras = _extras(args.save)
+    if "raw" in extras and not raw_round_trip(scene):
+        where = f"scene file {scene.path}" if scene.path else "the scene"
+        raise ValueError(f"--save raw: {where} has no RAW round trip (noise.model = "
+                         f"{scene.noise.model!r}, isp.round_trip = {scene.isp.round_trip!r}); "
+                         "set noise.model = 'poisson-gaussian' or isp.round_trip = 'always', "
+                         "or leave raw out of --save")
     if args.strict and not args.verify:
         raise ValueError("--strict stops the run at the first spot-check mismatch; give "
                          "--verify FRACTION too")
@@ -333,6 +346,18 @@ def _check_setup(args, scene) -> None:
             read_kernel(kernel)
         except ValueError as e:
             raise ValueError(f"scene file {scene.path}: {e}" if scene.path else str(e)) from None
+
+
+def _extras(save: str) -> tuple[str, ...]:
+    """--save's comma list, checked, in :data:`gpu_blur.dataset.EXTRAS` order."""
+    from gpu_blur.dataset import EXTRAS
+
+    given = [name.strip() for name in save.split(",") if name.strip()]
+    unknown = [name for name in given if name not in EXTRAS]
+    if unknown:
+        raise ValueError(f"--save {save}: {unknown[0]!r} is not an output; allowed: a comma "
+                         f"list of {', '.join(EXTRAS)}")
+    return tuple(name for name in EXTRAS if name in given)
 
 
 def _scene_files(scene) -> dict[str, Path]:
@@ -400,8 +425,11 @@ def _generate(args) -> int:
            "files": {key: hashlib.sha256(path.read_bytes()).hexdigest()
                      for key, path in _scene_files(scene).items()},
            "libraries": library_versions(args.backend)}
+    extras = _extras(args.save)
+    if extras:  # absent without --save, as sets made before it record it
+        run["save"] = list(extras)
     writer = DatasetWriter(args.output, scene.output.bits, run, overwrite=args.overwrite,
-                           resume=args.resume, specs=specs, total=found.total)
+                           resume=args.resume, specs=specs, total=found.total, extras=extras)
     todo = [s for s in specs if s.index not in writer.done]
     done = len(specs) - len(todo)
     if args.resume:
@@ -439,7 +467,7 @@ def _generate(args) -> int:
     behind = WriteBehind(save, pool, QUEUE_PER_THREAD * threads, io)
     start = time.perf_counter()
     try:
-        job = Job(scene, args.seed, args.backend, schedule)
+        job = Job(scene, args.seed, args.backend, schedule, "raw" in extras)
         samples = (run_pipelined(job, todo, pool, io, QUEUE_PER_THREAD * threads) if io
                    else executor(job, todo))
         for spec, result, error in tqdm(samples, total=len(todo), desc="samples",

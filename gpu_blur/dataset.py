@@ -17,6 +17,7 @@ import numpy as np
 
 from gpu_blur.imageio import temporary_path, write_image, write_text
 from gpu_blur.locking import take_lock
+from gpu_blur.outputs import write_dng, write_mask
 from gpu_blur.params import ARRAY_PARAMS
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
@@ -29,10 +30,13 @@ MAX_SAMPLES = 10_000_000
 #: The lock file a run holds (``fcntl.flock``) while it writes its output folder.
 LOCK = ".gpu_blur.lock"
 #: The set's folders; they hold only files named as DatasetWriter.write names them.
-SUBFOLDERS = ("blur", "sharp", "params")
+SUBFOLDERS = ("blur", "sharp", "params", "mask", "raw")
 #: A sample's files, as manifest keys (paths relative to the set's folder).
-PATHS = ("blurred", "sharp", "arrays")
-_SAMPLE_FILE = re.compile(r"\d{6,}_.*\.(png|tiff|npz)")
+PATHS = ("blurred", "sharp", "arrays", "mask", "raw")
+#: What ``gpu-blur generate --save`` may add to each pair: the saturation mask (16-bit PNG in
+#: ``mask/``) and the noisy Bayer mosaic before demosaicing (16-bit DNG in ``raw/``).
+EXTRAS = ("mask", "raw")
+_SAMPLE_FILE = re.compile(r"\d{6,}_.*\.(png|tiff|npz|dng)")
 _PROBE = "gpu_blur_write_test"
 #: Temporary files (:func:`gpu_blur.imageio.temporary_path`) a killed run may leave in the set's
 #: folders: ``.<final name>[.<pid>].part[.<suffix>]`` of a sample file, the manifest, run.json
@@ -43,12 +47,14 @@ _TEMPORARY = re.compile(rf"\.(\d{{6,}}.*|{re.escape(MANIFEST)}|{re.escape(RUN)}|
 #: everything that decides a sample's inputs, draws or pixels (not --tile or --limit). "files"
 #: holds the sha256 of each file the scene names (camera.name, blur.kernel), "device" the
 #: backend's device (OpenCL platform numbers change when a runtime is installed),
-#: "libraries" the versions of the libraries that compute the pixels (library_versions).
+#: "libraries" the versions of the libraries that compute the pixels (library_versions),
+#: "save" the extra outputs of --save (absent without it).
 RESUME_KEYS = {"seed": "--seed", "scene": "--scene", "backend": "--backend",
                "device": "device behind --backend", "input": "--input",
                "samples_per_photo": "--samples-per-photo",
                "samples_per_sequence": "--samples-per-sequence",
-               "files": "camera or kernel file contents", "libraries": "library version"}
+               "files": "camera or kernel file contents", "libraries": "library version",
+               "save": "--save"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -589,6 +595,18 @@ def library_versions(backend: str) -> dict[str, str]:
     return versions
 
 
+def _set_keys(scene):
+    """A recorded scene without its None-valued keys.
+
+    A key added to the scene format since a set was made is absent from its run.json, and
+    None means the same (a stage off, or the camera's level).
+    """
+    if not isinstance(scene, dict):
+        return scene
+    return {section: ({k: v for k, v in keys.items() if v is not None}
+                      if isinstance(keys, dict) else keys) for section, keys in scene.items()}
+
+
 def _difference(name: str, old, new) -> str:
     """Where two JSON values first differ, as ``name.key = old (this run: new)``."""
     if isinstance(old, dict) and isinstance(new, dict):
@@ -613,7 +631,8 @@ class DatasetWriter:
       only finished samples whatever moment a run is killed.
     * The manifest in sample order: lines are written in the order of ``specs`` however the
       samples finish (see :meth:`_append`), so any executor writes a serial run's bytes.
-    * The set's folders are the set's: ``blur/``, ``sharp/`` and ``params/`` hold only
+    * The set's folders are the set's: ``blur/``, ``sharp/``, ``params/`` (and ``mask/``,
+      ``raw/``) hold only
       sample files named as :meth:`write` names them (``NNNNNN_<name>.png``); anything else
       there is refused, named, before any change, and is never removed. Opening a folder
       removes the sample files no kept manifest line lists and the temporary files of a
@@ -635,6 +654,8 @@ class DatasetWriter:
         run: what ``run.json`` records (``gpu-blur generate``'s settings).
         specs: the samples this run makes, in index order: the order of the manifest.
         total: how many samples the input gives (before ``--limit``); default ``len(specs)``.
+        extras: what else to write per sample, of :data:`EXTRAS` (results made
+            ``with_raw`` for ``raw``).
 
     Raises:
         ValueError: an existing set without ``overwrite``/``resume``, a folder another run
@@ -645,7 +666,13 @@ class DatasetWriter:
 
     def __init__(self, out: Path, bits: int, run: dict | None = None, *,
                  overwrite: bool = False, resume: bool = False,
-                 specs: list[SampleSpec] | None = None, total: int | None = None):
+                 specs: list[SampleSpec] | None = None, total: int | None = None,
+                 extras: tuple[str, ...] = ()):
+        unknown = sorted(set(extras) - set(EXTRAS))
+        if unknown:
+            raise ValueError(f"--save {unknown[0]!r}: unknown; allowed: {', '.join(EXTRAS)} "
+                             "(comma-separated)")
+        self.extras = tuple(extras)
         if overwrite and resume:
             raise ValueError("--overwrite and --resume exclude each other: --resume finishes "
                              "an interrupted set, --overwrite starts it again")
@@ -667,7 +694,8 @@ class DatasetWriter:
         files = self._sample_files()
         found = [str(p) for p in (self.manifest_path, out / RUN) if p.exists()]
         if files:
-            found.append(f"{len(files)} sample file(s) in {', '.join(SUBFOLDERS)}")
+            held = [sub for sub in SUBFOLDERS if any(p.parent.name == sub for p in files)]
+            found.append(f"{len(files)} sample file(s) in {', '.join(held)}")
         if found and not (overwrite or resume):
             raise ValueError(f"--output {out} holds a set already ({'; '.join(found)}); choose "
                              "another --output, pass --resume to finish that set (retrying "
@@ -699,7 +727,7 @@ class DatasetWriter:
         self._waiting: dict[int, str] = {}
 
     def _sample_files(self) -> list[Path]:
-        """The sample files in ``blur/``, ``sharp/`` and ``params/`` (named as :meth:`write` does).
+        """The sample files in the set's folders (:data:`SUBFOLDERS`, named as :meth:`write` does).
 
         Raises:
             ValueError: naming anything else there but temporary files, since those folders
@@ -779,6 +807,8 @@ class DatasetWriter:
                              "use another --output")
         for key, option in RESUME_KEYS.items():
             was, now = _plain(old.get(key)), _plain(run.get(key))
+            if key == "scene":  # a key added since (output.jpeg_quality) is absent there
+                was, now = _set_keys(was), _set_keys(now)
             if was != now:
                 raise ValueError(
                     f"--resume: the set in {self.out} was made with another {option}: "
@@ -826,7 +856,8 @@ class DatasetWriter:
         stem = f"{index:06d}_{name.replace('/', '_')}"
         ext = ".png" if self.bits else ".tiff"
         return {"blurred": f"blur/{stem}{ext}", "sharp": f"sharp/{stem}{ext}",
-                "arrays": f"params/{stem}.npz"}
+                "arrays": f"params/{stem}.npz", "mask": f"mask/{stem}.png",
+                "raw": f"raw/{stem}.dng"}
 
     def _check_inputs(self, specs: list[SampleSpec]) -> None:
         for spec in specs:
@@ -877,6 +908,9 @@ class DatasetWriter:
         The line holds, besides ``record``, how many tiles the sample ran in and how many of
         them were spot-checked (``spot_check`` "passed", or "none" when no tile was checked:
         a failed check fails the sample); its arrays' file holds each array's convention.
+        With :attr:`extras`, the sample's saturation mask (``mask``: a 16-bit PNG, codes
+        ``round(m * 65535)``) and RAW mosaic (``raw``: a 16-bit DNG, and ``raw_info``, its
+        :func:`gpu_blur.outputs.raw_metadata`) are written too, cropped like the pair.
         Threads may save different samples at once (each file has its own temporary name);
         only :meth:`add` and :meth:`fail` touch the manifest, from one thread.
         """
@@ -903,6 +937,15 @@ class DatasetWriter:
             save_arrays(self.out / paths["arrays"], arrays | {
                 f"{k}_convention": ARRAY_CONVENTIONS[k] for k in arrays})
             line["arrays"] = paths["arrays"]
+        if "mask" in self.extras:
+            (self.out / "mask").mkdir(exist_ok=True)
+            write_mask(self.out / paths["mask"], result.mask)
+            line["mask"] = paths["mask"]
+        if "raw" in self.extras:
+            (self.out / "raw").mkdir(exist_ok=True)
+            write_dng(self.out / paths["raw"], result.raw, result.raw_info)
+            line["raw"] = paths["raw"]
+            line["raw_info"] = result.raw_info
         return line
 
     def add(self, line: dict) -> dict:

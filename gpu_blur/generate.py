@@ -57,6 +57,7 @@ class Job:
     seed: int
     backend: str
     schedule: Schedule | None = None  # tiles, memory budget, spot checks
+    with_raw: bool = False  # keep each sample's RAW mosaic (generate --save raw)
 
 
 def make_sample(job: Job, spec: SampleSpec, inputs: tuple[np.ndarray, ...] | None = None
@@ -83,7 +84,7 @@ def make_sample(job: Job, spec: SampleSpec, inputs: tuple[np.ndarray, ...] | Non
             given = dict(zip(spec.roles, given, strict=True))
         result = synthesize(given, job.scene,
                             seed=job.seed, sample_index=spec.index, backend=job.backend,
-                            tile=job.schedule)
+                            tile=job.schedule, with_raw=job.with_raw)
     except (ValueError, OSError) as e:
         return spec, None, str(e)
     except cv2.error as e:

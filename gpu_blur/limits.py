@@ -137,6 +137,9 @@ VIGNETTING = Limit(0, 1, reason=(
     "to 1 - s at its corners; above 1 it would turn negative"))
 CRF_TABLE_SIZE = Limit(0, 65536, integer=True, reason=(
     "nodes of the re-toning table, 0 = the authors' 2,551"))
+JPEG_QUALITY = Limit(1, 100, integer=True, reason=(
+    "libjpeg's quality scale: 1 is the coarsest quantization table, 100 the finest; camera "
+    "JPEGs are about 85 to 98"))
 # -- camera files -------------------------------------------------------------------------------
 WB_GAIN = Limit(0.125, 8.0, reason=(
     "a white-balance gain relative to green: the presets' lie within 1 and 2.92; it scales "

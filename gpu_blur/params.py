@@ -31,6 +31,7 @@ DRAW_INDEX = {
     "gaussian_std": 6,
     "kernel_size": 7,
     "extent_px": 8,
+    "jpeg_quality": 9,
 }
 #: Array-valued parameters (recorded beside the scalars, overridable too).
 ARRAY_PARAMS = ("kernel", "homographies")
@@ -45,6 +46,7 @@ OVERRIDE_LIMITS = {
     "gaussian_std": limits.GAUSSIAN_STD,
     "kernel_size": limits.KERNEL_SIZE,
     "extent_px": limits.EXTENT,
+    "jpeg_quality": limits.JPEG_QUALITY,
 }
 
 
@@ -135,6 +137,9 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
     if plan.kept("gaussian_noise"):
         n = scene.noise
         put("gaussian_std", n.gaussian_std * (1 + n.spread * (2 * draw["gaussian_std"] - 1)))
+    if plan.kept("jpeg"):
+        lo, hi = scene.output.jpeg_quality
+        put("jpeg_quality", lo + min(int(draw["jpeg_quality"] * (hi - lo + 1)), hi - lo))
     if overrides:
         raise ValueError(
             f"override {sorted(overrides)[0]!r} is not used by this scene's plan; used here: "

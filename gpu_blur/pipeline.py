@@ -20,6 +20,7 @@ from gpu_blur.backends.kernel import KernelBackend
 from gpu_blur.backends.numpy import retone
 from gpu_blur.cameras import Camera, check_float32_response, get_camera
 from gpu_blur.imageio import check_image, check_layout, read_image, unit_values
+from gpu_blur.outputs import jpeg_round_trip, raw_metadata
 from gpu_blur.params import draw_params
 from gpu_blur.plan import Plan, StageName, plan, raw_round_trip
 from gpu_blur.reference import transfer
@@ -42,6 +43,11 @@ class Synthesis:
             the photo itself otherwise), toned like ``blurred``.
         mask: H x W x 3 float32 in [0, 1], the blurred saturation mask (fetched from the
             device on first use).
+        raw: with ``Synthesizer(with_raw=True)``, H x W float32: the noisy white-balanced
+            Bayer mosaic before demosaicing (the to_raw pass's output), cropped like the
+            outputs (fetched on first use); else None.
+        raw_info: with ``with_raw``, what reading it needs
+            (:func:`gpu_blur.outputs.raw_metadata`: CFA pattern, levels, gains, matrix).
         params: every drawn value (see :data:`gpu_blur.params.DRAW_INDEX`).
         plan: the stages that ran.
         timings: seconds this call spent per :mod:`gpu_blur.timings` category (reading,
@@ -61,6 +67,8 @@ class Synthesis:
     spot_checks: int = 0
     crop: int = 0
     device: str = ""
+    _raw: object = dataclasses.field(default=None, repr=False)
+    raw_info: dict | None = None
 
     @property
     def mask(self) -> np.ndarray:
@@ -69,8 +77,15 @@ class Synthesis:
             self._mask = crop_border(to_host(self._mask, np.float32), self.crop)
         return self._mask
 
+    @property
+    def raw(self) -> np.ndarray | None:
+        """The noisy white-balanced mosaic (``with_raw``), H x W float32, or None."""
+        if self._raw is not None and not isinstance(self._raw, np.ndarray):
+            self._raw = crop_border(to_host(self._raw, np.float32), self.crop)
+        return self._raw
+
     def __getstate__(self):  # a device array does not cross processes: fetch it first
-        return {**self.__dict__, "_mask": self.mask}
+        return {**self.__dict__, "_mask": self.mask, "_raw": self.raw}
 
 
 def _as_scene(scene) -> Scene:
@@ -123,7 +138,8 @@ def scene_camera(scene: Scene, backend: str = "numpy") -> Camera:
 def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
                backend: str = "numpy", overrides: Mapping | None = None,
                tile: tuple[int, int] | Schedule | None = None, on_device: bool = False,
-               max_device_memory: int | str | None = None, verify: float = 0.0) -> Synthesis:
+               max_device_memory: int | str | None = None, verify: float = 0.0,
+               with_raw: bool = False) -> Synthesis:
     """Synthesize one realistic blurred image (a :class:`Synthesizer` batch of one).
 
     Args:
@@ -155,6 +171,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
             in :mod:`gpu_blur.scheduler`); the result does not depend on it.
         verify: fraction of tiles (0 to 1) recomputed with the numpy reference and compared
             pass by pass under the tolerance table (:mod:`gpu_blur.scheduler`).
+        with_raw: also keep the noisy Bayer mosaic (``Synthesis.raw``, ``raw_info``).
 
     Returns:
         A :class:`Synthesis`. Images whose RAW round trip needs even sizes lose their last
@@ -173,7 +190,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
     else:
         schedule = Schedule(tile, max_device_memory, verify)
     synthesizer = Synthesizer(scene, backend=backend, seed=seed, overrides=overrides,
-                              schedule=schedule)
+                              schedule=schedule, with_raw=with_raw)
     return synthesizer.sample(inputs, sample_index, on_device=on_device)
 
 
@@ -188,6 +205,10 @@ class Batch:
             for the RAW round trip). float32 in host memory; on a device, the compute type.
         sharp: the sharp references, the same way.
         mask: the blurred saturation masks with ``with_mask=True``, else None.
+        raw: with ``with_raw=True``, B x H' x W' float32 host array (numpy): the noisy
+            white-balanced Bayer mosaics before demosaicing, cropped like the outputs; else
+            None.
+        raw_info: with ``with_raw``, each sample's :func:`gpu_blur.outputs.raw_metadata`.
         params: each sample's drawn values (:data:`gpu_blur.params.DRAW_INDEX`).
         plans: each sample's plan (auto saturation decides per sample).
         timings: seconds the batch spent per :mod:`gpu_blur.timings` category.
@@ -199,6 +220,8 @@ class Batch:
     params: list
     plans: list
     timings: dict
+    raw: np.ndarray | None = None
+    raw_info: list | None = None
 
 
 @dataclasses.dataclass
@@ -236,6 +259,8 @@ class Synthesizer:
         schedule: tiles, memory budget and spot checks (:class:`~gpu_blur.scheduler.Schedule`).
         channels_first: batches come and go as B x 3 x H x W (torch's layout).
         with_mask: also return the blurred saturation masks.
+        with_raw: also return the noisy Bayer mosaics before demosaicing, with what reading
+            them needs (scenes with the RAW round trip).
 
     Example::
 
@@ -246,14 +271,21 @@ class Synthesizer:
 
     def __init__(self, scene=None, *, backend: str = "numpy", seed: int = 0,
                  overrides: Mapping | None = None, schedule: Schedule | None = None,
-                 channels_first: bool = False, with_mask: bool = False):
+                 channels_first: bool = False, with_mask: bool = False,
+                 with_raw: bool = False):
         self.scene = _as_scene(scene)
+        if with_raw and not raw_round_trip(self.scene):
+            where = f"scene file {self.scene.path}" if self.scene.path else "scene"
+            raise ValueError(f"with_raw: {where} has no RAW round trip (noise.model = "
+                             f"{self.scene.noise.model!r}, isp.round_trip = "
+                             f"{self.scene.isp.round_trip!r}); set noise.model = "
+                             "'poisson-gaussian' or isp.round_trip = 'always'")
         self.runner = (get_backend(backend, self.scene.output.precision)
                        if isinstance(backend, str) else backend)
         self.camera = scene_camera(self.scene, self.runner.name)
         self.seed, self.overrides = seed, overrides
         self.schedule = schedule or Schedule()
-        self.channels_first, self.with_mask = channels_first, with_mask
+        self.channels_first, self.with_mask, self.with_raw = channels_first, with_mask, with_raw
         self._plans: dict = {}
         self.resident = (isinstance(self.runner, KernelBackend)
                          and self.schedule == Schedule()
@@ -265,9 +297,11 @@ class Synthesizer:
         start, before = time.perf_counter(), current().snapshot()
         scene = self.scene
         if on_device and (self.schedule.tile is not None or self.schedule.verify
-                          or scene.output.crop or not self.runner.device_arrays):
+                          or scene.output.crop or not self.runner.device_arrays
+                          or scene.output.jpeg_quality is not None):
             raise ValueError("on_device=True needs a backend that keeps results on a device "
-                             "(warp), no tile, no verify and output.crop = 0")
+                             "(warp), no tile, no verify, output.crop = 0 and no "
+                             "output.jpeg_quality (a host stage)")
         with timer("reading"):
             item = _gather(inputs, scene)
         item = self._prepared([item])[0]
@@ -280,13 +314,23 @@ class Synthesizer:
             out = self._host(blurred, _inner(blurred.shape, 0))
         else:
             out = crop_border(blurred, crop)
+        if sample_plan.kept(StageName.JPEG):
+            out = jpeg_round_trip(out, params["jpeg_quality"])
         if isinstance(sharp, OnDevice):
             sharp = self._host(sharp, _inner(sharp.shape, 0))
         if isinstance(mask, np.ndarray):  # a device mask is fetched (and cropped) on first use
             mask = crop_border(mask, crop).astype(np.float32, copy=False)
+        raw = tiled.raw  # the same way
+        if isinstance(raw, np.ndarray):
+            raw = crop_border(raw, crop).astype(np.float32, copy=False)
         return Synthesis(out, sharp, mask, params, sample_plan,
                          since(before, time.perf_counter() - start), tiled.tiles,
-                         tiled.checked, crop, self.runner.device)
+                         tiled.checked, crop, self.runner.device, raw, self._raw_info(params))
+
+    def _raw_info(self, params: dict) -> dict | None:
+        """A sample's :func:`gpu_blur.outputs.raw_metadata` with ``with_raw``, else None."""
+        return (raw_metadata(params, self.camera, self.scene.output.crop) if self.with_raw
+                else None)
 
     def _host(self, values, region: Region) -> np.ndarray:
         out = np.empty((region.h, region.w, 3), dtype=np.float32)
@@ -333,13 +377,14 @@ class Synthesizer:
                              "give one per sample")
         items = self._prepared(items)
         out = None
-        params, plans = [], []
+        params, plans, raws = [], [], []
         pending = []  # a sample's results, exported once the next sample is queued
         crop = self.scene.output.crop
         with self._queued():
             for b, item in enumerate(items):
-                blurred, sat_mask, sharp_out, drawn, sample_plan, _ = self._run(
+                blurred, sat_mask, sharp_out, drawn, sample_plan, tiled = self._run(
                     item, int(indices[b]), on_device=self.resident)
+                raws.append(tiled.raw)
                 params.append(drawn)
                 plans.append(sample_plan)
                 # (values, the region of them that goes out): a resident blurred image is
@@ -358,9 +403,14 @@ class Synthesizer:
             if self.resident:
                 with timer("kernels"):
                     self.runner.wait()
+        _jpeg_stage(out[0], plans, params)
         out = [self._returned(o, lib, batch) for o in out]
+        raw = None
+        if self.with_raw:
+            raw = np.stack([crop_border(to_host(r, np.float32), crop) for r in raws])
         return Batch(out[0], out[1], out[2] if self.with_mask else None, params, plans,
-                     since(before, time.perf_counter() - start))
+                     since(before, time.perf_counter() - start), raw,
+                     [self._raw_info(p) for p in params] if self.with_raw else None)
 
     @contextlib.contextmanager
     def _queued(self):
@@ -576,7 +626,8 @@ class Synthesizer:
         crop = scene.output.crop
         tiled = run(self.runner, sample_plan, params, self.camera, frames, item.mask,
                     self.schedule, seed=self.seed, sample_index=sample_index,
-                    on_device=on_device, crop=crop if on_device else 0)
+                    on_device=on_device, crop=crop if on_device else 0,
+                    keep_raw=self.with_raw)
         if isinstance(item.sharp, OnDevice):
             sharp = self.runner.render_sharp(sample_plan, self.camera, item.sharp,
                                              _inner((h, w), crop))
@@ -601,6 +652,18 @@ class Synthesizer:
             rendered = self.runner.render_sharp(sample_plan, self.camera, image, whole)
             self.runner.export(rendered, whole, band.of(out))
         return out
+
+
+def _jpeg_stage(blurred, plans: list[Plan], params: list[dict]) -> None:
+    """The JPEG stage, on the host, in place: a batch's blurred images (host or Warp array)."""
+    chosen = [b for b, p in enumerate(plans) if p.kept(StageName.JPEG)]
+    if not chosen:
+        return
+    host = blurred if isinstance(blurred, np.ndarray) else blurred.numpy()
+    for b in chosen:
+        host[b] = jpeg_round_trip(host[b], params[b]["jpeg_quality"])
+    if host is not blurred:
+        blurred.assign(host)
 
 
 def _inner(shape, crop: int) -> Region:

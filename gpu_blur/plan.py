@@ -11,9 +11,11 @@ Fig. 7) and fall into three passes, which kernel backends fuse:
    noise, restore of saturated pixels, final re-toning and quantization.
 
 After the passes the host crops the outputs (``crop``, :data:`Pass.HOST`): a cut of the
-result, no kernel work. Only kept stages are run (and, in kernel backends, compiled). Stage and
-pass names are the :class:`StageName` and :class:`Pass` constants (plain strings too, so a
-name from a scene or a message compares equal).
+result, no kernel work; then, with ``output.jpeg_quality``, sends the blurred output through a
+JPEG round trip (``jpeg``, :mod:`gpu_blur.outputs`), the same on every backend. Only kept
+stages are run (and, in kernel backends, compiled). Stage and pass names are the
+:class:`StageName` and :class:`Pass` constants (plain strings too, so a name from a scene or a
+message compares equal).
 """
 
 from __future__ import annotations
@@ -66,6 +68,7 @@ class StageName(enum.StrEnum):
     RETONE = "retone"
     QUANTIZE = "quantize"
     CROP = "crop"
+    JPEG = "jpeg"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -310,4 +313,9 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
     add(S.CROP, P.HOST, out.crop > 0,
         f"{out.crop} px cut from every side of both outputs, on the host after the passes"
         if out.crop else "output.crop = 0")
+    quality = out.jpeg_quality
+    add(S.JPEG, P.HOST, quality is not None,
+        f"blurred output through a JPEG round trip (OpenCV, 4:2:0 chroma) at a quality drawn "
+        f"in [{quality[0]}, {quality[1]}], on the host after the crop" if quality is not None
+        else "output.jpeg_quality not set", "opencv, 4:2:0" if quality is not None else "")
     return Plan(tuple(stages), fast_math=out.fast_math)

@@ -139,6 +139,10 @@ FIELDS: dict[str, dict[str, Field]] = {
                            "native_ functions, Warp's CUDA fast math) for the sRGB curves and "
                            "the Gaussian normals; Poisson counts stay exact (accuracy knob)",
                            kind=bool),
+        "jpeg_quality": Field(None, "[low, high]: a JPEG round trip of the blurred output as "
+                              "the last stage (OpenCV, 4:2:0 chroma), at a quality drawn per "
+                              "sample in the range; needs output.bits = 8; absent: no JPEG",
+                              limit=limits.JPEG_QUALITY, pair=True),
     },
 }
 
@@ -278,7 +282,8 @@ def scene_from_dict(data: dict, where: str = "scene", path: Path | None = None) 
             if key in given:
                 values[key] = _check(where, f"{section}.{key}", field, given[key])
             else:
-                values[key] = list(field.default) if field.pair else field.default
+                values[key] = (list(field.default) if field.pair and field.default is not None
+                               else field.default)
         sections[section] = _SECTIONS[section](**values)
     _check_consistency(sections, where)
     return Scene(**sections, path=path)
@@ -301,6 +306,10 @@ def _check_consistency(sections: dict, where: str) -> None:
     if size and crf != "a7r3-lut":
         raise SceneError(f"{where}: output.crf_table_size = {size!r} needs output.crf = "
                          f"'a7r3-lut' (it is {crf!r}); allowed with another crf: 0")
+    if output.jpeg_quality is not None and output.bits != 8:
+        raise SceneError(f"{where}: output.jpeg_quality = {list(output.jpeg_quality)!r} needs "
+                         f"output.bits = 8 (it is {output.bits!r}): JPEG holds 8-bit codes; "
+                         "set output.bits = 8, or leave output.jpeg_quality out")
     if output.fast_math and output.precision != "float32":
         raise SceneError(f"{where}: output.fast_math = true needs output.precision = "
                          "'float32' (fast functions exist for float only); allowed with "
@@ -358,7 +367,7 @@ def describe_fields() -> str:
     """Every scene key with its default, meaning and range: a TOML file of the default scene.
 
     ``gpu-blur scene > my.toml`` is a scene ``--scene`` takes as it is; a key whose default
-    comes from the camera is commented out (TOML has no null).
+    comes from the camera, or a stage off unless given, is commented out (TOML has no null).
     """
     lines = []
     for section, fields in FIELDS.items():
@@ -368,7 +377,7 @@ def describe_fields() -> str:
             if f.choices:
                 allowed = f" [one of {', '.join(json.dumps(c) for c in f.choices)}]"
             if f.default is None:
-                lines.append(f"# {key} = ...  # default: the camera's; {f.help}{allowed}")
+                lines.append(f"# {key} = ...  # {f.help}{allowed}")
                 continue
             default = json.dumps(f.default)  # TOML's strings, numbers, booleans and arrays
             lines.append(f"{key} = {default}  # {f.help}{allowed}")

@@ -392,17 +392,20 @@ class Tiled:
             what the backend returned (:func:`gpu_blur.backends.to_host` fetches it).
         tiles: how many tiles ran.
         checked: how many of them were spot-checked.
+        raw: with ``keep_raw``, the to_raw pass's noisy white-balanced ``h x w`` mosaic:
+            float32, or for a whole-image run what the backend returned; else None.
     """
 
     blurred: object
     mask: np.ndarray
     tiles: int
     checked: int
+    raw: object = None
 
 
 def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
         schedule: Schedule, *, seed: int, sample_index: int, on_device: bool = False,
-        crop: int = 0) -> Tiled:
+        crop: int = 0, keep_raw: bool = False) -> Tiled:
     """Run a sample's three passes on ``runner`` over tiles, with spot checks.
 
     Args:
@@ -420,6 +423,7 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
         on_device: leave the result on the backend's device (one tile only, no checks).
         crop: with ``on_device``, the finish pass writes only the image less ``crop`` pixels
             on each side (``output.crop``); the mask stays whole.
+        keep_raw: also return the RAW mosaic (:attr:`Tiled.raw`; plans with the round trip).
 
     Raises:
         SpotCheckError: a checked tile disagreed with the reference.
@@ -459,9 +463,10 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
                 check.tile("tile 1 of 1", region, view, linear, view_mask, image, saturated,
                            result)
         blurred = result if on_device else to_host(result, np.float32)
-        return Tiled(blurred, view_mask, 1, len(chosen))
+        return Tiled(blurred, view_mask, 1, len(chosen), image if keep_raw else None)
     out = np.empty((h, w, 3), dtype=np.float32)
     sat_mask = np.empty((h, w, 3), dtype=np.float32)
+    raw_out = np.empty((h, w), dtype=np.float32) if keep_raw else None
     for i, region in enumerate(regions):
         view = region.expand(halo).aligned(2 if raw else 1)
         linear, view_mask, image, saturated, result = _passes(
@@ -472,7 +477,9 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
                            image, saturated, result)
         region.of(out)[...] = to_host(result, np.float32)
         region.of(sat_mask)[...] = to_host(view_mask, np.float32)[region.within(view)]
-    return Tiled(out, sat_mask, len(regions), len(chosen))
+        if keep_raw:
+            region.of(raw_out)[...] = to_host(image, np.float32)[region.within(view)]
+    return Tiled(out, sat_mask, len(regions), len(chosen), raw_out)
 
 
 def _passes(runner: Backend, sample_plan, params, camera, frames, mask, view: Region,
