@@ -155,18 +155,49 @@ def run(names: list[str], precisions: list[str], *, quick: bool = False,
             "devices": devices}
 
 
-COLUMNS = (("check", 64), ("stage", 26), ("precision", 9), ("measured", 9),
-           ("tolerance", 40), ("result", 6), ("source", 0))
+def _number(x: float | None) -> str:
+    return "-" if x is None else "0" if x == 0 else f"{x:.2g}"
 
 
-def _measured(row: dict) -> str:
-    if row["measured"] is None:
-        return "-"
-    return "0" if row["measured"] == 0 else f"{row['measured']:.2g}"
+def _tolerance(text: str) -> str:
+    """``rtol 0, atol 1e-06`` as ``atol 1e-06``: the table's short form."""
+    if not text.startswith("rtol"):
+        return text
+    row, _, outliers = text.partition("; ")
+    parts = [p for p in row.split(", ") if not p.endswith(" 0")]
+    short = ", ".join(parts) or "exact"
+    return f"{short}; {outliers.replace(' of values may miss', ' may miss')}" if outliers \
+        else short
+
+
+def _cell(rows: list[dict]) -> str:
+    """One precision's measured error, tolerance and verdict for a check's stage."""
+    if not rows:
+        return ""
+    if all(r["passed"] is None for r in rows):
+        return f"{'-':<9}{'':<29}skip"
+    measured = [r["measured"] for r in rows if r["measured"] is not None]
+    verdict = "pass" if all(r["passed"] is not False for r in rows) else "FAIL"
+    return (f"{_number(max(measured) if measured else None):<9}"
+            f"{_tolerance(rows[0]['tolerance']):<29}{verdict}")
+
+
+def _sources(rows: list[dict]) -> str:
+    """Where the rows' claims come from: lines of gpu_blur/testing.py, or why exact."""
+    lines = [r["source"].partition(":")[2] for r in rows if r["row"]]
+    if lines:
+        return "testing.py:" + " / ".join(dict.fromkeys(lines))
+    texts = [r["source"] or r["detail"] for r in rows]
+    return texts[0] if texts else ""
 
 
 def render(report: dict) -> str:
-    """The report as text: a table per device, then each failure with its first mismatch."""
+    """The report as text: a table per device, then each failure with its first mismatch.
+
+    A table row is a check's stage; per precision, the largest error of its comparisons (or
+    the fraction of values out of tolerance, for rows that allow some), the tolerance and the
+    verdict; last, the row's line in gpu_blur/testing.py or why the claim is exact.
+    """
     out = []
     for d in report["devices"]:
         out.append(f"== {d['backend']}: {d.get('device', '')}")
@@ -176,14 +207,23 @@ def render(report: dict) -> str:
         if "against" in d:
             a = d["against"]
             out.append(f"   against {a['backend']}: {a['device']}; {a['driver']}")
-        out.append("  ".join(f"{name:<{width}}" for name, width in COLUMNS).rstrip())
+        ran = [r for r in d["rows"] if r["check"] != "all checks"]
         for r in d["rows"]:
-            result = {True: "pass", False: "FAIL", None: "skip"}[r["passed"]]
-            source = r["source"] if r["passed"] is not None else r["detail"]
-            cells = (r["check"], r["stage"], r["precision"], _measured(r), r["tolerance"],
-                     result, source)
-            out.append("  ".join(f"{c:<{w}}" for c, (_, w) in zip(cells, COLUMNS, strict=True))
-                       .rstrip())
+            if r["check"] == "all checks":
+                out.append(f"   {r['precision']}: skipped ({r['detail']})")
+        precisions = list(dict.fromkeys(r["precision"] for r in ran))
+        groups: dict = {}
+        for r in ran:
+            groups.setdefault((r["check"], r["stage"]), []).append(r)
+        if not groups:
+            out.append("")
+            continue
+        head = "".join(f"{p:<9}{'tolerance':<29}{'':<4}  " for p in precisions)
+        out.append(f"{'check':<56}{'stage':<30}{head}source")
+        for (check, stage), rows in groups.items():
+            cells = "".join(f"{_cell([r for r in rows if r['precision'] == p]):<42}  "
+                            for p in precisions)
+            out.append(f"{check[:55]:<56}{stage[:29]:<30}{cells}{_sources(rows)}".rstrip())
         out.append("")
     failures = [(d["backend"], r) for d in report["devices"] for r in d["rows"]
                 if r["passed"] is False]
