@@ -619,25 +619,35 @@ LOW_RATES = [0.0, 1e-12, 0.3, 1.0, 2.5, 5.0, 9.99]
 HIGH_RATES = [10.01, 100.0, 1e4, 1e7]
 
 
+def _float_samplers(t: Target) -> bool:
+    """Whether the device samples in float (an OpenCL device without cl_khr_fp64)."""
+    return t.family == "opencl" and not t.backend.info.fp64
+
+
 @check("random: Poisson counts, rates 0 to 9.99 (inversion)", quick=True)
 def _poisson_low(t: Target) -> list[Outcome]:
-    return [exact("poisson counts", poisson_counts(t, t.backend, LOW_RATES),
-                  poisson_counts(t, REFERENCE, LOW_RATES),
+    got = poisson_counts(t, t.backend, LOW_RATES)
+    ref = poisson_counts(t, REFERENCE, LOW_RATES)
+    if _float_samplers(t):  # float cumulative sums: a count may move (its own row)
+        return [within("poisson_agreement", t, np.mean(got != ref), 0.0,
+                       dtype="float32-nofp64")]
+    return [exact("poisson counts", got, ref,
                   "same uniforms, same inversion: the same counts (K = 1/8 keeps rates exact)")]
 
 
 @check("random: Poisson counts, rates 10 to 1e7 (PTRS)")
 def _poisson_high(t: Target) -> list[Outcome]:
-    key = ("poisson_agreement", t.family, t.precision)
-    if t.kernels and key not in testing.TOLERANCES:
-        return [Outcome("", "poisson_agreement", None, "", "/".join(key), "", None,
-                        f"no row {'/'.join(key)}: float32 rates above 10 are checked "
-                        "statistically by the test suite")]
+    if _float_samplers(t):
+        return [Outcome("", "poisson_agreement", None, "", None, "", None,
+                        "float PTRS moves counts at large rates: the test suite checks their "
+                        "statistics (tests/test_hard_cases.py)")]
     got = poisson_counts(t, t.backend, HIGH_RATES)
     ref = poisson_counts(t, REFERENCE, HIGH_RATES)
     if not t.kernels:
         return [exact("poisson counts", got, ref, "the reference itself")]
-    return [within("poisson_agreement", t, np.mean(got != ref), 0.0)]
+    # Warp samples in float64 whatever the caller's type: its float64 row
+    dtype = "float64" if t.family == "warp" else None
+    return [within("poisson_agreement", t, np.mean(got != ref), 0.0, dtype=dtype)]
 
 
 # -- tiles ---------------------------------------------------------------------------------------
