@@ -44,7 +44,7 @@ def test_validate_quick_on_numpy_exits_0_with_a_table_and_json(tmp_path, capsys)
     out = tmp_path / "report.json"
     assert main(["validate", "--backend", "numpy", "--quick", "--json", str(out)]) == 0
     printed = capsys.readouterr()
-    assert "== numpy: numpy float64 (host CPU)" in printed.out
+    assert "== numpy: float64 (host CPU)" in printed.out
     assert "testing.py:" in printed.out and "every check passed" in printed.out
     assert "[1/" in printed.err  # progress, one line per check
     report = json.loads(out.read_text())

@@ -195,8 +195,9 @@ def within(stage: str, target: Target, actual, expected, *, outliers: str = "",
         measured = float(bad.mean()) if bad.size else 0.0
         tolerance += f"; {allowed:g} of values may miss"
         source += f", {_source(okey).rpartition(':')[2]}"
-    else:
-        measured = float(np.max(err, initial=0.0))
+    else:  # the largest error, leaving out values the caller accepts
+        measured = float(np.max(err if accept is None else np.where(accept, 0.0, err),
+                                initial=0.0))
     return Outcome("", stage, measured, tolerance, "/".join(key), source, problem is None,
                    problem or "")
 

@@ -57,7 +57,7 @@ def device_info(backend) -> dict:
             driver = "Warp's CPU code generator (LLVM, built into Warp)"
     else:
         driver = "host CPU (numpy)"
-    name = backend.device.rpartition(",")[0] or backend.device
+    name = backend.device.rpartition(",")[0] or backend.device  # without the precision
     return {"device": name, "driver": driver, "libraries": library_versions(backend.name)}
 
 
@@ -200,13 +200,15 @@ def render(report: dict) -> str:
     """
     out = []
     for d in report["devices"]:
-        out.append(f"== {d['backend']}: {d.get('device', '')}")
+        device = d.get("device", "").removeprefix(d["backend"] + " ")
+        out.append(f"== {d['backend']}: {device}")
         if "driver" in d:
             libs = ", ".join(f"{k} {v}" for k, v in d["libraries"].items())
             out.append(f"   {d['driver']}; {libs}")
         if "against" in d:
             a = d["against"]
-            out.append(f"   against {a['backend']}: {a['device']}; {a['driver']}")
+            device = a["device"].removeprefix(a["backend"] + " ")
+            out.append(f"   against {a['backend']}: {device}; {a['driver']}")
         ran = [r for r in d["rows"] if r["check"] != "all checks"]
         for r in d["rows"]:
             if r["check"] == "all checks":
