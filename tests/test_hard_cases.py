@@ -24,8 +24,6 @@ from __future__ import annotations
 
 import json
 import os
-import weakref
-from collections.abc import Sequence
 
 import numpy as np
 import pytest
@@ -34,19 +32,36 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import gpu_blur
+from gpu_blur import conformance
 from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.cameras import get_camera
+from gpu_blur.conformance import (
+    A7R3_DIP_POINTS,
+    A7R3_POLYNOMIAL_POINTS,
+    BIG,
+    DESATURATING,
+    NEAR_SINGULAR,
+    OUT_OF_GAMUT,
+    POSES_LEAVING_THE_IMAGE,
+    PRIMARIES,
+    RATES,
+    SAMPLE,
+    SEED,
+    BigFrame,
+    StreamedFrames,
+    big_pattern,
+    seam_image,
+    tall_thin_linear,
+    transfer_points,
+)
 from gpu_blur.constants import A7R3_CRF_TABLE_X255
-from gpu_blur.params import draw_params
-from gpu_blur.plan import plan
 from gpu_blur.reference import bayer, transfer
 from gpu_blur.reference.color import apply_matrix
-from gpu_blur.scene import PATTERNS, scene_from_dict
+from gpu_blur.scene import PATTERNS
 from gpu_blur.testing import assert_close, tolerance, z_mean, z_var
 from gpu_blur.tiling import Region
 
 REFERENCE = NumpyBackend()
-SEED, SAMPLE = 23, 5
 HEAVY = os.environ.get("GPU_BLUR_HEAVY") == "1"
 
 
@@ -58,9 +73,7 @@ def backend_name(spec: str) -> str:
 
 
 def on_device(spec: str, values) -> np.ndarray:
-    """``values`` as the spec's kernels hold them: rounded to float32 for float32 builds."""
-    real = np.float32 if spec_dtype(spec) == "float32" else np.float64
-    return np.asarray(values, dtype=real).astype(np.float64)
+    return conformance.on_device(spec_dtype(spec), values)
 
 
 def rows(stage: str, spec: str) -> tuple[float, float]:
@@ -76,66 +89,22 @@ def check(stage: str, spec: str, actual, expected) -> None:
 
 
 def scene_for(spec: str, settings: dict):
-    """A scene from sections of settings, computing in the spec's precision."""
-    data = {section: dict(values) for section, values in settings.items()}
-    data.setdefault("output", {})["precision"] = spec_dtype(spec)
-    return scene_from_dict(data)
+    return conformance.scene_for(spec_dtype(spec), settings)
 
 
 def prepare(spec: str, settings: dict, shape, camera: str = "a7r3", overrides=None):
-    """(plan, camera, params) for a scene, as the pipeline draws them."""
-    scene = scene_for(spec, settings)
-    cam = get_camera(camera)
-    params = draw_params(scene, plan(scene), cam, seed=SEED, sample_index=SAMPLE,
-                         image_shape=shape, overrides=overrides)
-    return plan(scene), cam, params
-
-
-def in_a_row(values) -> np.ndarray:
-    """Values as a 1-row RGB image, in order along the row (padded with 1.0 to whole pixels)."""
-    values = np.asarray(values, dtype=np.float64)
-    padded = np.concatenate([values, np.ones(-values.size % 3)])
-    return padded.reshape(1, -1, 3)
+    return conformance.prepare(spec_dtype(spec), settings, shape, camera, overrides)
 
 
 def decode_on(spec: str, srgb: np.ndarray) -> np.ndarray:
-    """sRGB EOTF through the accumulate pass (blur mode none linearizes, nothing else)."""
-    image = in_a_row(srgb)
-    p, _, params = prepare(spec, {"blur": {"mode": "none"}}, image.shape[:2])
-    linear, _ = make_backend(spec).accumulate(p, params, [image], None,
-                                              Region.whole(*image.shape[:2]))
-    return linear.reshape(-1)[:srgb.size]
-
-
-NO_RAW_FINISH = {"blur": {"mode": "none"}, "noise": {"model": "none"},
-                 "saturation": {"mode": "off"}, "output": {"bits": 0}}
+    return conformance.decode_on(make_backend(spec), srgb)
 
 
 def finish_on(spec: str, linear: np.ndarray, crf: str = "srgb") -> np.ndarray:
-    """The finish pass without a RAW round trip: clip(OETF(x)), then the crf's re-tone."""
-    image = in_a_row(linear)
-    settings = {**NO_RAW_FINISH, "output": {"bits": 0, "crf": crf}}
-    p, cam, params = prepare(spec, settings, image.shape[:2])
-    whole = Region.whole(*image.shape[:2])
-    out = make_backend(spec).finish(p, params, cam, image, image, whole, whole, seed=SEED,
-                        sample_index=SAMPLE)
-    return out.reshape(-1)[:linear.size]
+    return conformance.finish_on(make_backend(spec), linear, crf)
 
 
 # -- transfer functions ----------------------------------------------------------------------
-
-def transfer_points() -> np.ndarray:
-    """0, 1, the sRGB knees and their float64 and float32 neighbours, denormals, tiny values."""
-    points = [0.0, 5e-324, 1e-310, 2.0**-149, 1e-40, 2.0**-126, 1e-30, 1e-12, 1e-7, 0.5,
-              1 - 2.0**-24, 1 - 2.0**-53, 1.0]
-    for knee in (transfer.SRGB_ENCODE_KNEE, transfer.SRGB_DECODE_KNEE):
-        f = np.float32(knee)
-        points += [knee, np.nextafter(knee, 0), np.nextafter(knee, 1), float(f),
-                   float(np.nextafter(f, np.float32(0))), float(np.nextafter(f, np.float32(1)))]
-    dense = [np.linspace(0, 1, 1025), np.linspace(0.0030, 0.0032, 129),
-             np.linspace(0.0400, 0.0410, 129)]
-    return np.unique(np.concatenate([points, *dense]))
-
 
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 def test_srgb_decode_at_zero_one_knees_and_denormals_is_finite_and_monotone(spec):
@@ -183,8 +152,7 @@ def test_srgb_round_trips_through_the_accumulate_and_finish_passes(spec):
 
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 def test_a7r3_polynomial_clips_outside_0_1_and_stays_within_its_horner_bound(spec):
-    x = on_device(spec, np.concatenate([[-7.0, -1.0, -1e-3, -0.0, 0.0, 1e-6],
-                                        np.linspace(0, 1, 4097), [1 + 1e-6, 1.5, 7.0]]))
+    x = on_device(spec, A7R3_POLYNOMIAL_POINTS)
     got = finish_on(spec, x, crf="a7r3")
     ref = finish_on("numpy", x, crf="a7r3")
     check("finish_crf_polynomial", spec, got, ref)  # the 3e-5 row: float32 Horner cancels
@@ -196,7 +164,7 @@ def test_a7r3_polynomial_clips_outside_0_1_and_stays_within_its_horner_bound(spe
 
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 def test_a7r3_lookup_table_is_monotone_near_0_86_where_the_polynomial_is_not(spec):
-    x = on_device(spec, np.linspace(0.85, 0.875, 2001))
+    x = on_device(spec, A7R3_DIP_POINTS)
     got = finish_on(spec, x, crf="a7r3-lut")
     check("finish", spec, got, finish_on("numpy", x, crf="a7r3-lut"))
     assert np.all(np.diff(got) >= 0)
@@ -216,42 +184,6 @@ def test_a7r3_lookup_inverse_is_monotone_near_0_86_and_inverts_the_table_there()
 
 
 # -- frames ------------------------------------------------------------------------------------
-
-class StreamedFrames(Sequence):
-    """``n`` sRGB frames made on demand from their index, never all held at once.
-
-    Half the values stay the same in every frame (a plain running sum of equal terms drifts
-    the most), the others oscillate; bright pixels saturate on every third frame. Records how
-    many earlier frames are still alive whenever a frame is made (``max_alive``).
-    """
-
-    def __init__(self, n: int, shape=(12, 16)):
-        self.n, self.shape = n, (*shape, 3)
-        gen = np.random.default_rng(7)
-        self.base = gen.uniform(0.45, 1.0, self.shape)
-        self.amplitude = np.where(gen.uniform(size=self.shape) < 0.5, 0.0, 0.03)
-        self.phase = gen.uniform(0, 2 * np.pi, self.shape)
-        self.bright = self.base > 0.96
-        self._made: list[weakref.ref] = []
-        self.max_alive = 0
-
-    def __len__(self) -> int:
-        return self.n
-
-    def __getitem__(self, i):
-        if not isinstance(i, (int, np.integer)):
-            raise TypeError("frames are streamed by index")
-        if not -self.n <= i < self.n:
-            raise IndexError(i)
-        i %= self.n
-        alive = sum(ref() is not None for ref in self._made)
-        self.max_alive = max(self.max_alive, alive)
-        frame = np.clip(self.base + self.amplitude * np.sin(0.7 * i + self.phase), 0, 1)
-        if i % 3 == 0:
-            frame[self.bright] = 1.0
-        self._made.append(weakref.ref(frame))
-        return frame
-
 
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 @pytest.mark.parametrize("n", [1, 2, 65, 1000])
@@ -284,11 +216,6 @@ def test_camera_path_of_1000_poses_stays_within_the_stated_bound(spec, coffee_rg
     check("accumulate_long_sum", spec, mask, ref_mask)
 
 
-def shift(tx: float, ty: float) -> np.ndarray:
-    """The homography of a translation: content moves by (tx, ty) pixels."""
-    return np.array([[1.0, 0.0, tx], [0.0, 1.0, ty], [0.0, 0.0, 1.0]])
-
-
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 def test_camera_path_leaving_the_image_reads_only_the_image(spec, coffee_rgb):
     """Poses that move the content past every edge, by whole and fractional pixels, two of them
@@ -296,7 +223,7 @@ def test_camera_path_leaving_the_image_reads_only_the_image(spec, coffee_rgb):
     reference's edge rule (reference.shake.shake_blur, "Edges"), 0 where nothing is seen."""
     photo = np.ascontiguousarray(coffee_rgb[250:274, 330:362])
     h, w = photo.shape[:2]
-    hom = np.stack([shift(4.5, -2.25), shift(6.0, 3.0), shift(4.25, 0.5)])
+    hom = POSES_LEAVING_THE_IMAGE
     p, _, params = prepare(spec, {"blur": {"mode": "trajectory"}}, (h, w),
                            overrides={"homographies": hom})
     ref_linear, ref_mask = REFERENCE.accumulate(p, params, [photo], None, Region.whole(h, w))
@@ -340,19 +267,6 @@ def test_all_black_frames_give_black_or_pure_read_noise(spec, noise):
     rtol, atol = rows("pipeline_noisy", spec)
     bad = np.abs(got.astype(np.float64) - ref) > atol + rtol * np.abs(ref)
     assert bad.mean() <= rows("pipeline_noisy_outliers", spec)[1]
-
-
-def seam_image(case: str, tile: int, h: int = 40, w: int = 48) -> np.ndarray:
-    image = np.full((h, w, 3), 0.35)
-    image[..., 1] = 0.5
-    if case == "corner":
-        image[tile, tile] = 1.0  # the first pixel of the second row and column of tiles
-    else:
-        for t in range(tile, h, tile):
-            image[t - 1:t + 1, ::3] = 1.0
-        for t in range(tile, w, tile):
-            image[::3, t - 1:t + 1] = 1.0
-    return image
 
 
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
@@ -414,9 +328,6 @@ def test_saturated_channels_are_exactly_one_for_extreme_alpha_and_masks(spec, al
 
 # -- noise -------------------------------------------------------------------------------------
 
-RATES = [0.0, 1e-12, 1.0, 9.99, 10.01, 1e4, 1e7]
-
-
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 @pytest.mark.parametrize("k", [1e-9, 0.125])
 def test_poisson_rates_from_0_to_1e7_through_the_to_raw_pass(spec, k):
@@ -448,17 +359,6 @@ def test_poisson_rates_from_0_to_1e7_through_the_to_raw_pass(spec, k):
 
 
 # -- colour ------------------------------------------------------------------------------------
-
-# Linear colours outside the sRGB gamut (negative components): the preset cameras' Lin2Cam
-# matrices have positive entries only, so in-gamut colours never give negative camera values.
-OUT_OF_GAMUT = np.array([[1.0, -0.15, -0.1], [-0.12, 0.9, -0.05], [-0.05, -0.1, 0.95],
-                         [0.6, -0.2, 0.7], [-0.1, 0.5, 0.0], [0.3, 0.3, -0.25]])
-# A camera file whose Cam2Lin desaturates, so its Lin2Cam has negative entries: saturated
-# in-gamut colours then give negative camera values.
-DESATURATING = [[0.7, 0.2, 0.1], [0.15, 0.7, 0.15], [0.1, 0.2, 0.7]]
-PRIMARIES = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.8],
-                      [0.9, 0.0, 0.9], [0.05, 0.9, 0.0]])
-
 
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 @pytest.mark.parametrize("source", ["out-of-gamut linear", "camera file"])
@@ -512,9 +412,6 @@ def test_identity_camera_puts_linear_values_straight_into_the_mosaic(spec, coffe
                                            origin=(3, 5), seed=SEED, sample_index=SAMPLE)
         # 1 * v + 0 * v' + 0 * v'' is v exactly, in any precision
         assert np.array_equal(raw, bayer.mosaic(linear, bayer.BayerPattern(pattern), (3, 5)))
-
-
-NEAR_SINGULAR = np.diag([1.0, 1.0, 1e-7]).tolist()
 
 
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
@@ -586,36 +483,6 @@ def test_memory_layouts_and_input_dtypes_give_the_same_result(spec, coffee_rgb):
 
 # -- index arithmetic at large coordinates -----------------------------------------------------
 
-# A full image of 32,774 x 32,774 pixels (never allocated): y * full_w * 3 exceeds 2^31 in its
-# last rows, and its global coordinates feed the Bayer phase, the random counters and
-# reflect-101. Kernels index their buffers relative to a view; these tests run the passes on
-# its bottom-right corner and compare with the reference on just those pixels.
-BIG = 2**15 + 6
-
-
-def big_pattern(y: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The sRGB value of the big image at global (y, x): smooth, with saturated dots."""
-    v = 0.5 + 0.45 * np.sin(0.37 * x + 0.11 * y)
-    image = np.stack([v, 0.8 * v, 1 - 0.6 * v], axis=-1)
-    image[(7 * x + 13 * y) % 17 == 0] = 1.0
-    return image
-
-
-class BigFrame:
-    """A full-size frame too large to hold, made for the slices the backends ask for."""
-
-    dtype = np.dtype(np.float64)  # values in [0, 1], as gpu_blur.imageio.check_image gives
-
-    def __init__(self, h: int, w: int):
-        self.shape = (h, w, 3)
-
-    def __getitem__(self, key):
-        rows, cols = key
-        y = np.arange(*rows.indices(self.shape[0]))[:, None]
-        x = np.arange(*cols.indices(self.shape[1]))[None, :]
-        return big_pattern(y, x)
-
-
 @pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)  # the reference needs whole frames
 def test_kernel_blur_reflects_at_the_far_edges_of_a_huge_image(spec):
     kernel = np.random.default_rng(3).uniform(0, 1, (11, 15))
@@ -665,12 +532,6 @@ def test_to_raw_and_finish_at_the_corner_of_a_huge_image_match_the_reference(spe
     ref = REFERENCE.finish(p, params, cam, image, sat, view, out, seed=SEED,
                            sample_index=SAMPLE)
     check("finish", spec, got, ref)
-
-
-def tall_thin_linear(height: int) -> np.ndarray:
-    """A height x 2 x 3 float32 linear image: a 997-row pattern repeated (no float64 copy)."""
-    period = (np.arange(997 * 6, dtype=np.float32).reshape(997, 2, 3) % 251) / 251
-    return np.resize(period, (height, 2, 3))
 
 
 @pytest.mark.slow
