@@ -15,7 +15,7 @@ import numpy as np
 
 from gpu_blur import arrays
 from gpu_blur.backends import OnDevice, get_backend, to_host
-from gpu_blur.backends.flows import interpolation_factor
+from gpu_blur.backends.flows import interpolation_factor, with_factors
 from gpu_blur.backends.kernel import KernelBackend
 from gpu_blur.backends.numpy import retone
 from gpu_blur.cameras import Camera, check_float32_response, get_camera
@@ -571,6 +571,8 @@ class Synthesizer:
             overrides = {k: v for k, v in (overrides or {}).items() if k != "alpha"}
         params = draw_params(scene, sample_plan, self.camera, seed=self.seed,
                              sample_index=sample_index, image_shape=(h, w), overrides=overrides)
+        if not isinstance(frames, OnDevice):  # interpolation auto: each gap's measured factor
+            params = with_factors(sample_plan, params, frames)
         # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
         crop = scene.output.crop
         tiled = run(self.runner, sample_plan, params, self.camera, frames, item.mask,

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from gpu_blur.constants import A7R3_CRF_TABLE_X255
+from gpu_blur.reference.interpolate import INTERPOLATION_AUTO, MOTION_SCALE
 from gpu_blur.reference.transfer import RETONE_CURVES, retone_polynomial
 from gpu_blur.scene import Scene, load_scene
 
@@ -225,13 +226,21 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
     # accumulate
     add(S.LINEARIZE, P.ACCUMULATE, True, "sRGB input decoded with the sRGB EOTF")
     blurring = b.mode != "none"
-    interpolated = b.mode == "average" and b.interpolation > 1
-    average = (f"mean of {b.frames} linear frames and their saturation masks"
-               if not interpolated else
-               f"mean of {(b.frames - 1) * b.interpolation + 1} linear frames and their "
-               f"saturation masks: {b.frames} frames and {b.interpolation - 1} interpolated in "
-               f"each gap ({b.interpolation}x frame rate, {b.flow} optical flow)")
+    if b.interpolation == INTERPOLATION_AUTO:
+        average = (f"mean of {b.frames} linear frames and their saturation masks, each gap "
+                   f"interpolated 1, 2, 4 or 8x ({b.flow} optical flow) to keep its motion, "
+                   f"measured per sample at 1/{MOTION_SCALE} size, under "
+                   f"{b.interpolation_tolerance:g} px a step (blur.interpolation = auto; the "
+                   "factors go to the sample's interpolation_factors)")
+    elif b.interpolation > 1:
+        average = (f"mean of {(b.frames - 1) * b.interpolation + 1} linear frames and their "
+                   f"saturation masks: {b.frames} frames and {b.interpolation - 1} interpolated "
+                   f"in each gap ({b.interpolation}x frame rate, {b.flow} optical flow)")
+    else:
+        average = f"mean of {b.frames} linear frames and their saturation masks"
     options = {"interpolation": b.interpolation, "flow": b.flow} if b.mode == "average" else {}
+    if options and b.interpolation == INTERPOLATION_AUTO:
+        options["tolerance"] = float(b.interpolation_tolerance)
     add(S.BLUR, P.ACCUMULATE, blurring,
         {"average": average,
          "kernel": "one photo convolved with "
