@@ -155,3 +155,24 @@ def test_scene_takes_auto_with_a_positive_tolerance_in_mode_average_only():
         average_scene("auto", 0)
     with pytest.raises(SceneError, match="needs blur.mode = 'average'"):
         scene_from_dict({"blur": {"mode": "trajectory", "interpolation": "auto"}})
+
+
+def test_generate_records_the_factors_of_each_sample_in_the_manifest(tmp_path):
+    import json
+
+    import cv2
+
+    from gpu_blur.cli import main
+
+    folder = tmp_path / "in" / "GOPR0001" / "sharp"
+    folder.mkdir(parents=True)
+    for i, frame in enumerate(still_then_pan(1, 1)):
+        cv2.imwrite(str(folder / f"{i:06d}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    scene = tmp_path / "auto.toml"
+    scene.write_text('[blur]\nmode = "average"\nframes = 3\ninterpolation = "auto"\n')
+    out = tmp_path / "out"
+    assert main(["generate", "--input", str(tmp_path / "in"), "--output", str(out),
+                 "--scene", str(scene), "--quiet"]) == 0
+    (line,) = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    assert line["status"] == "ok" and "flows" not in line["params"]
+    assert line["params"]["interpolation_factors"] == [1, 8]
