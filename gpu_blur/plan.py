@@ -201,7 +201,8 @@ def raw_round_trip(scene: Scene) -> bool:
 
 
 def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
-         size: tuple[int, int] | None = None) -> Plan:
+         size: tuple[int, int] | None = None,
+         interpolation_factors: tuple[int, ...] | None = None) -> Plan:
     """The stages ``scene`` calls for.
 
     Args:
@@ -213,6 +214,9 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
         size: the sample's (height, width) as the passes see it (after the even cut of the
             RAW round trip); ``None`` when not known yet. Vignetting is centred on it: a plan
             without it shows the stages but cannot run a kept vignetting stage.
+        interpolation_factors: under ``blur.interpolation = "auto"``, each gap's factor
+            measured on the sample (:func:`gpu_blur.backends.flows.scene_factors`); ``None``
+            when not known yet. The blur stage shows them and carries them as its ``factors``.
     """
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
@@ -241,6 +245,10 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
     options = {"interpolation": b.interpolation, "flow": b.flow} if b.mode == "average" else {}
     if options and b.interpolation == INTERPOLATION_AUTO:
         options["tolerance"] = float(b.interpolation_tolerance)
+        if interpolation_factors is not None:
+            options["factors"] = tuple(int(f) for f in interpolation_factors)
+            average += (f"; this sample's factors per gap: "
+                        f"{', '.join(str(f) for f in options['factors'])}")
     add(S.BLUR, P.ACCUMULATE, blurring,
         {"average": average,
          "kernel": "one photo convolved with "

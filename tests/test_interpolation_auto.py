@@ -176,3 +176,10 @@ def test_generate_records_the_factors_of_each_sample_in_the_manifest(tmp_path):
     (line,) = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
     assert line["status"] == "ok" and "flows" not in line["params"]
     assert line["params"]["interpolation_factors"] == [1, 8]
+
+
+def test_the_sample_plan_shows_the_factors_it_ran():
+    result = synthesizer(("auto", 1.0, 4), "numpy").sample(still_then_pan(2, 1))
+    assert result.plan["blur"].options["factors"] == (1, 1, 8)
+    assert "this sample's factors per gap: 1, 1, 8" in str(result.plan)
+    assert result.params["interpolation_factors"] == [1, 1, 8]

@@ -41,20 +41,35 @@ def interpolation_factor(plan: Plan) -> int:
     return INTERPOLATION_FACTORS[-1] if factor == INTERPOLATION_AUTO else int(factor)
 
 
+def scene_factors(scene, frames: Sequence[np.ndarray]) -> tuple[int, ...] | None:
+    """Each gap's factor under ``blur.interpolation = "auto"``, else ``None``.
+
+    Measured once per sample from the host frames as stored
+    (:func:`gpu_blur.reference.interpolate.adaptive_factors`, timed as ``kernels``).
+    """
+    b = scene.blur
+    if b.mode != "average" or b.interpolation != INTERPOLATION_AUTO:
+        return None
+    with timer("kernels"):
+        return adaptive_factors(UnitFrames(frames), b.interpolation_tolerance, b.flow)
+
+
 def with_factors(plan: Plan, params: dict, frames: Sequence[np.ndarray]) -> dict:
     """``params`` with ``interpolation_factors``, each gap's factor, under interpolation auto.
 
-    Measured once per sample from the host frames
-    (:func:`gpu_blur.reference.interpolate.adaptive_factors`, timed as ``kernels``); ``params``
-    as they are for a fixed factor or when they hold the factors already.
+    The plan's (:func:`gpu_blur.plan.plan` ``interpolation_factors``), else measured from the
+    host frames (:func:`scene_factors`); ``params`` as they are for a fixed factor or when they
+    hold the factors already.
     """
     stage = plan["blur"]
     if (interpolation_factor(plan) == 1 or FACTORS_KEY in params
             or stage.options["interpolation"] != INTERPOLATION_AUTO):
         return params
-    with timer("kernels"):
-        factors = adaptive_factors(UnitFrames(frames), stage.options["tolerance"],
-                                   stage.options["flow"])
+    factors = stage.options.get("factors")
+    if factors is None:
+        with timer("kernels"):
+            factors = adaptive_factors(UnitFrames(frames), stage.options["tolerance"],
+                                       stage.options["flow"])
     return {**params, FACTORS_KEY: list(factors)}
 
 
