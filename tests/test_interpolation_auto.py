@@ -183,3 +183,17 @@ def test_the_sample_plan_shows_the_factors_it_ran():
     assert result.plan["blur"].options["factors"] == (1, 1, 8)
     assert "this sample's factors per gap: 1, 1, 8" in str(result.plan)
     assert result.params["interpolation_factors"] == [1, 1, 8]
+
+
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+def test_tiled_auto_with_spot_checks_equals_the_whole_image(spec):
+    from gpu_blur.scheduler import Schedule
+
+    frames = panned([0, 0, 1, 9])
+    name, _, precision = spec.partition("/")
+    scene = average_scene("auto", 1.0, 4, precision=precision or "float64")
+    whole = Synthesizer(scene, backend=name).sample(frames)
+    tiled = Synthesizer(scene, backend=name,
+                        schedule=Schedule(tile=(48, 64), verify=1.0)).sample(frames)
+    assert tiled.tiles == 6 and tiled.spot_checks == 6
+    assert np.array_equal(tiled.blurred, whole.blurred)
