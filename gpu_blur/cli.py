@@ -135,6 +135,14 @@ def _parser() -> argparse.ArgumentParser:
     pl = sub.add_parser("plan", help="print the stages a scene runs, kept or skipped, with why")
     pl.add_argument("scene", type=Path, nargs="?", help="scene TOML, or a built-in scene's "
                     "name (realblur_j, rsblur, minimal; default: the default scene)")
+    pl.add_argument("--cost", action="store_true", help="also time what each kept stage costs "
+                    "and what each skipped one would cost, on the built-in photo (a few "
+                    "seconds)")
+    pl.add_argument("--backend", default="numpy", help="with --cost: the backend timed "
+                    "(numpy, opencl:P:D, warp:cpu, warp:cuda:0; default numpy: present "
+                    "everywhere, no kernel builds)")
+    pl.add_argument("--size", default="480x320", help="with --cost: the input's WxH in "
+                    "pixels, even sides (default 480x320)")
 
     sub.add_parser("devices", help="list every backend and device, with fp64 support and memory")
     sub.add_parser("scene", help="print the default scene as TOML: every key with its default, "
@@ -894,6 +902,15 @@ def main(argv: list[str] | None = None) -> int:
             scene = load_scene(args.scene)
             scene_camera(scene)  # an unknown camera or a bad camera file, as generate says
             print(plan(scene))
+            if args.cost:
+                from gpu_blur.analysis.stage_cost import format_costs, stage_costs
+
+                width, _, height = args.size.lower().partition("x")
+                if not (width.isdigit() and height.isdigit()):
+                    raise ValueError(f"--size {args.size!r} is invalid; allowed: WxH in "
+                                     "pixels, e.g. 480x320")
+                costs = stage_costs(scene, args.backend, (int(height), int(width)))
+                print(format_costs(costs, plan(scene)))
         elif args.command == "devices":
             _devices()
         elif args.command == "scene":

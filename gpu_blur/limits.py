@@ -107,6 +107,10 @@ FRAMES = Limit(1, 1024, integer=True, reason=(
 STEPS = Limit(0, 8 * (SHAKE_AUTO_STEPS_RANGE[1] - 1), integer=True, reason=(
     "camera poses, 0 = auto: 9 to 1,025, about one per pixel of the path; more poses than "
     "pixels along the path change nothing, and each costs a read per pixel"))
+INTERPOLATION_TOLERANCE = Limit(0, 1000, low_open=True, reason=(
+    "pixels a step between consecutive averaged frames may span under blur.interpolation = "
+    "'auto': a gap moving more gets 2, 4 or 8 x its frames (8 at most, so a tiny tolerance "
+    "gives 8x everywhere); a tolerance above the motion inserts nothing"))
 EXTENT = Limit(0, reason="pixels the image centre moves; the image's size bounds it per sample")
 ROLL = Limit(0, SHAKE_ROLL_MAX_DEG, reason="degrees of camera roll; the shake model's largest")
 KERNEL_SIZE = Limit(1, 255, integer=True, reason=(

@@ -15,7 +15,7 @@ import numpy as np
 
 from gpu_blur import arrays
 from gpu_blur.backends import OnDevice, get_backend, to_host
-from gpu_blur.backends.flows import interpolation_factor
+from gpu_blur.backends.flows import interpolation_factor, scene_factors, with_factors
 from gpu_blur.backends.kernel import KernelBackend
 from gpu_blur.backends.numpy import retone
 from gpu_blur.cameras import Camera, check_float32_response, get_camera
@@ -610,9 +610,12 @@ class Synthesizer:
         frames = item.frames
         h, w = (frames.shape[-3:-1] if isinstance(frames, OnDevice)
                 else frames[0].shape[:2])
-        key = (item.saturated, h, w)
+        # interpolation auto: each gap's factor, measured on the host frames
+        factors = None if isinstance(frames, OnDevice) else scene_factors(scene, frames)
+        key = (item.saturated, h, w, factors)
         if key not in self._plans:  # a plan depends on the scene, the clip test and the size
-            self._plans[key] = plan(scene, saturated=item.saturated, size=(h, w))
+            self._plans[key] = plan(scene, saturated=item.saturated, size=(h, w),
+                                    interpolation_factors=factors)
         sample_plan = self._plans[key]
         # Every draw has a fixed index (gpu_blur.params), so a stage the sample skips (auto
         # saturation) never shifts another draw.
@@ -622,6 +625,8 @@ class Synthesizer:
             overrides = {k: v for k, v in (overrides or {}).items() if k != "alpha"}
         params = draw_params(scene, sample_plan, self.camera, seed=self.seed,
                              sample_index=sample_index, image_shape=(h, w), overrides=overrides)
+        if factors is not None:  # the plan's factors, recorded in the manifest
+            params = with_factors(sample_plan, params, frames)
         # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
         crop = scene.output.crop
         tiled = run(self.runner, sample_plan, params, self.camera, frames, item.mask,

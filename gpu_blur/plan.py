@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from gpu_blur.constants import A7R3_CRF_TABLE_X255
+from gpu_blur.reference.interpolate import INTERPOLATION_AUTO, MOTION_SCALE
 from gpu_blur.reference.transfer import RETONE_CURVES, retone_polynomial
 from gpu_blur.scene import Scene, load_scene
 
@@ -203,7 +204,8 @@ def raw_round_trip(scene: Scene) -> bool:
 
 
 def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
-         size: tuple[int, int] | None = None) -> Plan:
+         size: tuple[int, int] | None = None,
+         interpolation_factors: tuple[int, ...] | None = None) -> Plan:
     """The stages ``scene`` calls for.
 
     Args:
@@ -215,6 +217,9 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
         size: the sample's (height, width) as the passes see it (after the even cut of the
             RAW round trip); ``None`` when not known yet. Vignetting is centred on it: a plan
             without it shows the stages but cannot run a kept vignetting stage.
+        interpolation_factors: under ``blur.interpolation = "auto"``, each gap's factor
+            measured on the sample (:func:`gpu_blur.backends.flows.scene_factors`); ``None``
+            when not known yet. The blur stage shows them and carries them as its ``factors``.
     """
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
@@ -228,13 +233,25 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
     # accumulate
     add(S.LINEARIZE, P.ACCUMULATE, True, "sRGB input decoded with the sRGB EOTF")
     blurring = b.mode != "none"
-    interpolated = b.mode == "average" and b.interpolation > 1
-    average = (f"mean of {b.frames} linear frames and their saturation masks"
-               if not interpolated else
-               f"mean of {(b.frames - 1) * b.interpolation + 1} linear frames and their "
-               f"saturation masks: {b.frames} frames and {b.interpolation - 1} interpolated in "
-               f"each gap ({b.interpolation}x frame rate, {b.flow} optical flow)")
+    if b.interpolation == INTERPOLATION_AUTO:
+        average = (f"mean of {b.frames} linear frames and their saturation masks, each gap "
+                   f"interpolated 1, 2, 4 or 8x ({b.flow} optical flow) to keep its motion, "
+                   f"measured per sample at 1/{MOTION_SCALE} size, under "
+                   f"{b.interpolation_tolerance:g} px a step (blur.interpolation = auto; the "
+                   "factors go to the sample's interpolation_factors)")
+    elif b.interpolation > 1:
+        average = (f"mean of {(b.frames - 1) * b.interpolation + 1} linear frames and their "
+                   f"saturation masks: {b.frames} frames and {b.interpolation - 1} interpolated "
+                   f"in each gap ({b.interpolation}x frame rate, {b.flow} optical flow)")
+    else:
+        average = f"mean of {b.frames} linear frames and their saturation masks"
     options = {"interpolation": b.interpolation, "flow": b.flow} if b.mode == "average" else {}
+    if options and b.interpolation == INTERPOLATION_AUTO:
+        options["tolerance"] = float(b.interpolation_tolerance)
+        if interpolation_factors is not None:
+            options["factors"] = tuple(int(f) for f in interpolation_factors)
+            average += (f"; this sample's factors per gap: "
+                        f"{', '.join(str(f) for f in options['factors'])}")
     add(S.BLUR, P.ACCUMULATE, blurring,
         {"average": average,
          "kernel": "one photo convolved with "

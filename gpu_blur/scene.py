@@ -23,7 +23,7 @@ else:  # pragma: no cover
 from gpu_blur import limits
 from gpu_blur.constants import GAUSSIAN_SRGB_NOISE_STD
 from gpu_blur.limits import Limit
-from gpu_blur.reference.interpolate import FLOW_METHODS, INTERPOLATION_FACTORS
+from gpu_blur.reference.interpolate import FLOW_METHODS, INTERPOLATION_AUTO, INTERPOLATION_FACTORS
 
 PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 
@@ -56,10 +56,16 @@ FIELDS: dict[str, dict[str, Field]] = {
                         limit=limits.FRAMES),
         "interpolation": Field(1, "mode 'average': raise the frame rate by this factor before "
                                "averaging, (frames - 1) * factor + 1 frames in all (RSBlur: 8, "
-                               "9 -> 65); 1 averages the frames as they are",
-                               choices=INTERPOLATION_FACTORS),
-        "flow": Field("dis", "optical flow for blur.interpolation > 1, computed on the host with "
-                      "OpenCV: 'dis' (DIS, preset medium) or 'farneback'", choices=FLOW_METHODS),
+                               "9 -> 65); 1 averages the frames as they are; 'auto' picks 1, "
+                               "2, 4 or 8 per gap from the frames' measured motion",
+                               choices=(*INTERPOLATION_FACTORS, INTERPOLATION_AUTO)),
+        "interpolation_tolerance": Field(
+            1.0, "blur.interpolation = 'auto': the largest step, pixels, between consecutive "
+            "averaged frames; each gap gets the fewest inserted frames that keep its motion "
+            "(99th percentile) under it", limit=limits.INTERPOLATION_TOLERANCE),
+        "flow": Field("dis", "optical flow for blur.interpolation other than 1, computed on "
+                      "the host with OpenCV: 'dis' (DIS, preset medium) or 'farneback'",
+                      choices=FLOW_METHODS),
         "steps": Field(0, "poses along the camera path in mode 'trajectory'; 0 = auto: about "
                        "one per pixel of the longest pixel path, so blur is a streak, not copies",
                        limit=limits.STEPS),
@@ -291,7 +297,7 @@ def scene_from_dict(data: dict, where: str = "scene", path: Path | None = None) 
 
 def _check_consistency(sections: dict, where: str) -> None:
     blur, output = sections["blur"], sections["output"]
-    if blur.interpolation > 1 and blur.mode != "average":
+    if blur.interpolation != 1 and blur.mode != "average":
         raise SceneError(f"{where}: blur.interpolation = {blur.interpolation!r} needs "
                          f"blur.mode = 'average' (it is {blur.mode!r}); allowed: 1 for "
                          "this mode, or set blur.mode = 'average'")

@@ -429,8 +429,8 @@ class OpenCLInterpolate:
                     self.buffer(frame0[view], self.real), self.buffer(frame1[view], self.real),
                     self.buffer(fw[view], np.float32), self.buffer(bw[view], np.float32),
                     i64(g.vx0), i64(g.vy0), i64(g.vw), i64(g.full_w), i64(g.full_h), pos(t),
-                    pos(CONSISTENCY_RELATIVE), pos(CONSISTENCY_ABSOLUTE_PX2), total, comp,
-                    saturated, i64(g.x0), i64(g.y0), i64(dw), i64(dh))  # fmt: skip
+                    pos(CONSISTENCY_RELATIVE), pos(CONSISTENCY_ABSOLUTE_PX2), self.real.type(1),
+                    total, comp, saturated, i64(g.x0), i64(g.y0), i64(dw), i64(dh))  # fmt: skip
         out = [np.empty((dh, dw, 3), self.real) for _ in range(3)]
         for host, buf in zip(out, (total, comp, saturated), strict=True):
             self.cl.enqueue_copy(self.queue, host, buf)
@@ -485,7 +485,7 @@ class WarpInterpolate:
             self.array(frame0[view], self.real), self.array(frame1[view], self.real),
             self.array(fw[view], np.float32), self.array(bw[view], np.float32),
             g.vx0, g.vy0, g.vw, g.full_w, g.full_h, t, CONSISTENCY_RELATIVE,
-            CONSISTENCY_ABSOLUTE_PX2, *out, g.x0, g.y0, dw])
+            CONSISTENCY_ABSOLUTE_PX2, 1.0, *out, g.x0, g.y0, dw])
         return [a.numpy().reshape(dh, dw, 3) for a in out]
 
 

@@ -192,7 +192,7 @@ def test_the_sample_plan_is_built_once_and_a_skipped_saturation_takes_no_alpha(m
     dim = np.full((16, 16, 3), 0.5)
     result = gpu_blur.synthesize([dim], scene_with(blur={"steps": 2}),
                                  overrides={"alpha": 1.0})
-    assert calls == [{"saturated": False, "size": (16, 16)}]
+    assert calls == [{"saturated": False, "size": (16, 16), "interpolation_factors": None}]
     assert not result.plan.kept("saturate") and "alpha" not in result.params
 
 

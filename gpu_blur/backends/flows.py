@@ -16,16 +16,81 @@ import numpy as np
 
 from gpu_blur.imageio import unit_values
 from gpu_blur.plan import Plan
-from gpu_blur.reference.interpolate import sequence_flows
+from gpu_blur.reference.interpolate import (
+    INTERPOLATION_AUTO,
+    INTERPOLATION_FACTORS,
+    adaptive_factors,
+    sequence_flows,
+)
 from gpu_blur.timings import timer
+
+#: The parameter holding each gap's factor under ``blur.interpolation = "auto"`` (measured per
+#: sample, recorded in the manifest).
+FACTORS_KEY = "interpolation_factors"
 
 
 def interpolation_factor(plan: Plan) -> int:
-    """The frame-rate factor of the plan's averaging: 1 for the frames as they are."""
+    """The frame-rate factor of the plan's averaging: 1 for the frames as they are.
+
+    Under ``blur.interpolation = "auto"`` the most a gap may get (8): what memory is planned for.
+    """
     stage = plan["blur"]
     if not stage.kept or stage.variant != "average":
         return 1
-    return int(stage.options.get("interpolation", 1))
+    factor = stage.options.get("interpolation", 1)
+    return INTERPOLATION_FACTORS[-1] if factor == INTERPOLATION_AUTO else int(factor)
+
+
+def scene_factors(scene, frames: Sequence[np.ndarray]) -> tuple[int, ...] | None:
+    """Each gap's factor under ``blur.interpolation = "auto"``, else ``None``.
+
+    Measured once per sample from the host frames as stored
+    (:func:`gpu_blur.reference.interpolate.adaptive_factors`, timed as ``kernels``).
+    """
+    b = scene.blur
+    if b.mode != "average" or b.interpolation != INTERPOLATION_AUTO:
+        return None
+    with timer("kernels"):
+        return adaptive_factors(UnitFrames(frames), b.interpolation_tolerance, b.flow)
+
+
+def with_factors(plan: Plan, params: dict, frames: Sequence[np.ndarray]) -> dict:
+    """``params`` with ``interpolation_factors``, each gap's factor, under interpolation auto.
+
+    The plan's (:func:`gpu_blur.plan.plan` ``interpolation_factors``), else measured from the
+    host frames (:func:`scene_factors`); ``params`` as they are for a fixed factor or when they
+    hold the factors already.
+    """
+    stage = plan["blur"]
+    if (interpolation_factor(plan) == 1 or FACTORS_KEY in params
+            or stage.options["interpolation"] != INTERPOLATION_AUTO):
+        return params
+    factors = stage.options.get("factors")
+    if factors is None:
+        with timer("kernels"):
+            factors = adaptive_factors(UnitFrames(frames), stage.options["tolerance"],
+                                       stage.options["flow"])
+    return {**params, FACTORS_KEY: list(factors)}
+
+
+def gap_factors(plan: Plan, params: dict, gaps: int) -> tuple[int, ...]:
+    """Each of ``gaps`` gaps' frame-rate factor: the plan's, or the sample's measured ones.
+
+    Raises:
+        ValueError: under interpolation auto when ``params`` lack ``interpolation_factors``
+            (:func:`with_factors` adds them) or hold a wrong number of them.
+    """
+    factor = interpolation_factor(plan)
+    if factor == 1 or plan["blur"].options["interpolation"] != INTERPOLATION_AUTO:
+        return (factor,) * gaps
+    if FACTORS_KEY not in params:
+        raise ValueError(f"blur.interpolation = auto needs params[{FACTORS_KEY!r}] (each gap's "
+                         "factor, measured by gpu_blur.backends.flows.with_factors)")
+    factors = tuple(int(f) for f in params[FACTORS_KEY])
+    if len(factors) != gaps or any(f not in INTERPOLATION_FACTORS for f in factors):
+        raise ValueError(f"params[{FACTORS_KEY!r}] = {list(factors)} must hold {gaps} factors "
+                         f"(one per gap), each one of {INTERPOLATION_FACTORS}")
+    return factors
 
 
 class UnitFrames:
@@ -48,6 +113,9 @@ class UnitFrames:
 def with_flows(plan: Plan, params: dict, frames: Sequence[np.ndarray]) -> dict:
     """``params`` with ``"flows"``, the sequence's optical flows, when the plan interpolates.
 
+    Under interpolation auto also with the gaps' factors (:func:`with_factors`); a gap with
+    factor 1 gets zero flows, not computed.
+
     Args:
         plan: the sample's plan (``blur`` options ``interpolation`` and ``flow``).
         params: its drawn parameters; returned as they are without interpolation or when they
@@ -62,6 +130,8 @@ def with_flows(plan: Plan, params: dict, frames: Sequence[np.ndarray]) -> dict:
     """
     if interpolation_factor(plan) == 1 or params.get("flows") is not None:
         return params
+    params = with_factors(plan, params, frames)
+    factors = gap_factors(plan, params, len(frames) - 1)
     with timer("kernels"):
-        flows = sequence_flows(UnitFrames(frames), plan["blur"].options["flow"])
+        flows = sequence_flows(UnitFrames(frames), plan["blur"].options["flow"], factors)
     return {**params, "flows": flows}

@@ -24,11 +24,15 @@ from typing import NamedTuple
 import numpy as np
 
 from gpu_blur.backends import FRAMES_PER_LAUNCH, OnDevice, cfa_bits
-from gpu_blur.backends.flows import interpolation_factor, with_flows
+from gpu_blur.backends.flows import gap_factors, interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
 from gpu_blur.plan import Pass, Plan, StageName
 from gpu_blur.reference import blur
-from gpu_blur.reference.interpolate import CONSISTENCY_ABSOLUTE_PX2, CONSISTENCY_RELATIVE
+from gpu_blur.reference.interpolate import (
+    CONSISTENCY_ABSOLUTE_PX2,
+    CONSISTENCY_RELATIVE,
+    gap_weights,
+)
 from gpu_blur.reference.rng import key_from_seed
 from gpu_blur.reference.transfer import a7r3_lookup_table
 from gpu_blur.testhooks import fault_planted, planted_fault
@@ -502,10 +506,17 @@ class KernelBackend:
         frame and the intermediates after it join one set of compensated sums (the
         interpolate kernels); intermediate frames are never stored.
         """
+        params = with_flows(plan, params, frames)
+        factors = gap_factors(plan, params, len(frames) - 1)
+        if max(factors, default=1) == 1:  # interpolation auto, no gap moves: a plain average
+            self._average(config, frames, region, linear, sat_mask)
+            return
+        # each gap's frames stand for weights[i] frames (reference.interpolate, step 6): all 1
+        # for one factor everywhere, so a fixed factor adds exactly what it always did
+        weights, total = gap_weights(factors)
         source = source_dtype(frames[0], self.np_real)
         k = self._pass_kernels(config, source, interpolate=True)
-        params = with_flows(plan, params, frames)
-        flows, factor = params["flows"], interpolation_factor(plan)
+        flows = params["flows"]
         view = region.expand(blur.blur_halo("average", params, region.full_h, region.full_w))
         n = region.h * region.w * 3
         sums = (self._zeros(n), self._zeros(n), self._zeros(n))
@@ -517,20 +528,22 @@ class KernelBackend:
         flow_bufs = [self._empty(view.h * view.w * 2, np.float32) for _ in range(2)]
         for i in range(len(frames)):
             self._write(frame_bufs[i % 2], np.ascontiguousarray(view.of(frames[i]), source))
-            if i > 0:
+            factor = factors[i - 1] if i > 0 else 1
+            if factor > 1:  # a gap without intermediates reads no flows
                 for buf, flow in zip(flow_bufs, flows[i - 1], strict=True):
                     self._write(buf, np.ascontiguousarray(view.of(flow)))
             with self._timed(sync=False):
-                for step in range(1, factor if i > 0 else 1):
+                for step in range(1, factor):
                     self._launch(k, "blur_interpolate_add", grid, frame_bufs[(i - 1) % 2],
                                  frame_bufs[i % 2], *flow_bufs, *geometry, *full,
-                                 Arg("position", step / factor), *test, *sums,
-                                 *_out_geometry(region))
+                                 Arg("position", step / factor), *test,
+                                 Arg("real", weights[i - 1]), *sums, *_out_geometry(region))
                 self._launch(k, "blur_interpolate_add_frame", grid, frame_bufs[i % 2],
-                             *geometry, *sums, *_out_geometry(region))
+                             *geometry, Arg("real", weights[i] if i < len(weights) else 1),
+                             *sums, *_out_geometry(region))
         with self._timed():
-            self._launch(k, "blur_interpolate_finish", n, *sums,
-                         Arg("uint", (len(frames) - 1) * factor + 1), linear, sat_mask)
+            self._launch(k, "blur_interpolate_finish", n, *sums, Arg("uint", total), linear,
+                         sat_mask)
 
     # -- pass 2: to_raw --------------------------------------------------------------------
     def to_raw(self, plan: Plan, params: dict, camera: Camera, linear, mask,

@@ -57,16 +57,19 @@ class FrameAccumulator:
 
     @property
     def count(self) -> int:
-        """Number of frames added so far."""
+        """Number of frames added so far (a weighted frame counts its weight)."""
         return self._count
 
-    def add(self, frame_linear, saturated=None) -> None:
+    def add(self, frame_linear, saturated=None, weight: int = 1) -> None:
         """Add one linear frame.
 
         Args:
             frame_linear: ``H x W x C`` linear values (any real dtype; summed in float64).
             saturated: ``H x W x C`` saturated fraction of each value in [0, 1], or ``None``
                 for ``[frame_linear >= 1]``.
+            weight: how many frames this one stands for (an integer >= 1: a frame of an
+                adaptively interpolated gap, :func:`gpu_blur.reference.interpolate.gap_weights`);
+                1 adds it as every other frame, operation for operation.
 
         Raises:
             ValueError: if the frame's shape is not the accumulator's, or it is not finite.
@@ -78,12 +81,15 @@ class FrameAccumulator:
             )
         if not np.isfinite(frame).all():
             raise ValueError("frame must be finite (no NaN or inf)")
+        if weight < 1 or weight != int(weight):
+            raise ValueError(f"frame weight must be an integer >= 1; got {weight!r}")
+        indicator = (frame >= SATURATION_LEVEL if saturated is None
+                     else np.asarray(saturated, dtype=np.float64))
+        if weight != 1:
+            frame, indicator = frame * weight, indicator * weight
         self._sum += frame
-        if saturated is None:
-            self._saturated += frame >= SATURATION_LEVEL
-        else:
-            self._saturated += np.asarray(saturated, dtype=np.float64)
-        self._count += 1
+        self._saturated += indicator
+        self._count += int(weight)
 
     def result(self) -> tuple[np.ndarray, np.ndarray]:
         """Return ``(blurred, saturation_mask)``, both ``H x W x C`` float64.

@@ -55,6 +55,18 @@ flow, computed on the host with OpenCV, and a warp-and-blend of the two neighbou
    to :class:`gpu_blur.reference.average.FrameAccumulator`. With ``f = 1`` this is plain averaging,
    operation for operation.
 
+6. **Adaptive factor** (``blur.interpolation = "auto"``, tolerance ``tol`` px): per gap, the
+   motion ``m`` is the 99th percentile of the flow magnitude from frame i to i + 1, measured on
+   grayscale frames shrunk by :data:`MOTION_SCALE` (area average) and scaled back
+   (:func:`gap_motion`); the gap's factor is the smallest of :data:`INTERPOLATION_FACTORS`
+   with ``m / f <= tol``, 8 at most (:func:`gap_factor`). A gap with factor 1 gets no frames
+   and no flows. **Weights** (:func:`gap_weights`): with ``M`` the largest factor of the
+   sample, each frame of a gap with factor ``f`` (the original frame starting it and its
+   ``f - 1`` intermediates) stands for ``M / f`` frames (an exact power of two), so every gap
+   covers the same time, ``M``, as at the fixed factor ``M``; the last frame counts 1. The
+   mean divides by ``(n - 1) M + 1``. With one factor ``f`` in every gap, every weight is 1 and
+   the average is the fixed factor ``f``'s, operation for operation.
+
 Limits: flows taken at the intermediate pixel are right for uniform motion and blur the edges
 of a moving object against a differently moving background (the occlusion rule keeps one
 frame's sample there); motion larger than the flow method can track gives ghosts, as it
@@ -76,9 +88,15 @@ from gpu_blur.reference.transfer import srgb_to_linear
 __all__ = [
     "FLOW_METHODS",
     "FLOW_MIN_SIDE",
+    "INTERPOLATION_AUTO",
     "INTERPOLATION_FACTORS",
+    "MOTION_SCALE",
+    "adaptive_factors",
     "check_flow_size",
     "flow_consistent",
+    "gap_factor",
+    "gap_motion",
+    "gap_weights",
     "interpolate_frame",
     "interpolated_average",
     "interpolation_halo",
@@ -89,6 +107,16 @@ __all__ = [
 
 #: Frame-rate factors offered: powers of two, so every time ``k / f`` is exact in binary.
 INTERPOLATION_FACTORS = (1, 2, 4, 8)
+#: ``blur.interpolation`` value that picks a factor per gap from the measured motion (step 6).
+INTERPOLATION_AUTO = "auto"
+#: Adaptive factor: the frames' motion is measured at 1 / MOTION_SCALE of their size (fewer
+#: times where a side would drop under MOTION_MIN_SIDE), at about 1 / 16 of a full flow's cost.
+MOTION_SCALE = 4
+#: Smallest side, pixels, of the shrunk frames the motion is measured on.
+MOTION_MIN_SIDE = 32
+#: Percentile of the flow magnitude taken as a gap's motion: the fast part of the frame, not
+#: a handful of wrong vectors.
+MOTION_PERCENTILE = 99.0
 #: Optical-flow methods: OpenCV's DIS (preset MEDIUM) or Farneback.
 FLOW_METHODS = ("dis", "farneback")
 
@@ -142,6 +170,16 @@ def _gray8(frame: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(codes[:, :, :3]), cv2.COLOR_RGB2GRAY)
 
 
+def _flow_gray(g0: np.ndarray, g1: np.ndarray, method: str) -> np.ndarray:
+    """OpenCV's flow between two 8-bit grayscale images (see :func:`optical_flow`)."""
+    import cv2
+
+    if method == "dis":
+        dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        return dis.calc(g0, g1, None)
+    return cv2.calcOpticalFlowFarneback(g0, g1, None, flags=0, **FARNEBACK_PARAMETERS)
+
+
 def optical_flow(frame_from, frame_to, method: str = "dis") -> np.ndarray:
     """Dense optical flow from one sRGB frame to the next, with OpenCV on the host.
 
@@ -157,8 +195,6 @@ def optical_flow(frame_from, frame_to, method: str = "dis") -> np.ndarray:
         ValueError: for an unknown method, frames of different shapes, frames too small for
             the method (:func:`check_flow_size`) or non-finite values.
     """
-    import cv2
-
     if method not in FLOW_METHODS:
         raise ValueError(f"flow method {method!r} is unknown; use one of {FLOW_METHODS}")
     a = _check_frame(frame_from, "frame_from")
@@ -167,13 +203,101 @@ def optical_flow(frame_from, frame_to, method: str = "dis") -> np.ndarray:
         raise ValueError(f"frames must have one shape for optical flow; got {a.shape} and "
                          f"{b.shape}")
     check_flow_size(a.shape[:2], method)
-    g0, g1 = _gray8(a), _gray8(b)
-    if method == "dis":
-        dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-        flow = dis.calc(g0, g1, None)
-    else:
-        flow = cv2.calcOpticalFlowFarneback(g0, g1, None, flags=0, **FARNEBACK_PARAMETERS)
+    flow = _flow_gray(_gray8(a), _gray8(b), method)
     return np.ascontiguousarray(flow, dtype=np.float32)
+
+
+def gap_motion(frame0, frame1, method: str = "dis") -> float:
+    """How far a gap's frames move, pixels: module step 6's cheap measure.
+
+    Args:
+        frame0: ``H x W x C`` sRGB frame in [0, 1].
+        frame1: the next frame, same shape.
+        method: the flow method (:data:`FLOW_METHODS`).
+
+    Returns:
+        The :data:`MOTION_PERCENTILE` th percentile of ``|F|`` from frame0 to frame1, with
+        ``F`` measured on the frames' grayscale shrunk by up to :data:`MOTION_SCALE` (OpenCV's
+        area average) and multiplied back by the shrink factor. 0 for identical frames.
+    """
+    import cv2
+
+    a = _check_frame(frame0, "frame0")
+    b = _check_frame(frame1, "frame1")
+    if a.shape != b.shape:
+        raise ValueError(f"frames must have one shape to measure motion; got {a.shape} and "
+                         f"{b.shape}")
+    check_flow_size(a.shape[:2], method)
+    g0, g1 = _gray8(a), _gray8(b)
+    if np.array_equal(g0, g1):
+        return 0.0
+    h, w = g0.shape
+    scale = MOTION_SCALE
+    while scale > 1 and min(h, w) // scale < max(MOTION_MIN_SIDE, FLOW_MIN_SIDE[method]):
+        scale //= 2
+    if scale > 1:
+        size = (w // scale, h // scale)
+        g0 = cv2.resize(g0, size, interpolation=cv2.INTER_AREA)
+        g1 = cv2.resize(g1, size, interpolation=cv2.INTER_AREA)
+    flow = _flow_gray(g0, g1, method).astype(np.float64)
+    magnitude = np.hypot(flow[:, :, 0], flow[:, :, 1])
+    return float(np.percentile(magnitude, MOTION_PERCENTILE)) * scale
+
+
+def gap_factor(motion_px: float, tolerance_px: float) -> int:
+    """The fewest frames a gap needs: module step 6's factor for its motion.
+
+    The smallest of :data:`INTERPOLATION_FACTORS` whose step ``motion_px / f`` is at most
+    ``tolerance_px``; the largest when none is.
+    """
+    if not tolerance_px > 0:
+        raise ValueError(f"interpolation tolerance must be > 0 px; got {tolerance_px!r}")
+    for factor in INTERPOLATION_FACTORS:
+        if motion_px / factor <= tolerance_px:
+            return factor
+    return INTERPOLATION_FACTORS[-1]
+
+
+def adaptive_factors(frames: Sequence, tolerance_px: float,
+                     method: str = "dis") -> tuple[int, ...]:
+    """Each gap's factor for ``blur.interpolation = "auto"``.
+
+    The gap's motion by :func:`gap_motion`, its factor by :func:`gap_factor`.
+
+    Args:
+        frames: ``n >= 1`` sRGB frames ``H x W x C`` in [0, 1]; read by index, two at a time.
+        tolerance_px: the largest step allowed between consecutive averaged frames, pixels.
+        method: the flow method the motion is measured with.
+
+    Returns:
+        ``n - 1`` factors, one per gap, in time order.
+    """
+    factors = []
+    current = frames[0] if len(frames) else None
+    for i in range(1, len(frames)):
+        previous, current = current, frames[i]
+        factors.append(gap_factor(gap_motion(previous, current, method), tolerance_px))
+    return tuple(factors)
+
+
+def gap_weights(factors: Sequence[int]) -> tuple[tuple[int, ...], int]:
+    """The weight of each gap's frames and the total (module step 6).
+
+    Args:
+        factors: each gap's factor (:data:`INTERPOLATION_FACTORS`).
+
+    Returns:
+        ``(weights, total)``: ``weights[i] = M / factors[i]`` with ``M`` the largest factor
+        (1 without gaps), the weight of gap i's original frame and of each of its
+        intermediates; ``total = len(factors) M + 1``, the last frame weighing 1. All weights
+        are 1 when every gap has one factor.
+    """
+    for f in factors:
+        if f not in INTERPOLATION_FACTORS:
+            raise ValueError(f"interpolation factor must be one of {INTERPOLATION_FACTORS}; "
+                             f"got {f!r}")
+    most = max(factors, default=1)
+    return tuple(most // f for f in factors), len(factors) * most + 1
 
 
 def check_flow_size(shape: tuple[int, int], method: str) -> None:
@@ -191,13 +315,16 @@ def check_flow_size(shape: tuple[int, int], method: str) -> None:
             "blur.interpolation = 1")
 
 
-def sequence_flows(frames: Sequence, method: str = "dis") -> np.ndarray:
+def sequence_flows(frames: Sequence, method: str = "dis",
+                   factors: Sequence[int] | None = None) -> np.ndarray:
     """Forward and backward flow of every consecutive pair of a sequence.
 
     Args:
         frames: ``n >= 1`` sRGB frames ``H x W x C`` in [0, 1], one shape; read by index, two
             at a time (a lazy sequence never has more than two alive).
         method: see :func:`optical_flow`.
+        factors: each gap's factor (module step 6), or ``None`` for flows in every gap; a gap
+            with factor 1 inserts no frame and gets zero flows, not computed.
 
     Returns:
         ``(n - 1) x 2 x H x W x 2`` float32: ``[i, 0]`` the forward flow from frame i to
@@ -210,6 +337,9 @@ def sequence_flows(frames: Sequence, method: str = "dis") -> np.ndarray:
     flows = np.empty((len(frames) - 1, 2, h, w, 2), dtype=np.float32)
     for i in range(1, len(frames)):
         previous, current = current, _check_frame(frames[i], f"frame {i}")
+        if factors is not None and factors[i - 1] == 1:
+            flows[i - 1] = 0.0
+            continue
         flows[i - 1, 0] = optical_flow(previous, current, method)
         flows[i - 1, 1] = optical_flow(current, previous, method)
     return flows
@@ -335,45 +465,53 @@ def interpolation_times(factor: int) -> tuple[float, ...]:
     return tuple(k / factor for k in range(1, factor))
 
 
-def interpolated_average(frames: Sequence, factor: int, flows=None,
+def interpolated_average(frames: Sequence, factor: int | Sequence[int], flows=None,
                          method: str = "dis") -> tuple[np.ndarray, np.ndarray]:
-    """Average a sequence at ``factor`` times its frame rate (module step 5).
+    """Average a sequence at ``factor`` times its frame rate (module steps 5 and 6).
 
     Args:
         frames: ``n >= 1`` sRGB frames ``H x W x C`` in [0, 1], one shape; read by index, two
             at a time.
-        factor: 1, 2, 4 or 8; 1 is plain averaging.
+        factor: 1, 2, 4 or 8 (1 is plain averaging), or one such factor per gap
+            (``n - 1`` of them: adaptive interpolation, weighted by :func:`gap_weights`).
         flows: ``(n - 1) x 2 x H x W x 2`` from :func:`sequence_flows`, or ``None`` to compute
-            them with ``method`` (unused when ``factor`` is 1).
+            them with ``method`` (unused when every factor is 1).
         method: flow method when ``flows`` is ``None``.
 
     Returns:
         ``(blurred, saturation_mask)``, both ``H x W x C`` float64 linear, over the
         ``(n - 1) factor + 1`` frames (see :class:`~gpu_blur.reference.average.FrameAccumulator`).
     """
-    times = interpolation_times(factor)
     if len(frames) < 1:
         raise ValueError("cannot average zero frames")
+    factors = ((factor,) * (len(frames) - 1) if isinstance(factor, (int, np.integer))
+               else tuple(factor))
+    if len(factors) != len(frames) - 1:
+        raise ValueError(f"{len(factors)} interpolation factors for {len(frames) - 1} gaps; "
+                         "give one per gap")
+    weights, _ = gap_weights(factors)
     current = _check_frame(frames[0], "frame 0")
-    if times and flows is None:
-        flows = sequence_flows(frames, method)
-    if times:
+    interpolating = any(f > 1 for f in factors)
+    if interpolating and flows is None:
+        flows = sequence_flows(frames, method, factors)
+    if interpolating:
         expected = (len(frames) - 1, 2, *current.shape[:2], 2)
         if np.shape(flows) != expected:
             raise ValueError(f"flows must be (n - 1) x 2 x H x W x 2 = {expected}; got "
                              f"{np.shape(flows)}")
     acc = FrameAccumulator(*current.shape)
-    acc.add(srgb_to_linear(current))
+    acc.add(srgb_to_linear(current), weight=weights[0] if weights else 1)
     for i in range(1, len(frames)):
         previous, current = current, _check_frame(frames[i], f"frame {i}")
+        times, weight = interpolation_times(factors[i - 1]), weights[i - 1]
         if times:  # the gap's trust decisions serve all its times
             fw = _check_flow(flows[i - 1, 0], current.shape[:2], "flow_fw")
             bw = _check_flow(flows[i - 1, 1], current.shape[:2], "flow_bw")
             trust = _trust(fw, bw)
         for t in times:
             values, saturated = _frame_with_saturation(previous, current, fw, bw, t, trust)
-            acc.add(srgb_to_linear(values), saturated)
-        acc.add(srgb_to_linear(current))
+            acc.add(srgb_to_linear(values), saturated, weight)
+        acc.add(srgb_to_linear(current), weight=weights[i] if i < len(weights) else 1)
     return acc.result()
 
 

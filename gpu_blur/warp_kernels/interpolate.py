@@ -132,7 +132,8 @@ def interpolate_kernels(real, source=None) -> dict:
                              flow_fw: wp.array(dtype=wp.float32),
                              flow_bw: wp.array(dtype=wp.float32), sx0: int, sy0: int, sw: int,
                              full_w: int, full_h: int, t: wp.float64, relative: wp.float64,
-                             absolute_px2: wp.float64, total: wp.array(dtype=real),
+                             absolute_px2: wp.float64, weight: real,
+                             total: wp.array(dtype=real),
                              compensation: wp.array(dtype=real),
                              saturated: wp.array(dtype=real), dx0: int, dy0: int, dw: int):
         # launched over (dh, dw); flow_fw maps frame0 to frame1, flow_bw frame1 to frame0
@@ -167,12 +168,12 @@ def interpolate_kernels(real, source=None) -> dict:
                 if trust_a:
                     v = a[0, c]
                     s = a[1, c]
-            add_compensated(total, compensation, od + c, pixel.srgb_to_linear(v))
-            saturated[od + c] = saturated[od + c] + s
+            add_compensated(total, compensation, od + c, pixel.srgb_to_linear(v) * weight)
+            saturated[od + c] = saturated[od + c] + s * weight
 
     @wp.kernel(module="unique")
     def blur_interpolate_add_frame(frame: wp.array(dtype=source), sx0: int, sy0: int, sw: int,
-                                   total: wp.array(dtype=real),
+                                   weight: real, total: wp.array(dtype=real),
                                    compensation: wp.array(dtype=real),
                                    saturated: wp.array(dtype=real), dx0: int, dy0: int,
                                    dw: int):
@@ -182,9 +183,9 @@ def interpolate_kernels(real, source=None) -> dict:
         od = 3 * (y * dw + x)
         for c in range(3):
             lin = pixel.srgb_to_linear(frame_value(frame, o + c))
-            add_compensated(total, compensation, od + c, lin)
+            add_compensated(total, compensation, od + c, lin * weight)
             if lin >= real(SATURATION_LEVEL):
-                saturated[od + c] = saturated[od + c] + real(1.0)
+                saturated[od + c] = saturated[od + c] + weight
 
     @wp.kernel(module="unique")
     def blur_interpolate_finish(total: wp.array(dtype=real), compensation: wp.array(dtype=real),

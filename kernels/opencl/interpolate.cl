@@ -11,7 +11,9 @@
  * gb_common.h), flows interleaved (dx, dy) float32 (OpenCV's type, so read exactly in either
  * precision), all row-major. The host adds, in time order, each original frame
  * (gb_blur_interpolate_add_frame) and the intermediates after it (gb_blur_interpolate_add) to
- * one set of sums, then takes the mean (gb_blur_interpolate_finish). The frames and flows are views
+ * one set of sums, each times its weight (1, or the frames it stands for under adaptive
+ * interpolation: reference.interpolate, step 6), then takes the mean over the total weight
+ * (gb_blur_interpolate_finish). The frames and flows are views
  * (first pixel (sx0, sy0), width sw) of one region that holds the output region plus the halo of
  * gpu_blur.reference.interpolate.interpolation_halo; the sums cover the output region. Pixels are
  * addressed by global coordinates (gb_common.h), so a tile gives the whole image's values.
@@ -109,7 +111,7 @@ __kernel void gb_blur_interpolate_add(__global const gb_source *frame0,
                                       __global const float *flow_fw,
                                       __global const float *flow_bw, long sx0, long sy0, long sw,
                                       long full_w, long full_h, gb_pos t, gb_pos relative,
-                                      gb_pos absolute_px2, __global real *sum,
+                                      gb_pos absolute_px2, real weight, __global real *sum,
                                       __global real *compensation, __global real *saturated,
                                       long dx0, long dy0, long dw, long dh)
 {
@@ -136,8 +138,8 @@ __kernel void gb_blur_interpolate_add(__global const gb_source *frame0,
         real v = trust_a == trust_b ? wa * a[c] + wb * b[c] : (trust_a ? a[c] : b[c]);
         real s = trust_a == trust_b ? wa * sat_a[c] + wb * sat_b[c]
                                     : (trust_a ? sat_a[c] : sat_b[c]);
-        gb_add_compensated(sum, compensation, od + c, gb_srgb_to_linear(v));
-        saturated[od + c] += s;
+        gb_add_compensated(sum, compensation, od + c, gb_srgb_to_linear(v) * weight);
+        saturated[od + c] += s * weight;
     }
 }
 
@@ -145,7 +147,7 @@ __kernel void gb_blur_interpolate_add(__global const gb_source *frame0,
  * its saturated channels (1 where the linear value is >= 1) to saturated. frame is a
  * view (first pixel (sx0, sy0), width sw) holding the output region (dx0, dy0, dw, dh). */
 __kernel void gb_blur_interpolate_add_frame(__global const gb_source *frame, long sx0, long sy0,
-                                            long sw, __global real *sum,
+                                            long sw, real weight, __global real *sum,
                                             __global real *compensation,
                                             __global real *saturated, long dx0, long dy0,
                                             long dw, long dh)
@@ -156,8 +158,8 @@ __kernel void gb_blur_interpolate_add_frame(__global const gb_source *frame, lon
     long od = 3 * (y * dw + x);
     for (int c = 0; c < 3; ++c) {
         real lin = gb_srgb_to_linear(GB_FRAME_VALUE(frame, o + c));
-        gb_add_compensated(sum, compensation, od + c, lin);
-        saturated[od + c] += lin >= GB_SATURATION_LEVEL ? GB_REAL(1.0) : GB_REAL(0.0);
+        gb_add_compensated(sum, compensation, od + c, lin * weight);
+        saturated[od + c] += lin >= GB_SATURATION_LEVEL ? weight : GB_REAL(0.0);
     }
 }
 

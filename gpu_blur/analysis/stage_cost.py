@@ -1,0 +1,247 @@
+"""What each stage of a plan costs on one backend, and what the skipped ones would cost.
+
+Kernel backends fuse a pass's stages into one kernel, so a stage is never timed alone: a
+stage's cost is the time of its passes (to_raw and finish) with it, less their time without it;
+a skipped stage's cost is their time with it forced on, less the plan's. Stages that only run
+together switch together (:data:`SWITCHES`: the RAW round trip's six stages, saturation and its
+restore); a switch is timed alone, the switches that need it off (Poisson-Gaussian noise, for
+the RAW round trip) and those it needs on. The accumulate pass (linearize and blur, one kernel)
+is timed whole. Every time is a median of ``repeats`` runs after one warm-up run (kernel
+builds), the device synchronized before the clock stops; a difference is the median of
+differences of runs taken in turns. ``gpu-blur plan SCENE --cost`` prints :func:`format_costs`;
+``bench/plan_cost.py`` compares the plan with every stage forced on, per example scene.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import statistics
+import time
+
+import numpy as np
+
+from gpu_blur.plan import Plan, Stage, StageName, plan
+
+S = StageName
+
+#: Switches: stages that run only together, switched on or off as one, each with the switches
+#: it needs on (Poisson-Gaussian noise acts on the RAW mosaic).
+SWITCHES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "saturation": ((S.SATURATE, S.RESTORE_SATURATED), ()),
+    "vignetting": ((S.VIGNETTING,), ()),
+    "raw round trip": ((S.LINEAR_TO_CAMERA, S.MOSAIC, S.INVERSE_WHITE_BALANCE, S.WHITE_BALANCE,
+                        S.DEMOSAIC, S.CAMERA_TO_LINEAR), ()),
+    "poisson_gaussian_noise": ((S.POISSON_GAUSSIAN_NOISE,), ("raw round trip",)),
+    "tone": ((S.TONE,), ()),
+    "gaussian_noise": ((S.GAUSSIAN_NOISE,), ()),
+    "retone": ((S.RETONE,), ()),
+    "quantize": ((S.QUANTIZE,), ()),
+}
+#: What a stage skipped by the scene runs with when forced on (its options then say nothing
+#: runnable): the A7R3 polynomial re-toning, 8-bit quantization.
+FORCED_OPTIONS = {S.RETONE: {"crf": "a7r3"}, S.QUANTIZE: {"bits": 8}}
+
+
+def switch_on(p: Plan, name: str) -> Plan:
+    """``p`` with switch ``name`` (and the switches it needs) on."""
+    stages, needs = SWITCHES[name]
+    for need in needs:
+        p = switch_on(p, need)
+
+    def on(s: Stage) -> Stage:
+        if s.name not in stages or s.kept:
+            return s
+        return dataclasses.replace(s, kept=True, reason="forced on to time it",
+                                   options={**s.options, **FORCED_OPTIONS.get(s.name, {})})
+    return dataclasses.replace(p, stages=tuple(on(s) for s in p.stages))
+
+
+def switch_off(p: Plan, name: str) -> Plan:
+    """``p`` with switch ``name`` (and the switches that need it) off."""
+    for other, (_, needs) in SWITCHES.items():
+        if name in needs:
+            p = switch_off(p, other)
+    stages = SWITCHES[name][0]
+    return dataclasses.replace(p, stages=tuple(
+        dataclasses.replace(s, kept=False) if s.name in stages else s for s in p.stages))
+
+
+def switch_kept(p: Plan, name: str) -> bool:
+    """Whether the plan runs switch ``name`` (its first stage)."""
+    return p.kept(SWITCHES[name][0][0])
+
+
+def every_stage_on(p: Plan) -> Plan:
+    """``p`` with every switch on: what the bench compares the plan with."""
+    for name in SWITCHES:
+        p = switch_on(p, name)
+    return p
+
+
+@dataclasses.dataclass
+class StageCosts:
+    """Seconds per sample on one backend.
+
+    Attributes:
+        backend: the backend spec; device: its device in words; size: (height, width).
+        accumulate: the accumulate pass (linearize and blur) with the plan.
+        passes: the to_raw and finish passes with the plan.
+        forced: the to_raw and finish passes with every stage on.
+        switches: switch name -> (kept by the plan, seconds it adds: with less without).
+        params: the sample's parameters (``interpolation_factors`` under interpolation auto).
+    """
+
+    backend: str
+    device: str
+    size: tuple[int, int]
+    accumulate: float
+    passes: float
+    forced: float
+    switches: dict[str, tuple[bool, float]]
+    params: dict
+
+    @property
+    def with_plan(self) -> float:
+        """The three passes with the plan."""
+        return self.accumulate + self.passes
+
+    @property
+    def every_stage(self) -> float:
+        """The three passes with every stage forced on."""
+        return self.accumulate + self.forced
+
+
+def bench_inputs(scene, width: int, height: int):
+    """``(frames, mask)``: the benchmark's input for ``scene``.
+
+    The built-in photo panned 2 px a frame (:func:`gpu_blur.analysis.bench.workload.make_frames`),
+    one frame for a one-photo scene.
+    """
+    from gpu_blur.analysis.bench.workload import make_frames
+
+    count = scene.blur.frames if scene.blur.mode == "average" else 1
+    return make_frames(width, height, count), None
+
+
+def _seconds(run) -> float:
+    start = time.perf_counter()
+    run()
+    return time.perf_counter() - start
+
+
+def _median_time(run, repeats: int) -> float:
+    run()  # warm-up: kernel builds, first allocations
+    return statistics.median(_seconds(run) for _ in range(repeats))
+
+
+def _median_difference(run_with, run_without, repeats: int) -> float:
+    """Median of ``time(run_with) - time(run_without)`` over runs taken in turns.
+
+    A drifting load on a shared machine then shifts both alike.
+    """
+    run_with()  # warm-up: kernel builds, first allocations
+    run_without()
+    return statistics.median(_seconds(run_with) - _seconds(run_without) for _ in range(repeats))
+
+
+def stage_costs(scene, backend: str = "numpy", size: tuple[int, int] = (320, 480), *,
+                repeats: int = 5) -> StageCosts:
+    """Time the plan of ``scene`` and each switch on or off, on one backend.
+
+    Args:
+        scene: a :class:`~gpu_blur.scene.Scene` or what :func:`gpu_blur.scene.load_scene` takes.
+        backend: a backend spec (``numpy``, ``opencl:P:D``, ``warp:cpu``, ``warp:cuda:0``).
+        size: (height, width) of the input (even sides: the RAW round trip's Bayer cells).
+        repeats: timed runs per figure (their median is taken).
+    """
+    from gpu_blur.backends import get_backend
+    from gpu_blur.backends.flows import with_flows
+    from gpu_blur.params import draw_params
+    from gpu_blur.pipeline import _reaches_clip_level, scene_camera
+    from gpu_blur.scene import load_scene
+    from gpu_blur.tiling import Region
+
+    if not hasattr(scene, "blur"):
+        scene = load_scene(scene)
+    h, w = size
+    if h % 2 or w % 2 or min(h, w) < 16:
+        raise ValueError(f"--size {w}x{h}: both sides must be even and at least 16 (the RAW "
+                         "round trip's 2 x 2 Bayer cells, the optical flow's smallest frame)")
+    runner = get_backend(backend, scene.output.precision)
+    camera = scene_camera(scene, runner.name)
+    frames, mask = bench_inputs(scene, w, h)
+    p = plan(scene, saturated=_reaches_clip_level(frames, mask), size=(h, w))
+    region = Region.whole(h, w)
+    # every switch's values are drawn, so a plan with any of them on finds its parameters
+    params = draw_params(scene, every_stage_on(p), camera, seed=0, sample_index=0,
+                         image_shape=(h, w))
+    wait = getattr(runner, "wait", lambda: None)
+
+    def accumulate():
+        out = runner.accumulate(p, params, frames, mask, region)
+        wait()
+        return out
+
+    t_accumulate = _median_time(accumulate, repeats)  # flows included: the pass's host part
+    params = with_flows(p, params, frames)
+    linear, sat_mask = accumulate()
+
+    def passes(variant: Plan):
+        def run():
+            image, saturated = runner.to_raw(variant, params, camera, linear, sat_mask,
+                                             seed=0, sample_index=0)
+            runner.finish(variant, params, camera, image, saturated, region, region, seed=0,
+                          sample_index=0)
+            wait()
+        return run
+
+    switches = {}
+    for name in SWITCHES:
+        # the switch alone: with the switches that need it off, and those it needs on
+        kept, base = switch_kept(p, name), p
+        if kept:
+            for other, (_, needs) in SWITCHES.items():
+                if name in needs:
+                    base = switch_off(base, other)
+            pair = base, switch_off(base, name)
+        else:
+            for need in SWITCHES[name][1]:
+                base = switch_on(base, need)
+            pair = switch_on(base, name), base
+        switches[name] = (kept, _median_difference(*map(passes, pair), repeats))
+    t_plan = _median_time(passes(p), repeats)
+    t_forced = t_plan + _median_difference(passes(every_stage_on(p)), passes(p), repeats)
+    shown = {k: v for k, v in params.items() if k != "flows" and not isinstance(v, np.ndarray)}
+    return StageCosts(backend, runner.device, (h, w), t_accumulate, t_plan, t_forced, switches,
+                      shown)
+
+
+def format_costs(costs: StageCosts, p: Plan) -> str:
+    """The cost report under ``gpu-blur plan --cost``."""
+    ms = 1e3
+    h, w = costs.size
+    blur = p[S.BLUR]
+    lines = [f"cost on {costs.backend} ({costs.device}), {w} x {h} px, median of timed runs "
+             "after a warm-up:",
+             f"  accumulate pass (linearize + blur{f' [{blur.variant}]' if blur.kept else ''}, "
+             f"one pass): {costs.accumulate * ms:.1f} ms"]
+    factors = costs.params.get("interpolation_factors")
+    if factors is not None:
+        lines.append(f"  interpolation auto: factors per gap {factors} on the bench input "
+                     "(the photo panned 2 px a frame)")
+    lines.append(f"  to_raw + finish passes: {costs.passes * ms:.1f} ms with the plan")
+    width = max(len(n) for n in SWITCHES)
+    for name, (kept, seconds) in costs.switches.items():
+        stages = ", ".join(SWITCHES[name][0])
+        what = "costs" if kept else "would cost"
+        lines.append(f"    {'run ' if kept else 'skip'} {name:<{width}}  {what} "
+                     f"{seconds * ms:7.1f} ms  ({stages})")
+    saved = 1 - costs.with_plan / costs.every_stage if costs.every_stage > 0 else 0.0
+    lines += [f"  all passes: {costs.with_plan * ms:.1f} ms with the plan, "
+              f"{costs.every_stage * ms:.1f} ms with every stage forced on "
+              f"(the plan saves {saved:.0%})",
+              "Stages of one fused pass cannot be timed alone: each figure is the to_raw + "
+              "finish time with the stages on less the time with them off (on a busy machine "
+              "noise can make a small one negative); numpy runs them one by one, the same "
+              "way."]
+    return "\n".join(lines)

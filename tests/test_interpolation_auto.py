@@ -1,0 +1,199 @@
+"""Adaptive frame interpolation: ``blur.interpolation = "auto"`` (reference.interpolate, step 6).
+
+The motion measure and the per-gap factor; still gaps get no flows; per-gap factors weigh every
+gap the same time; one factor in every gap gives the fixed factor's bits on every backend; the
+factors reach the sample's params; the scene key and its limit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import KERNEL_BACKEND_SPECS
+
+from gpu_blur.dataset import default_photo
+from gpu_blur.imageio import read_image, unit_values
+from gpu_blur.pipeline import Synthesizer
+from gpu_blur.plan import plan
+from gpu_blur.reference import interpolate
+from gpu_blur.reference.interpolate import (
+    gap_factor,
+    gap_motion,
+    gap_weights,
+    interpolated_average,
+    sequence_flows,
+)
+from gpu_blur.reference.transfer import srgb_to_linear
+from gpu_blur.scene import SceneError, scene_from_dict
+
+#: Frames cut from the built-in photo: 96 x 160 pixels.
+H, W = 96, 160
+#: Pixels the content moves per frame in the moving part of :func:`still_then_pan`.
+PAN_PX = 6
+
+
+def panned(offsets) -> list[np.ndarray]:
+    """uint8 frames: windows of the photo ``offsets[i]`` pixels right of the first."""
+    photo = read_image(default_photo())
+    return [np.ascontiguousarray(photo[100:100 + H, 40 + x:40 + x + W]) for x in offsets]
+
+
+def still_then_pan(still: int = 3, moving: int = 3) -> list[np.ndarray]:
+    """uint8 frames: ``still`` gaps without motion, then ``moving`` gaps panning PAN_PX each."""
+    return panned([0] * (still + 1) + [PAN_PX * (i + 1) for i in range(moving)])
+
+
+def average_scene(interpolation, tolerance: float = 1.0, frames: int = 7,
+                  precision: str = "float64"):
+    return scene_from_dict({"blur": {"mode": "average", "frames": frames,
+                                     "interpolation": interpolation,
+                                     "interpolation_tolerance": tolerance},
+                            "saturation": {"mode": "off"}, "noise": {"model": "none"},
+                            "output": {"precision": precision}})
+
+
+def synthesizer(scene_args: tuple, spec: str) -> Synthesizer:
+    """A Synthesizer for a backend spec ``name[/precision]`` of conftest."""
+    name, _, precision = spec.partition("/")
+    return Synthesizer(average_scene(*scene_args, precision=precision or "float64"),
+                       backend=name)
+
+
+def test_gap_factor_is_the_fewest_that_keep_the_step_under_the_tolerance():
+    assert gap_factor(0.0, 1.0) == 1
+    assert gap_factor(1.0, 1.0) == 1
+    assert gap_factor(1.5, 1.0) == 2
+    assert gap_factor(4.0, 1.0) == 4
+    assert gap_factor(4.1, 1.0) == 8
+    assert gap_factor(100.0, 1.0) == 8  # the most offered, though the step stays above
+    assert gap_factor(6.0, 3.0) == 2
+    with pytest.raises(ValueError, match="tolerance must be > 0"):
+        gap_factor(1.0, 0.0)
+
+
+def test_gap_motion_measures_a_pan_and_zero_without_motion():
+    frames = [unit_values(f) for f in still_then_pan(1, 1)]
+    assert gap_motion(frames[0], frames[0]) == 0.0
+    assert abs(gap_motion(frames[1], frames[2]) - PAN_PX) < 1.0
+
+
+def test_still_gaps_get_factor_1_and_no_flow_is_computed_for_them(monkeypatch):
+    frames = [unit_values(f) for f in still_then_pan(2, 2)]
+    factors = interpolate.adaptive_factors(frames, 1.0)
+    assert factors == (1, 1, 8, 8)
+    calls = []
+    real_flow = interpolate.optical_flow
+    monkeypatch.setattr(interpolate, "optical_flow",
+                        lambda a, b, m: calls.append(1) or real_flow(a, b, m))
+    flows = sequence_flows(frames, "dis", factors)
+    assert len(calls) == 4  # forward and backward of the two moving gaps only
+    assert not flows[:2].any() and flows[2:].any()
+
+
+def test_gap_weights_give_every_gap_the_time_of_the_largest_factor():
+    assert gap_weights((1, 2, 8)) == ((8, 4, 1), 25)
+    assert gap_weights((4, 4)) == ((1, 1), 9)
+    assert gap_weights(()) == ((), 1)
+
+
+def test_mixed_factors_average_each_gap_over_equal_time():
+    # three flat frames, flows zero: the intermediate at t = 1/2 of gap 1 is the sRGB blend
+    values = (0.2, 0.5, 0.9)
+    frames = [np.full((4, 5, 3), v) for v in values]
+    flows = np.zeros((2, 2, 4, 5, 2), np.float32)
+    blurred, _ = interpolated_average(frames, (1, 2), flows)
+    # gap 0 at factor 1 stands for 2 frames of gap 1's rate, the last frame for 1: 5 in all
+    lin = [float(srgb_to_linear(np.float64(v))) for v in (0.2, 0.5, 0.7, 0.9)]
+    expected = (2 * lin[0] + lin[1] + lin[2] + lin[3]) / 5
+    np.testing.assert_allclose(blurred, expected, rtol=1e-14)
+
+
+@pytest.mark.parametrize("factor", [2, 8])
+def test_one_factor_in_every_gap_is_the_fixed_factor_bit_for_bit_in_the_reference(factor):
+    frames = [unit_values(f) for f in still_then_pan(1, 2)]
+    flows = sequence_flows(frames)
+    fixed = interpolated_average(frames, factor, flows)
+    per_gap = interpolated_average(frames, (factor,) * 3, flows)
+    for a, b in zip(fixed, per_gap, strict=True):
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("spec", ["numpy", *KERNEL_BACKEND_SPECS])
+def test_auto_with_every_gap_at_8_gives_the_bits_of_factor_8(spec):
+    frames = still_then_pan(0, 3)  # every gap moves: a tiny tolerance asks 8x everywhere
+    auto = synthesizer(("auto", 1e-3, 4), spec).sample(frames)
+    fixed = synthesizer((8, 1.0, 4), spec).sample(frames)
+    assert auto.params["interpolation_factors"] == [8, 8, 8]
+    assert np.array_equal(auto.blurred, fixed.blurred)
+    assert np.array_equal(auto.mask, fixed.mask)
+
+
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+def test_kernel_backends_average_mixed_factors_as_the_reference(spec):
+    frames = panned([0, 0, 1, 9])  # still, slow, fast: intermediates of weights 1 and 4
+    reference = synthesizer(("auto", 1.0, 4), "numpy").sample(frames)
+    kernel = synthesizer(("auto", 1.0, 4), spec).sample(frames)
+    assert reference.params["interpolation_factors"] == [1, 2, 8]
+    assert kernel.params["interpolation_factors"] == [1, 2, 8]
+    # 8-bit outputs of a float32 kernel and the float64 reference: at most one code apart
+    assert np.abs(kernel.blurred - reference.blurred).max() <= 1 / 255 + 1e-6
+
+
+def test_auto_without_motion_runs_the_plain_average():
+    frames = still_then_pan(3, 0)
+    auto = Synthesizer(average_scene("auto", 1.0, 4), backend="numpy").sample(frames)
+    plain = Synthesizer(average_scene(1, frames=4), backend="numpy").sample(frames)
+    assert auto.params["interpolation_factors"] == [1, 1, 1]
+    assert np.array_equal(auto.blurred, plain.blurred)
+
+
+def test_scene_takes_auto_with_a_positive_tolerance_in_mode_average_only():
+    stage = plan(average_scene("auto", 0.5))["blur"]
+    assert stage.options == {"interpolation": "auto", "flow": "dis", "tolerance": 0.5}
+    assert "0.5 px a step" in stage.reason
+    with pytest.raises(SceneError, match="interpolation_tolerance = 0 is invalid"):
+        average_scene("auto", 0)
+    with pytest.raises(SceneError, match="needs blur.mode = 'average'"):
+        scene_from_dict({"blur": {"mode": "trajectory", "interpolation": "auto"}})
+
+
+def test_generate_records_the_factors_of_each_sample_in_the_manifest(tmp_path):
+    import json
+
+    import cv2
+
+    from gpu_blur.cli import main
+
+    folder = tmp_path / "in" / "GOPR0001" / "sharp"
+    folder.mkdir(parents=True)
+    for i, frame in enumerate(still_then_pan(1, 1)):
+        cv2.imwrite(str(folder / f"{i:06d}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    scene = tmp_path / "auto.toml"
+    scene.write_text('[blur]\nmode = "average"\nframes = 3\ninterpolation = "auto"\n')
+    out = tmp_path / "out"
+    assert main(["generate", "--input", str(tmp_path / "in"), "--output", str(out),
+                 "--scene", str(scene), "--quiet"]) == 0
+    (line,) = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    assert line["status"] == "ok" and "flows" not in line["params"]
+    assert line["params"]["interpolation_factors"] == [1, 8]
+
+
+def test_the_sample_plan_shows_the_factors_it_ran():
+    result = synthesizer(("auto", 1.0, 4), "numpy").sample(still_then_pan(2, 1))
+    assert result.plan["blur"].options["factors"] == (1, 1, 8)
+    assert "this sample's factors per gap: 1, 1, 8" in str(result.plan)
+    assert result.params["interpolation_factors"] == [1, 1, 8]
+
+
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+def test_tiled_auto_with_spot_checks_equals_the_whole_image(spec):
+    from gpu_blur.scheduler import Schedule
+
+    frames = panned([0, 0, 1, 9])
+    name, _, precision = spec.partition("/")
+    scene = average_scene("auto", 1.0, 4, precision=precision or "float64")
+    whole = Synthesizer(scene, backend=name).sample(frames)
+    tiled = Synthesizer(scene, backend=name,
+                        schedule=Schedule(tile=(48, 64), verify=1.0)).sample(frames)
+    assert tiled.tiles == 6 and tiled.spot_checks == 6
+    assert np.array_equal(tiled.blurred, whole.blurred)
