@@ -288,11 +288,11 @@ def test_pass_config_carries_each_pass_its_kept_stages_and_options():
     assert S.CROP not in finish.stages  # the host crops after the passes
 
 
-def test_crop_is_a_host_stage_after_the_passes():
+def test_crop_and_jpeg_are_host_stages_after_the_passes():
     p = plan(scene_from_dict({"output": {"crop": 4}}))
     assert p[S.CROP].kept and p[S.CROP].pass_ == Pass.HOST
-    assert p.stages[-1].name == S.CROP
-    assert all(s.pass_ != Pass.HOST for s in p.stages if s.name != S.CROP)
+    assert [s.name for s in p.stages[-2:]] == [S.CROP, S.JPEG]  # the JPEG of the cropped image
+    assert all(s.pass_ != Pass.HOST for s in p.stages if s.name not in (S.CROP, S.JPEG))
 
 
 def test_reference_to_raw_is_sensor_raw_then_noisy_raw(photo):
