@@ -97,7 +97,8 @@ def _parser() -> argparse.ArgumentParser:
                    "samples' inputs and encode and write finished ones while the device "
                    "synthesizes (default: the host's cores, at most 32; 1: one thread does "
                    "each step in turn); memory: at most 2 x N samples wait decoded and 2 x N "
-                   "wait to be written; same files either way; not with --devices or --ray")
+                   "wait to be written; same files either way. With --devices or --ray they "
+                   "encode and write only (each worker decodes its own inputs)")
     g.add_argument("--tile", type=int, nargs=2, metavar=("ROWS", "COLS"),
                    help="run each image in tiles of at most ROWS x COLS (bounds device memory; "
                    "the output does not change)")
@@ -381,9 +382,6 @@ def _check_setup(args, scene) -> None:
                          "input)")
     if args.io_threads is not None and args.io_threads < 1:
         raise ValueError(f"--io-threads {args.io_threads}: must be >= 1 (1: no I/O threads)")
-    if args.io_threads is not None and (args.devices or args.ray):
-        raise ValueError("--io-threads applies to a run on one device; --devices and --ray "
-                         "workers read their own inputs: leave it out")
     if not 0.0 <= args.verify <= 1.0:
         raise ValueError(f"--verify {args.verify}: the fraction of tiles to check, 0 to 1")
     extras = _extras(args.save)
@@ -504,7 +502,7 @@ def _generate(args) -> int:
     record = {"seed": args.seed, "backend": args.backend, "device": backend.device, **how}
     failed, made = [], 0
     totals, writing = RunTotals(), current().seconds["writing"]
-    threads = args.io_threads or (default_io_threads() if executor is run_serial else 1)
+    threads = args.io_threads or default_io_threads()
     io = PoolTimes(threads) if threads > 1 else None  # else one thread does every step
 
     def save(spec, result) -> dict:  # a made sample's files, in an I/O thread if there are
@@ -533,8 +531,10 @@ def _generate(args) -> int:
     start = time.perf_counter()
     try:
         job = Job(scene, args.seed, args.backend, schedule, "raw" in extras)
-        samples = (run_pipelined(job, todo, pool, io, QUEUE_PER_THREAD * threads) if io
-                   else executor(job, todo))
+        # one device: the pool also decodes ahead; --devices and --ray workers decode their
+        # own inputs, and the pool encodes and writes what they make
+        samples = (run_pipelined(job, todo, pool, io, QUEUE_PER_THREAD * threads)
+                   if io and executor is run_serial else executor(job, todo))
         for spec, result, error in tqdm(samples, total=len(todo), desc="samples",
                                         unit="sample", disable=args.quiet):
             if error is None:

@@ -99,6 +99,8 @@ def assert_same_set(out, reference):
 
 EXECUTORS = [
     pytest.param("numpy", ["--devices", "numpy,numpy"], id="devices-2-numpy"),
+    pytest.param("numpy", ["--devices", "numpy,numpy", "--io-threads", "1"],
+                 id="devices-2-numpy-writing-in-turn"),
     pytest.param("numpy", ["--ray", "auto"], id="ray-numpy"),
     pytest.param("opencl", ["--devices", ",".join([OPENCL[0].spec] * 2) if OPENCL else ""],
                  id="devices-2-opencl", marks=pytest.mark.skipif(

@@ -220,7 +220,7 @@ def test_the_summary_says_which_stage_bounded_the_run(tmp_path, photos, monkeypa
 
 @pytest.mark.parametrize("extra, message", [
     (["--io-threads", "0"], "--io-threads 0: must be >= 1"),
-    (["--io-threads", "2", "--devices", "numpy,numpy"], "--io-threads applies to a run on one"),
+    (["--io-threads", "0", "--devices", "numpy,numpy"], "--io-threads 0: must be >= 1"),
 ])
 def test_bad_io_threads_are_refused_before_any_work(tmp_path, photos, capsys, extra, message):
     folder, scene = photos
