@@ -98,7 +98,7 @@ def _parser() -> argparse.ArgumentParser:
                    "synthesizes (default: the host's cores, at most 32; 1: one thread does "
                    "each step in turn); memory: at most 2 x N samples wait decoded and 2 x N "
                    "wait to be written; same files either way. With --devices or --ray they "
-                   "encode and write only (each worker decodes its own inputs)")
+                   "encode and write only (a --devices worker decodes in its own threads)")
     g.add_argument("--tile", type=int, nargs=2, metavar=("ROWS", "COLS"),
                    help="run each image in tiles of at most ROWS x COLS (bounds device memory; "
                    "the output does not change)")

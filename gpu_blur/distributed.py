@@ -27,11 +27,12 @@ import time
 import traceback
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from multiprocessing.connection import wait
 
 from gpu_blur import testhooks
 from gpu_blur.dataset import SampleSpec
-from gpu_blur.generate import Job, make_sample, run_serial
+from gpu_blur.generate import Job, decode, default_io_threads, make_sample, run_serial
 
 RAY_INSTALL = "pip install 'gpu_blur[ray]'"
 #: Samples per Ray task on GPUs. Ray starts a fresh worker process for every GPU task (its
@@ -42,7 +43,8 @@ RAY_INSTALL = "pip install 'gpu_blur[ray]'"
 #: task costs about 6 ms more than the sample itself, round trip, and one sample per task
 #: keeps the load balanced and a retry small.
 GPU_BATCH = 32
-#: Samples handed to one local device worker ahead of the one it makes, so it never waits.
+#: Samples handed to one local device worker ahead of the one it makes, so it never waits,
+#: besides two per decoding thread (they decode ahead).
 DEVICE_DEPTH = 2
 #: Seconds between a device worker's checks that the driver process is still its parent.
 PARENT_CHECK_S = 0.5
@@ -146,8 +148,12 @@ def uses_cuda(backend) -> bool:
 
 # -- one worker process per device of this host ---------------------------------------------
 
-def _device_worker(job: Job, driver: int, conn) -> None:
+def _device_worker(job: Job, driver: int, conn, threads: int = 1) -> None:
     """A device worker process: open the device, then make each sample the driver sends.
+
+    With ``threads`` > 1, that many threads decode the input files of the samples waiting in
+    the pipe while the device makes the current one (:func:`gpu_blur.generate.decode`, as a
+    run on one device does); the samples are made in the order they came.
 
     Messages to the driver: ``("open", device description)`` or ``("error", why)`` first,
     then per sample ``("sample", make_sample's tuple)`` or ``("error", traceback)`` for an
@@ -167,13 +173,19 @@ def _device_worker(job: Job, driver: int, conn) -> None:
     except Exception as e:  # any reason the device cannot be opened
         conn.send(("error", str(e)))
         return
+    pool = ThreadPoolExecutor(threads, "gpu-blur-decode") if threads > 1 else None
+    waiting: deque = deque()  # (spec, its decoding or None), in the order they came
     while True:
         try:
-            spec = conn.recv()
+            while not waiting or conn.poll():  # take every sample sent, start decoding it
+                spec = conn.recv()
+                waiting.append((spec, pool.submit(decode, spec) if pool else None))
         except EOFError:
             return
+        spec, decoding = waiting.popleft()
         try:
-            message = ("sample", make_sample(job, spec))
+            inputs = None if decoding is None else decoding.result()
+            message = ("sample", make_sample(job, spec, inputs))
         except Exception:
             message = ("error", traceback.format_exc())
         conn.send(message)
@@ -191,9 +203,11 @@ def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str]) -> It
 
     Workers are started with ``spawn`` (OpenCL and CUDA contexts do not survive a fork),
     each builds its backend once (``job`` with its device as the backend) and takes the
-    next sample when it finishes one, so faster devices make more. A device that cannot be
-    opened stops the run before any sample. When the run stops early (Ctrl-C, SIGTERM, an
-    error, the caller closing this generator) the workers are terminated, not waited for;
+    next sample when it finishes one, so faster devices make more. Each decodes the inputs
+    of the samples sent ahead to it in threads (the host's cores shared among the workers).
+    A device that cannot be opened stops the run before any sample. When the run stops
+    early (Ctrl-C, SIGTERM, an error, the caller closing this generator) the workers are
+    terminated, not waited for;
     a worker whose driver dies exits by itself within :data:`PARENT_CHECK_S`.
 
     Raises:
@@ -213,11 +227,13 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
     context = multiprocessing.get_context("spawn")
     workers, conns = [], []
     finished = False
+    threads = max(1, default_io_threads() // len(devices))  # each worker's decoding threads
+    depth = DEVICE_DEPTH + (2 * threads if threads > 1 else 0)
     try:
         for device in devices:
             conn, child = context.Pipe()
             worker = context.Process(target=_device_worker, daemon=True, args=(
-                dataclasses.replace(job, backend=device), os.getpid(), child))
+                dataclasses.replace(job, backend=device), os.getpid(), child, threads))
             worker.start()
             child.close()  # the worker's end is the worker's: its death closes the pipe
             workers.append(worker)
@@ -245,7 +261,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
             queued[worker].append(spec)
 
         for worker in range(len(devices)):
-            for _ in range(DEVICE_DEPTH):
+            for _ in range(depth):
                 feed(worker)
         while any(queued):
             for conn in wait([c for c, q in zip(conns, queued, strict=True) if q]):

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from conftest import files, manifest_lines
 
+from gpu_blur import distributed
 from gpu_blur.cli import main
 from gpu_blur.dataset import discover
 from gpu_blur.distributed import parse_devices, run_devices, run_ray
@@ -120,6 +121,14 @@ def test_every_executor_writes_the_files_and_manifest_of_a_serial_run(
     out = tmp_path / "out"
     assert main(args(photos, out, "--backend", backend, *executor)) == 1
     assert_same_set(out, reference(backend))
+
+
+def test_a_device_worker_decoding_ahead_in_threads_writes_the_serial_run_s_set(
+        tmp_path, photos, reference, monkeypatch):
+    monkeypatch.setattr(distributed, "default_io_threads", lambda: 4)  # 4 decoding threads
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--backend", "numpy", "--devices", "numpy")) == 1
+    assert_same_set(out, reference("numpy"))
 
 
 def test_a_ray_task_whose_worker_dies_is_retried_and_the_run_completes(
