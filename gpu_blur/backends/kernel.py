@@ -713,11 +713,9 @@ def average_args(stack, count: int, n: int, sums, first: bool, mean_of: int, lin
 #: gpu_blur/warp_kernels/inputs.py write them in this order).
 INSPECT_COLUMNS = ("nan", "infinite", "below_0", "above_1", "clip_level", "above_0")
 
-#: Work items of one inspect launch: enough to keep a GPU's memory system busy (an H100 holds
-#: 270,336 resident threads); each counts a strided share of the image in registers and adds
-#: it once per non-zero count (no atomic per value). 1920 x 1200 x 3 float32 values on this
-#: 2-core EPYC: 65,536 items 27 ms on PoCL, 41 ms on Warp's CPU; 262,144 items 16 and 34 ms.
-INSPECT_ITEMS = 262144
+#: Work items of one inspect launch: enough for a GPU's memory system; each counts a strided
+#: share of the image in registers and adds it once per non-zero count (no atomic per value).
+INSPECT_ITEMS = 65536
 
 
 def inspect_items(n: int) -> int:
