@@ -197,14 +197,20 @@ def optical_flow(frame_from, frame_to, method: str = "dis") -> np.ndarray:
     """
     if method not in FLOW_METHODS:
         raise ValueError(f"flow method {method!r} is unknown; use one of {FLOW_METHODS}")
-    a = _check_frame(frame_from, "frame_from")
-    b = _check_frame(frame_to, "frame_to")
-    if a.shape != b.shape:
-        raise ValueError(f"frames must have one shape for optical flow; got {a.shape} and "
-                         f"{b.shape}")
-    check_flow_size(a.shape[:2], method)
+    a, b = _frame_pair(frame_from, frame_to, ("frame_from", "frame_to"), "for optical flow",
+                       method)
     flow = _flow_gray(_gray8(a), _gray8(b), method)
     return np.ascontiguousarray(flow, dtype=np.float32)
+
+
+def _frame_pair(frame0, frame1, names: tuple[str, str], purpose: str, method: str):
+    """Two frames checked (:func:`_check_frame`), of one shape and large enough for ``method``."""
+    a = _check_frame(frame0, names[0])
+    b = _check_frame(frame1, names[1])
+    if a.shape != b.shape:
+        raise ValueError(f"frames must have one shape {purpose}; got {a.shape} and {b.shape}")
+    check_flow_size(a.shape[:2], method)
+    return a, b
 
 
 def gap_motion(frame0, frame1, method: str = "dis") -> float:
@@ -222,12 +228,7 @@ def gap_motion(frame0, frame1, method: str = "dis") -> float:
     """
     import cv2
 
-    a = _check_frame(frame0, "frame0")
-    b = _check_frame(frame1, "frame1")
-    if a.shape != b.shape:
-        raise ValueError(f"frames must have one shape to measure motion; got {a.shape} and "
-                         f"{b.shape}")
-    check_flow_size(a.shape[:2], method)
+    a, b = _frame_pair(frame0, frame1, ("frame0", "frame1"), "to measure motion", method)
     g0, g1 = _gray8(a), _gray8(b)
     if np.array_equal(g0, g1):
         return 0.0
