@@ -376,9 +376,9 @@ class WarpBackend(KernelBackend):
         no stacked host copy). Two pinned buffers take turns, so filling one overlaps the
         other's upload; the compute stream waits for the upload before any launch reads it.
         """
-        parts = list(image) if isinstance(image, (list, tuple)) else [np.asarray(image)]
-        shape = (len(parts), *parts[0].shape) if isinstance(image, (list, tuple)) \
-            else parts[0].shape
+        frames = isinstance(image, (list, tuple))
+        parts = list(image) if frames else [np.asarray(image)]
+        shape = (len(parts), *parts[0].shape) if frames else parts[0].shape
         dtype = source_dtype(parts[0], self.np_real)
         size = parts[0].size
         count = size * len(parts)
