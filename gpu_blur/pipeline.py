@@ -314,7 +314,8 @@ class Synthesizer:
             out = self._host(blurred, _inner(blurred.shape, 0))
         else:
             out = crop_border(blurred, crop)
-        _jpeg_stage(out[None], [sample_plan], [params])  # a batch of one, in place
+        if sample_plan.kept(StageName.JPEG):
+            out = jpeg_round_trip(out, params["jpeg_quality"])
         if isinstance(sharp, OnDevice):
             sharp = self._host(sharp, _inner(sharp.shape, 0))
         if isinstance(mask, np.ndarray):  # a device mask is fetched (and cropped) on first use
