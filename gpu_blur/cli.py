@@ -530,7 +530,8 @@ def _generate(args) -> int:
     behind = WriteBehind(save, pool, QUEUE_PER_THREAD * threads, io)
     start = time.perf_counter()
     try:
-        job = Job(scene, args.seed, args.backend, schedule, "raw" in extras)
+        job = Job(scene, args.seed, args.backend, schedule, "raw" in extras,
+                  bits=scene.output.bits, with_mask="mask" in extras)
         # one device: the pool also decodes ahead; --devices and --ray workers decode their
         # own inputs, and the pool encodes and writes what they make
         samples = (run_pipelined(job, todo, pool, io, QUEUE_PER_THREAD * threads)

@@ -9,10 +9,11 @@ models, or a GPU and a CPU, may differ in a float32 last bit).
 
 What crosses a process boundary: the job (a few hundred bytes, once per worker), each
 :class:`~gpu_blur.dataset.SampleSpec` (index, name, input paths) and each result (the
-:class:`~gpu_blur.pipeline.Synthesis`: blurred, sharp and mask arrays, the drawn parameters and
-the plan; 8.6 MB for the 600 x 400 built-in photo, pickled in about a millisecond). Workers
-read the inputs themselves from the spec's paths, so on a Ray cluster the inputs (and
-gpu_blur, in the same version) must be at the same paths on every node.
+:class:`~gpu_blur.pipeline.Synthesis` with only what the set writes,
+:func:`~gpu_blur.generate.for_driver`: blurred and sharp as the set's integer codes, the mask
+if saved, the drawn parameters and the plan; 1.4 MB for the 600 x 400 built-in photo at 8
+bits). Workers read the inputs themselves from the spec's paths, so on a Ray cluster the
+inputs (and gpu_blur, in the same version) must be at the same paths on every node.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from multiprocessing.connection import wait
 
 from gpu_blur import testhooks
 from gpu_blur.dataset import SampleSpec
-from gpu_blur.generate import Job, decode, default_io_threads, make_sample, run_serial
+from gpu_blur.generate import Job, decode, default_io_threads, for_driver, make_sample, run_serial
 
 RAY_INSTALL = "pip install 'gpu_blur[ray]'"
 #: Samples per Ray task on GPUs. Ray starts a fresh worker process for every GPU task (its
@@ -185,7 +186,8 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1) -> None:
         spec, decoding = waiting.popleft()
         try:
             inputs = None if decoding is None else decoding.result()
-            message = ("sample", make_sample(job, spec, inputs))
+            spec, result, error = make_sample(job, spec, inputs)
+            message = ("sample", (spec, for_driver(job, result), error))
         except Exception:
             message = ("error", traceback.format_exc())
         conn.send(message)
@@ -308,7 +310,8 @@ def _ray_make(job: Job, specs: list[SampleSpec], cwd: str, fail_once) -> list[tu
     if os.getcwd() != cwd and os.path.isdir(cwd):
         os.chdir(cwd)  # relative inputs and scene paths mean what they mean to the driver
     testhooks.fail_once(fail_once, [s.index for s in specs])
-    return [make_sample(job, spec) for spec in specs]
+    made = [make_sample(job, spec) for spec in specs]
+    return [(spec, for_driver(job, result), error) for spec, result, error in made]
 
 
 def run_ray(job: Job, specs: Iterable[SampleSpec], address: str = "auto",

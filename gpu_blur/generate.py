@@ -28,6 +28,7 @@ import numpy as np
 from gpu_blur.dataset import SampleSpec
 from gpu_blur.imageio import check_image, opencv_reason, read_image
 from gpu_blur.pipeline import Synthesis, synthesize
+from gpu_blur.reference.output import to_integers
 from gpu_blur.scene import Scene
 from gpu_blur.scheduler import Schedule
 from gpu_blur.timings import PoolTimes
@@ -58,6 +59,25 @@ class Job:
     backend: str
     schedule: Schedule | None = None  # tiles, memory budget, spot checks
     with_raw: bool = False  # keep each sample's RAW mosaic (generate --save raw)
+    bits: int = 0  # the set's PNG bits: workers in other processes send these codes
+    with_mask: bool = True  # the set saves masks (generate --save mask)
+
+
+def for_driver(job: Job, result: Synthesis | None) -> Synthesis | None:
+    """A made sample as a worker process sends it: only what the set's files need.
+
+    Blurred and sharp become the codes the writer would compute (:func:`to_integers` with
+    ``job.bits``; 0 keeps float32) and the mask is left out unless the set saves it, so the
+    files are byte for byte the same while a 1920 x 1200 sample crosses the pipe as 14 MB of
+    8-bit codes instead of 83 MB of float32 (300 ms through a multiprocessing pipe on a 2-core
+    EPYC).
+    """
+    if result is None:
+        return None
+    shrink = (lambda image: to_integers(image, job.bits)) if job.bits else (lambda image: image)
+    return dataclasses.replace(result, blurred=shrink(result.blurred),
+                               sharp=shrink(result.sharp),
+                               _mask=result.mask if job.with_mask else None)
 
 
 def make_sample(job: Job, spec: SampleSpec, inputs: tuple[np.ndarray, ...] | None = None

@@ -11,7 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gpu_blur.reference.output import to_integers
+from gpu_blur.reference.output import code_dtype, to_integers
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _WAY_OUT = "re-export or re-copy the file, or remove it from the input"
@@ -379,6 +379,8 @@ def temporary_path(path: Path) -> Path:
 def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
     """Write an H x W x 3 RGB image in [0, 1]: PNG with 8/16 bits, or float32 TIFF for bits 0.
 
+    ``image`` may also be its codes already (:func:`to_integers`: uint8 for 8 bits, uint16
+    for 16), as a worker process sends them (:func:`gpu_blur.generate.for_driver`).
     The file appears complete or not at all (written to a temporary name, then renamed; the
     temporary file is removed on failure).
     """
@@ -386,6 +388,8 @@ def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
     tmp = temporary_path(path)
     if bits == 0:
         data = np.asarray(image, dtype=np.float32)[:, :, ::-1]
+    elif np.asarray(image).dtype == code_dtype(bits):
+        data = np.asarray(image)[:, :, ::-1]
     else:
         data = to_integers(image, bits)[:, :, ::-1]
     try:

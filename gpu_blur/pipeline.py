@@ -42,7 +42,8 @@ class Synthesis:
         sharp: H x W x 3 float32 in [0, 1], the reference frame (middle frame of an average,
             the photo itself otherwise), toned like ``blurred``.
         mask: H x W x 3 float32 in [0, 1], the blurred saturation mask (fetched from the
-            device on first use).
+            device on first use); None in what a worker process sends for a set that does
+            not save masks (:func:`gpu_blur.generate.for_driver`).
         raw: with ``Synthesizer(with_raw=True)``, H x W float32: the noisy white-balanced
             Bayer mosaic before demosaicing (the to_raw pass's output), cropped like the
             outputs (fetched on first use); else None.
@@ -55,6 +56,9 @@ class Synthesis:
         tiles: how many tiles the image ran in.
         spot_checks: how many of them were checked against the numpy reference.
         device: the device that made it, in words (the backend's ``device``).
+
+    A worker process of ``gpu-blur generate`` sends blurred and sharp as the set's integer
+    codes instead (:func:`gpu_blur.generate.for_driver`).
     """
 
     blurred: np.ndarray
@@ -71,9 +75,9 @@ class Synthesis:
     raw_info: dict | None = None
 
     @property
-    def mask(self) -> np.ndarray:
+    def mask(self) -> np.ndarray | None:
         """The blurred saturation mask, H x W x 3 float32 in [0, 1]."""
-        if not isinstance(self._mask, np.ndarray):
+        if self._mask is not None and not isinstance(self._mask, np.ndarray):
             self._mask = crop_border(to_host(self._mask, np.float32), self.crop)
         return self._mask
 

@@ -20,7 +20,8 @@ from gpu_blur import distributed
 from gpu_blur.cli import main
 from gpu_blur.dataset import discover
 from gpu_blur.distributed import parse_devices, run_devices, run_ray
-from gpu_blur.generate import Job, run_serial
+from gpu_blur.generate import Job, for_driver, run_serial
+from gpu_blur.imageio import write_image
 from gpu_blur.scene import load_scene
 from gpu_blur.testhooks import TEST_FAIL_ONCE
 
@@ -129,6 +130,40 @@ def test_a_device_worker_decoding_ahead_in_threads_writes_the_serial_run_s_set(
     out = tmp_path / "out"
     assert main(args(photos, out, "--backend", "numpy", "--devices", "numpy")) == 1
     assert_same_set(out, reference("numpy"))
+
+
+def test_a_worker_sends_the_codes_the_writer_writes_and_no_unsaved_mask(tmp_path, photos):
+    folder, scene_path = photos
+    spec = discover(folder, "trajectory", 1, 2)[0]
+    full = run_serial(Job(load_scene(scene_path), 3, "numpy"), [spec])
+    _, made, _ = next(full)
+    job = Job(load_scene(scene_path), 3, "numpy", bits=8, with_mask=False)
+    sent = pickle.loads(pickle.dumps(for_driver(job, made)))
+    assert sent.blurred.dtype == np.uint8 and sent.mask is None
+    assert len(pickle.dumps(sent)) < len(pickle.dumps(made)) / 3
+    for name in ("blurred", "sharp"):
+        write_image(tmp_path / f"full_{name}.png", getattr(made, name), 8)
+        write_image(tmp_path / f"sent_{name}.png", getattr(sent, name), 8)
+        assert ((tmp_path / f"sent_{name}.png").read_bytes()
+                == (tmp_path / f"full_{name}.png").read_bytes())
+    kept = for_driver(Job(load_scene(scene_path), 3, "numpy", bits=8, with_mask=True), made)
+    np.testing.assert_array_equal(kept.mask, made.mask)
+
+
+def test_devices_write_the_serial_run_s_masks_and_16_bit_images(tmp_path, photos):
+    folder, scene_path = photos
+    scene = tmp_path / "scene16.toml"
+    scene.write_text(scene_path.read_text() + "[output]\nbits = 16\n")
+    outs = []
+    for extra in ([], ["--devices", "numpy,numpy"]):
+        out = tmp_path / f"out{len(outs)}"
+        argv = args(photos, out, "--backend", "numpy", "--save", "mask", *extra)
+        argv[argv.index("--scene") + 1] = str(scene)
+        assert main(argv) == 1  # c.png's samples fail
+        outs.append(out)
+    masks = [{f.name: f.read_bytes() for f in sorted((out / "mask").iterdir())} for out in outs]
+    assert len(masks[1]) == 4 and masks[1] == masks[0]
+    assert files(outs[1]) == files(outs[0])
 
 
 def test_a_ray_task_whose_worker_dies_is_retried_and_the_run_completes(

@@ -28,10 +28,16 @@ def quantize(image, bits: int) -> np.ndarray:
     return to_integers(image, bits) / float(2**bits - 1)
 
 
-def to_integers(image, bits: int) -> np.ndarray:
-    """The integer codes of :func:`quantize` as uint8 or uint16."""
+def code_dtype(bits: int) -> np.dtype:
+    """The dtype of ``bits``-bit codes: uint8 for 8, uint16 for 16."""
     if bits not in (8, 16):
         raise ValueError(f"bits must be 8 or 16, got {bits!r}")
+    return np.dtype(np.uint8 if bits == 8 else np.uint16)
+
+
+def to_integers(image, bits: int) -> np.ndarray:
+    """The integer codes of :func:`quantize` as uint8 or uint16."""
+    dtype = code_dtype(bits)
     top = 2**bits - 1
     x = np.clip(np.asarray(image, dtype=np.float64), 0.0, 1.0)
-    return np.floor(x * top + 0.5).astype(np.uint8 if bits == 8 else np.uint16)
+    return np.floor(x * top + 0.5).astype(dtype)
