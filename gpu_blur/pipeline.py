@@ -343,7 +343,7 @@ class Synthesizer:
 
     # -- a batch -----------------------------------------------------------------------------
     def __call__(self, batch, *, mask=None, sharp=None, first_index: int = 0,
-                 indices: Sequence[int] | None = None) -> Batch:
+                 indices: Sequence[int] | None = None, out: Sequence | None = None) -> Batch:
         """Synthesize a batch; sample b has sample index ``first_index + b``.
 
         Args:
@@ -356,6 +356,10 @@ class Synthesizer:
             first_index: the first sample's index (0 <= index, index + B <= 2**32).
             indices: each sample's index instead (B of them, any order: a shuffled
                 DataLoader's), for ``first_index``.
+            out: numpy batches: arrays to write the results into, (blurred, sharp) or
+                (blurred, sharp, mask) as ``with_mask`` asks, float32, each of the result's
+                shape (B x H' x W' x 3, or B x 3 x H' x W' with ``channels_first``). Reusing
+                them spares allocating (and page-faulting) fresh outputs for every batch.
 
         Returns:
             A :class:`Batch`; sample b equals ``synthesize`` with ``sample_index =
@@ -380,7 +384,7 @@ class Synthesizer:
             raise ValueError(f"indices: {len(indices)} sample indices for a batch of {count}; "
                              "give one per sample")
         items = self._prepared(items)
-        out = None
+        given_out, out = out, None
         params, plans, raws = [], [], []
         pending = []  # a sample's results, exported once the next sample is queued
         crop = self.scene.output.crop
@@ -398,7 +402,8 @@ class Synthesizer:
                 if self.with_mask:
                     results.append((sat_mask, _inner(sat_mask.shape, crop)))
                 if out is None:
-                    out = self._outputs(count, results[0][1], batch, lib, len(results))
+                    out = self._outputs(count, results[0][1], batch, lib, len(results),
+                                        given_out)
                 for done, values in pending:
                     self._export(out, done, values)
                 pending = [(b, results)]
@@ -408,7 +413,8 @@ class Synthesizer:
                 with timer("kernels"):
                     self.runner.wait()
         _jpeg_stage(out[0], plans, params)
-        out = [self._returned(o, lib, batch) for o in out]
+        out = ([self._returned(o, lib, batch) for o in out] if given_out is None
+               else list(given_out))
         raw = None
         if self.with_raw:
             raw = np.stack([crop_border(to_host(r, np.float32), crop) for r in raws])
@@ -436,15 +442,40 @@ class Synthesizer:
             else:
                 np.copyto(slot[b], region.of(np.asarray(values)), casting="same_kind")
 
-    def _outputs(self, count: int, region: Region, batch, lib: str, n: int) -> list:
-        """The batch's output arrays: on the device for device batches (Warp), else host."""
+    def _outputs(self, count: int, region: Region, batch, lib: str, n: int,
+                 given: Sequence | None = None) -> list:
+        """The batch's output arrays: ``out=``'s (channels-last views), else new ones."""
         shape = (count, region.h, region.w, 3)
+        if given is not None:
+            return self._given_outputs(given, shape, lib, n)
         if self._reaches(batch, lib):
             import warp as wp
 
             return [wp.empty(shape, dtype=self.runner.real, device=self.runner.wp_device)
                     for _ in range(n)]
         return [np.empty(shape, np.float32) for _ in range(n)]
+
+    def _given_outputs(self, given: Sequence, shape: tuple, lib: str, n: int) -> list:
+        """``out=``'s arrays checked against the results they take, as channels-last views."""
+        names = ("blurred", "sharp", "mask")[:n]
+        if lib != "numpy":
+            raise ValueError(f"out= is for numpy batches (the results are {lib} arrays made "
+                             "where the batch lives); leave it out for this batch")
+        if not isinstance(given, (list, tuple)) or len(given) != n:
+            raise ValueError(f"out= takes {n} arrays, ({', '.join(names)})"
+                             + ("" if self.with_mask else "; with_mask=True adds the mask"))
+        want = (shape[0], 3, *shape[1:3]) if self.channels_first else shape
+        views = []
+        for name, array in zip(names, given, strict=True):
+            if (not isinstance(array, np.ndarray) or array.dtype != np.float32
+                    or array.shape != want or not array.flags.writeable):
+                got = (f"a {type(array).__name__}" if not isinstance(array, np.ndarray) else
+                       f"{array.dtype} {array.shape}"
+                       + ("" if array.flags.writeable else ", read-only"))
+                raise ValueError(f"out= {name}: needs a writeable float32 numpy array of "
+                                 f"shape {want}; got {got}")
+            views.append(np.moveaxis(array, 1, -1) if self.channels_first else array)
+        return views
 
     def _returned(self, out, lib: str, like):
         """An output array as the batch's type and layout."""

@@ -1,5 +1,7 @@
 """The batch API: gpu_blur.Synthesizer against synthesize, array types, layouts, bad input."""
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -199,3 +201,58 @@ def test_indices_in_any_order_give_those_samples():
         assert np.array_equal(shuffled.blurred[b], one.blurred)
     with pytest.raises(ValueError, match="indices: 2 sample indices for a batch of 3"):
         synth(photos, indices=[1, 2])
+
+
+@pytest.mark.parametrize("name", ["numpy", "opencl", "warp:cpu"])
+def test_out_arrays_receive_the_batch_and_are_what_comes_back(name):
+    scene = scene_for("none", precision="float32")
+    given = batch_for("none", 2, np.random.default_rng(5), dtype=np.float32)
+    synth = gpu_blur.Synthesizer(scene, backend=name, with_mask=True)
+    ref = synth(given["batch"], mask=given["mask"])
+    out = [np.full(ref.blurred.shape, np.nan, np.float32) for _ in range(3)]
+    got = synth(given["batch"], mask=given["mask"], out=out)
+    assert got.blurred is out[0] and got.sharp is out[1] and got.mask is out[2]
+    for mine, want in zip(out, (ref.blurred, ref.sharp, ref.mask), strict=True):
+        assert np.array_equal(mine, want)
+
+
+def test_channels_first_out_arrays_take_channels_first_results():
+    scene = scene_for("trajectory", precision="float32")
+    photos = batch_for("trajectory", 2, np.random.default_rng(3))["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend="warp:cpu", channels_first=True)
+    first = np.ascontiguousarray(photos.transpose(0, 3, 1, 2))
+    ref = synth(first)
+    out = [np.zeros(ref.blurred.shape, np.float32) for _ in range(2)]
+    synth(first, out=out)
+    assert np.array_equal(out[0], ref.blurred) and np.array_equal(out[1], ref.sharp)
+
+
+@pytest.mark.parametrize("bad, words", [
+    (lambda shape: [np.zeros(shape, np.float32)], "out= takes 2 arrays, (blurred, sharp)"),
+    (lambda shape: [np.zeros(shape, np.float64)] * 2, "needs a writeable float32 numpy"),
+    (lambda shape: [np.zeros(shape[1:], np.float32)] * 2, "of shape (2, 36, 34, 3)"),
+    (lambda shape: [torch.zeros(shape)] * 2, "got a Tensor"),
+])
+def test_bad_out_arrays_are_refused_naming_what_they_need(bad, words):
+    scene = scene_for("kernel", precision="float32")
+    photos = batch_for("kernel", 2, np.random.default_rng(4))["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend="numpy")
+    with pytest.raises(ValueError, match=re.escape(words)):
+        synth(photos, out=bad(photos.shape))
+
+
+def test_out_is_refused_for_batches_that_are_not_numpy():
+    scene = scene_for("kernel", precision="float32")
+    photos = torch.from_numpy(batch_for("kernel", 2, np.random.default_rng(4))["batch"])
+    with pytest.raises(ValueError, match="out= is for numpy batches"):
+        gpu_blur.Synthesizer(scene, backend="numpy")(photos, out=[np.zeros(1)] * 2)
+
+
+def test_a_strided_destination_receives_every_copied_value():
+    from gpu_blur.backends import copy_values
+
+    into = np.zeros((2, 3, 4, 5), np.float32)
+    view = np.moveaxis(into, 1, -1)  # channels-first storage seen channels-last: strided
+    values = np.arange(view.size, dtype=np.float32)
+    copy_values(view, values)
+    assert np.array_equal(view.reshape(-1), values)

@@ -100,8 +100,12 @@ def copy_values(into: np.ndarray, values: np.ndarray) -> None:
     """``into[...] = values``: same size, any shapes, converted to ``into``'s dtype.
 
     Large copies go in slices on up to 8 threads: numpy copies without holding the GIL, so a
-    copy to or from pinned staging memory runs at several cores' memory bandwidth.
+    copy to or from pinned staging memory runs at several cores' memory bandwidth. A strided
+    ``into`` (a channels-first ``out=`` array's view) takes one copy in its own layout.
     """
+    if not into.flags.c_contiguous:  # its reshape(-1) would be a copy, and the values lost
+        np.copyto(into, np.reshape(values, into.shape), casting="same_kind")
+        return
     dst, src = into.reshape(-1), np.ascontiguousarray(values).reshape(-1)
     pool, workers = _copy_threads()
     if dst.size < PARALLEL_COPY_VALUES or workers == 1:
