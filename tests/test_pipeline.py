@@ -314,3 +314,24 @@ def test_sharp_reference_from_codes_is_the_curve_of_every_pixel_bitwise(crf, dty
     assert np.array_equal(got, expected)
     if crf == "srgb" and bits == 8 and dtype is np.uint8:  # 8-bit sRGB in and out: c / 255
         assert np.array_equal(got, codes.astype(np.float32) / np.float32(255))
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize("dtype", [np.float16, np.float32, np.float64])
+def test_integer_codes_in_chunks_equal_the_rounding_formula_on_every_value(bits, dtype):
+    from gpu_blur.reference import output
+
+    rng = np.random.default_rng(bits)
+    top = 2**bits - 1
+    edges = np.array([-1.0, -0.0, 0.0, 1.0, 1.5, 0.5 / top, 1.5 / top, (top - 0.5) / top])
+    halves = (np.arange(top) + 0.5) / top  # every rounding boundary between two codes
+    values = np.concatenate([edges, halves, np.nextafter(halves, 2), np.nextafter(halves, -1),
+                             rng.uniform(-0.1, 1.1, 3 * output.CODE_CHUNK + 17)])
+    image = values.astype(dtype)
+    want = np.floor(np.clip(image.astype(np.float64), 0, 1) * top + 0.5).astype(
+        np.uint8 if bits == 8 else np.uint16)
+    assert np.array_equal(output.to_integers(image, bits), want)
+    rows = image.size // 3
+    assert np.array_equal(output.to_integers(image[:3 * rows].reshape(rows, 3), bits),
+                          want[:3 * rows].reshape(rows, 3))  # the shape is kept
+    assert np.array_equal(output.to_integers(image[::3], bits), want[::3])  # a strided view
