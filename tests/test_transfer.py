@@ -96,3 +96,19 @@ def test_a7r3_lookup_inverse_is_monotone_and_inverts_the_table():
 def test_retone_rejects_unknown_curves():
     with pytest.raises(ValueError, match="a7r3"):
         transfer.retone(np.zeros(3), "srgb")
+
+
+@pytest.mark.parametrize("dtype, top", [(np.uint8, 255), (np.uint16, 65535)])
+def test_codes_decode_through_the_table_to_the_bits_of_the_direct_eotf(dtype, top):
+    codes = np.arange(top + 1, dtype=dtype)
+    for offset in range(17):  # every code at several positions of a vectorized loop
+        image = np.concatenate([np.zeros(offset, dtype), codes, codes[::-1]]).reshape(-1, 1)
+        direct = transfer.srgb_to_linear(image / float(top))
+        table = transfer.image_to_linear(image)
+        assert table.shape == image.shape and table.dtype == np.float64
+        assert np.array_equal(table.view(np.uint64), direct.view(np.uint64))
+
+
+def test_float_images_decode_directly():
+    image = np.linspace(-0.1, 1.1, 60, dtype=np.float32).reshape(4, 5, 3)
+    assert np.array_equal(transfer.image_to_linear(image), transfer.srgb_to_linear(image))

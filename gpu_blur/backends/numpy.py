@@ -13,7 +13,6 @@ import numpy as np
 
 from gpu_blur.backends.flows import UnitFrames, gap_factors, interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
-from gpu_blur.imageio import unit_values
 from gpu_blur.plan import Plan, StageName
 from gpu_blur.reference import bayer, blur, demosaic, noise, transfer
 from gpu_blur.reference.color import apply_matrix
@@ -102,10 +101,10 @@ class NumpyBackend:
         elif mode == "average":
             acc = blur.FrameAccumulator(*frames[0].shape[:2])
             for frame in frames:
-                acc.add(transfer.srgb_to_linear(unit_values(frame)))
+                acc.add(transfer.image_to_linear(frame))
             linear, sat_mask = acc.result()
         else:
-            first = transfer.srgb_to_linear(unit_values(frames[0]))
+            first = transfer.image_to_linear(frames[0])
             if mode == "kernel":
                 kernel = params["kernel"]
                 linear, sat_mask = (blur.convolve_kernel(first, kernel),
