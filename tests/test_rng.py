@@ -572,3 +572,19 @@ def test_image_uniforms_of_a_few_blocks_equal_the_vectorized_philox():
                         rng.philox4x32(counter, rng.key_from_seed(seed)).reshape(-1)[:count])
                     got = rng.image_uniforms(seed, index, stream, count)
                     assert got.dtype == np.float64 and np.array_equal(got, want)
+
+
+def test_philox_over_several_chunks_equals_the_one_counter_computation():
+    """Counters and per-counter keys across chunk boundaries give each counter's own words."""
+    generator = np.random.default_rng(11)
+    count = 2 * rng.PHILOX_CHUNK + 5
+    counter = generator.integers(0, 2**32, (count, 4), dtype=np.uint64)
+    keys = generator.integers(0, 2**32, (count, 2), dtype=np.uint64)
+    one_key = rng.philox4x32(counter, keys[0])
+    per_counter = rng.philox4x32(counter.reshape(count, 1, 4), keys.reshape(count, 1, 2))
+    assert per_counter.shape == (count, 1, 4)
+    edges = [0, 1, rng.PHILOX_CHUNK - 1, rng.PHILOX_CHUNK, 2 * rng.PHILOX_CHUNK, count - 1]
+    for i in edges:
+        c = [int(v) for v in counter[i]]
+        assert tuple(one_key[i]) == rng._philox4x32_ints(*c, *(int(k) for k in keys[0]))
+        assert tuple(per_counter[i, 0]) == rng._philox4x32_ints(*c, *(int(k) for k in keys[i]))

@@ -78,6 +78,9 @@ PHILOX_MAX_ROUNDS = 16
 _MASK32 = np.uint64(0xFFFFFFFF)
 _SHIFT32 = np.uint64(32)
 _UINT32_LIMIT = 2**32
+#: Counters :func:`philox4x32` works on at a time: its uint64 temporaries (a few hundred KiB)
+#: stay in a core's cache (600 x 960 counters: 76-168 -> 22 ms on a 2-core EPYC).
+PHILOX_CHUNK = 1 << 14
 #: Bits of counter word 3 below the stream byte, available for the round number.
 _ROUND_LIMIT = 2**24
 
@@ -174,19 +177,32 @@ def philox4x32(counter, key, rounds: int = 10) -> np.ndarray:
     ctr = _as_words(counter, "counter", 4)
     k = _as_words(key, "key", 2)
     shape = np.broadcast_shapes(ctr.shape[:-1], k.shape[:-1])
-    c0, c1, c2, c3 = (np.broadcast_to(ctr[..., i], shape) for i in range(4))
-    k0 = np.broadcast_to(k[..., 0], shape)
-    k1 = np.broadcast_to(k[..., 1], shape)
-    for r in range(rounds):
-        if r > 0:
-            k0 = (k0 + PHILOX_W32_0) & _MASK32
-            k1 = (k1 + PHILOX_W32_1) & _MASK32
-        prod0 = PHILOX_M4X32_0 * c0
-        prod1 = PHILOX_M4X32_1 * c2
-        hi0, lo0 = prod0 >> _SHIFT32, prod0 & _MASK32
-        hi1, lo1 = prod1 >> _SHIFT32, prod1 & _MASK32
-        c0, c1, c2, c3 = hi1 ^ c1 ^ k0, lo1, hi0 ^ c3 ^ k1, lo0
-    return np.stack([c0, c1, c2, c3], axis=-1).astype(np.uint32)
+    words = np.broadcast_to(ctr, shape + (4,)).reshape(-1, 4)
+    one_key = k.size == 2  # the usual case: the key stays two scalars
+    keys = k.reshape(2) if one_key else np.broadcast_to(k, shape + (2,)).reshape(-1, 2)
+    out = np.empty(words.shape, np.uint32)
+    for start in range(0, len(words), PHILOX_CHUNK):  # temporaries that stay in cache
+        block = slice(start, start + PHILOX_CHUNK)
+        c0, c1, c2, c3 = words[block].T.copy()
+        k0, k1 = keys if one_key else keys[block].T
+        prod0, prod1 = np.empty_like(c0), np.empty_like(c0)
+        for r in range(rounds):
+            if r > 0:
+                k0 = (k0 + PHILOX_W32_0) & _MASK32
+                k1 = (k1 + PHILOX_W32_1) & _MASK32
+            np.multiply(c0, PHILOX_M4X32_0, out=prod0)
+            np.multiply(c2, PHILOX_M4X32_1, out=prod1)
+            # (c0, c1, c2, c3) <- (hi1 ^ c1 ^ k0, lo1, hi0 ^ c3 ^ k1, lo0), in place
+            np.right_shift(prod1, _SHIFT32, out=c0)
+            c0 ^= c1
+            c0 ^= k0
+            np.bitwise_and(prod1, _MASK32, out=c1)
+            np.right_shift(prod0, _SHIFT32, out=c2)
+            c2 ^= c3
+            c2 ^= k1
+            np.bitwise_and(prod0, _MASK32, out=c3)
+        out[block] = np.stack([c0, c1, c2, c3], axis=-1)
+    return out.reshape(shape + (4,))
 
 
 # --------------------------------------------------------------------------------------------
