@@ -730,3 +730,22 @@ def test_generate_blurs_only_what_the_photo_holds_at_its_edges(tmp_path, coffee_
     assert weight.min() < len(homographies) - 1  # the path leaves the photo somewhere
     expected = linear_to_srgb(np.clip(total / weight[..., None], 0.0, 1.0))
     assert_close(blurred, expected, "float32_output", "independent")
+
+
+def test_shake_blur_in_bands_of_rows_equals_the_whole_image_bit_for_bit(monkeypatch):
+    from gpu_blur.reference import shake
+
+    rng = np.random.default_rng(3)
+    image = rng.random((71, 45, 3))
+    image[10:14, 5:9] = 1.0  # saturated, so the mask has content too
+    poses = []  # shifts across band edges and a small rotation about the centre
+    for t in np.linspace(-1, 1, 7):
+        c, s = np.cos(0.02 * t), np.sin(0.02 * t)
+        poses.append(np.array([[c, -s, 4.5 * t + 22 * (1 - c) + 35 * s],
+                               [s, c, 6.3 * t + 35 * (1 - c) - 22 * s], [0, 0, 1.0]]))
+    monkeypatch.setattr(shake, "SHAKE_BAND_ROWS", 1000)
+    whole = shake.shake_blur(image, poses)
+    monkeypatch.setattr(shake, "SHAKE_BAND_ROWS", 8)  # 71 rows: 8 full bands and a short one
+    banded = shake.shake_blur(image, poses)
+    for a, b in zip(whole, banded, strict=True):
+        assert np.array_equal(a.view(np.uint64), b.view(np.uint64))

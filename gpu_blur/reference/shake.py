@@ -252,11 +252,21 @@ def _check_in_front(homographies: np.ndarray, height: int, width: int) -> None:
             )
 
 
-def _positions(homography: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """Where each output pixel samples: ``H^-1 (x, y, 1)`` dehomogenised, ``(px, py)``."""
+#: Output rows :func:`shake_blur` warps through every pose at a time: a band's float64
+#: temporaries stay in cache (the built-in 600 x 400 photo's 77 poses: 3.6 -> 1.9 s here).
+SHAKE_BAND_ROWS = 32
+
+
+def _positions(homography: np.ndarray, height: int, width: int,
+               rows: range | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Where each output pixel samples: ``H^-1 (x, y, 1)`` dehomogenised, ``(px, py)``.
+
+    ``rows``: only those output rows (default all ``height``).
+    """
     inv = np.linalg.inv(homography)
     xs = np.arange(width, dtype=np.float64)[None, :]
-    ys = np.arange(height, dtype=np.float64)[:, None]
+    ys = np.arange(height if rows is None else rows.stop, dtype=np.float64)[
+        slice(None) if rows is None else slice(rows.start, rows.stop), None]
     den = inv[2, 0] * xs + inv[2, 1] * ys + inv[2, 2]
     if not (den > 0).all():
         raise ValueError("homography maps part of the image through infinity (w <= 0)")
@@ -287,8 +297,9 @@ def _inside_share(first: np.ndarray, frac: np.ndarray, n: int) -> np.ndarray:
     return np.where(in0 & in1, 1.0, np.where(in1, frac, np.where(in0, 1.0 - frac, 0.0)))
 
 
-def _warp_inside(stack: np.ndarray, homography: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Warp a stack reading only pixels inside the image: ``(values, weights)``.
+def _warp_inside(stack: np.ndarray, homography: np.ndarray,
+                 rows: range) -> tuple[np.ndarray, np.ndarray]:
+    """Warp a stack reading only pixels inside the image: ``(values, weights)`` of ``rows``.
 
     ``values`` is the bilinear sample of the image extended by zeros, interpolated as
     :func:`~gpu_blur.reference.sampling.bilinear_sample` does (``a + f (b - a)`` along x, then
@@ -297,16 +308,17 @@ def _warp_inside(stack: np.ndarray, homography: np.ndarray) -> tuple[np.ndarray,
     A sample whose four taps are inside gives the bilinear sample itself and weight exactly 1.
     """
     h, w, c = stack.shape
-    px, py = _positions(homography, h, w)
+    px, py = _positions(homography, h, w, rows)
     x0, y0 = np.floor(px), np.floor(py)
     fx, fy = px - x0, py - y0
     xi, yi = x0.astype(np.intp), y0.astype(np.intp)
     flat = stack.reshape(h * w, c)
+    # each tap's row and column: (inside the image, clamped offset), shared by two taps
+    xs = [((x >= 0) & (x < w), np.clip(x, 0, w - 1)) for x in (xi, xi + 1)]
+    ys = [((y >= 0) & (y < h), np.clip(y, 0, h - 1) * w) for y in (yi, yi + 1)]
 
-    def taps(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-        index = np.clip(rows, 0, h - 1) * w + np.clip(cols, 0, w - 1)
-        return np.take(flat, index, axis=0) * inside[..., None]
+    def taps(row: tuple, col: tuple) -> np.ndarray:
+        return np.take(flat, row[1] + col[1], axis=0) * (row[0] & col[0])[..., None]
 
     def lerp(a: np.ndarray, b: np.ndarray, f: np.ndarray) -> np.ndarray:
         b -= a
@@ -314,8 +326,8 @@ def _warp_inside(stack: np.ndarray, homography: np.ndarray) -> tuple[np.ndarray,
         a += b
         return a
 
-    top = lerp(taps(yi, xi), taps(yi, xi + 1), fx)
-    bottom = lerp(taps(yi + 1, xi), taps(yi + 1, xi + 1), fx)
+    top = lerp(taps(ys[0], xs[0]), taps(ys[0], xs[1]), fx)
+    bottom = lerp(taps(ys[1], xs[0]), taps(ys[1], xs[1]), fx)
     values = lerp(top, bottom, fy)
     weights = _inside_share(xi, fx, w) * _inside_share(yi, fy, h)
     return values, weights[..., None]
@@ -406,10 +418,16 @@ def shake_blur(image, homographies) -> tuple[np.ndarray, np.ndarray]:
     both = np.concatenate([stack, saturation_indicator(stack)], axis=2)
     total = np.zeros_like(both)
     weight = np.zeros(both.shape[:2] + (1,))
-    for m in hom:
-        values, weights = _warp_inside(both, _as_homography(m))
-        total += values
-        weight += weights
+    poses = [_as_homography(m) for m in hom]
+    h = both.shape[0]
+    # a band of rows through every pose at a time keeps its temporaries in cache; each
+    # pixel's sum still runs over the poses in order
+    for start in range(0, h, SHAKE_BAND_ROWS):
+        rows = range(start, min(h, start + SHAKE_BAND_ROWS))
+        for m in poses:
+            values, weights = _warp_inside(both, m, rows)
+            total[start:rows.stop] += values
+            weight[start:rows.stop] += weights
     seen = np.broadcast_to(weight > 0.0, total.shape)
     total = np.divide(total, weight, out=np.zeros_like(total), where=seen)
     return (
