@@ -203,9 +203,10 @@ def test_indices_in_any_order_give_those_samples():
         synth(photos, indices=[1, 2])
 
 
-@pytest.mark.parametrize("name", ["numpy", "opencl", "warp:cpu"])
-def test_out_arrays_receive_the_batch_and_are_what_comes_back(name):
-    scene = scene_for("none", precision="float32")
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+def test_out_arrays_receive_the_batch_and_are_what_comes_back(spec):
+    name, precision = spec_parts(spec)
+    scene = scene_for("none", precision=precision)
     given = batch_for("none", 2, np.random.default_rng(5), dtype=np.float32)
     synth = gpu_blur.Synthesizer(scene, backend=name, with_mask=True)
     ref = synth(given["batch"], mask=given["mask"])
@@ -216,10 +217,12 @@ def test_out_arrays_receive_the_batch_and_are_what_comes_back(name):
         assert np.array_equal(mine, want)
 
 
-def test_channels_first_out_arrays_take_channels_first_results():
-    scene = scene_for("trajectory", precision="float32")
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+def test_channels_first_out_arrays_take_channels_first_results(spec):
+    name, precision = spec_parts(spec)
+    scene = scene_for("trajectory", precision=precision)
     photos = batch_for("trajectory", 2, np.random.default_rng(3))["batch"]
-    synth = gpu_blur.Synthesizer(scene, backend="warp:cpu", channels_first=True)
+    synth = gpu_blur.Synthesizer(scene, backend=name, channels_first=True)
     first = np.ascontiguousarray(photos.transpose(0, 3, 1, 2))
     ref = synth(first)
     out = [np.zeros(ref.blurred.shape, np.float32) for _ in range(2)]
