@@ -10,11 +10,15 @@ host makes at most ``cores / (9 t_decode + 2 t_encode)`` samples per second (sin
 measured here on the same images).
 
     PYTHONPATH=$PWD python3 bench/generate_gpu.py --backend warp --samples 32 --json out.json
+
+``--workers 1,2,4`` adds runs of ``--devices`` with that many worker processes sharing
+``--backend``'s device, and checks that every set holds the same bytes.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import statistics
@@ -61,11 +65,12 @@ def single_core_seconds(paths: list[Path]) -> dict:
     return {"decode": statistics.median(decode), "encode": statistics.median(encode)}
 
 
-def _run(root: Path, out: Path, backend: str, samples: int, threads: int):
+def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
+         extra: tuple[str, ...] = ()):
     command = [sys.executable, "-m", "gpu_blur.cli", "generate", "--input", str(root),
                "--output", str(out), "--scene", "rsblur", "--backend", backend,
                "--samples-per-sequence", str(samples), "--io-threads", str(threads),
-               "--quiet", "--overwrite"]
+               "--quiet", "--overwrite", *extra]
     start = time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - start
@@ -74,21 +79,36 @@ def _run(root: Path, out: Path, backend: str, samples: int, threads: int):
     return wall, (done.stdout + done.stderr).strip().splitlines()[-9:]
 
 
-def generate(root: Path, out: Path, backend: str, samples: int, threads: int) -> dict:
+def generate(root: Path, out: Path, backend: str, samples: int, threads: int,
+             extra: tuple[str, ...] = ()) -> dict:
     """Samples per second of ``gpu-blur generate`` without its fixed start, and its summary."""
-    start, _ = _run(root, out, backend, 1, threads)
-    wall, summary = _run(root, out, backend, samples, threads)
-    return {"threads": threads, "seconds": wall, "start_seconds": start,
-            "samples_per_s": (samples - 1) / (wall - start), "summary": summary}
+    start, _ = _run(root, out, backend, 1, threads, extra)
+    wall, summary = _run(root, out, backend, samples, threads, extra)
+    return {"threads": threads, "options": list(extra), "seconds": wall,
+            "start_seconds": start, "samples_per_s": (samples - 1) / (wall - start),
+            "summary": summary}
+
+
+def set_digest(out: Path) -> str:
+    """sha256 over every file of a set (names and bytes); run.json and the lock file aside."""
+    digest = hashlib.sha256()
+    for path in sorted(p for p in out.rglob("*") if p.is_file()
+                       and p.name not in ("run.json", ".gpu_blur.lock")):
+        digest.update(path.relative_to(out).as_posix().encode() + path.read_bytes())
+    return digest.hexdigest()
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--backend", default="warp", help="backend (default warp)")
     p.add_argument("--samples", type=int, default=64, help="samples per run (default 64)")
+    p.add_argument("--workers", default="", help="also run --devices with each of these "
+                   "numbers of workers on --backend's device, comma-separated (e.g. 1,2,4), "
+                   "and compare the sets' bytes")
     p.add_argument("--json", help="write the results here")
     args = p.parse_args(argv)
     cores = len(os.sched_getaffinity(0))
+    devices = {}
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp) / "in"
         paths = write_sequence(root, 4 * FRAMES)
@@ -96,11 +116,22 @@ def main(argv=None) -> int:
         bound = cores / (FRAMES * per["decode"] + 2 * per["encode"])
         runs = [generate(root, Path(tmp) / f"out{t}", args.backend, args.samples, t)
                 for t in (1, cores)]
+        digests = {"serial": set_digest(Path(tmp) / f"out{cores}")}
+        for n in [int(v) for v in args.workers.split(",") if v]:
+            out = Path(tmp) / f"workers{n}"
+            devices[n] = generate(root, out, args.backend, args.samples, cores,
+                                  ("--devices", ",".join([args.backend] * n)))
+            digests[f"{n} workers"] = set_digest(out)
     result = {"backend": args.backend, "cores": cores, "image": [W, H], "frames": FRAMES,
               "single_core_seconds": per, "bound_samples_per_s": bound, "runs": runs,
-              "ratio_to_bound": runs[-1]["samples_per_s"] / bound}
+              "ratio_to_bound": runs[-1]["samples_per_s"] / bound,
+              "devices_workers": devices, "set_digests": digests,
+              "same_bytes": len(set(digests.values())) == 1}
     for run in runs:
         print(f"io-threads {run['threads']:>2}: {run['samples_per_s']:.2f} samples/s")
+    for n, run in devices.items():
+        print(f"--devices, {n} worker(s): {run['samples_per_s']:.2f} samples/s")
+    print("every set the same bytes" if result["same_bytes"] else f"SETS DIFFER: {digests}")
     print(f"bound: {bound:.2f} samples/s ({cores} cores; decode {1e3 * per['decode']:.1f} ms, "
           f"encode {1e3 * per['encode']:.1f} ms per image on one core); "
           f"{100 * result['ratio_to_bound']:.0f} % of it")
