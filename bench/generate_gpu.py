@@ -102,6 +102,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--backend", default="warp", help="backend (default warp)")
     p.add_argument("--samples", type=int, default=64, help="samples per run (default 64)")
+    p.add_argument("--threads", default="1,all", help="--io-threads of the one-process runs, "
+                   "comma-separated; all: one per core (default 1,all)")
     p.add_argument("--workers", default="", help="also run --devices with each of these "
                    "numbers of workers on --backend's device, comma-separated (e.g. 1,2,4), "
                    "and compare the sets' bytes")
@@ -114,9 +116,10 @@ def main(argv=None) -> int:
         paths = write_sequence(root, 4 * FRAMES)
         per = single_core_seconds(paths)
         bound = cores / (FRAMES * per["decode"] + 2 * per["encode"])
+        threads = [cores if t == "all" else int(t) for t in args.threads.split(",")]
         runs = [generate(root, Path(tmp) / f"out{t}", args.backend, args.samples, t)
-                for t in (1, cores)]
-        digests = {"serial": set_digest(Path(tmp) / f"out{cores}")}
+                for t in threads]
+        digests = {"serial": set_digest(Path(tmp) / f"out{threads[-1]}")}
         for n in [int(v) for v in args.workers.split(",") if v]:
             out = Path(tmp) / f"workers{n}"
             devices[n] = generate(root, out, args.backend, args.samples, cores,
