@@ -36,8 +36,8 @@ def code_dtype(bits: int) -> np.dtype:
 
 
 #: Values :func:`to_integers` works on at a time: its float64 temporaries (512 KiB) stay in a
-#: core's cache instead of going through memory four times (a 1920 x 1200 image: 70 -> 12 ms
-#: on a 2-core EPYC).
+#: core's cache instead of going through memory four times (a 1920 x 1200 image: 55-265 ->
+#: 9-16 ms on a 2-core EPYC).
 CODE_CHUNK = 1 << 16
 
 

@@ -264,9 +264,9 @@ def _positions(homography: np.ndarray, height: int, width: int,
     ``rows``: only those output rows (default all ``height``).
     """
     inv = np.linalg.inv(homography)
+    rows = range(height) if rows is None else rows
     xs = np.arange(width, dtype=np.float64)[None, :]
-    ys = np.arange(height if rows is None else rows.stop, dtype=np.float64)[
-        slice(None) if rows is None else slice(rows.start, rows.stop), None]
+    ys = np.arange(rows.start, rows.stop, dtype=np.float64)[:, None]
     den = inv[2, 0] * xs + inv[2, 1] * ys + inv[2, 2]
     if not (den > 0).all():
         raise ValueError("homography maps part of the image through infinity (w <= 0)")
