@@ -92,47 +92,9 @@ def test_to_raw_pass_noise_agrees_with_the_reference_on_almost_every_pixel(spec,
     assert problem is None, problem
 
 
-FINISH_CASES = [
-    {"isp": {"demosaic": "malvar2004", "border": "reflect"}},
-    {"isp": {"demosaic": "malvar2004", "border": "zero", "clip_demosaic": True}},
-    {"isp": {"demosaic": "bilinear"}, "output": {"crf": "a7r3"}},
-    {"output": {"crf": "a7r3-lut"}},
-    {"output": {"crf": "none"}},
-    {"noise": {"model": "gaussian"}},
-    {"output": {"bits": 8}},
-    {"output": {"bits": 16, "crf": "a7r3-lut"}},
-]
-
-
-@pytest.mark.parametrize("spec", BACKEND_SPECS)
-@pytest.mark.parametrize("case", range(len(FINISH_CASES)))
-def test_finish_pass_matches_the_reference(spec, case, photo):
-    h, w = photo.shape[:2]
-    settings = {"saturation": {"mode": "on"}, "noise": {"model": "none"},
-                "isp": {"round_trip": "always"}, "output": {"bits": 0}}
-    for section, values in FINISH_CASES[case].items():
-        settings.setdefault(section, {}).update(values)
-    _, p, cam, params = sample(settings, (h, w))
-    # the same inputs for both: the reference's own to_raw output
-    linear = np.ascontiguousarray(photo ** 2.2)
-    mask = (photo >= 0.99).astype(np.float64)
-    image, sat = REFERENCE.to_raw(p, params, cam, linear, mask, seed=SEED, sample_index=SAMPLE)
-    view = Region.whole(h, w)
-    out = Region(5, 6, h - 9, w - 13, h, w)  # an inner region at odd offsets
-    got = make_backend(spec).finish(p, params, cam, image, sat, view, out, seed=SEED,
-                                    sample_index=SAMPLE)
-    ref = REFERENCE.finish(p, params, cam, image, sat, view, out, seed=SEED,
-                           sample_index=SAMPLE)
-    if p.kept("quantize"):
-        # float32 rounding can move a value across a rounding boundary: one code at most, and
-        # on few values
-        top = 2 ** p["quantize"].options["bits"] - 1
-        codes = np.abs(np.rint(got * top) - np.rint(ref * top))
-        _, allowed = tolerance("quantize_code_changes", spec_backend(spec), spec_dtype(spec))
-        assert codes.max() <= 1 and (codes > 0).mean() <= allowed, (codes > 0).mean()
-    else:
-        polynomial = p.kept("retone") and p["retone"].options["crf"] == "a7r3"
-        check("finish_crf_polynomial" if polynomial else "finish", spec, got, ref)
+# The finish pass against the reference, case by case (demosaics, borders, curves, noise,
+# quantization): gpu_blur.conformance.checks.FINISH_CASES, run on every backend by
+# tests/test_validate.py.
 
 
 @pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
