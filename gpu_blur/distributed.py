@@ -32,6 +32,7 @@ from concurrent.futures import ThreadPoolExecutor
 from multiprocessing.connection import wait
 
 from gpu_blur import testhooks
+from gpu_blur.backends import usable_devices
 from gpu_blur.dataset import SampleSpec
 from gpu_blur.generate import Job, decode, default_io_threads, for_driver, make_sample, run_serial
 
@@ -58,28 +59,6 @@ def family(backend: str) -> str:
 
 # -- device names --------------------------------------------------------------------------
 
-def _present(kind: str, precision: str) -> tuple[list[str], dict[str, str]]:
-    """The usable device names of a family, and why each unusable one is not."""
-    if kind == "numpy":
-        return ["numpy"], {}
-    if kind == "opencl":
-        from gpu_blur.backends.opencl import device_rank, opencl_devices
-
-        found = sorted(opencl_devices(), key=device_rank)  # the order `opencl` picks in
-        usable = [d for d in found if d.usable and (d.fp64 or precision != "float64")]
-        unusable = {d.spec: (d.problem and f"cannot build kernels: {d.problem}")
-                    or "has no fp64 (cl_khr_fp64), and output.precision is float64"
-                    for d in found if d not in usable}
-        return [d.spec for d in usable], unusable
-    if kind == "warp":
-        from gpu_blur.backends.warp import warp_devices
-
-        found = warp_devices()
-        return [d["spec"] for d in found if d["kind"] == "GPU"] + [
-            d["spec"] for d in found if d["kind"] != "GPU"], {}
-    raise ValueError(f"unknown backend {kind!r}")
-
-
 def all_devices(backend: str, precision: str = "float32") -> list[str]:
     """What ``--devices all`` stands for with a backend.
 
@@ -90,7 +69,7 @@ def all_devices(backend: str, precision: str = "float32") -> list[str]:
     kind = family(backend)
     if kind == "numpy":
         return ["numpy"] * (os.cpu_count() or 1)
-    names, unusable = _present(kind, precision)
+    names, unusable = usable_devices(kind, precision)
     if kind == "opencl":
         gpus = [n for n in names if _is_opencl_gpu(n)]
         names = gpus or names
@@ -125,7 +104,7 @@ def parse_devices(text: str, backend: str, precision: str = "float32") -> list[s
     if not all(names):
         raise ValueError(f"--devices {text!r}: an empty device name; give 'all' or names "
                          "separated by commas, e.g. opencl:0:0,opencl:1:0")
-    present, unusable = _present(kind, precision)
+    present, unusable = usable_devices(kind, precision)
     aliases = [kind] if kind != "numpy" else []
     for name in names:
         listed = ", ".join(present + aliases) or "none"

@@ -186,6 +186,34 @@ def _extra(module: str, extra: str, backend: str):
                            f"pip install 'gpu_blur[{extra}]' (or use --backend numpy)") from None
 
 
+def usable_devices(kind: str, precision: str) -> tuple[list[str], dict[str, str]]:
+    """The usable devices of a family (``numpy``, ``opencl``, ``warp``), and why not others.
+
+    Names in the order the family's bare name picks from (Warp: GPUs first).
+
+    Raises:
+        ImportError: the family's library (pyopencl, warp-lang) is not installed.
+    """
+    if kind == "numpy":
+        return ["numpy"], {}
+    if kind == "opencl":
+        from gpu_blur.backends.opencl import device_rank, opencl_devices
+
+        found = sorted(opencl_devices(), key=device_rank)  # the order `opencl` picks in
+        usable = [d for d in found if d.usable and (d.fp64 or precision != "float64")]
+        unusable = {d.spec: (d.problem and f"cannot build kernels: {d.problem}")
+                    or "has no fp64 (cl_khr_fp64), and output.precision is float64"
+                    for d in found if d not in usable}
+        return [d.spec for d in usable], unusable
+    if kind == "warp":
+        from gpu_blur.backends.warp import warp_devices
+
+        found = warp_devices()
+        return [d["spec"] for d in found if d["kind"] == "GPU"] + [
+            d["spec"] for d in found if d["kind"] != "GPU"], {}
+    raise ValueError(f"unknown backend {kind!r}")
+
+
 @functools.cache
 def get_backend(name: str, precision: str = "float32") -> Backend:
     """A backend by name; ``precision`` is the kernels' compute type.

@@ -7,6 +7,7 @@ command prints.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import sys
 import time
@@ -25,18 +26,9 @@ class UsageError(ValueError):
 def kernel_devices() -> list[str]:
     """Every usable kernel device here: each OpenCL device that builds kernels, each Warp one."""
     found = []
-    try:
-        from gpu_blur.backends.opencl import opencl_devices
-    except ImportError:
-        pass
-    else:
-        found += [d.spec for d in opencl_devices() if d.usable]
-    try:
-        from gpu_blur.backends.warp import warp_devices
-    except ImportError:
-        pass
-    else:
-        found += [d["spec"] for d in warp_devices()]
+    for kind in ("opencl", "warp"):
+        with contextlib.suppress(ImportError):  # the family's library is not installed
+            found += backends.usable_devices(kind, "float32")[0]
     return found
 
 
