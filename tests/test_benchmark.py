@@ -281,10 +281,12 @@ def test_quick_runs_small_frames_unless_a_size_is_given(monkeypatch, capsys, tmp
 def test_the_time_left_weighs_rows_by_their_frame_interpolation():
     from gpu_blur.analysis.bench.measure import Runner
 
-    motion = [s for s in benchmark.KNOBS if s.knob == "motion"]  # 8x (accurate), 4x, 2x, 1x
+    # 8x (accurate), 4x, 2x, 1x, auto
+    motion = [s for s in benchmark.KNOBS if s.knob == "motion"]
     runner = Runner([np.zeros((48, 64, 3), np.uint8)], {"numpy": {}}, motion, runs=5)
-    # a row runs its setting and the accurate one; k-fold interpolation costs about 3 k
-    assert [runner.cost(s, "numpy") for s in motion] == [24, 12 + 24, 6 + 24, 1 + 24]
+    # a row runs its setting and the accurate one; k-fold interpolation costs about 3 k, auto
+    # as much as its largest factor (8)
+    assert [runner.cost(s, "numpy") for s in motion] == [24, 12 + 24, 6 + 24, 1 + 24, 24 + 24]
 
 
 def test_a_second_bench_on_the_same_report_is_refused_while_the_first_runs(tmp_path, capsys):

@@ -21,6 +21,7 @@ from gpu_blur.analysis.bench.workload import (
     Setting,
     setting_scene,
 )
+from gpu_blur.reference.interpolate import INTERPOLATION_AUTO, INTERPOLATION_FACTORS
 
 #: Residual histograms: bins per unit of value, one per 8-bit code (gpu_blur.analysis.metrics).
 KL_BINS = 255
@@ -182,10 +183,12 @@ class Runner:
         """A row's run time relative to a plain row's, for the progress bar's time left.
 
         Interpolating frames k times costs about 3 k plain averages (numpy and OpenCL on a
-        CPU, 320 x 200 to 1920 x 1200); a row also runs its knob's accurate setting.
+        CPU, 320 x 200 to 1920 x 1200; "auto" counted as its largest factor); a row also runs
+        its knob's accurate setting.
         """
         def runs_cost(s: Setting | None) -> float:
             k = s.scene.get("blur", {}).get("interpolation", 1) if s is not None else 1
+            k = INTERPOLATION_FACTORS[-1] if k == INTERPOLATION_AUTO else k
             return 3.0 * k if k > 1 else 1.0
 
         if spec == "-":

@@ -104,6 +104,7 @@ KNOBS: tuple[Setting, ...] = (
     Setting("motion", "interpolation 4x", {"blur": {"interpolation": 4}}),
     Setting("motion", "interpolation 2x", {"blur": {"interpolation": 2}}),
     Setting("motion", "interpolation 1x", {"blur": {"interpolation": 1}}),
+    Setting("motion", "interpolation auto (1 px)", {"blur": {"interpolation": "auto"}}),
     Setting("tile", "whole image", reference=True),
     Setting("tile", "1024 x 1024", tile=(1024, 1024)),
     Setting("tile", "512 x 512", tile=(512, 512)),
