@@ -81,7 +81,12 @@ def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
 
 def generate(root: Path, out: Path, backend: str, samples: int, threads: int,
              extra: tuple[str, ...] = ()) -> dict:
-    """Samples per second of ``gpu-blur generate`` without its fixed start, and its summary."""
+    """Samples per second of ``gpu-blur generate`` without its fixed start, and its summary.
+
+    A first 1-sample run warms the file cache and the kernel caches and is not counted: a
+    cold start can take longer than the whole run that follows.
+    """
+    _run(root, out, backend, 1, threads, extra)
     start, _ = _run(root, out, backend, 1, threads, extra)
     wall, summary = _run(root, out, backend, samples, threads, extra)
     return {"threads": threads, "options": list(extra), "seconds": wall,
