@@ -1,5 +1,6 @@
 """The batch API: gpu_blur.Synthesizer against synthesize, array types, layouts, bad input."""
 
+import dataclasses
 import re
 
 import numpy as np
@@ -259,3 +260,26 @@ def test_a_strided_destination_receives_every_copied_value():
     values = np.arange(view.size, dtype=np.float32)
     copy_values(view, values)
     assert np.array_equal(view.reshape(-1), values)
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+@pytest.mark.parametrize("mode", ["average", "kernel", "trajectory"])
+def test_skipping_auto_saturation_gives_the_bits_of_saturation_on_where_nothing_clips(
+        spec, mode):
+    """Auto saturation skips a sample whose input never reaches the clip level: there the
+    saturate and restore stages are identities (a zero mask, nothing at 1), so the output is
+    what running them gives, bit for bit."""
+    name, precision = spec_parts(spec)
+    images = batch_for(mode, 2, np.random.default_rng(8))["batch"]
+    images = np.minimum(images, 254)  # no value at the clip level
+    out = {}
+    for saturation in ("auto", "on"):
+        scene = scene_for(mode, precision=precision)
+        scene = dataclasses.replace(
+            scene, saturation=dataclasses.replace(scene.saturation, mode=saturation))
+        synth = gpu_blur.Synthesizer(scene, backend=name, seed=3, with_mask=True)
+        out[saturation] = synth(images)
+    assert not any(p.kept("saturate") for p in out["auto"].plans)
+    assert all(p.kept("saturate") for p in out["on"].plans)
+    assert np.array_equal(out["auto"].blurred, out["on"].blurred)
+    assert np.array_equal(out["auto"].mask, out["on"].mask)
