@@ -588,3 +588,18 @@ def test_philox_over_several_chunks_equals_the_one_counter_computation():
         c = [int(v) for v in counter[i]]
         assert tuple(one_key[i]) == rng._philox4x32_ints(*c, *(int(k) for k in keys[0]))
         assert tuple(per_counter[i, 0]) == rng._philox4x32_ints(*c, *(int(k) for k in keys[i]))
+
+
+@pytest.mark.parametrize("normal_above", [None, 100.0])
+def test_poisson_in_chunks_of_pixels_equals_the_whole_image_bit_for_bit(monkeypatch,
+                                                                        normal_above):
+    generator = np.random.default_rng(12)
+    rate = generator.uniform(0.0, 500.0, (37, 53))
+    rate[:5] = generator.uniform(0.0, 9.9, (5, 53))  # inversion
+    rate[5, :7] = 0.0
+    y, x = np.arange(37)[:, None] + 1000, np.arange(53)[None, :]
+    monkeypatch.setattr(rng, "POISSON_CHUNK", 10**9)
+    whole = rng.poisson(rate, 3, 9, y, x, normal_above=normal_above)
+    monkeypatch.setattr(rng, "POISSON_CHUNK", 97)  # chunks that end mid-row
+    chunked = rng.poisson(rate, 3, 9, y, x, normal_above=normal_above)
+    assert np.array_equal(chunked, whole)

@@ -81,6 +81,9 @@ _UINT32_LIMIT = 2**32
 #: Counters :func:`philox4x32` works on at a time: its uint64 temporaries (a few hundred KiB)
 #: stay in a core's cache (600 x 960 counters: 76-168 -> 22 ms on a 2-core EPYC).
 PHILOX_CHUNK = 1 << 14
+#: Pixels :func:`poisson` draws at a time: the samplers' index arrays and temporaries stay in
+#: cache (1920 x 1200 rates up to 3,000: 1.49 -> 0.29 s on a 2-core EPYC in bands of 64 rows).
+POISSON_CHUNK = 1 << 17
 #: Bits of counter word 3 below the stream byte, available for the round number.
 _ROUND_LIMIT = 2**24
 
@@ -725,6 +728,16 @@ def poisson(
     yy = np.broadcast_to(_check_coordinate(y, "y"), rate.shape).reshape(-1)
     xx = np.broadcast_to(_check_coordinate(x, "x"), rate.shape).reshape(-1)
     flat = np.maximum(rate.reshape(-1), 0.0)
+    out = np.empty(flat.shape, dtype=np.float64)
+    for start in range(0, flat.size, POISSON_CHUNK):  # each count depends on its pixel only
+        part = slice(start, start + POISSON_CHUNK)
+        out[part] = _poisson_counts(flat[part], yy[part], xx[part], seed, sample_index, stream,
+                                    threshold)
+    return out.reshape(rate.shape)
+
+
+def _poisson_counts(flat, yy, xx, seed, sample_index, stream, threshold) -> np.ndarray:
+    """:func:`poisson` of 1-D clamped rates and their pixels' coordinates (checked)."""
     out = np.zeros(flat.shape, dtype=np.float64)
     exact = np.ones(flat.shape, dtype=bool)
     if threshold is not None:
@@ -741,4 +754,4 @@ def poisson(
     large = np.flatnonzero(exact & (flat >= POISSON_PTRS_MIN_RATE))
     if large.size:
         out[large] = _poisson_ptrs(flat[large], seed, sample_index, stream, yy[large], xx[large])
-    return out.reshape(rate.shape)
+    return out
