@@ -506,7 +506,7 @@ def _generate(args) -> int:
     io = PoolTimes(threads) if threads > 1 else None  # else one thread does every step
 
     def save(spec, result) -> dict:  # a made sample's files, in an I/O thread if there are
-        try:  # the device of the worker that made it
+        try:  # the model of device that made it
             return writer.save(spec, result, {**record,
                                               "device": result.device or record["device"]})
         except OSError as e:

@@ -55,7 +55,9 @@ class Synthesis:
             copies, kernels, checks; writing is 0 here), plus ``other`` and ``total``.
         tiles: how many tiles the image ran in.
         spot_checks: how many of them were checked against the numpy reference.
-        device: the device that made it, in words (the backend's ``device``).
+        device: the model of device that made it, in words (the backend's ``model``:
+            ``warp NVIDIA H200, float32``, without the device's number on this host, so a
+            set's manifest is the same whichever GPU made each sample).
 
     A worker process of ``gpu-blur generate`` sends blurred and sharp as the set's integer
     codes instead (:func:`gpu_blur.generate.for_driver`).
@@ -329,7 +331,7 @@ class Synthesizer:
             raw = crop_border(raw, crop).astype(np.float32, copy=False)
         return Synthesis(out, sharp, mask, params, sample_plan,
                          since(before, time.perf_counter() - start), tiled.tiles,
-                         tiled.checked, crop, self.runner.device, raw, self._raw_info(params))
+                         tiled.checked, crop, self.runner.model, raw, self._raw_info(params))
 
     def _raw_info(self, params: dict) -> dict | None:
         """A sample's :func:`gpu_blur.outputs.raw_metadata` with ``with_raw``, else None."""

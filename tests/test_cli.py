@@ -3,7 +3,9 @@ import json
 import cv2
 import numpy as np
 import pytest
+from conftest import BACKEND_SPECS
 
+import gpu_blur
 from gpu_blur.cli import main
 
 
@@ -59,7 +61,22 @@ def test_manifest_names_the_device_that_made_each_sample(tmp_path, monkeypatch):
     from gpu_blur.scene import scene_from_dict
 
     alone = gpu_blur.synthesize([np.zeros((8, 8, 3))], scene_from_dict({}), backend="numpy")
-    assert alone.device == get_backend("numpy").device != ""
+    assert alone.device == get_backend("numpy").model != ""
+
+
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+def test_a_sample_names_its_device_model_not_the_device_s_number_on_this_host(spec):
+    # two GPUs of one model make the same bits, so a set's manifest must not depend on which
+    # of them made a sample (sets byte-identical whatever the number of GPUs)
+    from gpu_blur.backends import get_backend
+    from gpu_blur.scene import scene_from_dict
+
+    name, _, precision = spec.partition("/")
+    backend = get_backend(name, precision or "float64")
+    made = gpu_blur.synthesize([np.zeros((8, 8, 3))], scene_from_dict({}), backend=backend)
+    assert made.device == backend.model
+    assert backend.model.split()[0] == backend.name
+    assert not any(part.startswith(("opencl:", "warp:")) for part in backend.model.split())
 
 
 def test_generate_is_reproducible_for_a_seed(tmp_path):

@@ -44,6 +44,8 @@ def _warp_devices():
 
 OPENCL = _opencl_usable()
 WARP = _warp_devices()
+CUDA = [d["spec"] for d in WARP or [] if d["spec"].startswith("warp:cuda")]
+OPENCL_GPUS = [d.spec for d in OPENCL if d.kind == "GPU"]
 
 
 @pytest.fixture(scope="module")
@@ -109,6 +111,11 @@ EXECUTORS = [
                      not OPENCL, reason="no usable OpenCL device")),
     pytest.param("warp:cpu", ["--devices", "warp:cpu,warp:cpu"], id="devices-2-warp-cpu",
                  marks=pytest.mark.skipif(WARP is None, reason="warp-lang not installed")),
+    pytest.param(CUDA[:1], ["--devices", ",".join(CUDA)], id="devices-every-cuda-gpu",
+                 marks=pytest.mark.skipif(len(CUDA) < 2, reason="fewer than 2 CUDA GPUs")),
+    pytest.param(OPENCL_GPUS[:1], ["--devices", ",".join(OPENCL_GPUS)],
+                 id="devices-every-opencl-gpu", marks=pytest.mark.skipif(
+                     len(OPENCL_GPUS) < 2, reason="fewer than 2 OpenCL GPUs")),
 ]
 
 
@@ -119,6 +126,8 @@ def test_every_executor_writes_the_files_and_manifest_of_a_serial_run(
         request.getfixturevalue("ray_local")
     if backend == "opencl":
         backend = OPENCL[0].spec
+    if isinstance(backend, list):  # several GPUs against a serial run on the first
+        backend = backend[0]
     out = tmp_path / "out"
     assert main(args(photos, out, "--backend", backend, *executor)) == 1
     assert_same_set(out, reference(backend))

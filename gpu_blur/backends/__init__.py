@@ -42,7 +42,11 @@ class Backend(Protocol):
     Attributes:
         name: the backend's family, ``numpy``, ``opencl`` or ``warp``.
         precision: the compute type, ``float32`` or ``float64``.
-        device: the device in words (``Synthesis.device``).
+        device: the device in words, with its number on this host (``warp:cuda:1 NVIDIA
+            H200, float32``): what a run opened (``run.json``, logs).
+        model: the backend, device model and precision without that number (``warp NVIDIA
+            H200, float32``): what decides a result's bits, so what a set's manifest line
+            names (``Synthesis.device``; the same line whichever GPU of a model made it).
         uses_cuda: whether it runs on an NVIDIA GPU through CUDA's driver (Ray's GPU
             resource, gpu_blur.distributed).
         device_arrays: whether :meth:`device_array` gives a result as a device array other
@@ -52,6 +56,7 @@ class Backend(Protocol):
     name: str
     precision: str
     device: str
+    model: str
     uses_cuda: bool
     device_arrays: bool
 

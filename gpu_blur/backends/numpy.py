@@ -32,7 +32,7 @@ class NumpyBackend:
 
     name = "numpy"
     precision = "float64"
-    device = "numpy float64 (host CPU)"
+    device = model = "numpy float64 (host CPU)"
     uses_cuda = False
     device_arrays = False
 

@@ -288,6 +288,7 @@ class OpenCLBackend(KernelBackend):
         self.real = self.np_real = np.float64 if precision == "float64" else np.float32
         self.position_dtype = np.float64 if self.info.fp64 else np.float32
         self.device = f"{self.info.spec} {self.info.name} ({self.info.platform}), {precision}"
+        self.model = f"opencl {self.info.name} ({self.info.platform}), {precision}"
         self.ctx = cl.Context([self.cl_device])
         self.queue = cl.CommandQueue(self.ctx)
         self.overlap = bool(overlap)

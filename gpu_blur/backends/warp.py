@@ -138,6 +138,7 @@ class WarpBackend(KernelBackend):
         self.np_real = np.float64 if precision == "float64" else np.float32
         device = wp.get_device(self.wp_device)
         self.device = f"warp:{self.wp_device} {device.name}, {precision}"
+        self.model = f"warp {device.name}, {precision}"
         self.overlap = bool(overlap and device.is_cuda)
         self._copier = wp.Stream(self.wp_device) if self.overlap else None
         self._staging: dict = {}  # slot -> pinned host buffer (kept across samples)

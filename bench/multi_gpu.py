@@ -1,0 +1,170 @@
+"""Samples per second on 1, 2, ... GPUs of one host, from frames in memory and from PNG files.
+
+Memory: one process per GPU, each a ``gpu_blur.Synthesizer`` (RSBlur scene) on its own
+device, fed batches of 9 uint8 frames of 1920 x 1200 already decoded (the built-in photo
+panned 2 px per frame); batch k goes to GPU ``k % n`` and holds samples ``k * batch ...``.
+Every process warms up on a batch that is not counted, then all start together; the rate is
+the samples made over the time from the first start to the last finish (the hashing of the
+checked batches left out).
+
+Disk: ``gpu-blur generate --devices`` with one worker per GPU over PNG frames on disk
+(bench/generate_gpu.py's sequence, rate without the process start), its summary saying what
+bounds it, and the host's decode-plus-encode bound.
+
+Both check that every GPU count makes the same bytes (sha256 over the outputs: every file
+of the set from disk; the first ``CHECKED`` batches from memory).
+
+    PYTHONPATH=$PWD python3 bench/multi_gpu.py --gpus 1,2 --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import multiprocessing
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import generate_gpu
+import numpy as np
+
+from gpu_blur.dataset import default_photo
+
+H, W, FRAMES = 1200, 1920, 9
+#: Memory: the first batches, whichever GPU made them, are hashed to compare GPU counts (the
+#: hashing, 0.9 GB of float32 a batch, is left out of the time; hashing every batch would
+#: cost more than making it).
+CHECKED = 4
+
+
+def device_spec(backend: str, index: int) -> str:
+    """The ``index``-th GPU of ``backend`` (Warp's CUDA devices, OpenCL's first platform), or
+    ``backend`` itself when it names one device (``warp:cpu``: every "GPU" is that device, to
+    try this script on a CPU)."""
+    if ":" in backend:
+        return backend
+    return f"warp:cuda:{index}" if backend == "warp" else f"opencl:0:{index}"
+
+
+def frames(batch: int) -> np.ndarray:
+    """batch x 9 x H x W x 3 uint8 RGB: the built-in photo panned 2 px per frame."""
+    photo = cv2.resize(cv2.imread(str(default_photo())), (W + 2 * FRAMES, H))[:, :, ::-1]
+    stack = np.stack([photo[:, 2 * i:2 * i + W] for i in range(FRAMES)])
+    return np.ascontiguousarray(np.broadcast_to(stack, (batch, *stack.shape)))
+
+
+def _memory_worker(spec: str, gpu: int, gpus: int, batches: int, batch: int, barrier,
+                   results) -> None:
+    import gpu_blur
+    synth = gpu_blur.Synthesizer("rsblur", backend=spec, seed=1)
+    given = frames(batch)
+    synth(given, first_index=10 ** 9)  # warm-up: kernel builds, buffers, staging
+    barrier.wait()
+    start, digests, hashing = time.perf_counter(), {}, 0.0
+    for k in range(gpu, batches, gpus):
+        out = synth(given, first_index=k * batch)
+        if k < CHECKED:
+            begin = time.perf_counter()
+            digests[k] = hashlib.sha256(out.blurred.tobytes() + out.sharp.tobytes()).hexdigest()
+            hashing += time.perf_counter() - begin
+    results.put((gpu, start, time.perf_counter() - hashing, digests))
+
+
+def from_memory(backend: str, gpus: int, batches: int, batch: int) -> dict:
+    """Samples per second of ``gpus`` processes, one per GPU, and the set's digest."""
+    spawn = multiprocessing.get_context("spawn")
+    barrier, results = spawn.Barrier(gpus), spawn.Queue()
+    workers = [spawn.Process(target=_memory_worker, args=(device_spec(backend, g), g, gpus,
+                                                          batches, batch, barrier, results))
+               for g in range(gpus)]
+    for worker in workers:
+        worker.start()
+    done = [results.get(timeout=600) for _ in workers]
+    for worker in workers:
+        worker.join()
+        if worker.exitcode:
+            raise RuntimeError(f"a memory worker exited with status {worker.exitcode}")
+    digests = {k: d for *_, part in done for k, d in part.items()}
+    seconds = max(end for _, _, end, _ in done) - min(start for _, start, _, _ in done)
+    whole = hashlib.sha256("".join(digests[k] for k in sorted(digests)).encode())
+    return {"gpus": gpus, "samples": batches * batch, "seconds": seconds,
+            "samples_per_s": batches * batch / seconds,
+            "per_gpu_seconds": {g: end - start for g, start, end, _ in done},
+            "digest": whole.hexdigest()}
+
+
+def from_disk(backend: str, gpus: int, root: Path, out: Path, samples: int, cores: int) -> dict:
+    devices = ",".join(device_spec(backend, g) for g in range(gpus))
+    run = generate_gpu.generate(root, out, backend, samples, cores, ("--devices", devices))
+    return {"gpus": gpus, **run, "digest": generate_gpu.set_digest(out)}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--backend", default="warp", help="warp or opencl: one process per GPU "
+                   "of that family; a device name (warp:cpu) runs every process on it "
+                   "(default warp)")
+    p.add_argument("--gpus", default="1,2", help="GPU counts, comma-separated (default 1,2)")
+    p.add_argument("--batches", type=int, default=64,
+                   help="memory: batches per run (default 64)")
+    p.add_argument("--batch", type=int, default=16, help="memory: samples per batch (default 16)")
+    p.add_argument("--samples", type=int, default=64, help="disk: samples per run (default 64)")
+    p.add_argument("--skip", default="", help="leave out 'memory' or 'disk'")
+    p.add_argument("--json", help="write the results here")
+    args = p.parse_args(argv)
+    counts = [int(v) for v in args.gpus.split(",")]
+    cores = len(os.sched_getaffinity(0))
+    result = {"what": __doc__.split("\n\n")[0], "backend": args.backend, "cores": cores,
+              "cpu": platform.processor() or platform.machine(), "image": [W, H],
+              "frames": FRAMES, "memory": [], "disk": []}
+    try:
+        import warp as wp
+        wp.config.quiet = True
+        wp.init()
+        result["devices"] = [wp.get_device(device_spec(args.backend, g)[5:]).name
+                             for g in range(max(counts))]
+    except Exception as error:  # noqa: BLE001 - the names are for the record only
+        result["devices"] = [f"unknown ({error})"]
+    if "memory" not in args.skip:
+        for n in counts:
+            row = from_memory(args.backend, n, args.batches, args.batch)
+            result["memory"].append(row)
+            print(f"memory, {n} GPU(s): {row['samples_per_s']:.1f} samples/s", flush=True)
+    if "disk" not in args.skip:
+        with tempfile.TemporaryDirectory() as tmp:
+            root = Path(tmp) / "in"
+            paths = generate_gpu.write_sequence(root, 4 * FRAMES)
+            per = generate_gpu.single_core_seconds(paths)
+            result["disk_bound_samples_per_s"] = cores / (FRAMES * per["decode"]
+                                                          + 2 * per["encode"])
+            result["single_core_seconds"] = per
+            for n in counts:
+                row = from_disk(args.backend, n, root, Path(tmp) / f"out{n}", args.samples,
+                                cores)
+                result["disk"].append(row)
+                print(f"disk, {n} GPU(s): {row['samples_per_s']:.1f} samples/s", flush=True)
+    for source in ("memory", "disk"):
+        rows = result[source]
+        if rows:
+            one = rows[0]["samples_per_s"]
+            result[f"{source}_speedup"] = {r["gpus"]: r["samples_per_s"] / one for r in rows}
+            result[f"{source}_same_bytes"] = len({r["digest"] for r in rows}) == 1
+            print(f"{source}: speed-up " + ", ".join(
+                f"{g} GPUs {s:.2f}x" for g, s in result[f"{source}_speedup"].items())
+                + ("; every GPU count the same bytes" if result[f"{source}_same_bytes"]
+                   else "; SETS DIFFER"))
+    if result["disk"]:
+        print(f"disk bound: {result['disk_bound_samples_per_s']:.1f} samples/s ({cores} cores)")
+        print("\n".join(result["disk"][-1]["summary"]))
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
