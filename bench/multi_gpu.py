@@ -33,6 +33,7 @@ import cv2
 import generate_gpu
 import numpy as np
 
+from gpu_blur.backends import get_backend
 from gpu_blur.dataset import default_photo
 
 H, W, FRAMES = 1200, 1920, 9
@@ -122,14 +123,8 @@ def main(argv=None) -> int:
     result = {"what": __doc__.split("\n\n")[0], "backend": args.backend, "cores": cores,
               "cpu": platform.processor() or platform.machine(), "image": [W, H],
               "frames": FRAMES, "memory": [], "disk": []}
-    try:
-        import warp as wp
-        wp.config.quiet = True
-        wp.init()
-        result["devices"] = [wp.get_device(device_spec(args.backend, g)[5:]).name
-                             for g in range(max(counts))]
-    except Exception as error:  # noqa: BLE001 - the names are for the record only
-        result["devices"] = [f"unknown ({error})"]
+    result["devices"] = [get_backend(device_spec(args.backend, g)).device
+                         for g in range(max(counts))]
     if "memory" not in args.skip:
         for n in counts:
             row = from_memory(args.backend, n, args.batches, args.batch)
