@@ -33,6 +33,34 @@ def test_on_device_result_equals_the_host_result(device, coffee_rgb):
 
 
 @pytest.mark.parametrize("device", [d["spec"] for d in warp_devices()])
+@pytest.mark.parametrize("mode", ["kernel", "none"])
+def test_replayed_launches_give_each_sample_its_own_values(device, mode, coffee_rgb):
+    # a backend replays its recorded launches with only the changed arguments: samples run
+    # after others must equal the same samples run first on a fresh backend
+    scene = scene_from_dict({"blur": {"mode": mode}, "output": {"bits": 0}})
+    photo = coffee_rgb[:64, :96]
+    given = {"blurred": photo} if mode == "none" else [photo]
+
+    def make(backend, index):
+        return gpu_blur.synthesize(given, scene, seed=2, sample_index=index,
+                                   backend=backend).blurred
+
+    shared = WarpBackend(device)
+    runs = [make(shared, i) for i in (0, 1, 2, 0)]
+    for got, index in zip(runs, (0, 1, 2, 0), strict=True):
+        assert np.array_equal(got, make(WarpBackend(device), index)), index
+    assert not np.array_equal(runs[0], runs[1])
+
+
+def test_a_recorded_launch_tells_reals_apart_by_their_bits():
+    from gpu_blur.backends.warp import Launches
+
+    assert Launches._key(-0.0) != Launches._key(0.0)
+    assert Launches._key(np.float32(np.nan)) == Launches._key(np.float32(np.nan))
+    assert Launches._key(np.float32(1.0)) != Launches._key(np.float64(1.0))
+
+
+@pytest.mark.parametrize("device", [d["spec"] for d in warp_devices()])
 def test_torch_takes_the_on_device_result_without_a_copy(device, coffee_rgb):
     torch = pytest.importorskip("torch")
     result = gpu_blur.synthesize([coffee_rgb[:64, :96]], scene_from_dict(SCENE), seed=2,
@@ -56,7 +84,7 @@ def test_generate_with_the_warp_backend_writes_a_set(tmp_path):
     out = tmp_path / "set"
     assert main(["generate", "--output", str(out), "--backend", "warp:cpu", "--limit", "1",
                  "--quiet"]) == 0
-    assert '"device": "warp:cpu' in (out / "manifest.jsonl").read_text()
+    assert '"device": "warp CPU, float32"' in (out / "manifest.jsonl").read_text()
 
 
 def test_devices_command_lists_warp(capsys):

@@ -48,6 +48,52 @@ _LOADED: set = set()
 #: most this many values (an RGB region ~715 M pixels). OpenCL kernels index with 64 bits.
 MAX_BUFFER_VALUES = 2**31 - 1
 
+#: Recorded launches a backend keeps (one per kernel and grid; the oldest goes first).
+RECORDED_LAUNCHES = 64
+
+
+class Launches:
+    """Launches recorded once per (kernel, grid) and replayed with only the changed arguments.
+
+    ``wp.launch`` packs every argument on every call (about 30 us for the passes' 20-odd
+    arguments on this project's 2-core CPU, more on slower hosts); a sample's launches differ
+    from the previous sample's in a few values (its draws, its buffers), so replaying a
+    ``wp.Launch`` and re-packing those alone costs a third of it. The same kernels run on the
+    same arguments, so the same bits. Arrays are compared by what Warp packs of them (data
+    pointer, shape, strides, dtype), reals by their bits, and no array is kept alive by a
+    recorded launch.
+    """
+
+    def __init__(self, device: str):
+        self.device = device
+        self._recorded: dict = {}  # (kernel, grid) -> (wp.Launch, each argument's key)
+
+    @staticmethod
+    def _key(value):
+        if isinstance(value, wp.array):
+            return ("array", value.ptr, value.shape, value.strides, value.dtype)
+        if isinstance(value, (float, np.floating)):  # by bits: -0.0 == 0.0, nan != nan
+            return (type(value), np.asarray(value).tobytes())
+        return (type(value), value)
+
+    def launch(self, kernel, grid, inputs: list) -> None:
+        """Launch ``kernel`` over ``grid`` on ``inputs`` (Warp's values) on the current stream."""
+        keys = [self._key(v) for v in inputs]
+        entry = self._recorded.pop((kernel, grid), None)
+        if entry is None:
+            if len(self._recorded) >= RECORDED_LAUNCHES:
+                del self._recorded[next(iter(self._recorded))]
+            command = wp.launch(kernel, dim=grid, inputs=inputs, device=self.device,
+                                record_cmd=True)
+            command.fwd_args = None  # what it packed are pointers: keep no array alive
+        else:
+            command, before = entry
+            for i, (key, old) in enumerate(zip(keys, before, strict=True)):
+                if key != old:
+                    command.set_param_at_index(i, inputs[i])
+        self._recorded[(kernel, grid)] = (command, keys)  # now the newest
+        command.launch()
+
 
 @functools.cache
 def _init() -> None:
@@ -147,6 +193,7 @@ class WarpBackend(KernelBackend):
         self._put_turn = 0  # which of the two pinned input buffers put() fills next
         self._prefetch_stacks: dict = {}  # slot -> device stack of prefetched frames
         self._prefetch_read: dict = {}  # slot -> event: the accumulate that read it
+        self._launches = Launches(self.wp_device)
 
     @property
     def uses_cuda(self) -> bool:
@@ -190,7 +237,7 @@ class WarpBackend(KernelBackend):
             with notices.building(f"the {name} kernel", f"warp:{self.wp_device}"):
                 wp.load_module(kernel.module, device=self.wp_device)
             _LOADED.add((kernel, self.wp_device))
-        wp.launch(kernel, dim=grid, inputs=inputs, device=self.wp_device)
+        self._launches.launch(kernel, grid, inputs)
 
     def _render(self, arg):
         """A kernel argument as Warp takes it (:class:`~gpu_blur.backends.kernel.Arg`)."""
