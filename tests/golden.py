@@ -83,9 +83,11 @@ def scene_for(case: str, precision: str):
 
 
 def device_key(device: str) -> str:
-    """A recorded device without its OpenCL platform number, which shifts when another runtime
-    is installed (Debian's PoCL put itself before Intel's runtime): the device, not its slot."""
-    return re.sub(r"^opencl:\d+:\d+ ", "opencl ", device)
+    """A device as ``Backend.model`` names it, without its number on the host (an OpenCL
+    platform number shifts when another runtime is installed: Debian's PoCL put itself before
+    Intel's runtime). Records made before ``Synthesis.device`` named the model hold
+    ``opencl:0:0 ...`` and ``warp:cuda:0 ...``: both map to the model."""
+    return re.sub(r"^(opencl|warp):\S+ ", r"\1 ", device)
 
 
 def by_device(record: dict) -> dict:

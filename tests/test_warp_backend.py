@@ -84,7 +84,8 @@ def test_generate_with_the_warp_backend_writes_a_set(tmp_path):
     out = tmp_path / "set"
     assert main(["generate", "--output", str(out), "--backend", "warp:cpu", "--limit", "1",
                  "--quiet"]) == 0
-    assert '"device": "warp CPU, float32"' in (out / "manifest.jsonl").read_text()
+    model = WarpBackend("warp:cpu").model
+    assert f'"device": "{model}"' in (out / "manifest.jsonl").read_text()
 
 
 def test_devices_command_lists_warp(capsys):
