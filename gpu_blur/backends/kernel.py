@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gpu_blur.backends import FRAMES_PER_LAUNCH, OnDevice, cfa_bits
+from gpu_blur.backends import FRAMES_PER_LAUNCH, OnDevice, cfa_bits, copy_values
 from gpu_blur.backends.flows import gap_factors, interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
 from gpu_blur.plan import Pass, Plan, StageName
@@ -199,6 +199,7 @@ class KernelBackend:
         self._code_tables: dict = {}  # (config, source dtype) -> the 8-bit linear table
         self._sharp_tables: dict = {}  # (config, curves, source dtype) -> every code rendered
         self._derived: dict = {}  # id(plan), id(camera) -> (plan, camera, what they give)
+        self._put_turn = 0  # which of the two pinned input buffers a staged put fills next
 
     # -- primitives a language supplies ----------------------------------------------------
     @property
@@ -429,6 +430,28 @@ class KernelBackend:
         dtype = source_dtype(image, self.np_real)
         stored = None if dtype == np.dtype(self.np_real) else dtype
         return OnDevice(self._upload(image, dtype), np.shape(image), self._fetch, stored)
+
+    def _staged_parts(self, image) -> tuple:
+        """A host input for a put through pinned staging (``overlap``), and the buffer it takes.
+
+        ``image``: an array, or a list of frames of one size and dtype (copied one after
+        another: no stacked host copy). Returns (parts, shape, dtype it travels in, values,
+        slot): two pinned input buffers take turns, so filling one overlaps the other's upload.
+        """
+        frames = isinstance(image, (list, tuple))
+        parts = list(image) if frames else [np.asarray(image)]
+        shape = (len(parts), *parts[0].shape) if frames else parts[0].shape
+        slot = ("put", self._put_turn)
+        self._put_turn ^= 1
+        return (parts, shape, source_dtype(parts[0], self.np_real), parts[0].size * len(parts),
+                slot)
+
+    @staticmethod
+    def _fill_staging(host: np.ndarray, parts) -> None:
+        """Copy ``parts`` one after another into the flat pinned array ``host`` (threads)."""
+        size = parts[0].size
+        for i, part in enumerate(parts):
+            copy_values(host[i * size:(i + 1) * size], part)
 
     def frame(self, stack: OnDevice, index: int) -> OnDevice:
         """Frame ``index`` of an ``n x H x W x 3`` stack :meth:`put` on the device."""

@@ -299,7 +299,6 @@ class OpenCLBackend(KernelBackend):
         self._staging: dict = {}  # slot -> (pinned buffer, its mapped host array)
         self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
         self._wait_for = None  # the upload the next launch waits for (_frame_stacks)
-        self._put_turn = 0  # which of the two pinned input buffers put() fills next
         self._launched = None  # the event of the last launch
 
     @property
@@ -464,18 +463,10 @@ class OpenCLBackend(KernelBackend):
         """
         if not self.overlap:
             return super().put(image)
-        frames = isinstance(image, (list, tuple))
-        parts = list(image) if frames else [np.asarray(image)]
-        shape = (len(parts), *parts[0].shape) if frames else parts[0].shape
-        dtype = source_dtype(parts[0], self.real)
-        size = parts[0].size
-        count = size * len(parts)
-        slot = ("put", self._put_turn)
-        self._put_turn ^= 1
+        parts, shape, dtype, count, slot = self._staged_parts(image)
         with timer("copies"):
             staging = self._staging_buffer(slot, count, dtype)
-            for i, part in enumerate(parts):
-                copy_values(staging[i * size:(i + 1) * size], part)
+            self._fill_staging(staging, parts)
             data = self._empty(count, dtype)
             self._staged[slot] = cl.enqueue_copy(self.queue, data, staging[:count],
                                                  is_blocking=False)

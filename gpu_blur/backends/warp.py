@@ -190,7 +190,6 @@ class WarpBackend(KernelBackend):
         self._staging: dict = {}  # slot -> pinned host buffer (kept across samples)
         self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
         self._prefetch_turn = 0
-        self._put_turn = 0  # which of the two pinned input buffers put() fills next
         self._prefetch_stacks: dict = {}  # slot -> device stack of prefetched frames
         self._prefetch_read: dict = {}  # slot -> event: the accumulate that read it
         self._launches = Launches(self.wp_device)
@@ -424,19 +423,11 @@ class WarpBackend(KernelBackend):
         no stacked host copy). Two pinned buffers take turns, so filling one overlaps the
         other's upload; the compute stream waits for the upload before any launch reads it.
         """
-        frames = isinstance(image, (list, tuple))
-        parts = list(image) if frames else [np.asarray(image)]
-        shape = (len(parts), *parts[0].shape) if frames else parts[0].shape
-        dtype = source_dtype(parts[0], self.np_real)
-        size = parts[0].size
-        count = size * len(parts)
+        parts, shape, dtype, count, slot = self._staged_parts(image)
         self._check_size(count)
-        slot = ("put", self._put_turn)
-        self._put_turn ^= 1
         with timer("copies"):
             staging = self._staging_buffer(slot, count, self._wp_dtype(dtype))
-            for i, part in enumerate(parts):
-                copy_values(staging.numpy()[i * size:(i + 1) * size], part)
+            self._fill_staging(staging.numpy(), parts)
             data = self._empty(count, dtype)
             wp.copy(data, staging, count=count, stream=self._copier)
             self._staged[slot] = self._copier.record_event()
