@@ -29,21 +29,27 @@ import time
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from gpu_blur.dataset import default_photo
 
 H, W, FRAMES = 1200, 1920, 9
 
 
-def write_sequence(folder: Path, count: int) -> list[Path]:
-    """``count`` frames of the built-in photo, resized to W x H and panned 2 px per frame."""
+def panned_frames(count: int) -> list[np.ndarray]:
+    """``count`` H x W x 3 uint8 BGR frames: the built-in photo, resized, panned 2 px a frame."""
     photo = cv2.resize(cv2.imread(str(default_photo())), (W + 2 * count, H))
+    return [photo[:, 2 * i:2 * i + W] for i in range(count)]
+
+
+def write_sequence(folder: Path, count: int) -> list[Path]:
+    """:func:`panned_frames` as PNG files ``seq/sharp/000000.png ...`` under ``folder``."""
     sharp = folder / "seq" / "sharp"
     sharp.mkdir(parents=True)
     paths = []
-    for i in range(count):
+    for i, frame in enumerate(panned_frames(count)):
         path = sharp / f"{i:06d}.png"
-        cv2.imwrite(str(path), photo[:, 2 * i:2 * i + W])
+        cv2.imwrite(str(path), frame)
         paths.append(path)
     return paths
 
@@ -63,6 +69,14 @@ def single_core_seconds(paths: list[Path]) -> dict:
         cv2.imencode(".png", image)
         encode.append(time.perf_counter() - start)
     return {"decode": statistics.median(decode), "encode": statistics.median(encode)}
+
+
+def decode_encode_bound(per: dict, cores: int) -> float:
+    """Samples per second the host can decode and encode, every core busy.
+
+    A sample decodes 9 frames and encodes 2 images (``per``: :func:`single_core_seconds`).
+    """
+    return cores / (FRAMES * per["decode"] + 2 * per["encode"])
 
 
 def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
@@ -120,7 +134,7 @@ def main(argv=None) -> int:
         root = Path(tmp) / "in"
         paths = write_sequence(root, 4 * FRAMES)
         per = single_core_seconds(paths)
-        bound = cores / (FRAMES * per["decode"] + 2 * per["encode"])
+        bound = decode_encode_bound(per, cores)
         threads = [cores if t == "all" else int(t) for t in args.threads.split(",")]
         runs = [generate(root, Path(tmp) / f"out{t}", args.backend, args.samples, t)
                 for t in threads]

@@ -29,14 +29,12 @@ import tempfile
 import time
 from pathlib import Path
 
-import cv2
 import generate_gpu
 import numpy as np
 
 from gpu_blur.backends import get_backend
-from gpu_blur.dataset import default_photo
 
-H, W, FRAMES = 1200, 1920, 9
+H, W, FRAMES = generate_gpu.H, generate_gpu.W, generate_gpu.FRAMES  # the same sequence
 #: Memory: the first batches, whichever GPU made them, are hashed to compare GPU counts (the
 #: hashing, 0.9 GB of float32 a batch, is left out of the time; hashing every batch would
 #: cost more than making it).
@@ -54,8 +52,7 @@ def device_spec(backend: str, index: int) -> str:
 
 def frames(batch: int) -> np.ndarray:
     """batch x 9 x H x W x 3 uint8 RGB: the built-in photo panned 2 px per frame."""
-    photo = cv2.resize(cv2.imread(str(default_photo())), (W + 2 * FRAMES, H))[:, :, ::-1]
-    stack = np.stack([photo[:, 2 * i:2 * i + W] for i in range(FRAMES)])
+    stack = np.stack(generate_gpu.panned_frames(FRAMES))[..., ::-1]  # BGR -> RGB
     return np.ascontiguousarray(np.broadcast_to(stack, (batch, *stack.shape)))
 
 
@@ -135,8 +132,7 @@ def main(argv=None) -> int:
             root = Path(tmp) / "in"
             paths = generate_gpu.write_sequence(root, 4 * FRAMES)
             per = generate_gpu.single_core_seconds(paths)
-            result["disk_bound_samples_per_s"] = cores / (FRAMES * per["decode"]
-                                                          + 2 * per["encode"])
+            result["disk_bound_samples_per_s"] = generate_gpu.decode_encode_bound(per, cores)
             result["single_core_seconds"] = per
             for n in counts:
                 row = from_disk(args.backend, n, root, Path(tmp) / f"out{n}", args.samples,
