@@ -428,8 +428,12 @@ class KernelBackend:
         if isinstance(image, (list, tuple)):
             image = np.stack(image)
         dtype = source_dtype(image, self.np_real)
-        stored = None if dtype == np.dtype(self.np_real) else dtype
-        return OnDevice(self._upload(image, dtype), np.shape(image), self._fetch, stored)
+        return self._input(self._upload(image, dtype), np.shape(image), dtype)
+
+    def _input(self, data, shape, dtype) -> OnDevice:
+        """An input put on the device, ``dtype`` recorded for codes (None: the compute type)."""
+        return OnDevice(data, shape, self._fetch,
+                        None if np.dtype(dtype) == np.dtype(self.np_real) else dtype)
 
     def _staged_parts(self, image) -> tuple:
         """A host input for a put through pinned staging (``overlap``), and the buffer it takes.

@@ -470,8 +470,7 @@ class OpenCLBackend(KernelBackend):
             data = self._empty(count, dtype)
             self._staged[slot] = cl.enqueue_copy(self.queue, data, staging[:count],
                                                  is_blocking=False)
-        return OnDevice(data, shape, self._fetch,
-                        None if dtype == np.dtype(self.real) else dtype)
+        return self._input(data, shape, dtype)
 
     def export(self, values: OnDevice, region: Region, into) -> None:
         """Copy ``region`` of a whole-image result into the host array ``into``.

@@ -413,8 +413,7 @@ class WarpBackend(KernelBackend):
                 else:
                     wp.copy(on_device, flat)
             flat = on_device
-        return OnDevice(flat, image.shape, self._fetch,
-                        None if dtype == np.dtype(self.np_real) else dtype)
+        return self._input(flat, image.shape, dtype)
 
     def _put_through_staging(self, image) -> OnDevice:
         """A host input to CUDA: copied by threads into a pinned buffer, then on the copy stream.
@@ -432,8 +431,7 @@ class WarpBackend(KernelBackend):
             wp.copy(data, staging, count=count, stream=self._copier)
             self._staged[slot] = self._copier.record_event()
             wp.get_stream(self.wp_device).wait_event(self._staged[slot])
-        stored = None if dtype == np.dtype(self.np_real) else dtype
-        return OnDevice(data, shape, self._fetch, stored)
+        return self._input(data, shape, dtype)
 
     def accumulate(self, plan: Plan, params: dict, frames, mask, region: Region
                    ) -> tuple[OnDevice, OnDevice]:
