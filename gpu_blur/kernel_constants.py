@@ -106,6 +106,19 @@ PTRS = {name: getattr(rng, f"PTRS_{name}") for name in (
     "B0", "B1", "A0", "A1", "IA0", "IA1", "IA2", "VR0", "VR1", "K_SHIFT", "US_SQUEEZE",
     "US_TAIL")}
 
+# -- per-sample tables of a batched launch (gpu_blur.backends.kernel) -----------------------
+#: A sample's row of uint32 words in the to_raw and finish launches: its Bayer pattern
+#: (gb_cfa_channel's packed channels), its sample index, its slot in the batch's buffers.
+SAMPLE_WORDS = ("cfa", "sample_index", "slot")
+#: A sample's row of drawn reals in the to_raw launch (gpu_blur.params), in this order, with
+#: the value a plan that does not draw one passes (the kernels do not read it then).
+TO_RAW_REALS = (("alpha", 0.0), ("red_gain", 1.0), ("blue_gain", 1.0), ("shot_noise_k", 1.0),
+                ("read_noise_std", 0.0))
+#: The same for the finish launch.
+FINISH_REALS = (("gaussian_std", 0.0),)
+SAMPLE_WORDS_COUNT, TO_RAW_REALS_COUNT = len(SAMPLE_WORDS), len(TO_RAW_REALS)
+FINISH_REALS_COUNT = len(FINISH_REALS)
+
 # -- rendering for OpenCL -------------------------------------------------------------------
 #: How a value is written in OpenCL C: in the compute type ``real`` (GB_REAL), in the
 #: samplers' wide type (GB_WIDE), as a double, as the exact float32 (hex), unsigned, int.
@@ -144,6 +157,9 @@ OPENCL: tuple[tuple[str, str, str], ...] = (
     ("GB_POISSON_PTRS_MIN_RATE", "POISSON_PTRS_MIN_RATE", WIDE),
     ("GB_POISSON_INVERSION_MAX_K", "POISSON_INVERSION_MAX_K", INT),
     *((f"GB_PTRS_{name}", f"PTRS.{name}", WIDE) for name in PTRS),
+    ("GB_SAMPLE_WORDS", "SAMPLE_WORDS_COUNT", INT),
+    ("GB_TO_RAW_REALS", "TO_RAW_REALS_COUNT", INT),
+    ("GB_FINISH_REALS", "FINISH_REALS_COUNT", INT),
 )
 
 #: The header on disk (see the module docstring), relative to the kernels' folder.

@@ -274,10 +274,8 @@ def test_a_stage_s_values_close_its_pass_kernel_s_arguments():
     stages = tuple(dataclasses.replace(s, values=(0.25, 2.0)) if s.name == S.WHITE_BALANCE
                    else s for s in p.stages)
     p = dataclasses.replace(p, stages=stages)
-    params = {"alpha": 1.0, "pattern": "RGGB", "red_gain": 2.0, "blue_gain": 1.5,
-              "shot_noise_k": 0.01, "read_noise_std": 0.001}
-    args = to_raw_args(p, params, (0, 0), 4, 4, ("linear", "mask"), "matrix", ("sat", "raw"),
-                       seed=SEED, sample_index=SAMPLE)
+    args = to_raw_args(p, ("reals", "words"), (0, 0), 4, 4, 48, ("linear", "mask"), "matrix",
+                       ("sat", "raw"), seed=SEED)
     # before WB in the plan; skipped here (strength 0), its unknown image size passed as 0
     vignetting = (Arg("real", 0.0),) * 3
     assert p[S.VIGNETTING].values == (0.0, None, None)

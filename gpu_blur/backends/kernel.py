@@ -26,6 +26,7 @@ import numpy as np
 from gpu_blur.backends import FRAMES_PER_LAUNCH, OnDevice, cfa_bits, copy_values
 from gpu_blur.backends.flows import gap_factors, interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
+from gpu_blur.kernel_constants import FINISH_REALS, SAMPLE_WORDS, TO_RAW_REALS
 from gpu_blur.plan import Pass, Plan, StageName
 from gpu_blur.reference import blur
 from gpu_blur.reference.interpolate import (
@@ -119,9 +120,9 @@ def _index(*values) -> tuple[Arg, ...]:
     return tuple(Arg("index", int(v)) for v in values)
 
 
-def _random_key(seed: int, sample_index: int) -> tuple[Arg, ...]:
+def _random_key(seed: int) -> tuple[Arg, ...]:
     key = key_from_seed(seed)
-    return Arg("uint", int(key[0])), Arg("uint", int(key[1])), Arg("uint", int(sample_index))
+    return Arg("uint", int(key[0])), Arg("uint", int(key[1]))
 
 
 def _out_geometry(region: Region) -> tuple[Arg, ...]:
@@ -148,26 +149,56 @@ def stage_values(plan: Plan, pass_: Pass) -> tuple[Arg, ...]:
     return tuple(Arg("real", 0.0 if v is None else v) for s in stages for v in s.values)
 
 
-def to_raw_args(plan: Plan, params: dict, origin: tuple[int, int], h: int, w: int, inputs,
-                matrix, outputs, *, seed: int, sample_index: int) -> tuple:
-    """The to_raw kernel's arguments, in order."""
-    real = [Arg("real", params.get(k, d)) for k, d in (
-        ("red_gain", 1.0), ("blue_gain", 1.0), ("shot_noise_k", 1.0), ("read_noise_std", 0.0))]
+class Drawn(NamedTuple):
+    """One sample of a batched to_raw or finish launch.
+
+    Attributes:
+        params: its drawn values (:func:`gpu_blur.params.draw_params`).
+        sample_index: its index (with the seed, its random stream).
+        slot: its row in the batch's buffers.
+    """
+
+    params: dict
+    sample_index: int
+    slot: int
+
+
+def sample_tables(samples: Sequence[Drawn], reals) -> tuple[np.ndarray, np.ndarray]:
+    """A batched launch's per-sample tables: (reals, words), one row per sample.
+
+    ``reals``: the pass's (name, default) pairs (:data:`~gpu_blur.kernel_constants.TO_RAW_REALS`,
+    ``FINISH_REALS``), as float64 (a backend rounds them to its compute type, as it rounds a
+    scalar argument); words: uint32 rows of :data:`~gpu_blur.kernel_constants.SAMPLE_WORDS`.
+    """
+    values = np.array([[float(d.params.get(name, default)) for name, default in reals]
+                       for d in samples], dtype=np.float64).reshape(len(samples), len(reals))
+    words = np.array([(cfa_bits(d.params.get("pattern")), d.sample_index, d.slot)
+                      for d in samples], dtype=np.uint32).reshape(len(samples),
+                                                                  len(SAMPLE_WORDS))
+    return values, words
+
+
+def to_raw_args(plan: Plan, tables, origin: tuple[int, int], h: int, w: int, in_stride: int,
+                inputs, matrix, outputs, *, seed: int) -> tuple:
+    """The to_raw kernel's arguments, in order.
+
+    ``tables``: the batch's (reals, words) on the device (:func:`sample_tables`); ``inputs``
+    (linear, mask) hold a sample every ``in_stride`` values.
+    """
     return (*inputs, *_index(origin[1], origin[0], w), Arg("index", h, extent=True),
-            Arg("real", params.get("alpha", 0.0)), matrix,
-            Arg("int", cfa_bits(params.get("pattern"))), *real,
+            Arg("index", in_stride, extent=True), *tables, matrix,
             Arg("real", plan[S.POISSON_GAUSSIAN_NOISE].options["normal_above"]),
-            *_random_key(seed, sample_index), *outputs, *stage_values(plan, Pass.TO_RAW))
+            *_random_key(seed), *outputs, *stage_values(plan, Pass.TO_RAW))
 
 
-def finish_args(plan: Plan, params: dict, view: Region, out: Region, inputs, matrix,
-                polynomial, table, result, *, seed: int, sample_index: int) -> tuple:
+def finish_args(plan: Plan, tables, view: Region, out: Region, inputs, matrix, polynomial,
+                table, result, *, seed: int) -> tuple:
     """The finish kernel's arguments, in order (``polynomial``, ``table``: (buffer, size))."""
-    return (*inputs, *_view_geometry(view), *_out_geometry(out),
-            Arg("int", cfa_bits(params.get("pattern"))), matrix,
-            Arg("real", params.get("gaussian_std", 0.0)), *_random_key(seed, sample_index),
-            polynomial[0], Arg("int", polynomial[1], extent=True), table[0],
-            Arg("int", table[1], extent=True), result, *stage_values(plan, Pass.FINISH))
+    return (*inputs, *_index(view.x0, view.y0, view.w), Arg("index", view.h, extent=True),
+            *_index(view.full_w, view.full_h), *_out_geometry(out), *tables, matrix,
+            *_random_key(seed), polynomial[0], Arg("int", polynomial[1], extent=True),
+            table[0], Arg("int", table[1], extent=True), result,
+            *stage_values(plan, Pass.FINISH))
 
 
 def source_dtype(frame, real) -> np.dtype:
@@ -576,42 +607,100 @@ class KernelBackend:
     def to_raw(self, plan: Plan, params: dict, camera: Camera, linear, mask,
                origin: tuple[int, int] = (0, 0), *, seed: int,
                sample_index: int) -> tuple[OnDevice, OnDevice]:
-        """Saturation to noisy RAW on the device (see NumpyBackend.to_raw)."""
-        k = self._pass_kernels(self._of_plan(plan)[Pass.TO_RAW])
+        """Saturation to noisy RAW on the device (see NumpyBackend.to_raw): a batch of one."""
         h, w = linear.shape[:2]
         saturated = self._empty(h * w * 3)
         raw = self._empty(h * w if plan.raw_round_trip else 1)
-        inputs = (self._upload(linear), self._upload(mask))
-        matrix = self._constant(camera.linear_to_camera)
-        with self._timed():
-            self._launch(k, "to_raw", (h, w), *to_raw_args(
-                plan, params, origin, h, w, inputs, matrix, (saturated, raw), seed=seed,
-                sample_index=sample_index))
-        del inputs
+        self.to_raw_batch(plan, camera, [Drawn(params, sample_index, 0)], self._upload(linear),
+                          self._upload(mask), h * w * 3, 1, origin, (h, w), saturated, raw,
+                          seed=seed)
         rgb = OnDevice(saturated, (h, w, 3), self._fetch)
         if not plan.raw_round_trip:
             return self._out(saturated, (h, w, 3), Pass.TO_RAW, origin), rgb
         return self._out(raw, (h, w), Pass.TO_RAW, origin), rgb
 
+    def to_raw_batch(self, plan: Plan, camera: Camera, samples: Sequence[Drawn], linear, mask,
+                     in_stride: int, slots: int, origin: tuple[int, int],
+                     size: tuple[int, int], saturated, raw, *, seed: int) -> None:
+        """The to_raw pass of samples of one plan in one launch, into their slots.
+
+        Args:
+            plan, camera: the samples' plan and camera.
+            samples: each sample's draws, index and slot.
+            linear, mask: device buffers of ``slots`` slots of ``in_stride`` values, slot s
+                holding sample s's ``h x w x 3`` accumulate output.
+            in_stride: values from one slot of ``linear`` and ``mask`` to the next (at least
+                ``3 h w``; more where a device aligns sub-buffers).
+            slots: the slots each buffer holds.
+            origin: (row, column) of the buffers' first pixel in the whole image.
+            size: (h, w).
+            saturated: ``slots x h x w x 3`` values, written.
+            raw: ``slots x h x w`` values (the RAW round trip), or ``slots`` placeholders.
+            seed: the data set's seed.
+        """
+        k = self._pass_kernels(self._of_plan(plan)[Pass.TO_RAW])
+        h, w = size
+        raw_stride = h * w if plan.raw_round_trip else 1
+        inputs = (self._slots(linear, slots, in_stride), self._slots(mask, slots, in_stride))
+        outputs = (self._slots(saturated, slots, 3 * h * w), self._slots(raw, slots, raw_stride))
+        tables = self._tables(samples, TO_RAW_REALS)
+        matrix = self._constant(camera.linear_to_camera)
+        with self._timed():
+            self._launch(k, "to_raw", (len(samples), h, w), *to_raw_args(
+                plan, tables, origin, h, w, in_stride, inputs, matrix, outputs, seed=seed))
+
     # -- pass 3: finish --------------------------------------------------------------------
     def finish(self, plan: Plan, params: dict, camera: Camera, image, saturated, view: Region,
                out: Region, *, seed: int, sample_index: int) -> OnDevice:
-        """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish)."""
+        """Demosaic and finish on the device, over ``out`` (see NumpyBackend.finish).
+
+        A batch of one.
+        """
+        raw = image if plan.raw_round_trip else np.zeros(1)
+        result = self._empty(out.h * out.w * 3)
+        self.finish_batch(plan, camera, [Drawn(params, sample_index, 0)], self._upload(raw),
+                          self._upload(saturated), 1, view, out, result, seed=seed)
+        return self._out(result, (out.h, out.w, 3), Pass.FINISH, out.origin)
+
+    def finish_batch(self, plan: Plan, camera: Camera, samples: Sequence[Drawn], raw,
+                     saturated, slots: int, view: Region, out: Region, result, *,
+                     seed: int) -> None:
+        """The finish pass of samples of one plan in one launch, into their slots.
+
+        ``raw`` (``slots x view.h x view.w``, or ``slots`` placeholders without the RAW round
+        trip) and ``saturated`` (``slots x view.h x view.w x 3``) are :meth:`to_raw_batch`'s
+        outputs over ``view``; ``result`` takes ``slots x out.h x out.w x 3`` values.
+        """
         derived = self._of_plan(plan, camera)
         k = self._pass_kernels(derived[Pass.FINISH])
         polynomial, table = derived["curves"]
-        raw = image if plan.raw_round_trip else np.zeros(1)
-        result = self._empty(out.h * out.w * 3)
-        inputs = (self._upload(raw), self._upload(saturated))
+        pixels = view.h * view.w
+        inputs = (self._slots(raw, slots, pixels if plan.raw_round_trip else 1),
+                  self._slots(saturated, slots, 3 * pixels))
+        tables = self._tables(samples, FINISH_REALS)
         matrix = self._constant(camera.camera_to_linear)
         with self._timed():
-            self._launch(k, "finish", (out.h, out.w), *finish_args(
-                plan, params, view, out, inputs, matrix,
-                (self._constant(polynomial), polynomial.size), (self._constant(table),
-                                                                table.size),
-                result, seed=seed, sample_index=sample_index))
-        del inputs
-        return self._out(result, (out.h, out.w, 3), Pass.FINISH, out.origin)
+            self._launch(k, "finish", (len(samples), out.h, out.w), *finish_args(
+                plan, tables, view, out, inputs, matrix,
+                (self._constant(polynomial), polynomial.size),
+                (self._constant(table), table.size),
+                self._slots(result, slots, 3 * out.h * out.w), seed=seed))
+
+    def _tables(self, samples: Sequence[Drawn], reals) -> tuple:
+        """:func:`sample_tables` on the device, as the kernels read them."""
+        values, words = sample_tables(samples, reals)
+        return self._rows(values.astype(self.np_real)), self._rows(words)
+
+    def _rows(self, table: np.ndarray):
+        """A small 2-D host table on the device (flat where the language indexes by hand)."""
+        return self._upload(table, table.dtype)
+
+    def _slots(self, buffer, slots: int, stride: int):
+        """A batch buffer as its kernels take it: ``slots`` slots of ``stride`` values.
+
+        Flat (OpenCL: the kernels step by ``stride``); Warp views it as a 2-D array.
+        """
+        return buffer
 
     # -- inputs on the device: checks and the sharp reference ------------------------------
     def _input_kernels(self, config: PassConfig | None, source):

@@ -364,7 +364,8 @@ class OpenCLBackend(KernelBackend):
         return self.kernels("inputs.cl", defines)
 
     def _launch(self, kernels, name: str, grid, *args):
-        grid = (grid,) if isinstance(grid, int) else (int(grid[1]), int(grid[0]))
+        # (rows, columns) and (samples, rows, columns) go as OpenCL's (x, y[, z]): x the column
+        grid = (grid,) if isinstance(grid, int) else tuple(int(g) for g in reversed(grid))
         wait_for, self._wait_for = self._wait_for, None
         self._launched = getattr(kernels, f"gb_{name}")(
             self.queue, grid, None, *(self._render(a) for a in args), wait_for=wait_for)

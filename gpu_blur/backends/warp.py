@@ -296,6 +296,14 @@ class WarpBackend(KernelBackend):
         self._check_size(count)
         return wp.empty(max(count, 1), dtype=self._wp_dtype(dtype), device=self.wp_device)
 
+    def _rows(self, table: np.ndarray) -> wp.array:
+        with timer("copies"):
+            return wp.array(np.ascontiguousarray(table), device=self.wp_device)
+
+    @staticmethod
+    def _slots(buffer: wp.array, slots: int, stride: int) -> wp.array:
+        return buffer[:slots * stride].reshape((slots, stride))
+
     def _write(self, buffer, values: np.ndarray) -> None:
         with timer("copies"):
             wp.copy(buffer, wp.array(np.ravel(values), dtype=buffer.dtype, device="cpu"))

@@ -267,6 +267,10 @@ def _fast(real, fast_math: bool) -> bool:
 def to_raw_kernel(real, config):
     """Pass 2 built for ``config`` (gpu_blur.backends.kernel.PassConfig), kept stages as flags.
 
+    One launch over (samples, rows, columns) runs a batch of one plan, as gb_to_raw: sample b's
+    drawn values are row b of ``sample_reals`` (kernel_constants.TO_RAW_REALS) and
+    ``sample_words`` (SAMPLE_WORDS), and its buffers are row ``slot`` of each 2-D buffer.
+
     Stages: saturate, vignetting, linear_to_camera, mosaic, inverse_white_balance,
     poisson_gaussian_noise, white_balance; the last arguments are the plan's to_raw stage
     values (vignetting's strength, the whole image's height and width). ``poisson_normal``
@@ -282,13 +286,25 @@ def to_raw_kernel(real, config):
     poisson_normal, fast = config.poisson_normal, _fast(real, config.fast_math)
 
     @wp.kernel(module="unique", module_options={"fast_math": fast})
-    def to_raw(linear: wp.array(dtype=real), mask: wp.array(dtype=real), x0: int, y0: int,
-               w: int, alpha: real, lin_to_cam: wp.array(dtype=real), cfa: int,
-               red_gain: real, blue_gain: real, shot_noise_k: real, read_noise_std: real,
+    def to_raw(linear_slots: wp.array2d(dtype=real), mask_slots: wp.array2d(dtype=real), x0: int,
+               y0: int, w: int, sample_reals: wp.array2d(dtype=real),
+               sample_words: wp.array2d(dtype=wp.uint32), lin_to_cam: wp.array(dtype=real),
                poisson_normal_above: real, key0: wp.uint32, key1: wp.uint32,
-               sample_index: wp.uint32, saturated: wp.array(dtype=real),
-               raw: wp.array(dtype=real), vignetting: real, full_h: real, full_w: real):
-        y, x = wp.tid()
+               saturated_slots: wp.array2d(dtype=real), raw_slots: wp.array2d(dtype=real),
+               vignetting: real, full_h: real, full_w: real):
+        b, y, x = wp.tid()
+        alpha = sample_reals[b, 0]
+        red_gain = sample_reals[b, 1]
+        blue_gain = sample_reals[b, 2]
+        shot_noise_k = sample_reals[b, 3]
+        read_noise_std = sample_reals[b, 4]
+        cfa = int(sample_words[b, 0])
+        sample_index = sample_words[b, 1]
+        slot = int(sample_words[b, 2])
+        linear = linear_slots[slot]
+        mask = mask_slots[slot]
+        saturated = saturated_slots[slot]
+        raw = raw_slots[slot]
         i = y * w + x
         v0 = linear[3 * i]
         v1 = linear[3 * i + 1]
@@ -377,6 +393,9 @@ def retone_quantize_func(real, retone: str, bits: int):
 def finish_kernel(real, config):
     """Pass 3 built for ``config`` (gpu_blur.backends.kernel.PassConfig), kept stages as flags.
 
+    One launch over (samples, rows, columns) runs a batch of one plan, as :func:`to_raw_kernel`
+    (``sample_reals``: kernel_constants.FINISH_REALS).
+
     Stages: demosaic ("" when there is no RAW round trip), camera_to_linear, tone,
     gaussian_noise, restore_saturated, retone (the plan's ``retone_curve``: "", "polynomial"
     with the coefficients the host passes, A7R3's or a camera's fitted response, or "lookup"
@@ -393,12 +412,20 @@ def finish_kernel(real, config):
     fast = _fast(real, config.fast_math)
 
     @wp.kernel(module="unique", module_options={"fast_math": fast})
-    def finish(raw: wp.array(dtype=real), saturated: wp.array(dtype=real), vx0: int, vy0: int,
-               vw: int, full_w: int, full_h: int, ox0: int, oy0: int, ow: int, cfa: int,
-               cam_to_lin: wp.array(dtype=real), gaussian_std: real, key0: wp.uint32,
-               key1: wp.uint32, sample_index: wp.uint32, crf_polynomial: wp.array(dtype=real),
-               crf_table: wp.array(dtype=real), out: wp.array(dtype=real)):
-        y, x = wp.tid()
+    def finish(raw_slots: wp.array2d(dtype=real), saturated_slots: wp.array2d(dtype=real),
+               vx0: int, vy0: int, vw: int, full_w: int, full_h: int, ox0: int, oy0: int,
+               ow: int, sample_reals: wp.array2d(dtype=real),
+               sample_words: wp.array2d(dtype=wp.uint32), cam_to_lin: wp.array(dtype=real),
+               key0: wp.uint32, key1: wp.uint32, crf_polynomial: wp.array(dtype=real),
+               crf_table: wp.array(dtype=real), out_slots: wp.array2d(dtype=real)):
+        b, y, x = wp.tid()
+        gaussian_std = sample_reals[b, 0]
+        cfa = int(sample_words[b, 0])
+        sample_index = sample_words[b, 1]
+        slot = int(sample_words[b, 2])
+        raw = raw_slots[slot]
+        saturated = saturated_slots[slot]
+        out = out_slots[slot]
         gx = ox0 + x
         gy = oy0 + y
         v = 3 * ((gy - vy0) * vw + (gx - vx0))

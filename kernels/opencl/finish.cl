@@ -3,6 +3,11 @@
  * (each compiled in only when the plan keeps it). Reads the RAW mosaic and B_sat from a view
  * (first pixel (vx0, vy0), width vw) that holds the output region plus the demosaic halo, and
  * writes the output region (first pixel (ox0, oy0), size ow x oh), 3 reals per pixel.
+ *
+ * One launch runs a batch of samples of one plan, as gb_to_raw: the third grid index is the
+ * sample, its values row b of sample_reals (gpu_blur.backends.kernel.FINISH_REALS) and
+ * sample_words; its buffers slot `slot` of each (the view's vw x vh pixels for raw and
+ * saturated, ow x oh for out).
  */
 #include "gb_common.h"
 #include "gb_pixel.h"
@@ -10,14 +15,22 @@
 #include "gb_demosaic.h"
 
 __kernel void gb_finish(__global const real *raw, __global const real *saturated, long vx0,
-                        long vy0, long vw, long full_w, long full_h, long ox0, long oy0,
-                        long ow, long oh, int cfa, __constant real *cam_to_lin,
-                        real gaussian_std, uint key_lo, uint key_hi, uint sample_index,
-                        __constant real *crf_polynomial, int crf_polynomial_n,
-                        __global const real *crf_table, int crf_table_n, __global real *out)
+                        long vy0, long vw, long vh, long full_w, long full_h, long ox0,
+                        long oy0, long ow, long oh, __global const real *sample_reals,
+                        __global const uint *sample_words, __constant real *cam_to_lin,
+                        uint key_lo, uint key_hi, __constant real *crf_polynomial,
+                        int crf_polynomial_n, __global const real *crf_table, int crf_table_n,
+                        __global real *out)
 {
-    long x = get_global_id(0), y = get_global_id(1);
+    long x = get_global_id(0), y = get_global_id(1), b = get_global_id(2);
     if (x >= ow || y >= oh) return;
+    real gaussian_std = sample_reals[GB_FINISH_REALS * b];
+    int cfa = (int)sample_words[GB_SAMPLE_WORDS * b];
+    uint sample_index = sample_words[GB_SAMPLE_WORDS * b + 1];
+    long slot = (long)sample_words[GB_SAMPLE_WORDS * b + 2];
+    raw += slot * vw * vh;
+    saturated += slot * 3 * vw * vh;
+    out += slot * 3 * ow * oh;
     long gx = ox0 + x, gy = oy0 + y;
     long v = 3 * gb_offset(gx, gy, vx0, vy0, vw);
     real rgb[3];

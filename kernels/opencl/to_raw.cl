@@ -7,19 +7,34 @@
  * the same region of the image, whose first pixel is global (x0, y0). The last arguments are
  * the plan's to_raw stage values (gpu_blur.backends.kernel.stage_values): vignetting's
  * strength and the whole image's height and width.
+ *
+ * One launch runs a batch of samples of one plan: the third grid index is the sample, whose
+ * drawn values are row b of sample_reals (gpu_blur.backends.kernel.TO_RAW_REALS) and
+ * sample_words (SAMPLE_WORDS: CFA pattern, sample index, slot). A sample's buffers are slot
+ * `slot` of each: linear and mask `in_stride` values apart, saturated 3 h w, raw h w.
  */
 #include "gb_common.h"
 #include "gb_random.h"
 
 __kernel void gb_to_raw(__global const real *linear, __global const real *mask, long x0,
-                        long y0, long w, long h, real alpha, __constant real *lin_to_cam,
-                        int cfa, real red_gain, real blue_gain, real shot_noise_k,
-                        real read_noise_std, real poisson_normal_above, uint key_lo,
-                        uint key_hi, uint sample_index, __global real *saturated,
-                        __global real *raw, real vignetting, real full_h, real full_w)
+                        long y0, long w, long h, long in_stride,
+                        __global const real *sample_reals, __global const uint *sample_words,
+                        __constant real *lin_to_cam, real poisson_normal_above, uint key_lo,
+                        uint key_hi, __global real *saturated, __global real *raw,
+                        real vignetting, real full_h, real full_w)
 {
-    long x = get_global_id(0), y = get_global_id(1);
+    long x = get_global_id(0), y = get_global_id(1), b = get_global_id(2);
     if (x >= w || y >= h) return;
+    __global const real *drawn = sample_reals + GB_TO_RAW_REALS * b;
+    real alpha = drawn[0], red_gain = drawn[1], blue_gain = drawn[2];
+    real shot_noise_k = drawn[3], read_noise_std = drawn[4];
+    int cfa = (int)sample_words[GB_SAMPLE_WORDS * b];
+    uint sample_index = sample_words[GB_SAMPLE_WORDS * b + 1];
+    long slot = (long)sample_words[GB_SAMPLE_WORDS * b + 2];
+    linear += slot * in_stride;
+    mask += slot * in_stride;
+    saturated += slot * 3 * w * h;
+    raw += slot * w * h;
     long i = y * w + x;
     real v[3];
 #ifdef GB_STAGE_VIGNETTING
