@@ -16,7 +16,7 @@ import numpy as np
 from gpu_blur import arrays
 from gpu_blur.backends import OnDevice, get_backend, to_host
 from gpu_blur.backends.flows import interpolation_factor, scene_factors, with_factors
-from gpu_blur.backends.kernel import KernelBackend
+from gpu_blur.backends.kernel import Drawn, KernelBackend, Slots
 from gpu_blur.backends.numpy import retone
 from gpu_blur.cameras import Camera, check_float32_response, get_camera
 from gpu_blur.imageio import check_image, check_layout, read_image, unit_values
@@ -231,6 +231,30 @@ class Batch:
 
 
 @dataclasses.dataclass
+class _Resident:
+    """A batch's results on the device (:meth:`Synthesizer._run_resident`).
+
+    Attributes:
+        blurred: the finish pass's outputs, a slot of ``out.h x out.w x 3`` per sample.
+        mask: the saturation masks, a slot of ``h x w x 3`` (uncropped) per sample.
+        raw: the noisy mosaics, a slot of ``h x w`` per sample (RAW round trip only).
+        sharp: each sample's rendered sharp reference (``OnDevice``, ``out.h x out.w x 3``).
+        params, plans: each sample's draws and plan.
+        out: the region of the image the outputs hold (the image less ``output.crop``).
+        size: (h, w), the inputs' size (the masks' and the mosaics').
+    """
+
+    blurred: Slots
+    mask: Slots
+    raw: Slots
+    sharp: list
+    params: list
+    plans: list
+    out: Region
+    size: tuple
+
+
+@dataclasses.dataclass
 class _Inputs:
     """One sample's inputs: frames (a stack for mode average), mask, sharp, and their names.
 
@@ -311,27 +335,33 @@ class Synthesizer:
         with timer("reading"):
             item = _gather(inputs, scene)
         item = self._prepared([item])[0]
-        blurred, mask, sharp, params, sample_plan, tiled = self._run(
-            item, sample_index, on_device=on_device or self.resident)
-        crop = scene.output.crop
-        if on_device:
-            out = self.runner.device_array(blurred)
-        elif isinstance(blurred, OnDevice):  # cropped by its finish pass
-            out = self._host(blurred, _inner(blurred.shape, 0))
+        crop, tiles, checked = scene.output.crop, 1, 0
+        if self.resident:
+            done = self._run_resident([item], [sample_index])
+            runner, (h, w) = self.runner, done.size
+            blurred = runner.slot_image(done.blurred, 0, (done.out.h, done.out.w, 3))
+            out = (runner.device_array(blurred) if on_device
+                   else self._host(blurred, _inner(blurred.shape, 0)))
+            sharp = self._host(done.sharp[0], _inner(done.sharp[0].shape, 0))
+            mask = runner.slot_image(done.mask, 0, (h, w, 3))  # fetched on first use
+            raw = runner.slot_image(done.raw, 0, (h, w)) if self.with_raw else None
+            params, sample_plan = done.params[0], done.plans[0]
         else:
-            out = crop_border(blurred, crop)
+            blurred, mask, sharp, params, sample_plan, tiled = self._run(
+                item, sample_index, on_device=on_device)
+            out = (self.runner.device_array(blurred) if on_device
+                   else crop_border(blurred, crop))
+            if isinstance(mask, np.ndarray):  # a device mask is fetched (and cropped) on use
+                mask = crop_border(mask, crop).astype(np.float32, copy=False)
+            raw = tiled.raw  # the same way
+            if isinstance(raw, np.ndarray):
+                raw = crop_border(raw, crop).astype(np.float32, copy=False)
+            tiles, checked = tiled.tiles, tiled.checked
         if sample_plan.kept(StageName.JPEG):
             out = jpeg_round_trip(out, params["jpeg_quality"])
-        if isinstance(sharp, OnDevice):
-            sharp = self._host(sharp, _inner(sharp.shape, 0))
-        if isinstance(mask, np.ndarray):  # a device mask is fetched (and cropped) on first use
-            mask = crop_border(mask, crop).astype(np.float32, copy=False)
-        raw = tiled.raw  # the same way
-        if isinstance(raw, np.ndarray):
-            raw = crop_border(raw, crop).astype(np.float32, copy=False)
         return Synthesis(out, sharp, mask, params, sample_plan,
-                         since(before, time.perf_counter() - start), tiled.tiles,
-                         tiled.checked, crop, self.runner.model, raw, self._raw_info(params))
+                         since(before, time.perf_counter() - start), tiles, checked, crop,
+                         self.runner.model, raw, self._raw_info(params))
 
     def _raw_info(self, params: dict) -> dict | None:
         """A sample's :func:`gpu_blur.outputs.raw_metadata` with ``with_raw``, else None."""
@@ -386,43 +416,79 @@ class Synthesizer:
             raise ValueError(f"indices: {len(indices)} sample indices for a batch of {count}; "
                              "give one per sample")
         items = self._prepared(items)
-        given_out, out = out, None
-        params, plans, raws = [], [], []
-        pending = []  # a sample's results, exported once the next sample is queued
-        crop = self.scene.output.crop
-        with self._queued():
-            for b, item in enumerate(items):
-                blurred, sat_mask, sharp_out, drawn, sample_plan, tiled = self._run(
-                    item, int(indices[b]), on_device=self.resident)
-                raws.append(tiled.raw)
-                params.append(drawn)
-                plans.append(sample_plan)
-                # (values, the region of them that goes out): a resident blurred image is
-                # already cropped by its finish pass, a sharp one by its rendering
-                results = [(blurred, _inner(blurred.shape, 0 if self.resident else crop)),
-                           (sharp_out, _inner(sharp_out.shape, 0))]
-                if self.with_mask:
-                    results.append((sat_mask, _inner(sat_mask.shape, crop)))
-                if out is None:
-                    out = self._outputs(count, results[0][1], batch, lib, len(results),
-                                        given_out)
-                for done, values in pending:
-                    self._export(out, done, values)
-                pending = [(b, results)]
-            for done, values in pending:
-                self._export(out, done, values)
-            if self.resident:
-                with timer("kernels"):
-                    self.runner.wait()
+        if self.resident:
+            out, params, plans, raws = self._resident_batch(items, indices, batch, lib, out)
+        else:
+            out, params, plans, raws = self._host_batch(items, indices, batch, lib, out)
         _jpeg_stage(out[0], plans, params)
-        out = ([self._returned(o, lib, batch) for o in out] if given_out is None
-               else list(given_out))
         raw = None
         if self.with_raw:
+            crop = self.scene.output.crop
             raw = np.stack([crop_border(to_host(r, np.float32), crop) for r in raws])
         return Batch(out[0], out[1], out[2] if self.with_mask else None, params, plans,
                      since(before, time.perf_counter() - start), raw,
                      [self._raw_info(p) for p in params] if self.with_raw else None)
+
+    def _resident_batch(self, items: list[_Inputs], indices, batch, lib: str, given):
+        """A batch put on the device: its passes batched, its outputs exported once each."""
+        runner = self.runner
+        with self._queued():
+            done = self._run_resident(items, indices)
+            shape = (done.out.h, done.out.w, 3)
+            out = self._outputs(len(items), done.out, batch, lib, 3 if self.with_mask else 2,
+                                given)
+            self._export_slots(out[0], done.blurred, shape)
+            inner = _inner(shape, 0)
+            masked = _inner((*done.size, 3), self.scene.output.crop)
+            for b, sharp in enumerate(done.sharp):
+                runner.export(sharp, inner, out[1][b])
+                if self.with_mask:
+                    runner.export(runner.slot_image(done.mask, b, (*done.size, 3)), masked,
+                                  out[2][b])
+            with timer("kernels"):
+                runner.wait()
+        raws = ([runner.slot_image(done.raw, b, done.size) for b in range(len(items))]
+                if self.with_raw else [])
+        return self._returned_all(out, lib, batch, given), done.params, done.plans, raws
+
+    def _host_batch(self, items: list[_Inputs], indices, batch, lib: str, given):
+        """A batch run sample by sample from host memory (tiles, budgets, spot checks)."""
+        out, params, plans, raws = None, [], [], []
+        crop = self.scene.output.crop
+        for b, item in enumerate(items):
+            blurred, sat_mask, sharp_out, drawn, sample_plan, tiled = self._run(
+                item, int(indices[b]))
+            raws.append(tiled.raw)
+            params.append(drawn)
+            plans.append(sample_plan)
+            # (values, the region of them that goes out): a sharp image is already cropped
+            results = [(blurred, _inner(blurred.shape, crop)),
+                       (sharp_out, _inner(sharp_out.shape, 0))]
+            if self.with_mask:
+                results.append((sat_mask, _inner(sat_mask.shape, crop)))
+            if out is None:
+                out = self._outputs(len(items), results[0][1], batch, lib, len(results), given)
+            self._export(out, b, results)
+        return self._returned_all(out, lib, batch, given), params, plans, raws
+
+    def _returned_all(self, out: list, lib: str, like, given) -> list:
+        """The batch's outputs as its array type and layout (``out=``'s arrays as given)."""
+        return [self._returned(o, lib, like) for o in out] if given is None else list(given)
+
+    def _export_slots(self, into, slots: Slots, shape) -> None:
+        """Every sample's slot of a batch buffer into ``into`` (B x ``shape``).
+
+        One copy where the slots lie back to back (always on Warp), else one per sample.
+        """
+        runner, size = self.runner, int(np.prod(shape))
+        if slots.stride == size:
+            stacked = runner.slot_image(Slots(slots.buffer, 1, slots.count * size), 0,
+                                        (slots.count, *shape))
+            # a B x h x w x 3 stack's "region": every sample, every row
+            runner.export(stacked, Region.whole(slots.count, shape[0]), into)
+            return
+        for b in range(slots.count):
+            runner.export(runner.slot_image(slots, b, shape), _inner(shape, 0), into[b])
 
     @contextlib.contextmanager
     def _queued(self):
@@ -641,14 +707,70 @@ class Synthesizer:
             sharp = stack
         return _Inputs(stack, mask, sharp, item.names, item.label)
 
-    def _run(self, item: _Inputs, sample_index: int, *, on_device: bool):
-        """A prepared sample's passes: (blurred, mask, sharp, params, plan, tiled)."""
+    def _run(self, item: _Inputs, sample_index: int, *, on_device: bool = False):
+        """A prepared sample's passes from host memory (:mod:`gpu_blur.scheduler`).
+
+        ``on_device``: leave the blurred image on the device (whole image, ``output.crop``
+        0). Returns (blurred, mask, sharp, params, plan, tiled).
+        """
         scene = self.scene
         frames = item.frames
-        h, w = (frames.shape[-3:-1] if isinstance(frames, OnDevice)
-                else frames[0].shape[:2])
+        h, w = frames[0].shape[:2]
         # interpolation auto: each gap's factor, measured on the host frames
-        factors = None if isinstance(frames, OnDevice) else scene_factors(scene, frames)
+        factors = scene_factors(scene, frames)
+        sample_plan, params = self._drawn(item, sample_index, h, w, factors)
+        # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
+        crop = scene.output.crop
+        tiled = run(self.runner, sample_plan, params, self.camera, frames, item.mask,
+                    self.schedule, seed=self.seed, sample_index=sample_index,
+                    on_device=on_device, keep_raw=self.with_raw)
+        if isinstance(self.runner, KernelBackend):
+            sharp = self._rendered_in_bands(sample_plan, crop_border(item.sharp, crop))
+        else:
+            sharp = render_sharp(sample_plan, self.camera, crop_border(item.sharp, crop))
+        return tiled.blurred, tiled.mask, sharp, params, sample_plan, tiled
+
+    def _run_resident(self, items: list[_Inputs], indices: Sequence[int]) -> _Resident:
+        """Samples put on the device, each pass launched once per plan for the whole batch.
+
+        Each sample's accumulate pass writes its slot of the batch's buffers; then samples of
+        one plan (auto saturation gives at most two) run to_raw and finish in one launch each,
+        finish writing the cropped output. Every buffer keeps one slot per sample.
+        """
+        runner, camera, crop = self.runner, self.camera, self.scene.output.crop
+        h, w = items[0].frames.shape[-3:-1]
+        count, n, whole = len(items), h * w * 3, Region.whole(h, w)
+        out = _inner((h, w), crop)
+        linear, sat_mask = runner.slots(count, n), runner.slots(count, n)
+        groups: dict = {}  # id(plan) -> (plan, its samples as Drawn, in batch order)
+        params, plans = [], []
+        for b, (item, index) in enumerate(zip(items, indices, strict=True)):
+            sample_plan, drawn = self._drawn(item, int(index), h, w, None)
+            params.append(drawn)
+            plans.append(sample_plan)
+            # plans are cached per clip test and size (_drawn): one object per group
+            groups.setdefault(id(sample_plan), (sample_plan, []))[1].append(
+                Drawn(drawn, int(index), b))
+            runner.accumulate_into(sample_plan, drawn, item.frames, item.mask,
+                                   runner.slot(linear.buffer, b * linear.stride, n),
+                                   runner.slot(sat_mask.buffer, b * sat_mask.stride, n))
+        saturated = runner.slots(count, n)
+        raw = runner.slots(count, h * w if plans[0].raw_round_trip else 1)
+        result = runner.slots(count, out.h * out.w * 3)
+        for sample_plan, drawn in groups.values():
+            kw = {"seed": self.seed}
+            runner.to_raw_batch(sample_plan, camera, drawn, linear, sat_mask, saturated, raw,
+                                (0, 0), (h, w), **kw)
+            runner.finish_batch(sample_plan, camera, drawn, raw, saturated, whole, out, result,
+                                **kw)
+        sharp = [runner.render_sharp(p, camera, item.sharp, out)
+                 for p, item in zip(plans, items, strict=True)]
+        return _Resident(result, sat_mask, raw, sharp, params, plans, out, (h, w))
+
+    def _drawn(self, item: _Inputs, sample_index: int, h: int, w: int, factors):
+        """A sample's plan and drawn values: (plan, params)."""
+        scene = self.scene
+        frames = item.frames
         key = (item.saturated, h, w, factors)
         if key not in self._plans:  # a plan depends on the scene, the clip test and the size
             self._plans[key] = plan(scene, saturated=item.saturated, size=(h, w),
@@ -664,20 +786,7 @@ class Synthesizer:
                              sample_index=sample_index, image_shape=(h, w), overrides=overrides)
         if factors is not None:  # the plan's factors, recorded in the manifest
             params = with_factors(sample_plan, params, frames)
-        # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
-        crop = scene.output.crop
-        tiled = run(self.runner, sample_plan, params, self.camera, frames, item.mask,
-                    self.schedule, seed=self.seed, sample_index=sample_index,
-                    on_device=on_device, crop=crop if on_device else 0,
-                    keep_raw=self.with_raw)
-        if isinstance(item.sharp, OnDevice):
-            sharp = self.runner.render_sharp(sample_plan, self.camera, item.sharp,
-                                             _inner((h, w), crop))
-        elif isinstance(self.runner, KernelBackend):
-            sharp = self._rendered_in_bands(sample_plan, crop_border(item.sharp, crop))
-        else:
-            sharp = render_sharp(sample_plan, self.camera, crop_border(item.sharp, crop))
-        return tiled.blurred, tiled.mask, sharp, params, sample_plan, tiled
+        return sample_plan, params
 
     def _rendered_in_bands(self, sample_plan: Plan, sharp: np.ndarray) -> np.ndarray:
         """A host sharp image rendered by the device code (as resident runs render it).

@@ -274,12 +274,12 @@ def test_a_stage_s_values_close_its_pass_kernel_s_arguments():
     stages = tuple(dataclasses.replace(s, values=(0.25, 2.0)) if s.name == S.WHITE_BALANCE
                    else s for s in p.stages)
     p = dataclasses.replace(p, stages=stages)
-    args = to_raw_args(p, ("reals", "words"), (0, 0), 4, 4, 48, ("linear", "mask"), "matrix",
-                       ("sat", "raw"), seed=SEED)
+    args = to_raw_args(p, ("reals", "words"), (0, 0), 4, 4, (("linear", 48), ("mask", 48)),
+                       "matrix", (("sat", 48), ("raw", 16)), seed=SEED)
     # before WB in the plan; skipped here (strength 0), its unknown image size passed as 0
     vignetting = (Arg("real", 0.0),) * 3
     assert p[S.VIGNETTING].values == (0.0, None, None)
-    assert args[-7:] == ("sat", "raw", *vignetting, Arg("real", 0.25), Arg("real", 2.0))
+    assert args[-9:] == ("sat", 48, "raw", 16, *vignetting, Arg("real", 0.25), Arg("real", 2.0))
     assert stage_values(p, Pass.FINISH) == ()
 
 

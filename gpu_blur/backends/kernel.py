@@ -178,26 +178,42 @@ def sample_tables(samples: Sequence[Drawn], reals) -> tuple[np.ndarray, np.ndarr
     return values, words
 
 
-def to_raw_args(plan: Plan, tables, origin: tuple[int, int], h: int, w: int, in_stride: int,
-                inputs, matrix, outputs, *, seed: int) -> tuple:
+class Slots(NamedTuple):
+    """A batch's device buffer: ``count`` slots ``stride`` values apart, one per sample.
+
+    Made by :meth:`KernelBackend.slots`; a sample's values are :meth:`KernelBackend.slot`
+    ``(buffer, index * stride, ...)``.
+    """
+
+    buffer: object
+    count: int
+    stride: int
+
+
+def to_raw_args(plan: Plan, tables, origin: tuple[int, int], h: int, w: int, inputs, matrix,
+                outputs, *, seed: int) -> tuple:
     """The to_raw kernel's arguments, in order.
 
     ``tables``: the batch's (reals, words) on the device (:func:`sample_tables`); ``inputs``
-    (linear, mask) hold a sample every ``in_stride`` values.
+    (linear, mask) and ``outputs`` (saturated, raw): each a (buffer, stride) pair.
     """
-    return (*inputs, *_index(origin[1], origin[0], w), Arg("index", h, extent=True),
-            Arg("index", in_stride, extent=True), *tables, matrix,
-            Arg("real", plan[S.POISSON_GAUSSIAN_NOISE].options["normal_above"]),
-            *_random_key(seed), *outputs, *stage_values(plan, Pass.TO_RAW))
+    (linear, mask), (saturated, raw) = inputs, outputs
+    return (*linear, *mask, *_index(origin[1], origin[0], w), Arg("index", h, extent=True),
+            *tables, matrix, Arg("real", plan[S.POISSON_GAUSSIAN_NOISE].options["normal_above"]),
+            *_random_key(seed), *saturated, *raw, *stage_values(plan, Pass.TO_RAW))
 
 
 def finish_args(plan: Plan, tables, view: Region, out: Region, inputs, matrix, polynomial,
                 table, result, *, seed: int) -> tuple:
-    """The finish kernel's arguments, in order (``polynomial``, ``table``: (buffer, size))."""
-    return (*inputs, *_index(view.x0, view.y0, view.w), Arg("index", view.h, extent=True),
-            *_index(view.full_w, view.full_h), *_out_geometry(out), *tables, matrix,
+    """The finish kernel's arguments, in order.
+
+    ``inputs`` (raw, saturated) and ``result``: (buffer, stride) pairs; ``polynomial``,
+    ``table``: (buffer, size).
+    """
+    raw, saturated = inputs
+    return (*raw, *saturated, *_view_geometry(view), *_out_geometry(out), *tables, matrix,
             *_random_key(seed), polynomial[0], Arg("int", polynomial[1], extent=True),
-            table[0], Arg("int", table[1], extent=True), result,
+            table[0], Arg("int", table[1], extent=True), *result,
             *stage_values(plan, Pass.FINISH))
 
 
@@ -399,8 +415,13 @@ class KernelBackend:
         return self._linear_out(linear, sat_mask, shape, region)
 
     def _accumulate_put(self, plan: Plan, params: dict, frames: OnDevice,
-                        mask: OnDevice | None, region: Region) -> tuple[OnDevice, OnDevice]:
-        """:meth:`accumulate` of inputs on the device, over the whole image."""
+                        mask: OnDevice | None, region: Region,
+                        into: tuple | None = None) -> tuple[OnDevice, OnDevice]:
+        """:meth:`accumulate` of inputs on the device, over the whole image.
+
+        ``into``: (linear, mask) device buffers of ``3 h w`` values to write (slots of a
+        batch's buffers, :meth:`slot`), else new ones.
+        """
         mode = plan.variant(S.BLUR) or "none"
         h, w = frames.shape[-3:-1]
         if (region.h, region.w) != (h, w) or region.origin != (0, 0):
@@ -418,7 +439,7 @@ class KernelBackend:
         k = self._pass_kernels(config, source)
         n = h * w * 3
         shape = (h, w, 3)
-        linear, sat_mask = self._empty(n), self._empty(n)
+        linear, sat_mask = into or (self._empty(n), self._empty(n))
         if mode == "average":  # one launch sums every frame of the stack
             count = frames.shape[0]
             spare = self._empty(1, np.uint32)
@@ -429,11 +450,59 @@ class KernelBackend:
         elif mode == "none":
             with self._timed(sync=False):
                 self._launch(k, "linearize", n, frames.data, linear, sat_mask)
-            return (self._out(linear, shape, Pass.ACCUMULATE, region.origin),
-                    self._mask_values(mask, n, shape))
+            if into is None:
+                return (self._out(linear, shape, Pass.ACCUMULATE, region.origin),
+                        self._mask_values(mask, n, shape))
+            self._mask_into(mask, n, sat_mask)
         else:
             self._blur_photo(k, mode, params, frames, source, region, linear, sat_mask)
         return self._linear_out(linear, sat_mask, shape, region)
+
+    def _mask_into(self, mask: OnDevice | None, n: int, into) -> None:
+        """Mode none's given mask as compute-type values in the device buffer ``into``."""
+        if mask is None:
+            self._fill_zeros(into, n)
+        elif self._stored_dtype(mask) == np.dtype(self.np_real):
+            self._copy(into, mask.data, n)
+        else:
+            with self._timed(sync=False):
+                self._launch(self._input_kernels(None, mask.dtype), "unit_values", n,
+                             mask.data, into)
+
+    def accumulate_into(self, plan: Plan, params: dict, frames: OnDevice,
+                        mask: OnDevice | None, linear, sat_mask) -> None:
+        """:meth:`accumulate` of whole inputs put on the device, into given buffers.
+
+        ``linear``, ``sat_mask``: ``3 h w``-value device buffers (a batch's slots,
+        :meth:`slot`), as the batched to_raw pass reads them.
+        """
+        h, w = frames.shape[-3:-1]
+        self._accumulate_put(plan, params, frames, mask, Region.whole(h, w), (linear, sat_mask))
+
+    def slot_stride(self, count: int) -> int:
+        """Values from one slot of a batch buffer to the next, for slots of ``count`` values.
+
+        ``count`` where any offset makes a view (Warp); OpenCL rounds up to the device's
+        sub-buffer alignment.
+        """
+        return count
+
+    def slot(self, buffer, start: int, count: int):
+        """Values ``start .. start + count`` of a device buffer, as a buffer (a view)."""
+        raise NotImplementedError
+
+    def slot_image(self, slots: Slots, b: int, shape) -> OnDevice:
+        """Slot ``b`` of a batch buffer as an ``OnDevice`` image of ``shape`` (a view)."""
+        size = int(np.prod(shape))
+        return OnDevice(self.slot(slots.buffer, b * slots.stride, size), shape, self._fetch)
+
+    def _copy(self, into, values, count: int) -> None:
+        """Copy ``count`` values between device buffers, after the launches queued before."""
+        raise NotImplementedError
+
+    def _fill_zeros(self, buffer, count: int) -> None:
+        """Set the first ``count`` values of a device buffer to zero, in queue order."""
+        raise NotImplementedError
 
     def _mask_values(self, mask: OnDevice | None, n: int, shape) -> OnDevice:
         """Mode none's given mask as compute-type values on the device (zeros without one)."""
@@ -609,45 +678,41 @@ class KernelBackend:
                sample_index: int) -> tuple[OnDevice, OnDevice]:
         """Saturation to noisy RAW on the device (see NumpyBackend.to_raw): a batch of one."""
         h, w = linear.shape[:2]
-        saturated = self._empty(h * w * 3)
-        raw = self._empty(h * w if plan.raw_round_trip else 1)
-        self.to_raw_batch(plan, camera, [Drawn(params, sample_index, 0)], self._upload(linear),
-                          self._upload(mask), h * w * 3, 1, origin, (h, w), saturated, raw,
-                          seed=seed)
-        rgb = OnDevice(saturated, (h, w, 3), self._fetch)
+        n = h * w * 3
+        saturated = self.slots(1, n)
+        raw = self.slots(1, h * w if plan.raw_round_trip else 1)
+        self.to_raw_batch(plan, camera, [Drawn(params, sample_index, 0)],
+                          Slots(self._upload(linear), 1, n), Slots(self._upload(mask), 1, n),
+                          saturated, raw, origin, (h, w), seed=seed)
+        rgb = OnDevice(saturated.buffer, (h, w, 3), self._fetch)
         if not plan.raw_round_trip:
-            return self._out(saturated, (h, w, 3), Pass.TO_RAW, origin), rgb
-        return self._out(raw, (h, w), Pass.TO_RAW, origin), rgb
+            return self._out(saturated.buffer, (h, w, 3), Pass.TO_RAW, origin), rgb
+        return self._out(raw.buffer, (h, w), Pass.TO_RAW, origin), rgb
 
-    def to_raw_batch(self, plan: Plan, camera: Camera, samples: Sequence[Drawn], linear, mask,
-                     in_stride: int, slots: int, origin: tuple[int, int],
-                     size: tuple[int, int], saturated, raw, *, seed: int) -> None:
-        """The to_raw pass of samples of one plan in one launch, into their slots.
+    def to_raw_batch(self, plan: Plan, camera: Camera, samples: Sequence[Drawn], linear: Slots,
+                     mask: Slots, saturated: Slots, raw: Slots, origin: tuple[int, int],
+                     size: tuple[int, int], *, seed: int) -> None:
+        """The to_raw pass of samples of one plan in one launch, each in its slot.
 
         Args:
             plan, camera: the samples' plan and camera.
             samples: each sample's draws, index and slot.
-            linear, mask: device buffers of ``slots`` slots of ``in_stride`` values, slot s
-                holding sample s's ``h x w x 3`` accumulate output.
-            in_stride: values from one slot of ``linear`` and ``mask`` to the next (at least
-                ``3 h w``; more where a device aligns sub-buffers).
-            slots: the slots each buffer holds.
+            linear, mask: the accumulate pass's ``h x w x 3`` outputs, a slot per sample.
+            saturated: takes each sample's ``h x w x 3`` saturated image.
+            raw: takes each sample's ``h x w`` mosaic (the RAW round trip; else slots of one
+                value, never written).
             origin: (row, column) of the buffers' first pixel in the whole image.
             size: (h, w).
-            saturated: ``slots x h x w x 3`` values, written.
-            raw: ``slots x h x w`` values (the RAW round trip), or ``slots`` placeholders.
             seed: the data set's seed.
         """
         k = self._pass_kernels(self._of_plan(plan)[Pass.TO_RAW])
         h, w = size
-        raw_stride = h * w if plan.raw_round_trip else 1
-        inputs = (self._slots(linear, slots, in_stride), self._slots(mask, slots, in_stride))
-        outputs = (self._slots(saturated, slots, 3 * h * w), self._slots(raw, slots, raw_stride))
         tables = self._tables(samples, TO_RAW_REALS)
         matrix = self._constant(camera.linear_to_camera)
         with self._timed():
             self._launch(k, "to_raw", (len(samples), h, w), *to_raw_args(
-                plan, tables, origin, h, w, in_stride, inputs, matrix, outputs, seed=seed))
+                plan, tables, origin, h, w, (self._slots(linear), self._slots(mask)), matrix,
+                (self._slots(saturated), self._slots(raw)), seed=seed))
 
     # -- pass 3: finish --------------------------------------------------------------------
     def finish(self, plan: Plan, params: dict, camera: Camera, image, saturated, view: Region,
@@ -657,34 +722,38 @@ class KernelBackend:
         A batch of one.
         """
         raw = image if plan.raw_round_trip else np.zeros(1)
-        result = self._empty(out.h * out.w * 3)
-        self.finish_batch(plan, camera, [Drawn(params, sample_index, 0)], self._upload(raw),
-                          self._upload(saturated), 1, view, out, result, seed=seed)
-        return self._out(result, (out.h, out.w, 3), Pass.FINISH, out.origin)
+        n = out.h * out.w * 3
+        result = self.slots(1, n)
+        self.finish_batch(plan, camera, [Drawn(params, sample_index, 0)],
+                          Slots(self._upload(raw), 1, int(np.prod(np.shape(raw)))),
+                          Slots(self._upload(saturated), 1, view.h * view.w * 3), view, out,
+                          result, seed=seed)
+        return self._out(result.buffer, (out.h, out.w, 3), Pass.FINISH, out.origin)
 
-    def finish_batch(self, plan: Plan, camera: Camera, samples: Sequence[Drawn], raw,
-                     saturated, slots: int, view: Region, out: Region, result, *,
+    def finish_batch(self, plan: Plan, camera: Camera, samples: Sequence[Drawn], raw: Slots,
+                     saturated: Slots, view: Region, out: Region, result: Slots, *,
                      seed: int) -> None:
-        """The finish pass of samples of one plan in one launch, into their slots.
+        """The finish pass of samples of one plan in one launch, each in its slot.
 
-        ``raw`` (``slots x view.h x view.w``, or ``slots`` placeholders without the RAW round
-        trip) and ``saturated`` (``slots x view.h x view.w x 3``) are :meth:`to_raw_batch`'s
-        outputs over ``view``; ``result`` takes ``slots x out.h x out.w x 3`` values.
+        ``raw`` (``view.h x view.w`` a slot, or placeholders without the RAW round trip) and
+        ``saturated`` (``view.h x view.w x 3``) are :meth:`to_raw_batch`'s outputs over
+        ``view``; ``result`` takes each sample's ``out.h x out.w x 3`` image.
         """
         derived = self._of_plan(plan, camera)
         k = self._pass_kernels(derived[Pass.FINISH])
         polynomial, table = derived["curves"]
-        pixels = view.h * view.w
-        inputs = (self._slots(raw, slots, pixels if plan.raw_round_trip else 1),
-                  self._slots(saturated, slots, 3 * pixels))
         tables = self._tables(samples, FINISH_REALS)
         matrix = self._constant(camera.camera_to_linear)
         with self._timed():
             self._launch(k, "finish", (len(samples), out.h, out.w), *finish_args(
-                plan, tables, view, out, inputs, matrix,
+                plan, tables, view, out, (self._slots(raw), self._slots(saturated)), matrix,
                 (self._constant(polynomial), polynomial.size),
-                (self._constant(table), table.size),
-                self._slots(result, slots, 3 * out.h * out.w), seed=seed))
+                (self._constant(table), table.size), self._slots(result), seed=seed))
+
+    def slots(self, count: int, values: int) -> Slots:
+        """A new batch buffer of ``count`` slots for ``values`` values each (:meth:`slot_stride`)."""
+        stride = self.slot_stride(values)
+        return Slots(self._empty(count * stride), count, stride)
 
     def _tables(self, samples: Sequence[Drawn], reals) -> tuple:
         """:func:`sample_tables` on the device, as the kernels read them."""
@@ -695,12 +764,12 @@ class KernelBackend:
         """A small 2-D host table on the device (flat where the language indexes by hand)."""
         return self._upload(table, table.dtype)
 
-    def _slots(self, buffer, slots: int, stride: int):
-        """A batch buffer as its kernels take it: ``slots`` slots of ``stride`` values.
+    def _slots(self, slots: Slots) -> tuple:
+        """A batch buffer as its kernels take it: (flat buffer, stride); Warp: a 2-D view.
 
-        Flat (OpenCL: the kernels step by ``stride``); Warp views it as a 2-D array.
+        The stride is an ``extent`` (OpenCL steps by it); Warp's view is ``count x stride``.
         """
-        return buffer
+        return slots.buffer, Arg("index", slots.stride, extent=True)
 
     # -- inputs on the device: checks and the sharp reference ------------------------------
     def _input_kernels(self, config: PassConfig | None, source):

@@ -301,8 +301,8 @@ class WarpBackend(KernelBackend):
             return wp.array(np.ascontiguousarray(table), device=self.wp_device)
 
     @staticmethod
-    def _slots(buffer: wp.array, slots: int, stride: int) -> wp.array:
-        return buffer[:slots * stride].reshape((slots, stride))
+    def _slots(slots) -> tuple:
+        return (slots.buffer[:slots.count * slots.stride].reshape((slots.count, slots.stride)),)
 
     def _write(self, buffer, values: np.ndarray) -> None:
         with timer("copies"):
@@ -464,6 +464,18 @@ class WarpBackend(KernelBackend):
     @staticmethod
     def _part(buffer, start: int, count: int, dtype) -> wp.array:
         return buffer[start:start + count]
+
+    @staticmethod
+    def slot(buffer, start: int, count: int) -> wp.array:
+        return buffer[start:start + count]
+
+    @staticmethod
+    def _copy(into, values, count: int) -> None:
+        wp.copy(into, values, count=count)
+
+    @staticmethod
+    def _fill_zeros(buffer, count: int) -> None:
+        buffer[:count].zero_()
 
     def export(self, values: OnDevice, region: Region, into) -> None:
         """Copy ``region`` of a whole-image result into ``into``.

@@ -6,21 +6,21 @@
  *
  * One launch runs a batch of samples of one plan, as gb_to_raw: the third grid index is the
  * sample, its values row b of sample_reals (gpu_blur.backends.kernel.FINISH_REALS) and
- * sample_words; its buffers slot `slot` of each (the view's vw x vh pixels for raw and
- * saturated, ow x oh for out).
+ * sample_words; each buffer holds a slot per sample, <buffer>_stride values apart.
  */
 #include "gb_common.h"
 #include "gb_pixel.h"
 #include "gb_random.h"
 #include "gb_demosaic.h"
 
-__kernel void gb_finish(__global const real *raw, __global const real *saturated, long vx0,
-                        long vy0, long vw, long vh, long full_w, long full_h, long ox0,
-                        long oy0, long ow, long oh, __global const real *sample_reals,
+__kernel void gb_finish(__global const real *raw, long raw_stride,
+                        __global const real *saturated, long saturated_stride, long vx0,
+                        long vy0, long vw, long full_w, long full_h, long ox0, long oy0, long ow,
+                        long oh, __global const real *sample_reals,
                         __global const uint *sample_words, __constant real *cam_to_lin,
                         uint key_lo, uint key_hi, __constant real *crf_polynomial,
                         int crf_polynomial_n, __global const real *crf_table, int crf_table_n,
-                        __global real *out)
+                        __global real *out, long out_stride)
 {
     long x = get_global_id(0), y = get_global_id(1), b = get_global_id(2);
     if (x >= ow || y >= oh) return;
@@ -28,9 +28,9 @@ __kernel void gb_finish(__global const real *raw, __global const real *saturated
     int cfa = (int)sample_words[GB_SAMPLE_WORDS * b];
     uint sample_index = sample_words[GB_SAMPLE_WORDS * b + 1];
     long slot = (long)sample_words[GB_SAMPLE_WORDS * b + 2];
-    raw += slot * vw * vh;
-    saturated += slot * 3 * vw * vh;
-    out += slot * 3 * ow * oh;
+    raw += slot * raw_stride;
+    saturated += slot * saturated_stride;
+    out += slot * out_stride;
     long gx = ox0 + x, gy = oy0 + y;
     long v = 3 * gb_offset(gx, gy, vx0, vy0, vw);
     real rgb[3];

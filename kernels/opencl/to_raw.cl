@@ -10,18 +10,19 @@
  *
  * One launch runs a batch of samples of one plan: the third grid index is the sample, whose
  * drawn values are row b of sample_reals (gpu_blur.backends.kernel.TO_RAW_REALS) and
- * sample_words (SAMPLE_WORDS: CFA pattern, sample index, slot). A sample's buffers are slot
- * `slot` of each: linear and mask `in_stride` values apart, saturated 3 h w, raw h w.
+ * sample_words (SAMPLE_WORDS: CFA pattern, sample index, slot). Each buffer holds a slot per
+ * sample, <buffer>_stride values apart; a sample reads and writes its slot `slot`.
  */
 #include "gb_common.h"
 #include "gb_random.h"
 
-__kernel void gb_to_raw(__global const real *linear, __global const real *mask, long x0,
-                        long y0, long w, long h, long in_stride,
-                        __global const real *sample_reals, __global const uint *sample_words,
-                        __constant real *lin_to_cam, real poisson_normal_above, uint key_lo,
-                        uint key_hi, __global real *saturated, __global real *raw,
-                        real vignetting, real full_h, real full_w)
+__kernel void gb_to_raw(__global const real *linear, long linear_stride,
+                        __global const real *mask, long mask_stride, long x0, long y0, long w,
+                        long h, __global const real *sample_reals,
+                        __global const uint *sample_words, __constant real *lin_to_cam,
+                        real poisson_normal_above, uint key_lo, uint key_hi,
+                        __global real *saturated, long saturated_stride, __global real *raw,
+                        long raw_stride, real vignetting, real full_h, real full_w)
 {
     long x = get_global_id(0), y = get_global_id(1), b = get_global_id(2);
     if (x >= w || y >= h) return;
@@ -31,10 +32,10 @@ __kernel void gb_to_raw(__global const real *linear, __global const real *mask, 
     int cfa = (int)sample_words[GB_SAMPLE_WORDS * b];
     uint sample_index = sample_words[GB_SAMPLE_WORDS * b + 1];
     long slot = (long)sample_words[GB_SAMPLE_WORDS * b + 2];
-    linear += slot * in_stride;
-    mask += slot * in_stride;
-    saturated += slot * 3 * w * h;
-    raw += slot * w * h;
+    linear += slot * linear_stride;
+    mask += slot * mask_stride;
+    saturated += slot * saturated_stride;
+    raw += slot * raw_stride;
     long i = y * w + x;
     real v[3];
 #ifdef GB_STAGE_VIGNETTING

@@ -1,0 +1,145 @@
+"""What a user waits for, path by path, beside what the device computes.
+
+For each example scene (RealBlur-J: a float32 blurred image and its mask at 1920 x 1200;
+RSBlur: 9 uint8 frames at 1920 x 1200; the training benchmark's random-kernel scene on
+256 x 256 crops) and each way in: ``synthesize`` one sample per call from numpy,
+``Synthesizer`` batches from numpy, and (with torch and CUDA) batches of torch CUDA tensors.
+Each path warms up once; reported: the median over ``--runs`` of milliseconds per sample, end
+to end (arguments in, results out, the device synchronized), and for Warp on CUDA the device's
+own kernel time per sample in one batch (Warp's CUDA activity timer).
+
+With an older gpu_blur on ``PYTHONPATH`` (no ``Synthesizer``) only ``synthesize`` is timed,
+so one script compares commits. On the GPU machine, from the repository root::
+
+    PYTHONPATH=$PWD python3 bench/user_paths.py --backend warp:cuda:0 --json $OUT/paths.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+
+import numpy as np
+
+import gpu_blur
+from gpu_blur.backends import get_backend
+from gpu_blur.scene import scene_from_dict
+
+#: (name, scene, (height, width)): the training benchmark's scene is bench/train_on_the_fly's.
+SCENES = (
+    ("realblur_j", "realblur_j", (1200, 1920)),
+    ("rsblur", "rsblur", (1200, 1920)),
+    ("kernel_256", {"blur": {"mode": "kernel"}, "output": {"bits": 0, "crop": 0}}, (256, 256)),
+)
+
+
+def inputs(scene, batch: int, h: int, w: int) -> dict:
+    """Random sRGB inputs of the scene's blur mode, numpy, a batch of them."""
+    rng = np.random.default_rng(0)
+    if scene.blur.mode == "average":
+        return {"batch": rng.integers(0, 256, (batch, scene.blur.frames, h, w, 3), np.uint8)}
+    if scene.blur.mode == "none":
+        images = rng.random((batch, h, w, 3), dtype=np.float32)
+        return {"batch": images, "mask": (images > 0.97).astype(np.float32)}
+    return {"batch": rng.integers(0, 256, (batch, h, w, 3), np.uint8)}
+
+
+def one_sample(given: dict, b: int):
+    """Sample b as ``synthesize`` takes it."""
+    if "mask" in given:
+        return {"blurred": given["batch"][b], "mask": given["mask"][b]}
+    if given["batch"].ndim == 5:
+        return list(given["batch"][b])
+    return given["batch"][b]
+
+
+def median_ms(run, samples: int, runs: int, sync) -> float:
+    """Median milliseconds per sample of ``run()`` (one warm-up first)."""
+    run()
+    sync()
+    times = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        run()
+        sync()
+        times.append((time.perf_counter() - start) / samples * 1e3)
+    return statistics.median(times)
+
+
+def device_ms(synth, given: dict, samples: int) -> float | None:
+    """Kernel time per sample of one batch on a Warp CUDA device (CUDA activity), else None."""
+    import warp as wp
+
+    with wp.ScopedTimer("batch", cuda_filter=wp.TIMING_KERNEL, print=False,
+                        synchronize=True) as timer:
+        synth(given["batch"], mask=given.get("mask"))
+    return sum(r.elapsed for r in timer.timing_results) / samples
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--backend", default="warp", help="backend (default warp)")
+    p.add_argument("--batch", type=int, default=16, help="samples per batch (default 16)")
+    p.add_argument("--runs", type=int, default=5, help="timed repeats (default 5)")
+    p.add_argument("--scenes", default=",".join(s[0] for s in SCENES),
+                   help="comma list of " + ", ".join(s[0] for s in SCENES))
+    p.add_argument("--scale", type=float, default=1.0, help="size factor (CPU: e.g. 0.25)")
+    p.add_argument("--json", help="write the results here")
+    args = p.parse_args(argv)
+    backend = get_backend(args.backend)
+    cuda = backend.name == "warp" and getattr(backend, "uses_cuda", False)
+    try:
+        import torch
+    except ImportError:
+        torch = None
+    sync = backend.wait if hasattr(backend, "wait") else (lambda: None)
+    batched = hasattr(gpu_blur, "Synthesizer")
+    rows = []
+    for name, spec, (h, w) in SCENES:
+        if name not in args.scenes.split(","):
+            continue
+        h, w = int(h * args.scale) // 2 * 2, int(w * args.scale) // 2 * 2
+        scene = (scene_from_dict(spec) if isinstance(spec, dict)
+                 else gpu_blur.scene.load_scene(spec))
+        given = inputs(scene, args.batch, h, w)
+        row = {"scene": name, "size": f"{w}x{h}", "batch": args.batch}
+
+        def calls(scene=scene, given=given):
+            for b in range(args.batch):
+                gpu_blur.synthesize(one_sample(given, b), scene, seed=1, sample_index=b,
+                                    backend=backend)
+
+        row["synthesize_ms"] = median_ms(calls, args.batch, args.runs, sync)
+        if batched:
+            synth = gpu_blur.Synthesizer(scene, backend=backend, seed=1)
+            row["batch_numpy_ms"] = median_ms(
+                lambda s=synth, g=given: s(g["batch"], mask=g.get("mask")), args.batch,
+                args.runs, sync)
+            if cuda and torch is not None and torch.cuda.is_available():
+                on_gpu = {k: torch.from_numpy(v).cuda() for k, v in given.items()}
+                row["batch_torch_cuda_ms"] = median_ms(
+                    lambda s=synth, g=on_gpu: s(g["batch"], mask=g.get("mask")), args.batch,
+                    args.runs, torch.cuda.synchronize)
+                row["kernels_ms"] = device_ms(synth, on_gpu, args.batch)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    keys = ("synthesize_ms", "batch_numpy_ms", "batch_torch_cuda_ms", "kernels_ms")
+    print(f"\n{backend.device} (ms per sample, end to end; kernels: device time)")
+    print(f"{'scene':<12}{'size':>10}" + "".join(f"{k[:-3]:>21}" for k in keys))
+    for row in rows:
+        cells = "".join(f"{row[k]:>21.3f}" if row.get(k) is not None else f"{'-':>21}"
+                        for k in keys)
+        print(f"{row['scene']:<12}{row['size']:>10}{cells}")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"device": backend.device, "host": platform.node(),
+                       "processor": platform.processor(), "runs": args.runs, "results": rows},
+                      f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
