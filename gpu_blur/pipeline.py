@@ -476,19 +476,10 @@ class Synthesizer:
         return [self._returned(o, lib, like) for o in out] if given is None else list(given)
 
     def _export_slots(self, into, slots: Slots, shape) -> None:
-        """Every sample's slot of a batch buffer into ``into`` (B x ``shape``).
-
-        One copy where the slots lie back to back (always on Warp), else one per sample.
-        """
-        runner, size = self.runner, int(np.prod(shape))
-        if slots.stride == size:
-            stacked = runner.slot_image(Slots(slots.buffer, 1, slots.count * size), 0,
-                                        (slots.count, *shape))
-            # a B x h x w x 3 stack's "region": every sample, every row
-            runner.export(stacked, Region.whole(slots.count, shape[0]), into)
-            return
-        for b in range(slots.count):
-            runner.export(runner.slot_image(slots, b, shape), _inner(shape, 0), into[b])
+        """Every sample's slot of a batch buffer into ``into`` (B x ``shape``), in one copy."""
+        # a B x h x w x 3 stack's "region": every sample, every row
+        self.runner.export(self.runner.stacked(slots, shape), Region.whole(slots.count, shape[0]),
+                           into)
 
     @contextlib.contextmanager
     def _queued(self):
@@ -751,9 +742,8 @@ class Synthesizer:
             # plans are cached per clip test and size (_drawn): one object per group
             groups.setdefault(id(sample_plan), (sample_plan, []))[1].append(
                 Drawn(drawn, int(index), b))
-            runner.accumulate_into(sample_plan, drawn, item.frames, item.mask,
-                                   runner.slot(linear.buffer, b * linear.stride, n),
-                                   runner.slot(sat_mask.buffer, b * sat_mask.stride, n))
+            runner.accumulate_into(sample_plan, drawn, item.frames, item.mask, linear, sat_mask,
+                                   b)
         saturated = runner.slots(count, n)
         raw = runner.slots(count, h * w if plans[0].raw_round_trip else 1)
         result = runner.slots(count, out.h * out.w * 3)

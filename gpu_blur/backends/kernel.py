@@ -181,8 +181,8 @@ def sample_tables(samples: Sequence[Drawn], reals) -> tuple[np.ndarray, np.ndarr
 class Slots(NamedTuple):
     """A batch's device buffer: ``count`` slots ``stride`` values apart, one per sample.
 
-    Made by :meth:`KernelBackend.slots`; a sample's values are :meth:`KernelBackend.slot`
-    ``(buffer, index * stride, ...)``.
+    Made by :meth:`KernelBackend.slots`; sample b's values start at ``b * stride``
+    (:meth:`KernelBackend.slot_image`).
     """
 
     buffer: object
@@ -470,34 +470,50 @@ class KernelBackend:
                              mask.data, into)
 
     def accumulate_into(self, plan: Plan, params: dict, frames: OnDevice,
-                        mask: OnDevice | None, linear, sat_mask) -> None:
-        """:meth:`accumulate` of whole inputs put on the device, into given buffers.
+                        mask: OnDevice | None, linear: Slots, sat_mask: Slots, b: int) -> None:
+        """:meth:`accumulate` of whole inputs put on the device, into slot ``b`` of batch buffers.
 
-        ``linear``, ``sat_mask``: ``3 h w``-value device buffers (a batch's slots,
-        :meth:`slot`), as the batched to_raw pass reads them.
+        ``linear``, ``sat_mask``: slots of ``3 h w`` values (:meth:`slots`), as the batched
+        to_raw pass reads them. Written in place where the language has views of a buffer
+        (Warp); else into new buffers, then copied into the slots (OpenCL: NVIDIA's
+        sub-buffers cost several times the copy).
         """
         h, w = frames.shape[-3:-1]
-        self._accumulate_put(plan, params, frames, mask, Region.whole(h, w), (linear, sat_mask))
+        n = h * w * 3
+        into = ((self._view(linear.buffer, b * linear.stride, n),
+                 self._view(sat_mask.buffer, b * sat_mask.stride, n)) if self.slot_views
+                else (self._empty(n), self._empty(n)))
+        self._accumulate_put(plan, params, frames, mask, Region.whole(h, w), into)
+        if not self.slot_views:
+            self._copy(linear.buffer, into[0], n, b * linear.stride)
+            self._copy(sat_mask.buffer, into[1], n, b * sat_mask.stride)
 
-    def slot_stride(self, count: int) -> int:
-        """Values from one slot of a batch buffer to the next, for slots of ``count`` values.
+    #: Whether :meth:`_view` gives views of a buffer (else slots are read and written by copies).
+    slot_views = False
 
-        ``count`` where any offset makes a view (Warp); OpenCL rounds up to the device's
-        sub-buffer alignment.
-        """
-        return count
-
-    def slot(self, buffer, start: int, count: int):
-        """Values ``start .. start + count`` of a device buffer, as a buffer (a view)."""
+    def _view(self, buffer, start: int, count: int):
+        """Values ``start .. start + count`` of a device buffer, as a buffer sharing its memory."""
         raise NotImplementedError
 
     def slot_image(self, slots: Slots, b: int, shape) -> OnDevice:
-        """Slot ``b`` of a batch buffer as an ``OnDevice`` image of ``shape`` (a view)."""
-        size = int(np.prod(shape))
-        return OnDevice(self.slot(slots.buffer, b * slots.stride, size), shape, self._fetch)
+        """Slot ``b`` of a batch buffer as an ``OnDevice`` image of ``shape``.
 
-    def _copy(self, into, values, count: int) -> None:
-        """Copy ``count`` values between device buffers, after the launches queued before."""
+        A view where the language has them, else a device copy.
+        """
+        size, start = int(np.prod(shape)), b * slots.stride
+        data = (self._view(slots.buffer, start, size) if self.slot_views
+                else self._part(slots.buffer, start, size, None))
+        return OnDevice(data, shape, self._fetch)
+
+    def stacked(self, slots: Slots, shape) -> OnDevice:
+        """Every slot of a batch buffer as one ``count x shape`` ``OnDevice`` stack."""
+        return OnDevice(slots.buffer, (slots.count, *shape), self._fetch)
+
+    def _copy(self, into, values, count: int, offset: int = 0) -> None:
+        """Copy ``count`` values of ``values`` into ``into`` from value ``offset`` on.
+
+        Both device buffers; queued after the launches before it.
+        """
         raise NotImplementedError
 
     def _fill_zeros(self, buffer, count: int) -> None:
@@ -695,9 +711,11 @@ class KernelBackend:
         """The to_raw pass of samples of one plan in one launch, each in its slot.
 
         Args:
-            plan, camera: the samples' plan and camera.
+            plan: the samples' plan.
+            camera: their camera.
             samples: each sample's draws, index and slot.
-            linear, mask: the accumulate pass's ``h x w x 3`` outputs, a slot per sample.
+            linear: the accumulate pass's ``h x w x 3`` linear images, a slot per sample.
+            mask: its saturation masks, the same way.
             saturated: takes each sample's ``h x w x 3`` saturated image.
             raw: takes each sample's ``h x w`` mosaic (the RAW round trip; else slots of one
                 value, never written).
@@ -751,9 +769,8 @@ class KernelBackend:
                 (self._constant(table), table.size), self._slots(result), seed=seed))
 
     def slots(self, count: int, values: int) -> Slots:
-        """A new batch buffer of ``count`` slots for ``values`` values each (:meth:`slot_stride`)."""
-        stride = self.slot_stride(values)
-        return Slots(self._empty(count * stride), count, stride)
+        """A new batch buffer of ``count`` slots of ``values`` values each, back to back."""
+        return Slots(self._empty(count * values), count, values)
 
     def _tables(self, samples: Sequence[Drawn], reals) -> tuple:
         """:func:`sample_tables` on the device, as the kernels read them."""

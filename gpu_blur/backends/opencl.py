@@ -412,17 +412,10 @@ class OpenCLBackend(KernelBackend):
         with timer("copies"):  # waits for the launches that read the buffer before
             cl.enqueue_copy(self.queue, buffer, values)
 
-    def slot_stride(self, count: int) -> int:
-        """``count`` rounded up to the device's sub-buffer alignment (MEM_BASE_ADDR_ALIGN)."""
-        step = max(1, self.cl_device.mem_base_addr_align // 8 // np.dtype(self.real).itemsize)
-        return -(-count // step) * step
-
-    def slot(self, buffer, start: int, count: int):
+    def _copy(self, into, values, count: int, offset: int = 0) -> None:
         size = np.dtype(self.real).itemsize
-        return buffer.get_sub_region(start * size, count * size)
-
-    def _copy(self, into, values, count: int) -> None:
-        cl.enqueue_copy(self.queue, into, values, byte_count=count * np.dtype(self.real).itemsize)
+        cl.enqueue_copy(self.queue, into, values, byte_count=count * size,
+                        dst_offset=offset * size)
 
     def _fill_zeros(self, buffer, count: int) -> None:
         cl.enqueue_fill_buffer(self.queue, buffer, np.zeros(1, self.real), 0,

@@ -48,6 +48,9 @@ _LOADED: set = set()
 #: most this many values (an RGB region ~715 M pixels). OpenCL kernels index with 64 bits.
 MAX_BUFFER_VALUES = 2**31 - 1
 
+#: Pinned buffers that take turns carrying batched launches' sample tables to a CUDA device.
+ROW_TABLES = 16
+
 #: Recorded launches a backend keeps (one per kernel and grid; the oldest goes first).
 RECORDED_LAUNCHES = 64
 
@@ -190,6 +193,7 @@ class WarpBackend(KernelBackend):
         self._staging: dict = {}  # slot -> pinned host buffer (kept across samples)
         self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
         self._prefetch_turn = 0
+        self._rows_turn = 0  # which pinned buffer of the ring carries the next sample table
         self._prefetch_stacks: dict = {}  # slot -> device stack of prefetched frames
         self._prefetch_read: dict = {}  # slot -> event: the accumulate that read it
         self._launches = Launches(self.wp_device)
@@ -297,8 +301,24 @@ class WarpBackend(KernelBackend):
         return wp.empty(max(count, 1), dtype=self._wp_dtype(dtype), device=self.wp_device)
 
     def _rows(self, table: np.ndarray) -> wp.array:
+        """A small table on the device; on CUDA through a ring of pinned buffers.
+
+        ``wp.array(host)`` copies from pageable memory, which waits for every launch queued
+        before it: the host would stop at each batched pass. From pinned memory the copy is
+        queued like a launch; a ring buffer is refilled once its copy is done.
+        """
         with timer("copies"):
-            return wp.array(np.ascontiguousarray(table), device=self.wp_device)
+            if not (self.uses_cuda and self.overlap):
+                return wp.array(np.ascontiguousarray(table), device=self.wp_device)
+            dtype = wp.dtype_from_numpy(table.dtype)
+            slot = ("rows", table.dtype.str, self._rows_turn)
+            self._rows_turn = (self._rows_turn + 1) % ROW_TABLES
+            staging = self._staging_buffer(slot, table.size, dtype)
+            staging.numpy()[:table.size] = table.ravel()
+            rows = wp.empty(table.size, dtype=dtype, device=self.wp_device)
+            wp.copy(rows, staging, count=table.size)
+            self._staged[slot] = wp.get_stream(self.wp_device).record_event()
+            return rows.reshape(table.shape)
 
     @staticmethod
     def _slots(slots) -> tuple:
@@ -465,13 +485,15 @@ class WarpBackend(KernelBackend):
     def _part(buffer, start: int, count: int, dtype) -> wp.array:
         return buffer[start:start + count]
 
+    slot_views = True
+
     @staticmethod
-    def slot(buffer, start: int, count: int) -> wp.array:
+    def _view(buffer, start: int, count: int) -> wp.array:
         return buffer[start:start + count]
 
     @staticmethod
-    def _copy(into, values, count: int) -> None:
-        wp.copy(into, values, count=count)
+    def _copy(into, values, count: int, offset: int = 0) -> None:
+        wp.copy(into, values, dest_offset=offset, count=count)
 
     @staticmethod
     def _fill_zeros(buffer, count: int) -> None:
