@@ -238,7 +238,7 @@ class _Resident:
         blurred: the finish pass's outputs, a slot of ``out.h x out.w x 3`` per sample.
         mask: the saturation masks, a slot of ``h x w x 3`` (uncropped) per sample.
         raw: the noisy mosaics, a slot of ``h x w`` per sample (RAW round trip only).
-        sharp: each sample's rendered sharp reference (``OnDevice``, ``out.h x out.w x 3``).
+        sharp: the rendered sharp references, a slot of ``out.h x out.w x 3`` per sample.
         params, plans: each sample's draws and plan.
         out: the region of the image the outputs hold (the image less ``output.crop``).
         size: (h, w), the inputs' size (the masks' and the mosaics').
@@ -247,7 +247,7 @@ class _Resident:
     blurred: Slots
     mask: Slots
     raw: Slots
-    sharp: list
+    sharp: Slots
     params: list
     plans: list
     out: Region
@@ -317,6 +317,7 @@ class Synthesizer:
         self.schedule = schedule or Schedule()
         self.channels_first, self.with_mask, self.with_raw = channels_first, with_mask, with_raw
         self._plans: dict = {}
+        self._buffers = None  # (shape key, buffers) of the last resident batch
         self.resident = (isinstance(self.runner, KernelBackend)
                          and self.schedule == Schedule()
                          and interpolation_factor(plan(self.scene)) == 1)
@@ -342,7 +343,8 @@ class Synthesizer:
             blurred = runner.slot_image(done.blurred, 0, (done.out.h, done.out.w, 3))
             out = (runner.device_array(blurred) if on_device
                    else self._host(blurred, _inner(blurred.shape, 0)))
-            sharp = self._host(done.sharp[0], _inner(done.sharp[0].shape, 0))
+            sharp = self._host(runner.slot_image(done.sharp, 0, blurred.shape),
+                               _inner(blurred.shape, 0))
             mask = runner.slot_image(done.mask, 0, (h, w, 3))  # fetched on first use
             raw = runner.slot_image(done.raw, 0, (h, w)) if self.with_raw else None
             params, sample_plan = done.params[0], done.plans[0]
@@ -433,16 +435,15 @@ class Synthesizer:
         """A batch put on the device: its passes batched, its outputs exported once each."""
         runner = self.runner
         with self._queued():
-            done = self._run_resident(items, indices)
+            done = self._run_resident(items, indices, reuse=True)
             shape = (done.out.h, done.out.w, 3)
             out = self._outputs(len(items), done.out, batch, lib, 3 if self.with_mask else 2,
                                 given)
             self._export_slots(out[0], done.blurred, shape)
-            inner = _inner(shape, 0)
-            masked = _inner((*done.size, 3), self.scene.output.crop)
-            for b, sharp in enumerate(done.sharp):
-                runner.export(sharp, inner, out[1][b])
-                if self.with_mask:
+            self._export_slots(out[1], done.sharp, shape)
+            if self.with_mask:
+                masked = _inner((*done.size, 3), self.scene.output.crop)
+                for b in range(len(items)):
                     runner.export(runner.slot_image(done.mask, b, (*done.size, 3)), masked,
                                   out[2][b])
             with timer("kernels"):
@@ -721,18 +722,24 @@ class Synthesizer:
             sharp = render_sharp(sample_plan, self.camera, crop_border(item.sharp, crop))
         return tiled.blurred, tiled.mask, sharp, params, sample_plan, tiled
 
-    def _run_resident(self, items: list[_Inputs], indices: Sequence[int]) -> _Resident:
+    def _run_resident(self, items: list[_Inputs], indices: Sequence[int], *,
+                      reuse: bool = False) -> _Resident:
         """Samples put on the device, each pass launched once per plan for the whole batch.
 
         Each sample's accumulate pass writes its slot of the batch's buffers; then samples of
         one plan (auto saturation gives at most two) run to_raw and finish in one launch each,
         finish writing the cropped output. Every buffer keeps one slot per sample.
+
+        ``reuse``: take the buffers of the last batch of this size (the caller copies every
+        result out before the next batch), sparing device allocations; the Synthesizer holds
+        one batch's buffers between calls.
         """
         runner, camera, crop = self.runner, self.camera, self.scene.output.crop
         h, w = items[0].frames.shape[-3:-1]
-        count, n, whole = len(items), h * w * 3, Region.whole(h, w)
+        count, whole = len(items), Region.whole(h, w)
         out = _inner((h, w), crop)
-        linear, sat_mask = runner.slots(count, n), runner.slots(count, n)
+        buffers = self._batch_buffers(count, h, w, out, reuse)
+        linear, sat_mask, saturated, raw, result, sharp_slots = buffers
         groups: dict = {}  # id(plan) -> (plan, its samples as Drawn, in batch order)
         params, plans = [], []
         for b, (item, index) in enumerate(zip(items, indices, strict=True)):
@@ -744,18 +751,33 @@ class Synthesizer:
                 Drawn(drawn, int(index), b))
             runner.accumulate_into(sample_plan, drawn, item.frames, item.mask, linear, sat_mask,
                                    b)
-        saturated = runner.slots(count, n)
-        raw = runner.slots(count, h * w if plans[0].raw_round_trip else 1)
-        result = runner.slots(count, out.h * out.w * 3)
         for sample_plan, drawn in groups.values():
             kw = {"seed": self.seed}
             runner.to_raw_batch(sample_plan, camera, drawn, linear, sat_mask, saturated, raw,
                                 (0, 0), (h, w), **kw)
             runner.finish_batch(sample_plan, camera, drawn, raw, saturated, whole, out, result,
                                 **kw)
-        sharp = [runner.render_sharp(p, camera, item.sharp, out)
-                 for p, item in zip(plans, items, strict=True)]
-        return _Resident(result, sat_mask, raw, sharp, params, plans, out, (h, w))
+        for b, (p, item) in enumerate(zip(plans, items, strict=True)):
+            runner.render_sharp(p, camera, item.sharp, out, into=(sharp_slots, b))
+        return _Resident(result, sat_mask, raw, sharp_slots, params, plans, out, (h, w))
+
+    def _batch_buffers(self, count: int, h: int, w: int, out: Region, reuse: bool) -> tuple:
+        """A resident batch's device buffers: (linear, mask, saturated, raw, blurred, sharp).
+
+        With ``reuse`` the last batch's, where it had this count and size.
+        """
+        key = (count, h, w, out)
+        if reuse and self._buffers is not None and self._buffers[0] == key:
+            return self._buffers[1]
+        if reuse:
+            self._buffers = None  # one batch's buffers at a time
+        slots, n = self.runner.slots, h * w * 3
+        buffers = (slots(count, n), slots(count, n), slots(count, n),
+                   slots(count, h * w if raw_round_trip(self.scene) else 1),
+                   slots(count, out.h * out.w * 3), slots(count, out.h * out.w * 3))
+        if reuse:
+            self._buffers = (key, buffers)
+        return buffers
 
     def _drawn(self, item: _Inputs, sample_index: int, h: int, w: int, factors):
         """A sample's plan and drawn values: (plan, params)."""

@@ -308,3 +308,23 @@ def test_skipping_auto_saturation_gives_the_bits_of_saturation_on_where_nothing_
     assert all(p.kept("saturate") for p in out["on"].plans)
     assert np.array_equal(out["auto"].blurred, out["on"].blurred)
     assert np.array_equal(out["auto"].mask, out["on"].mask)
+
+
+@pytest.mark.parametrize("name", ["warp:cpu", "opencl"])
+def test_batches_after_others_equal_batches_of_a_fresh_synthesizer(name):
+    # a resident batch reuses the last batch's device buffers when its size repeats: nothing of
+    # an earlier batch (another size, another plan mix, another count) may reach a later one
+    scene = scene_for("kernel")
+    rng = np.random.default_rng(4)
+    first, second = batch_for("kernel", 3, rng), batch_for("kernel", 3, rng)
+    smaller = batch_for("kernel", 2, rng)["batch"][:, :20, :18]
+    synth = gpu_blur.Synthesizer(scene, backend=name, seed=3, with_mask=True)
+    synth(first["batch"], first_index=0)
+    synth(np.ascontiguousarray(smaller), first_index=3)
+    synth(first["batch"][:2], first_index=5)
+    again = synth(second["batch"], first_index=7)
+    fresh = gpu_blur.Synthesizer(scene, backend=name, seed=3, with_mask=True)(
+        second["batch"], first_index=7)
+    for got, want in ((again.blurred, fresh.blurred), (again.sharp, fresh.sharp),
+                      (again.mask, fresh.mask)):
+        assert np.array_equal(got, want)

@@ -842,7 +842,8 @@ class KernelBackend:
                           np.uint32).numpy(np.int64)
         return halves[..., 0] + (halves[..., 1] << 32)
 
-    def render_sharp(self, plan: Plan, camera: Camera, image: OnDevice, out: Region) -> OnDevice:
+    def render_sharp(self, plan: Plan, camera: Camera, image: OnDevice, out: Region,
+                     into: tuple[Slots, int] | None = None) -> OnDevice:
         """The sharp reference as the output holds it, rendered on the device.
 
         As ``gpu_blur.pipeline.render_sharp`` on the host: sRGB values re-toned by the finish
@@ -857,6 +858,8 @@ class KernelBackend:
                 the compute type (sRGB values).
             out: the region of ``image`` to render (the output crop: the image less
                 ``output.crop`` pixels on every side).
+            into: (a batch buffer, a slot): write the result there (in place where the
+                language has views of a buffer, else copied in), else into a new buffer.
 
         Returns:
             A new ``out.h x out.w x 3`` image of the compute type on the device.
@@ -878,7 +881,10 @@ class KernelBackend:
         polynomial, table = derived["curves"]
         curves = (self._constant(polynomial), Arg("int", polynomial.size, extent=True),
                   self._constant(table), Arg("int", table.size, extent=True))
-        result = self._empty(out.h * out.w * 3)
+        count = out.h * out.w * 3
+        in_place = into is not None and self.slot_views
+        result = (self._view(into[0].buffer, into[1] * into[0].stride, count) if in_place
+                  else self._empty(count))
         with self._timed():
             if source == self.np_real:
                 self._launch(k, "render_sharp", (out.h, out.w), image.data, *_index(w),
@@ -897,6 +903,8 @@ class KernelBackend:
                     self._sharp_tables[key] = rendered
                 self._launch(k, "gather_codes", (out.h, out.w), image.data, *_index(w),
                              *_out_geometry(out), self._sharp_tables[key], result)
+        if into is not None and not in_place:
+            self._copy(into[0].buffer, result, count, into[1] * into[0].stride)
         return OnDevice(result, (out.h, out.w, 3), self._fetch)
 
 
