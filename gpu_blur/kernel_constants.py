@@ -110,14 +110,12 @@ PTRS = {name: getattr(rng, f"PTRS_{name}") for name in (
 #: A sample's row of uint32 words in the to_raw and finish launches: its Bayer pattern
 #: (gb_cfa_channel's packed channels), its sample index, its slot in the batch's buffers.
 SAMPLE_WORDS = ("cfa", "sample_index", "slot")
-#: A sample's row of drawn reals in the to_raw launch (gpu_blur.params), in this order, with
-#: the value a plan that does not draw one passes (the kernels do not read it then).
-TO_RAW_REALS = (("alpha", 0.0), ("red_gain", 1.0), ("blue_gain", 1.0), ("shot_noise_k", 1.0),
-                ("read_noise_std", 0.0))
-#: The same for the finish launch.
-FINISH_REALS = (("gaussian_std", 0.0),)
-SAMPLE_WORDS_COUNT, TO_RAW_REALS_COUNT = len(SAMPLE_WORDS), len(TO_RAW_REALS)
-FINISH_REALS_COUNT = len(FINISH_REALS)
+#: A sample's row of drawn reals (gpu_blur.params) in the to_raw and finish launches, in this
+#: order (to_raw reads the first five, finish the last), with the value a plan that does not
+#: draw one passes (the kernels do not read it then).
+SAMPLE_REALS = (("alpha", 0.0), ("red_gain", 1.0), ("blue_gain", 1.0), ("shot_noise_k", 1.0),
+                ("read_noise_std", 0.0), ("gaussian_std", 0.0))
+SAMPLE_WORDS_COUNT, SAMPLE_REALS_COUNT = len(SAMPLE_WORDS), len(SAMPLE_REALS)
 
 # -- rendering for OpenCL -------------------------------------------------------------------
 #: How a value is written in OpenCL C: in the compute type ``real`` (GB_REAL), in the
@@ -158,8 +156,7 @@ OPENCL: tuple[tuple[str, str, str], ...] = (
     ("GB_POISSON_INVERSION_MAX_K", "POISSON_INVERSION_MAX_K", INT),
     *((f"GB_PTRS_{name}", f"PTRS.{name}", WIDE) for name in PTRS),
     ("GB_SAMPLE_WORDS", "SAMPLE_WORDS_COUNT", INT),
-    ("GB_TO_RAW_REALS", "TO_RAW_REALS_COUNT", INT),
-    ("GB_FINISH_REALS", "FINISH_REALS_COUNT", INT),
+    ("GB_SAMPLE_REALS", "SAMPLE_REALS_COUNT", INT),
 )
 
 #: The header on disk (see the module docstring), relative to the kernels' folder.

@@ -26,7 +26,7 @@ import numpy as np
 from gpu_blur.backends import FRAMES_PER_LAUNCH, OnDevice, cfa_bits, copy_values
 from gpu_blur.backends.flows import gap_factors, interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
-from gpu_blur.kernel_constants import FINISH_REALS, SAMPLE_WORDS, TO_RAW_REALS
+from gpu_blur.kernel_constants import SAMPLE_REALS, SAMPLE_WORDS
 from gpu_blur.plan import Pass, Plan, StageName
 from gpu_blur.reference import blur
 from gpu_blur.reference.interpolate import (
@@ -163,15 +163,17 @@ class Drawn(NamedTuple):
     slot: int
 
 
-def sample_tables(samples: Sequence[Drawn], reals) -> tuple[np.ndarray, np.ndarray]:
+def sample_tables(samples: Sequence[Drawn]) -> tuple[np.ndarray, np.ndarray]:
     """A batched launch's per-sample tables: (reals, words), one row per sample.
 
-    ``reals``: the pass's (name, default) pairs (:data:`~gpu_blur.kernel_constants.TO_RAW_REALS`,
-    ``FINISH_REALS``), as float64 (a backend rounds them to its compute type, as it rounds a
-    scalar argument); words: uint32 rows of :data:`~gpu_blur.kernel_constants.SAMPLE_WORDS`.
+    reals: float64 rows of :data:`~gpu_blur.kernel_constants.SAMPLE_REALS` (a backend rounds
+    them to its compute type, as it rounds a scalar argument); words: uint32 rows of
+    :data:`~gpu_blur.kernel_constants.SAMPLE_WORDS`. The to_raw and finish passes of the same
+    samples read the same tables.
     """
-    values = np.array([[float(d.params.get(name, default)) for name, default in reals]
-                       for d in samples], dtype=np.float64).reshape(len(samples), len(reals))
+    values = np.array([[float(d.params.get(name, default)) for name, default in SAMPLE_REALS]
+                       for d in samples], dtype=np.float64).reshape(len(samples),
+                                                                    len(SAMPLE_REALS))
     words = np.array([(cfa_bits(d.params.get("pattern")), d.sample_index, d.slot)
                       for d in samples], dtype=np.uint32).reshape(len(samples),
                                                                   len(SAMPLE_WORDS))
@@ -247,6 +249,7 @@ class KernelBackend:
         self._sharp_tables: dict = {}  # (config, curves, source dtype) -> every code rendered
         self._derived: dict = {}  # id(plan), id(camera) -> (plan, camera, what they give)
         self._put_turn = 0  # which of the two pinned input buffers a staged put fills next
+        self._last_tables = None  # (their bytes, device tables) of the last batched launch
 
     # -- primitives a language supplies ----------------------------------------------------
     @property
@@ -725,7 +728,7 @@ class KernelBackend:
         """
         k = self._pass_kernels(self._of_plan(plan)[Pass.TO_RAW])
         h, w = size
-        tables = self._tables(samples, TO_RAW_REALS)
+        tables = self._tables(samples)
         matrix = self._constant(camera.linear_to_camera)
         with self._timed():
             self._launch(k, "to_raw", (len(samples), h, w), *to_raw_args(
@@ -760,7 +763,7 @@ class KernelBackend:
         derived = self._of_plan(plan, camera)
         k = self._pass_kernels(derived[Pass.FINISH])
         polynomial, table = derived["curves"]
-        tables = self._tables(samples, FINISH_REALS)
+        tables = self._tables(samples)
         matrix = self._constant(camera.camera_to_linear)
         with self._timed():
             self._launch(k, "finish", (len(samples), out.h, out.w), *finish_args(
@@ -772,10 +775,18 @@ class KernelBackend:
         """A new batch buffer of ``count`` slots of ``values`` values each, back to back."""
         return Slots(self._empty(count * values), count, values)
 
-    def _tables(self, samples: Sequence[Drawn], reals) -> tuple:
-        """:func:`sample_tables` on the device, as the kernels read them."""
-        values, words = sample_tables(samples, reals)
-        return self._rows(values.astype(self.np_real)), self._rows(words)
+    def _tables(self, samples: Sequence[Drawn]) -> tuple:
+        """:func:`sample_tables` on the device, as the kernels read them.
+
+        The last upload is kept: the finish pass of the samples whose to_raw pass just ran
+        reads the same tables (the buffers stay alive while the launches that read them run).
+        """
+        values, words = sample_tables(samples)
+        values = values.astype(self.np_real)
+        key = (values.tobytes(), words.tobytes())
+        if self._last_tables is None or self._last_tables[0] != key:
+            self._last_tables = (key, (self._rows(values), self._rows(words)))
+        return self._last_tables[1]
 
     def _rows(self, table: np.ndarray):
         """A small 2-D host table on the device (flat where the language indexes by hand)."""

@@ -268,7 +268,7 @@ def to_raw_kernel(real, config):
     """Pass 2 built for ``config`` (gpu_blur.backends.kernel.PassConfig), kept stages as flags.
 
     One launch over (samples, rows, columns) runs a batch of one plan, as gb_to_raw: sample b's
-    drawn values are row b of ``sample_reals`` (kernel_constants.TO_RAW_REALS) and
+    drawn values are row b of ``sample_reals`` (kernel_constants.SAMPLE_REALS) and
     ``sample_words`` (SAMPLE_WORDS), and its buffers are row ``slot`` of each 2-D buffer.
 
     Stages: saturate, vignetting, linear_to_camera, mosaic, inverse_white_balance,
@@ -394,7 +394,7 @@ def finish_kernel(real, config):
     """Pass 3 built for ``config`` (gpu_blur.backends.kernel.PassConfig), kept stages as flags.
 
     One launch over (samples, rows, columns) runs a batch of one plan, as :func:`to_raw_kernel`
-    (``sample_reals``: kernel_constants.FINISH_REALS).
+    (its ``gaussian_std``: column 5 of ``sample_reals``).
 
     Stages: demosaic ("" when there is no RAW round trip), camera_to_linear, tone,
     gaussian_noise, restore_saturated, retone (the plan's ``retone_curve``: "", "polynomial"
@@ -419,7 +419,7 @@ def finish_kernel(real, config):
                key0: wp.uint32, key1: wp.uint32, crf_polynomial: wp.array(dtype=real),
                crf_table: wp.array(dtype=real), out_slots: wp.array2d(dtype=real)):
         b, y, x = wp.tid()
-        gaussian_std = sample_reals[b, 0]
+        gaussian_std = sample_reals[b, 5]
         cfa = int(sample_words[b, 0])
         sample_index = sample_words[b, 1]
         slot = int(sample_words[b, 2])

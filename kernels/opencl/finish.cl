@@ -5,7 +5,7 @@
  * writes the output region (first pixel (ox0, oy0), size ow x oh), 3 reals per pixel.
  *
  * One launch runs a batch of samples of one plan, as gb_to_raw: the third grid index is the
- * sample, its values row b of sample_reals (gpu_blur.backends.kernel.FINISH_REALS) and
+ * sample, its values row b of sample_reals (gpu_blur.kernel_constants.SAMPLE_REALS) and
  * sample_words; each buffer holds a slot per sample, <buffer>_stride values apart.
  */
 #include "gb_common.h"
@@ -24,7 +24,7 @@ __kernel void gb_finish(__global const real *raw, long raw_stride,
 {
     long x = get_global_id(0), y = get_global_id(1), b = get_global_id(2);
     if (x >= ow || y >= oh) return;
-    real gaussian_std = sample_reals[GB_FINISH_REALS * b];
+    real gaussian_std = sample_reals[GB_SAMPLE_REALS * b + 5];
     int cfa = (int)sample_words[GB_SAMPLE_WORDS * b];
     uint sample_index = sample_words[GB_SAMPLE_WORDS * b + 1];
     long slot = (long)sample_words[GB_SAMPLE_WORDS * b + 2];

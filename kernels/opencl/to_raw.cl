@@ -9,7 +9,7 @@
  * strength and the whole image's height and width.
  *
  * One launch runs a batch of samples of one plan: the third grid index is the sample, whose
- * drawn values are row b of sample_reals (gpu_blur.backends.kernel.TO_RAW_REALS) and
+ * drawn values are row b of sample_reals (gpu_blur.kernel_constants.SAMPLE_REALS) and
  * sample_words (SAMPLE_WORDS: CFA pattern, sample index, slot). Each buffer holds a slot per
  * sample, <buffer>_stride values apart; a sample reads and writes its slot `slot`.
  */
@@ -26,7 +26,7 @@ __kernel void gb_to_raw(__global const real *linear, long linear_stride,
 {
     long x = get_global_id(0), y = get_global_id(1), b = get_global_id(2);
     if (x >= w || y >= h) return;
-    __global const real *drawn = sample_reals + GB_TO_RAW_REALS * b;
+    __global const real *drawn = sample_reals + GB_SAMPLE_REALS * b;
     real alpha = drawn[0], red_gain = drawn[1], blue_gain = drawn[2];
     real shot_noise_k = drawn[3], read_noise_std = drawn[4];
     int cfa = (int)sample_words[GB_SAMPLE_WORDS * b];

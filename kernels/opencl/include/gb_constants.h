@@ -75,6 +75,5 @@
 #define GB_PTRS_US_SQUEEZE GB_WIDE(0.07)
 #define GB_PTRS_US_TAIL GB_WIDE(0.013)
 #define GB_SAMPLE_WORDS 3
-#define GB_TO_RAW_REALS 5
-#define GB_FINISH_REALS 1
+#define GB_SAMPLE_REALS 6
 #endif
