@@ -328,3 +328,23 @@ def test_batches_after_others_equal_batches_of_a_fresh_synthesizer(name):
     for got, want in ((again.blurred, fresh.blurred), (again.sharp, fresh.sharp),
                       (again.mask, fresh.mask)):
         assert np.array_equal(got, want)
+
+
+def test_a_batched_launch_whose_slots_are_too_small_is_refused_before_it_runs():
+    from gpu_blur.backends import get_backend
+    from gpu_blur.backends.kernel import Drawn
+    from gpu_blur.cameras import get_camera
+    from gpu_blur.plan import plan
+    from gpu_blur.tiling import Region
+
+    backend = get_backend("warp:cpu")
+    p = plan(scene_for("kernel"), size=(4, 4))
+    rgb, mosaic = backend.slots(2, 48), backend.slots(2, 16)
+    samples = [Drawn({}, 0, 0), Drawn({}, 1, 2)]  # slot 2 of two
+    with pytest.raises(ValueError, match="linear has 2 slot"):
+        backend.to_raw_batch(p, get_camera("srgb"), samples, rgb, rgb, rgb, mosaic, (0, 0),
+                             (4, 4), seed=0)
+    short = backend.slots(1, 47)  # a slot one value short
+    with pytest.raises(ValueError, match="saturated has 1 slot"):
+        backend.finish_batch(p, get_camera("srgb"), samples[:1], mosaic, short,
+                             Region.whole(4, 4), Region.whole(4, 4), rgb, seed=0)

@@ -192,6 +192,21 @@ class Slots(NamedTuple):
     stride: int
 
 
+def _check_slots(samples: Sequence[Drawn], buffers) -> None:
+    """Refuse a batched launch whose slots could not hold what its kernel reads or writes.
+
+    ``buffers``: (name, :class:`Slots`, values a slot must hold) each. The kernels index by
+    slot and stride without bounds checks, so this is what keeps them inside the buffers.
+    """
+    top = max((d.slot for d in samples), default=-1)
+    for name, slots, needed in buffers:
+        if slots.stride < needed or top >= slots.count or min(
+                (d.slot for d in samples), default=0) < 0:
+            raise ValueError(f"batched launch: {name} has {slots.count} slot(s) of "
+                             f"{slots.stride} values; its samples need slots 0..{top} of "
+                             f"{needed} values (a gpu_blur bug: please report it)")
+
+
 def to_raw_args(plan: Plan, tables, origin: tuple[int, int], h: int, w: int, inputs, matrix,
                 outputs, *, seed: int) -> tuple:
     """The to_raw kernel's arguments, in order.
@@ -728,6 +743,9 @@ class KernelBackend:
         """
         k = self._pass_kernels(self._of_plan(plan)[Pass.TO_RAW])
         h, w = size
+        _check_slots(samples, (("linear", linear, 3 * h * w), ("mask", mask, 3 * h * w),
+                               ("saturated", saturated, 3 * h * w),
+                               ("raw", raw, h * w if plan.raw_round_trip else 1)))
         tables = self._tables(samples)
         matrix = self._constant(camera.linear_to_camera)
         with self._timed():
@@ -763,6 +781,10 @@ class KernelBackend:
         derived = self._of_plan(plan, camera)
         k = self._pass_kernels(derived[Pass.FINISH])
         polynomial, table = derived["curves"]
+        pixels = view.h * view.w
+        _check_slots(samples, (("raw", raw, pixels if plan.raw_round_trip else 1),
+                               ("saturated", saturated, 3 * pixels),
+                               ("result", result, 3 * out.h * out.w)))
         tables = self._tables(samples)
         matrix = self._constant(camera.camera_to_linear)
         with self._timed():
