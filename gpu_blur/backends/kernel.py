@@ -637,7 +637,7 @@ class KernelBackend:
         grid = (region.h, region.w)
         if mode == "kernel":
             kernel = blur.normalize_kernel(params["kernel"])
-            taps = self._upload(np.ravel(kernel))
+            taps = self._rows(np.ravel(kernel).astype(self.np_real))
             with self._timed():
                 for values, out in ((src, linear), (indicator, sat_mask)):
                     self._launch(k, "blur_kernel", grid, values, *_view_geometry(view), taps,
@@ -650,7 +650,8 @@ class KernelBackend:
         sums = ([self._zeros(3 * pixels) for _ in range(4)]
                 + [self._zeros(pixels) for _ in range(2)])
         hom = params["homographies"]
-        inverses = [self._upload(np.ravel(np.linalg.inv(h)), self.position_dtype) for h in hom]
+        inverses = [self._rows(np.ravel(np.linalg.inv(h)).astype(self.position_dtype))
+                    for h in hom]
         with self._timed():
             for hinv in inverses:  # one pose at a time
                 self._launch(k, "blur_trajectory_add", grid, src, indicator,
@@ -811,7 +812,11 @@ class KernelBackend:
         return self._last_tables[1]
 
     def _rows(self, table: np.ndarray):
-        """A small 2-D host table on the device (flat where the language indexes by hand)."""
+        """A small host table (a sample's draws, its kernel taps) on the device, in its dtype.
+
+        Flat where the language indexes by hand (OpenCL); Warp keeps its shape and, on CUDA,
+        queues the copy instead of waiting for the device.
+        """
         return self._upload(table, table.dtype)
 
     def _slots(self, slots: Slots) -> tuple:

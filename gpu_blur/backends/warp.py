@@ -48,8 +48,9 @@ _LOADED: set = set()
 #: most this many values (an RGB region ~715 M pixels). OpenCL kernels index with 64 bits.
 MAX_BUFFER_VALUES = 2**31 - 1
 
-#: Pinned buffers that take turns carrying batched launches' sample tables to a CUDA device.
-ROW_TABLES = 16
+#: Pinned buffers that take turns carrying small tables (sample tables, kernel taps, a camera
+#: path's poses) to a CUDA device.
+ROW_TABLES = 64
 
 #: Recorded launches a backend keeps (one per kernel and grid; the oldest goes first).
 RECORDED_LAUNCHES = 64
@@ -304,8 +305,9 @@ class WarpBackend(KernelBackend):
         """A small table on the device; on CUDA through a ring of pinned buffers.
 
         ``wp.array(host)`` copies from pageable memory, which waits for every launch queued
-        before it: the host would stop at each batched pass. From pinned memory the copy is
-        queued like a launch; a ring buffer is refilled once its copy is done.
+        before it: the host would stop at each batched pass and each sample's kernel taps.
+        From pinned memory the copy is queued like a launch; a ring buffer is refilled once
+        its copy is done.
         """
         with timer("copies"):
             if not (self.uses_cuda and self.overlap):
