@@ -87,6 +87,8 @@ def main(argv=None) -> int:
     p.add_argument("--scenes", default=",".join(s[0] for s in SCENES),
                    help="comma list of " + ", ".join(s[0] for s in SCENES))
     p.add_argument("--scale", type=float, default=1.0, help="size factor (CPU: e.g. 0.25)")
+    p.add_argument("--paths", default="synthesize,numpy,torch",
+                   help="which of synthesize, numpy, torch to time (default all)")
     p.add_argument("--json", help="write the results here")
     args = p.parse_args(argv)
     backend = get_backend(args.backend)
@@ -112,13 +114,16 @@ def main(argv=None) -> int:
                 gpu_blur.synthesize(one_sample(given, b), scene, seed=1, sample_index=b,
                                     backend=backend)
 
-        row["synthesize_ms"] = median_ms(calls, args.batch, args.runs, sync)
+        paths = args.paths.split(",")
+        if "synthesize" in paths:
+            row["synthesize_ms"] = median_ms(calls, args.batch, args.runs, sync)
         if batched:
             synth = gpu_blur.Synthesizer(scene, backend=backend, seed=1)
-            row["batch_numpy_ms"] = median_ms(
-                lambda s=synth, g=given: s(g["batch"], mask=g.get("mask")), args.batch,
-                args.runs, sync)
-            if cuda and torch is not None and torch.cuda.is_available():
+            if "numpy" in paths:
+                row["batch_numpy_ms"] = median_ms(
+                    lambda s=synth, g=given: s(g["batch"], mask=g.get("mask")), args.batch,
+                    args.runs, sync)
+            if "torch" in paths and cuda and torch is not None and torch.cuda.is_available():
                 on_gpu = {k: torch.from_numpy(v).cuda() for k, v in given.items()}
                 row["batch_torch_cuda_ms"] = median_ms(
                     lambda s=synth, g=on_gpu: s(g["batch"], mask=g.get("mask")), args.batch,

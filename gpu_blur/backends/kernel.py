@@ -498,13 +498,14 @@ class KernelBackend:
         """
         h, w = frames.shape[-3:-1]
         n = h * w * 3
-        into = ((self._view(linear.buffer, b * linear.stride, n),
-                 self._view(sat_mask.buffer, b * sat_mask.stride, n)) if self.slot_views
-                else (self._empty(n), self._empty(n)))
+        slots = (linear, sat_mask)
+        into = tuple(self._in_slot(s, b, n) for s in slots)
+        if None in into:  # no view of slot b: new buffers, copied in below
+            into = (self._empty(n), self._empty(n))
         self._accumulate_put(plan, params, frames, mask, Region.whole(h, w), into)
-        if not self.slot_views:
-            self._copy(linear.buffer, into[0], n, b * linear.stride)
-            self._copy(sat_mask.buffer, into[1], n, b * sat_mask.stride)
+        if self._in_slot(linear, b, n) is None:
+            for s, values in zip(slots, into, strict=True):
+                self._copy(s.buffer, values, n, b * s.stride)
 
     #: Whether :meth:`_view` gives views of a buffer (else slots are read and written by copies).
     slot_views = False
@@ -513,14 +514,24 @@ class KernelBackend:
         """Values ``start .. start + count`` of a device buffer, as a buffer sharing its memory."""
         raise NotImplementedError
 
+    def _in_slot(self, slots: Slots, b: int, count: int):
+        """The first ``count`` values of slot ``b`` as a buffer sharing its memory, or None.
+
+        A view where the language has them; slot 0 is the buffer itself (its first values).
+        """
+        if self.slot_views:
+            return self._view(slots.buffer, b * slots.stride, count)
+        return slots.buffer if b == 0 else None
+
     def slot_image(self, slots: Slots, b: int, shape) -> OnDevice:
         """Slot ``b`` of a batch buffer as an ``OnDevice`` image of ``shape``.
 
-        A view where the language has them, else a device copy.
+        A view where the language has them (and for slot 0), else a device copy.
         """
-        size, start = int(np.prod(shape)), b * slots.stride
-        data = (self._view(slots.buffer, start, size) if self.slot_views
-                else self._part(slots.buffer, start, size, None))
+        size = int(np.prod(shape))
+        data = self._in_slot(slots, b, size)
+        if data is None:
+            data = self._part(slots.buffer, b * slots.stride, size, None)
         return OnDevice(data, shape, self._fetch)
 
     def stacked(self, slots: Slots, shape) -> OnDevice:
@@ -920,9 +931,10 @@ class KernelBackend:
         curves = (self._constant(polynomial), Arg("int", polynomial.size, extent=True),
                   self._constant(table), Arg("int", table.size, extent=True))
         count = out.h * out.w * 3
-        in_place = into is not None and self.slot_views
-        result = (self._view(into[0].buffer, into[1] * into[0].stride, count) if in_place
-                  else self._empty(count))
+        result = None if into is None else self._in_slot(*into, count)
+        in_place = result is not None
+        if result is None:
+            result = self._empty(count)
         with self._timed():
             if source == self.np_real:
                 self._launch(k, "render_sharp", (out.h, out.w), image.data, *_index(w),

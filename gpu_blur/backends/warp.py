@@ -48,9 +48,10 @@ _LOADED: set = set()
 #: most this many values (an RGB region ~715 M pixels). OpenCL kernels index with 64 bits.
 MAX_BUFFER_VALUES = 2**31 - 1
 
-#: Pinned buffers that take turns carrying small tables (sample tables, kernel taps, a camera
-#: path's poses) to a CUDA device.
+#: Turns of the pinned ring that carries small tables (sample tables, kernel taps, a camera
+#: path's poses) to a CUDA device, and the bytes of each (a larger table is copied directly).
 ROW_TABLES = 64
+ROW_TABLE_BYTES = 64 * 1024
 
 #: Recorded launches a backend keeps (one per kernel and grid; the oldest goes first).
 RECORDED_LAUNCHES = 64
@@ -194,7 +195,9 @@ class WarpBackend(KernelBackend):
         self._staging: dict = {}  # slot -> pinned host buffer (kept across samples)
         self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
         self._prefetch_turn = 0
-        self._rows_turn = 0  # which pinned buffer of the ring carries the next sample table
+        self._row_ring = None  # pinned host bytes: ROW_TABLES turns of ROW_TABLE_BYTES
+        self._rows_turn = 0  # the turn that carries the next small table
+        self._row_copies: dict = {}  # turn -> event: the copy out of its bytes
         self._prefetch_stacks: dict = {}  # slot -> device stack of prefetched frames
         self._prefetch_read: dict = {}  # slot -> event: the accumulate that read it
         self._launches = Launches(self.wp_device)
@@ -309,18 +312,25 @@ class WarpBackend(KernelBackend):
         From pinned memory the copy is queued like a launch; a ring buffer is refilled once
         its copy is done.
         """
+        table = np.ascontiguousarray(table)
         with timer("copies"):
-            if not (self.uses_cuda and self.overlap):
-                return wp.array(np.ascontiguousarray(table), device=self.wp_device)
+            if not (self.uses_cuda and self.overlap) or table.nbytes > ROW_TABLE_BYTES:
+                return wp.array(table, device=self.wp_device)
+            if self._row_ring is None:  # one pinned allocation for every turn (they are slow)
+                self._row_ring = wp.empty(ROW_TABLES * ROW_TABLE_BYTES, dtype=wp.uint8,
+                                          device="cpu", pinned=True)
+            turn = self._rows_turn
+            self._rows_turn = (turn + 1) % ROW_TABLES
+            if turn in self._row_copies:  # the copy out of this turn's bytes is done
+                wp.synchronize_event(self._row_copies.pop(turn))
             dtype = wp.dtype_from_numpy(table.dtype)
-            slot = ("rows", table.dtype.str, self._rows_turn)
-            self._rows_turn = (self._rows_turn + 1) % ROW_TABLES
-            staging = self._staging_buffer(slot, table.size, dtype)
-            staging.numpy()[:table.size] = table.ravel()
-            rows = wp.empty(table.size, dtype=dtype, device=self.wp_device)
-            wp.copy(rows, staging, count=table.size)
-            self._staged[slot] = wp.get_stream(self.wp_device).record_event()
-            return rows.reshape(table.shape)
+            staging = wp.array(ptr=self._row_ring.ptr + turn * ROW_TABLE_BYTES, dtype=dtype,
+                               shape=table.shape, device="cpu")
+            staging.numpy()[...] = table
+            rows = wp.empty(table.shape, dtype=dtype, device=self.wp_device)
+            wp.copy(rows, staging)
+            self._row_copies[turn] = wp.get_stream(self.wp_device).record_event()
+            return rows
 
     @staticmethod
     def _slots(slots) -> tuple:
