@@ -334,7 +334,10 @@ class WarpBackend(KernelBackend):
 
     @staticmethod
     def _slots(slots) -> tuple:
-        return (slots.buffer[:slots.count * slots.stride].reshape((slots.count, slots.stride)),)
+        buffer, size = slots.buffer, slots.count * slots.stride
+        if buffer.size != size:  # (slicing a wp.array costs tens of microseconds)
+            buffer = buffer[:size]
+        return (buffer.reshape((slots.count, slots.stride)),)
 
     def _write(self, buffer, values: np.ndarray) -> None:
         with timer("copies"):
@@ -501,7 +504,7 @@ class WarpBackend(KernelBackend):
 
     @staticmethod
     def _view(buffer, start: int, count: int) -> wp.array:
-        return buffer[start:start + count]
+        return buffer if start == 0 and count == buffer.size else buffer[start:start + count]
 
     @staticmethod
     def _copy(into, values, count: int, offset: int = 0) -> None:
