@@ -20,11 +20,11 @@ import argparse
 import json
 import platform
 import statistics
-import time
 
 import numpy as np
 
 import gpu_blur
+from gpu_blur.analysis.bench.measure import median_time
 from gpu_blur.backends import get_backend
 from gpu_blur.scene import scene_from_dict
 
@@ -57,16 +57,9 @@ def one_sample(given: dict, b: int):
 
 
 def median_ms(run, samples: int, runs: int, sync) -> float:
-    """Median milliseconds per sample of ``run()`` (one warm-up first)."""
-    run()
-    sync()
-    times = []
-    for _ in range(runs):
-        start = time.perf_counter()
-        run()
-        sync()
-        times.append((time.perf_counter() - start) / samples * 1e3)
-    return statistics.median(times)
+    """Median milliseconds per sample of ``run()``, the device synchronized (one warm-up first)."""
+    times, _ = median_time(lambda: (run(), sync()), runs)
+    return statistics.median(times) / samples * 1e3
 
 
 def device_ms(synth, given: dict, samples: int) -> float | None:

@@ -44,6 +44,15 @@ def add_compensated(total: wp.array(dtype=Any), compensation: wp.array(dtype=Any
     total[i] = t
 
 
+@wp.func
+def sample_of(sample_words: wp.array2d(dtype=wp.uint32), b: int):
+    """Sample b of a batched launch, as gb_sample_of: (Bayer pattern, sample index, slot).
+
+    Row b of ``sample_words`` (gpu_blur.kernel_constants.SAMPLE_WORDS).
+    """
+    return int(sample_words[b, 0]), sample_words[b, 1], int(sample_words[b, 2])
+
+
 #: Largest code of a stored frame dtype (values are code / top); floats are values already.
 SOURCE_TOP = {wp.uint8: 255.0, wp.uint16: 65535.0}
 
@@ -298,9 +307,7 @@ def to_raw_kernel(real, config):
         blue_gain = sample_reals[b, 2]
         shot_noise_k = sample_reals[b, 3]
         read_noise_std = sample_reals[b, 4]
-        cfa = int(sample_words[b, 0])
-        sample_index = sample_words[b, 1]
-        slot = int(sample_words[b, 2])
+        cfa, sample_index, slot = sample_of(sample_words, b)
         linear = linear_slots[slot]
         mask = mask_slots[slot]
         saturated = saturated_slots[slot]
@@ -420,9 +427,7 @@ def finish_kernel(real, config):
                crf_table: wp.array(dtype=real), out_slots: wp.array2d(dtype=real)):
         b, y, x = wp.tid()
         gaussian_std = sample_reals[b, 5]
-        cfa = int(sample_words[b, 0])
-        sample_index = sample_words[b, 1]
-        slot = int(sample_words[b, 2])
+        cfa, sample_index, slot = sample_of(sample_words, b)
         raw = raw_slots[slot]
         saturated = saturated_slots[slot]
         out = out_slots[slot]

@@ -25,9 +25,10 @@ __kernel void gb_finish(__global const real *raw, long raw_stride,
     long x = get_global_id(0), y = get_global_id(1), b = get_global_id(2);
     if (x >= ow || y >= oh) return;
     real gaussian_std = sample_reals[GB_SAMPLE_REALS * b + 5];
-    int cfa = (int)sample_words[GB_SAMPLE_WORDS * b];
-    uint sample_index = sample_words[GB_SAMPLE_WORDS * b + 1];
-    long slot = (long)sample_words[GB_SAMPLE_WORDS * b + 2];
+    gb_sample sample = gb_sample_of(sample_words, b);
+    int cfa = sample.cfa;
+    uint sample_index = sample.sample_index;
+    long slot = sample.slot;
     raw += slot * raw_stride;
     saturated += slot * saturated_stride;
     out += slot * out_stride;

@@ -29,9 +29,10 @@ __kernel void gb_to_raw(__global const real *linear, long linear_stride,
     __global const real *drawn = sample_reals + GB_SAMPLE_REALS * b;
     real alpha = drawn[0], red_gain = drawn[1], blue_gain = drawn[2];
     real shot_noise_k = drawn[3], read_noise_std = drawn[4];
-    int cfa = (int)sample_words[GB_SAMPLE_WORDS * b];
-    uint sample_index = sample_words[GB_SAMPLE_WORDS * b + 1];
-    long slot = (long)sample_words[GB_SAMPLE_WORDS * b + 2];
+    gb_sample sample = gb_sample_of(sample_words, b);
+    int cfa = sample.cfa;
+    uint sample_index = sample.sample_index;
+    long slot = sample.slot;
     linear += slot * linear_stride;
     mask += slot * mask_stride;
     saturated += slot * saturated_stride;

@@ -74,6 +74,21 @@ inline long gb_offset(long gx, long gy, long x0, long y0, long w)
     return (gy - y0) * w + (gx - x0);
 }
 
+/* Sample b of a batched launch (gb_to_raw, gb_finish): its row of sample_words
+ * (gpu_blur.kernel_constants.SAMPLE_WORDS): Bayer pattern, sample index, slot. */
+typedef struct {
+    int cfa;
+    uint sample_index;
+    long slot;
+} gb_sample;
+
+inline gb_sample gb_sample_of(__global const uint *sample_words, long b)
+{
+    __global const uint *row = sample_words + GB_SAMPLE_WORDS * b;
+    gb_sample s = {(int)row[0], row[1], (long)row[2]};
+    return s;
+}
+
 /* Bayer colour (0 = R, 1 = G, 2 = B) at global (gx, gy): `cfa` packs the channels at the
  * cell offsets (0,0), (0,1), (1,0), (1,1) in bits 0-1, 2-3, 4-5, 6-7. */
 inline int gb_cfa_channel(int cfa, long gx, long gy)
