@@ -198,10 +198,10 @@ def _check_slots(samples: Sequence[Drawn], buffers) -> None:
     ``buffers``: (name, :class:`Slots`, values a slot must hold) each. The kernels index by
     slot and stride without bounds checks, so this is what keeps them inside the buffers.
     """
-    top = max((d.slot for d in samples), default=-1)
+    used = [d.slot for d in samples]
+    top = max(used, default=-1)
     for name, slots, needed in buffers:
-        if slots.stride < needed or top >= slots.count or min(
-                (d.slot for d in samples), default=0) < 0:
+        if slots.stride < needed or top >= slots.count or min(used, default=0) < 0:
             raise ValueError(f"batched launch: {name} has {slots.count} slot(s) of "
                              f"{slots.stride} values; its samples need slots 0..{top} of "
                              f"{needed} values (a gpu_blur bug: please report it)")
@@ -437,8 +437,8 @@ class KernelBackend:
                         into: tuple | None = None) -> tuple[OnDevice, OnDevice]:
         """:meth:`accumulate` of inputs on the device, over the whole image.
 
-        ``into``: (linear, mask) device buffers of ``3 h w`` values to write (slots of a
-        batch's buffers, :meth:`slot`), else new ones.
+        ``into``: (linear, mask) device buffers of ``3 h w`` values to write (a batch's slots,
+        :meth:`accumulate_into`), else new ones.
         """
         mode = plan.variant(S.BLUR) or "none"
         h, w = frames.shape[-3:-1]

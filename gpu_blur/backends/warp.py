@@ -305,12 +305,12 @@ class WarpBackend(KernelBackend):
         return wp.empty(max(count, 1), dtype=self._wp_dtype(dtype), device=self.wp_device)
 
     def _rows(self, table: np.ndarray) -> wp.array:
-        """A small table on the device; on CUDA through a ring of pinned buffers.
+        """A small table on the device; on CUDA through a ring of pinned host memory.
 
         ``wp.array(host)`` copies from pageable memory, which waits for every launch queued
         before it: the host would stop at each batched pass and each sample's kernel taps.
-        From pinned memory the copy is queued like a launch; a ring buffer is refilled once
-        its copy is done.
+        From pinned memory the copy is queued like a launch; a turn of the ring is refilled
+        once its copy is done.
         """
         table = np.ascontiguousarray(table)
         with timer("copies"):
@@ -496,15 +496,15 @@ class WarpBackend(KernelBackend):
             self._prefetch_read[prefetched.slot] = wp.get_stream(self.wp_device).record_event()
         return result
 
-    @staticmethod
-    def _part(buffer, start: int, count: int, dtype) -> wp.array:
-        return buffer[start:start + count]
-
     slot_views = True
 
     @staticmethod
     def _view(buffer, start: int, count: int) -> wp.array:
         return buffer if start == 0 and count == buffer.size else buffer[start:start + count]
+
+    @staticmethod
+    def _part(buffer, start: int, count: int, dtype) -> wp.array:
+        return WarpBackend._view(buffer, start, count)
 
     @staticmethod
     def _copy(into, values, count: int, offset: int = 0) -> None:
