@@ -418,11 +418,14 @@ class Synthesizer:
             raise ValueError(f"indices: {len(indices)} sample indices for a batch of {count}; "
                              "give one per sample")
         items = self._prepared(items)
+        out_given = out
         if self.resident:
             out, params, plans, raws = self._resident_batch(items, indices, batch, lib, out)
         else:
             out, params, plans, raws = self._host_batch(items, indices, batch, lib, out)
-        _jpeg_stage(out[0], plans, params)
+        _jpeg_stage(out[0], plans, params)  # channels-last, as the backend wrote them
+        out = ([self._returned(o, lib, batch) for o in out] if out_given is None
+               else list(out_given))
         raw = None
         if self.with_raw:
             crop = self.scene.output.crop
@@ -450,7 +453,7 @@ class Synthesizer:
                 runner.wait()
         raws = ([runner.slot_image(done.raw, b, done.size) for b in range(len(items))]
                 if self.with_raw else [])
-        return self._returned_all(out, lib, batch, given), done.params, done.plans, raws
+        return out, done.params, done.plans, raws
 
     def _host_batch(self, items: list[_Inputs], indices, batch, lib: str, given):
         """A batch run sample by sample from host memory (tiles, budgets, spot checks)."""
@@ -470,11 +473,7 @@ class Synthesizer:
             if out is None:
                 out = self._outputs(len(items), results[0][1], batch, lib, len(results), given)
             self._export(out, b, results)
-        return self._returned_all(out, lib, batch, given), params, plans, raws
-
-    def _returned_all(self, out: list, lib: str, like, given) -> list:
-        """The batch's outputs as its array type and layout (``out=``'s arrays as given)."""
-        return [self._returned(o, lib, like) for o in out] if given is None else list(given)
+        return out, params, plans, raws
 
     def _export_slots(self, into, slots: Slots, shape) -> None:
         """Every sample's slot of a batch buffer into ``into`` (B x ``shape``), in one copy."""

@@ -67,6 +67,18 @@ def test_jpeg_stage_is_the_round_trip_of_the_quantized_output_and_reproducible()
     np.testing.assert_array_equal(one.blurred, out.blurred[1])
 
 
+@pytest.mark.parametrize("backend", ["numpy", "warp:cpu", "opencl"])
+def test_jpeg_stage_acts_on_channels_last_images_whatever_layout_the_batch_comes_in(backend):
+    import torch
+
+    scene = _scene(jpeg_quality=[30, 60], crop=3)
+    last = gpu_blur.Synthesizer(scene, backend=backend, seed=4)(PHOTOS)
+    first = gpu_blur.Synthesizer(scene, backend=backend, seed=4, channels_first=True)(
+        torch.from_numpy(np.ascontiguousarray(PHOTOS.transpose(0, 3, 1, 2))))
+    assert isinstance(first.blurred, torch.Tensor) and first.blurred.shape[1] == 3
+    np.testing.assert_array_equal(first.blurred.numpy().transpose(0, 2, 3, 1), last.blurred)
+
+
 def test_jpeg_round_trip_is_opencv_4_2_0_at_the_quality():
     codes = PHOTOS[0]
     ok, data = cv2.imencode(".jpg", codes[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 40,
