@@ -405,7 +405,7 @@ class Tiled:
 
 def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
         schedule: Schedule, *, seed: int, sample_index: int, on_device: bool = False,
-        crop: int = 0, keep_raw: bool = False) -> Tiled:
+        keep_raw: bool = False) -> Tiled:
     """Run a sample's three passes on ``runner`` over tiles, with spot checks.
 
     Args:
@@ -421,8 +421,6 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
         seed: dataset seed.
         sample_index: the sample's index.
         on_device: leave the result on the backend's device (one tile only, no checks).
-        crop: with ``on_device``, the finish pass writes only the image less ``crop`` pixels
-            on each side (``output.crop``); the mask stays whole.
         keep_raw: also return the RAW mosaic (:attr:`Tiled.raw`; plans with the round trip).
 
     Raises:
@@ -454,10 +452,8 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
     if len(regions) == 1:  # the whole image: results stay where the backend left them
         region = regions[0]
         view = region.expand(halo).aligned(2 if raw else 1)
-        out = (Region(crop, crop, h - 2 * crop, w - 2 * crop, h, w) if on_device and crop
-               else region)
         linear, view_mask, image, saturated, result = _passes(
-            runner, sample_plan, params, camera, frames, mask, view, out, seed, sample_index)
+            runner, sample_plan, params, camera, frames, mask, view, region, seed, sample_index)
         if chosen:
             with timer("checks"):
                 check.tile("tile 1 of 1", region, view, linear, view_mask, image, saturated,
