@@ -13,7 +13,8 @@ devices may differ in a last bit), in ``tests/data/golden_outputs.json``:
 recorded. The record holds the CPU devices of the development machine (recorded at 40370a5;
 Debian's PoCL 3.1 at 430b3ee) and an NVIDIA H100 (OpenCL and Warp CUDA, recorded at 430b3ee,
 whose outputs on those CPU devices are 40370a5's), all before the kernel backends were
-written once (issue 14).
+written once (issue 14); and the CPU devices of an Intel Xeon (Skylake) development machine,
+PoCL and Intel's runtime, recorded by a9a79b6's code (before to_raw and finish ran batched).
 """
 
 from __future__ import annotations
