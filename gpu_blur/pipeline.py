@@ -751,11 +751,10 @@ class Synthesizer:
             runner.accumulate_into(sample_plan, drawn, item.frames, item.mask, linear, sat_mask,
                                    b)
         for sample_plan, drawn in groups.values():
-            kw = {"seed": self.seed}
             runner.to_raw_batch(sample_plan, camera, drawn, linear, sat_mask, saturated, raw,
-                                (0, 0), (h, w), **kw)
+                                (0, 0), (h, w), seed=self.seed)
             runner.finish_batch(sample_plan, camera, drawn, raw, saturated, whole, out, result,
-                                **kw)
+                                seed=self.seed)
         for b, (p, item) in enumerate(zip(plans, items, strict=True)):
             runner.render_sharp(p, camera, item.sharp, out, into=(sharp_slots, b))
         return _Resident(result, sat_mask, raw, sharp_slots, params, plans, out, (h, w))
