@@ -57,6 +57,19 @@ SRGB_DECODE_KNEE_FLOAT32 = _float32_at_or_above(SRGB_DECODE_KNEE)
 #: A linear value at or above this is saturated (the indicator of the accumulate pass).
 SATURATION_LEVEL = average.SATURATION_LEVEL
 
+# -- exact sums of 8-bit frames (the average's one-launch sum, gb_blur_average_exact) ---------
+#: Float32 linear values of 8-bit codes are whole multiples of 2^-35: the smallest nonzero one
+#: (code 1, 3.0e-4) is at least 2^-12, whose float32 spacing is 2^-35. A code's value is a
+#: count of these units (at most 2^35) and a frame sum an exact integer sum of counts.
+EXACT_UNIT = 2.0**-35
+#: A code's table entry counts it saturated at this bit, above its units: a sum of at most
+#: EXACT_FRAMES_MAX entries keeps its units below 2^42 and its saturated count above bit 47.
+EXACT_COUNT_SHIFT = 48
+#: Most frames the exact sum takes: up to 128 frames of such values, the compensated float32
+#: sum of gb_blur_average_add is the correctly rounded sum (kernels/opencl/include/gb_sum.h),
+#: which the exact sum rounds once to; so the two give the same bits.
+EXACT_FRAMES_MAX = 128
+
 # -- demosaicing taps (reference.demosaic), as the kernels hold them ------------------------
 # Kernels hold each filter times a power of two (exact) and weigh an entry by its inverse,
 # ``entry * TAP_WEIGHT``, which is the reference's weight exactly.
@@ -134,6 +147,8 @@ OPENCL: tuple[tuple[str, str, str], ...] = (
     ("GB_SRGB_SCALE", "SRGB_SCALE", REAL),
     ("GB_SRGB_OFFSET", "SRGB_OFFSET", REAL),
     ("GB_SATURATION_LEVEL", "SATURATION_LEVEL", REAL),
+    ("GB_EXACT_UNIT", "EXACT_UNIT", FLOAT),
+    ("GB_EXACT_COUNT_SHIFT", "EXACT_COUNT_SHIFT", UINT),
     ("GB_MALVAR2004_TAP_WEIGHT", "MALVAR2004_TAP_WEIGHT", REAL),
     ("GB_MALVAR2004_G_AT_RB_X8", "MALVAR2004_G_AT_RB_X8", REAL),
     ("GB_MALVAR2004_RB_AT_G_ROW_X8", "MALVAR2004_RB_AT_G_ROW_X8", REAL),

@@ -33,6 +33,8 @@ from hypothesis import strategies as st
 
 import gpu_blur
 from gpu_blur import conformance
+from gpu_blur.backends import OnDevice
+from gpu_blur.backends.kernel import pass_config
 from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.cameras import get_camera
 from gpu_blur.conformance import (
@@ -55,6 +57,8 @@ from gpu_blur.conformance import (
     transfer_points,
 )
 from gpu_blur.constants import A7R3_CRF_TABLE_X255
+from gpu_blur.kernel_constants import EXACT_FRAMES_MAX, EXACT_UNIT
+from gpu_blur.plan import Pass
 from gpu_blur.reference import bayer, transfer
 from gpu_blur.reference.color import apply_matrix
 from gpu_blur.scene import PATTERNS
@@ -202,6 +206,76 @@ def test_average_of_1_to_1000_frames_stays_within_the_stated_bound(spec, n):
     # the saturated fraction is count / n, rounded once to the compute type
     assert np.array_equal(mask, on_device(spec, ref_mask))
     assert np.any(ref_mask > 0)  # saturated frames were counted
+
+
+def compensated_sum_float32(terms: np.ndarray) -> np.ndarray:
+    """gb_blur_average_add's sum of ``terms`` (count x n float32), one float32 op at a time."""
+    s = np.zeros(terms.shape[1], np.float32)
+    c = np.zeros_like(s)
+    for v in terms:
+        t = s + v
+        c = c + np.where(np.abs(s) >= np.abs(v), (s - t) + v, (v - t) + s)
+        s = t
+    return s + c
+
+
+def exact_sum_float32(table: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    """The exact sum of ``table[codes]`` over frames (axis 0), rounded once to float32."""
+    units = (table.astype(np.float64) / EXACT_UNIT).astype(np.int64)
+    return units[codes].sum(axis=0).astype(np.float32) * np.float32(EXACT_UNIT)
+
+
+def frame_codes(count: int, n: int, seed: int) -> np.ndarray:
+    """count x n 8-bit codes: random, then columns of all 255 and of codes near black/white."""
+    rng = np.random.default_rng(seed)
+    codes = rng.integers(0, 256, (count, n), dtype=np.uint8)
+    codes[:, :64] = 255
+    codes[:, 64:4096] = rng.choice(np.array([0, 1, 2, 127, 128, 253, 254, 255], np.uint8),
+                                   (count, 4096 - 64))
+    return codes
+
+
+@pytest.mark.parametrize("count", [3, 9, 65, EXACT_FRAMES_MAX])
+def test_compensated_float32_sum_of_8bit_frames_is_the_exactly_rounded_sum(count):
+    """gb_sum.h's proof, checked: for up to EXACT_FRAMES_MAX frames of 8-bit linear values the
+    compensated float32 sum is the exact sum rounded once, which the integer sum gives."""
+    table = transfer.srgb_to_linear(np.arange(256) / 255.0).astype(np.float32)
+    units = table.astype(np.float64) / EXACT_UNIT
+    assert np.all(units == np.floor(units)) and units.max() <= 2**35  # whole units
+    codes = frame_codes(count, 3 * 8192, count)
+    exact = exact_sum_float32(table, codes)
+    assert np.array_equal(compensated_sum_float32(table[codes]).view(np.uint32),
+                          exact.view(np.uint32))
+    # the cases are not trivial: a plain float32 sum misses the rounded sum on many of them
+    plain = np.zeros(codes.shape[1], np.float32)
+    for v in table[codes]:
+        plain = plain + v
+    assert np.count_nonzero(plain != exact) > 100
+
+
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+@pytest.mark.parametrize("count", [3, 9, EXACT_FRAMES_MAX])
+def test_frames_on_the_device_average_to_the_bits_of_streamed_frames(spec, count):
+    """8-bit frames put on the device are summed in one launch (float32: exactly, in integers,
+    gb_blur_average_exact); frames streamed from the host a few per launch, by compensated
+    sums. Both give the same bits, and float32's are the exact sum rounded once."""
+    h, w = 32, 64
+    codes = frame_codes(count, h * w * 3, 7)
+    frames = [c.reshape(h, w, 3) for c in codes]
+    p, _, params = prepare(spec, {"blur": {"mode": "average", "frames": count}}, (h, w))
+    region = Region.whole(h, w)
+    backend = make_backend(spec)
+    on_dev = backend.accumulate(p, params, backend.put(np.stack(frames)), None, region)
+    streamed = backend.accumulate(p, params, frames, None, region)
+    for a, b in zip(on_dev, streamed, strict=True):
+        assert np.array_equal(a, b)
+    if spec_dtype(spec) == "float32":
+        config = pass_config(p, Pass.ACCUMULATE)
+        assert backend.backend._exact_units(config, np.uint8) is not None  # the integer sum ran
+        table = OnDevice(backend.backend._code_table(config, np.uint8), (256,),
+                         backend.backend._fetch).numpy(np.float32)
+        mean = exact_sum_float32(table, codes) / np.float32(count)
+        assert np.array_equal(on_dev[0].ravel(), mean.astype(np.float64))
 
 
 @pytest.mark.parametrize("spec", BACKEND_SPECS)

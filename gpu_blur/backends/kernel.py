@@ -26,7 +26,14 @@ import numpy as np
 from gpu_blur.backends import FRAMES_PER_LAUNCH, OnDevice, cfa_bits, copy_values
 from gpu_blur.backends.flows import gap_factors, interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
-from gpu_blur.kernel_constants import SAMPLE_REALS, SAMPLE_WORDS
+from gpu_blur.kernel_constants import (
+    EXACT_COUNT_SHIFT,
+    EXACT_FRAMES_MAX,
+    EXACT_UNIT,
+    SAMPLE_REALS,
+    SAMPLE_WORDS,
+    SATURATION_LEVEL,
+)
 from gpu_blur.plan import Pass, Plan, StageName
 from gpu_blur.reference import blur
 from gpu_blur.reference.interpolate import (
@@ -397,6 +404,47 @@ class KernelBackend:
             self._code_tables[key] = table
         return self._code_tables[key]
 
+    def _exact_units(self, config: PassConfig, source):
+        """Each 8-bit code's entry for the exact one-launch average, or None where it is not used.
+
+        ``gb_blur_average_exact`` sums these (kernel_constants.EXACT_UNIT): the code table's
+        value as a whole number of units, plus ``1 << EXACT_COUNT_SHIFT`` where it is saturated.
+        None unless the frames are 8-bit codes in a float32 build whose table values are whole
+        units in [0, 1] (the condition of gb_sum.h's proof, checked here on the values).
+        """
+        if np.dtype(source) != np.uint8 or np.dtype(self.np_real) != np.float32:
+            return None
+        key = ("exact", config)
+        if key not in self._code_tables:
+            table = OnDevice(self._code_table(config, source), (256,), self._fetch)
+            values = table.numpy(np.float64)
+            units = values / EXACT_UNIT
+            whole = bool(np.all(units == np.floor(units)) and np.all((values >= 0)
+                                                                     & (values <= 1)))
+            saturated = values >= float(np.float32(SATURATION_LEVEL))
+            entries = (units.astype(np.uint64)
+                       + (saturated.astype(np.uint64) << np.uint64(EXACT_COUNT_SHIFT)))
+            self._code_tables[key] = self._upload(entries, np.uint64) if whole else None
+        return self._code_tables[key]
+
+    def _sum_frames(self, k, config: PassConfig, source, stack, count: int, n: int, sums,
+                    first: bool, mean_of: int, linear, sat_mask) -> None:
+        """Launch the average's sum of ``count`` frames of ``n`` values each from ``stack``.
+
+        Exactly in integers (``blur_average_exact``) when these are all the frames (``first``,
+        ``mean_of == count``), at most EXACT_FRAMES_MAX 8-bit ones in a float32 build; else the
+        compensated sum (``blur_average_add``, :func:`average_args`). The same bits either way.
+        """
+        units = (self._exact_units(config, source)
+                 if first and mean_of == count and count <= EXACT_FRAMES_MAX else None)
+        if units is not None:
+            self._launch(k, "blur_average_exact", n, stack, Arg("uint", count), Arg("index", n),
+                         units, linear, sat_mask)
+            return
+        self._launch(k, "blur_average_add", n, *average_args(
+            stack, count, n, sums, first, mean_of, linear, sat_mask,
+            self._code_table(config, source)))
+
     # -- pass 1: accumulate ----------------------------------------------------------------
     def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
                    mask: np.ndarray | None, region: Region) -> tuple[OnDevice, OnDevice]:
@@ -462,9 +510,8 @@ class KernelBackend:
             count = frames.shape[0]
             spare = self._empty(1, np.uint32)
             with self._timed():
-                self._launch(k, "blur_average_add", n, *average_args(
-                    frames.data, count, n, (linear, sat_mask, spare), True, count, linear,
-                    sat_mask, self._code_table(config, source)))
+                self._sum_frames(k, config, source, frames.data, count, n,
+                                 (linear, sat_mask, spare), True, count, linear, sat_mask)
         elif mode == "none":
             with self._timed(sync=False):
                 self._launch(k, "linearize", n, frames.data, linear, sat_mask)
@@ -626,13 +673,12 @@ class KernelBackend:
         sums = ((self._empty(n), self._empty(n), self._empty(n, np.uint32))
                 if len(frames) > FRAMES_PER_LAUNCH
                 else (linear, sat_mask, self._empty(1, np.uint32)))
-        done, table = 0, self._code_table(config, source)
+        done = 0
         for stack, count in self._frame_stacks(frames, region):
             last = done + count == len(frames)
             with self._timed(sync=last):
-                self._launch(k, "blur_average_add", n, *average_args(
-                    stack, count, n, sums, done == 0, len(frames) if last else 0, linear,
-                    sat_mask, table))
+                self._sum_frames(k, config, source, stack, count, n, sums, done == 0,
+                                 len(frames) if last else 0, linear, sat_mask)
             done += count
 
     def _blur_photo(self, k, mode: str, params: dict, photo, source, region: Region, linear,

@@ -20,7 +20,7 @@ from typing import Any
 
 import warp as wp
 
-from gpu_blur.kernel_constants import SATURATION_LEVEL
+from gpu_blur.kernel_constants import EXACT_COUNT_SHIFT, EXACT_UNIT, SATURATION_LEVEL
 from gpu_blur.warp_kernels import pixel, random
 
 
@@ -143,6 +143,23 @@ def accumulate_kernels(real, source=None) -> dict:
             saturated[i] = n
 
     @wp.kernel(module="unique")
+    def blur_average_exact(frames: wp.array(dtype=source), count: int, stride: int,
+                           units: wp.array(dtype=wp.uint64), linear: wp.array(dtype=real),
+                           mask: wp.array(dtype=real)):
+        # 8-bit frames, all in one launch, float32: blur_average_add's means, the same bits,
+        # from an exact integer sum (gb_blur_average_exact in accumulate.cl says why);
+        # ``units[code]``: the code's linear value in units of EXACT_UNIT, plus
+        # 1 << EXACT_COUNT_SHIFT where it is saturated
+        i = wp.tid()
+        total = wp.uint64(0)
+        for k in range(count):
+            total = total + units[int(frames[k * stride + i])]
+        saturated = total >> wp.uint64(EXACT_COUNT_SHIFT)
+        value = real(total - (saturated << wp.uint64(EXACT_COUNT_SHIFT))) * real(EXACT_UNIT)
+        linear[i] = value / real(count)
+        mask[i] = real(saturated) / real(count)
+
+    @wp.kernel(module="unique")
     def blur_kernel(src: wp.array(dtype=real), sx0: int, sy0: int, sw: int, full_w: int,
                     full_h: int, k: wp.array(dtype=real), kh: int, kw: int,
                     dst: wp.array(dtype=real), dx0: int, dy0: int, dw: int):
@@ -261,7 +278,7 @@ def accumulate_kernels(real, source=None) -> dict:
 
     return {
         "linearize": linearize, "blur_average_add": blur_average_add,
-        "blur_kernel": blur_kernel,
+        "blur_average_exact": blur_average_exact, "blur_kernel": blur_kernel,
         "blur_trajectory_add": blur_trajectory_add,
         "blur_trajectory_finish": blur_trajectory_finish,
     }

@@ -68,6 +68,28 @@ __kernel void gb_blur_average_add(__global const gb_source *frames, uint count, 
     }
 }
 
+#if GB_SOURCE_BITS == 8 && !defined(GB_FP64)
+/* blur, variant average, when all `count` 8-bit frames (at most EXACT_FRAMES_MAX of
+ * gpu_blur.kernel_constants) join one launch in a float build: gb_blur_average_add's means, the
+ * same bits (gb_sum.h), from an exact integer sum. units[code]: the code's linear value in
+ * units of GB_EXACT_UNIT, plus 1 << GB_EXACT_COUNT_SHIFT where that value is saturated; so one
+ * 64-bit add a frame sums both the value and the saturation count, and the sum rounds to float
+ * once. */
+__kernel void gb_blur_average_exact(__global const uchar *frames, uint count, long stride,
+                                    __global const ulong *units, __global real *linear,
+                                    __global real *mask)
+{
+    size_t i = get_global_id(0);
+    __global const uchar *code = frames + i;
+    ulong total = 0;
+    for (uint k = 0; k < count; ++k, code += stride) total += units[*code];
+    ulong saturated = total >> GB_EXACT_COUNT_SHIFT;
+    real sum = (real)(total - (saturated << GB_EXACT_COUNT_SHIFT)) * GB_EXACT_UNIT;
+    linear[i] = sum / (real)count;
+    mask[i] = (real)saturated / (real)count;
+}
+#endif
+
 /* blur, variant kernel: out = src convolved with k (true convolution, k normalized by the host),
  * reflect-101 at the full image's edges. src is a view (first pixel (sx0, sy0), width sw) that
  * holds the output region plus the kernel's radius; dst covers the output region. */

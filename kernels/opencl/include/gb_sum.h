@@ -10,6 +10,16 @@
  * error is below (n - 1) 2^-53 relative, 1.1e-13 at 1,000 frames). Contraction is off and
  * nothing may be reassociated: do not build with -cl-fast-relaxed-math or
  * -cl-unsafe-math-optimizations.
+ *
+ * Exact for 8-bit frames (float builds). Their linear values are whole multiples of
+ * q = 2^-35 (GB_EXACT_UNIT, gpu_blur.kernel_constants) in [0, 1]. Summing n <= 128 of them
+ * (EXACT_FRAMES_MAX), every running sum, term and rounding error e_k = s + v - t (exact:
+ * Fast2Sum) is a multiple of q; the sums stay <= 128, so |e_k| <= half a float spacing in
+ * [64, 128), 2^-18, and every partial sum of errors is a multiple of q of size <= 128 * 2^-18
+ * = 2^24 q: a float, so `compensation` holds the errors' sum exactly and sum + compensation
+ * rounds the exact total once. gb_blur_average_exact (accumulate.cl) sums the same values as
+ * integer counts of q and rounds that total once: the same bits, with one integer add a
+ * frame (tests/test_hard_cases.py compares both on the cases nearest the rounding).
  */
 #ifndef GB_SUM_H
 #define GB_SUM_H
