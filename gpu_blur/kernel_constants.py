@@ -70,6 +70,11 @@ EXACT_COUNT_SHIFT = 48
 #: which the exact sum rounds once to; so the two give the same bits.
 EXACT_FRAMES_MAX = 128
 
+# -- input checks (gb_inspect, gpu_blur.backends.kernel.KernelBackend.inspect) -------------
+#: Values each work item of an inspect launch loads before counting them: the pass is bound by
+#: the loads in flight, not by bandwidth (one at a time read 0.5 TB/s on an H200).
+INSPECT_LOADS = 4
+
 # -- demosaicing taps (reference.demosaic), as the kernels hold them ------------------------
 # Kernels hold each filter times a power of two (exact) and weigh an entry by its inverse,
 # ``entry * TAP_WEIGHT``, which is the reference's weight exactly.
@@ -149,6 +154,7 @@ OPENCL: tuple[tuple[str, str, str], ...] = (
     ("GB_SATURATION_LEVEL", "SATURATION_LEVEL", REAL),
     ("GB_EXACT_UNIT", "EXACT_UNIT", FLOAT),
     ("GB_EXACT_COUNT_SHIFT", "EXACT_COUNT_SHIFT", UINT),
+    ("GB_INSPECT_LOADS", "INSPECT_LOADS", INT),
     ("GB_MALVAR2004_TAP_WEIGHT", "MALVAR2004_TAP_WEIGHT", REAL),
     ("GB_MALVAR2004_G_AT_RB_X8", "MALVAR2004_G_AT_RB_X8", REAL),
     ("GB_MALVAR2004_RB_AT_G_ROW_X8", "MALVAR2004_RB_AT_G_ROW_X8", REAL),

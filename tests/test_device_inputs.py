@@ -14,6 +14,7 @@ from conftest import KERNEL_BACKEND_SPECS, spec_backend, spec_dtype
 from gpu_blur.backends import OnDevice, get_backend
 from gpu_blur.backends.kernel import INSPECT_COLUMNS, INSPECT_ITEMS, Arg
 from gpu_blur.imageio import unit_values
+from gpu_blur.kernel_constants import INSPECT_LOADS
 from gpu_blur.pipeline import _render_values, render_sharp, scene_camera
 from gpu_blur.plan import StageName as S
 from gpu_blur.plan import plan
@@ -50,9 +51,10 @@ def numpy_counts(values: np.ndarray) -> list[int]:
 
 def planted_images(real) -> list[np.ndarray]:
     """Images with NaN, infinities, negatives, values above 1, the clip level and zeros planted
-    at scattered places; sizes that are no multiple of anything, one above INSPECT_ITEMS."""
+    at scattered places; sizes that are no multiple of anything, two above what the work items
+    of one inspect launch load in their first round (INSPECT_LOADS x INSPECT_ITEMS)."""
     rng = np.random.default_rng(5)
-    floats = rng.random((61, 83, 3)).astype(real)
+    floats = rng.random((307, 293, 3)).astype(real)  # 269,853 values
     flat = floats.reshape(-1)
     planted = [(np.nan, 3), (np.inf, 2), (-np.inf, 1), (-0.25, 4), (-1e-30, 1), (1.5, 2),
                (np.nextafter(real(1), real(2)), 1), (1.0, 5), (-0.0, 3), (0.0, 2)]
@@ -74,7 +76,7 @@ def planted_images(real) -> list[np.ndarray]:
 def test_inspect_counts_equal_numpy_counts(spec):
     backend = backend_of(spec)
     images = planted_images(backend.np_real)
-    assert images[1].size > INSPECT_ITEMS
+    assert min(images[0].size, images[1].size) > INSPECT_LOADS * INSPECT_ITEMS
     counts = backend.inspect([stored(backend, x) for x in images])
     assert counts.dtype == np.int64 and counts.shape == (len(images), len(INSPECT_COLUMNS))
     np.testing.assert_array_equal(counts, [numpy_counts(x) for x in images])

@@ -18,6 +18,7 @@ import functools
 
 import warp as wp
 
+from gpu_blur.kernel_constants import INSPECT_LOADS
 from gpu_blur.warp_kernels import pixel
 from gpu_blur.warp_kernels.passes import (
     SOURCE_TOP,
@@ -39,54 +40,72 @@ def count_add(counts: wp.array(dtype=wp.uint32), i: int, add: wp.uint32):
             wp.atomic_add(counts, i + 1, wp.uint32(1))
 
 
+#: Six uint32 counts, in the column order of gb_inspect.
+counts6 = wp.types.vector(length=6, dtype=wp.uint32)
+
 @functools.cache
 def inspect_kernel(source):
     """Counts over the ``n`` values of an image into row ``row`` of ``counts``, as gb_inspect.
 
     Six columns (NaN, infinite, below 0, above 1, at the clip level, above 0), each a 64-bit
     count as two words (:func:`count_add`); thread i of ``items`` counts values i, i + items,
-    ... in registers and adds each non-zero count once. The clip level is 1.0 for float values
-    and the top code for 8/16-bit codes, which are never NaN, infinite, negative or above 1.
+    ... in registers, INSPECT_LOADS (4, as the body writes them out) loaded at a time, and
+    adds each non-zero count once. The
+    clip level is 1.0 for float values and the top code for 8/16-bit codes, which are never
+    NaN, infinite, negative or above 1.
     """
     top = int(SOURCE_TOP.get(source, 0))  # 0: float values
+    if INSPECT_LOADS != 4:
+        raise NotImplementedError("inspect's body loads 4 values a round; INSPECT_LOADS changed")
+
+    @wp.func
+    def tally(v: source, c: counts6) -> counts6:
+        one = wp.uint32(1)
+        if wp.static(top > 0):
+            if v == source(top):
+                c[4] += one
+            if v > source(0):
+                c[5] += one
+        else:
+            if wp.isnan(v):
+                c[0] += one
+            if wp.isinf(v):
+                c[1] += one
+            if v < source(0.0):
+                c[2] += one
+            if v > source(1.0):
+                c[3] += one
+            if v >= source(1.0):
+                c[4] += one
+            if v > source(0.0):
+                c[5] += one
+        return c
 
     @wp.kernel(module="unique")
     def inspect(values: wp.array(dtype=source), n: int, items: int,
                 counts: wp.array(dtype=wp.uint32), row: int):
-        nan = wp.uint32(0)
-        inf = wp.uint32(0)
-        below = wp.uint32(0)
-        above = wp.uint32(0)
-        clip = wp.uint32(0)
-        positive = wp.uint32(0)
-        one = wp.uint32(1)
-        for i in range(wp.tid(), n, items):
-            v = values[i]
-            if wp.static(top > 0):
-                if v == source(top):
-                    clip += one
-                if v > source(0):
-                    positive += one
-            else:
-                if wp.isnan(v):
-                    nan += one
-                if wp.isinf(v):
-                    inf += one
-                if v < source(0.0):
-                    below += one
-                if v > source(1.0):
-                    above += one
-                if v >= source(1.0):
-                    clip += one
-                if v > source(0.0):
-                    positive += one
-        out = 12 * row
-        count_add(counts, out, nan)
-        count_add(counts, out + 2, inf)
-        count_add(counts, out + 4, below)
-        count_add(counts, out + 6, above)
-        count_add(counts, out + 8, clip)
-        count_add(counts, out + 10, positive)
+        c = counts6()
+        for i in range(wp.tid(), n, INSPECT_LOADS * items):
+            # every load issued before any count (the pass is bound by loads in flight)
+            v1 = source(0)
+            v2 = source(0)
+            v3 = source(0)
+            v0 = values[i]
+            if i + items < n:
+                v1 = values[i + items]
+            if i + 2 * items < n:
+                v2 = values[i + 2 * items]
+            if i + 3 * items < n:
+                v3 = values[i + 3 * items]
+            c = tally(v0, c)
+            if i + items < n:
+                c = tally(v1, c)
+            if i + 2 * items < n:
+                c = tally(v2, c)
+            if i + 3 * items < n:
+                c = tally(v3, c)
+        for k in range(6):
+            count_add(counts, 12 * row + 2 * k, c[k])
 
     return inspect
 

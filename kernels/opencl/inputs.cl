@@ -18,37 +18,41 @@ static inline void gb_count_add(__global volatile uint *counts, uint add)
     if (old + add < old) atomic_inc(counts + 1);
 }
 
+/* Adds one value to the six counts of gb_inspect, in its column order. */
+static inline void gb_inspect_value(gb_source v, uint *c)
+{
+#if GB_SOURCE_BITS == 0
+    c[0] += isnan(v) ? 1u : 0u;
+    c[1] += isinf(v) ? 1u : 0u;
+    c[2] += v < GB_REAL(0.0) ? 1u : 0u;
+    c[3] += v > GB_REAL(1.0) ? 1u : 0u;
+    c[4] += v >= GB_REAL(1.0) ? 1u : 0u;
+    c[5] += v > GB_REAL(0.0) ? 1u : 0u;
+#else
+    c[4] += v == (gb_source)((1 << GB_SOURCE_BITS) - 1) ? 1u : 0u;
+    c[5] += v > 0 ? 1u : 0u;
+#endif
+}
+
 /* Counts over the n values of `values`, into row `row` of `counts`: 6 columns (NaN, infinite,
  * below 0, above 1, at the clip level, above 0; KernelBackend.INSPECT_COLUMNS), each a 64-bit
  * count as two uints (gb_count_add). Work item i of `items` counts values i, i + items, ... in
- * registers (items >= n / 2^32, so each of its counts fits a uint) and adds each non-zero count
- * once. The clip level is 1.0 for float values and the top code (2^bits - 1) for codes; codes
- * are never NaN, infinite, negative or above 1. */
+ * registers (items >= n / 2^32, so each of its counts fits a uint), GB_INSPECT_LOADS of them
+ * (gb_constants.h) loaded at a time, and adds each non-zero count once. The clip level is 1.0 for float values
+ * and the top code (2^bits - 1) for codes; codes are never NaN, infinite, negative or above 1. */
 __kernel void gb_inspect(__global const gb_source *values, long n, long items,
                          __global volatile uint *counts, long row)
 {
-    uint nan = 0, inf = 0, below = 0, above = 0, clip = 0, positive = 0;
-    for (long i = get_global_id(0); i < n; i += items) {
-        gb_source v = values[i];
-#if GB_SOURCE_BITS == 0
-        nan += isnan(v) ? 1u : 0u;
-        inf += isinf(v) ? 1u : 0u;
-        below += v < GB_REAL(0.0) ? 1u : 0u;
-        above += v > GB_REAL(1.0) ? 1u : 0u;
-        clip += v >= GB_REAL(1.0) ? 1u : 0u;
-        positive += v > GB_REAL(0.0) ? 1u : 0u;
-#else
-        clip += v == (gb_source)((1 << GB_SOURCE_BITS) - 1) ? 1u : 0u;
-        positive += v > 0 ? 1u : 0u;
-#endif
+    uint c[6] = {0u, 0u, 0u, 0u, 0u, 0u};
+    for (long i = get_global_id(0); i < n; i += GB_INSPECT_LOADS * items) {
+        gb_source v[GB_INSPECT_LOADS];
+        for (int u = 0; u < GB_INSPECT_LOADS; ++u) /* every load issued before any count */
+            v[u] = i + u * items < n ? values[i + u * items] : (gb_source)0;
+        for (int u = 0; u < GB_INSPECT_LOADS; ++u)
+            if (i + u * items < n) gb_inspect_value(v[u], c);
     }
     __global volatile uint *out = counts + 12 * row;
-    gb_count_add(out, nan);
-    gb_count_add(out + 2, inf);
-    gb_count_add(out + 4, below);
-    gb_count_add(out + 6, above);
-    gb_count_add(out + 8, clip);
-    gb_count_add(out + 10, positive);
+    for (int k = 0; k < 6; ++k) gb_count_add(out + 2 * k, c[k]);
 }
 
 /* Stored values as reals in [0, 1] (codes / (2^bits - 1), as gb_linearize divides them): a mask
