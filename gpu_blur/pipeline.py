@@ -8,7 +8,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -335,10 +335,11 @@ class Synthesizer:
                              "output.jpeg_quality (a host stage)")
         with timer("reading"):
             item = _gather(inputs, scene)
-        item = self._prepared([item])[0]
+        (item,), check = self._prepared([item])
         crop, tiles, checked = scene.output.crop, 1, 0
         if self.resident:
             done = self._run_resident([item], [sample_index])
+            check()
             runner, (h, w) = self.runner, done.size
             blurred = runner.slot_image(done.blurred, 0, (done.out.h, done.out.w, 3))
             out = (runner.device_array(blurred) if on_device
@@ -417,10 +418,11 @@ class Synthesizer:
         elif len(indices) != count:
             raise ValueError(f"indices: {len(indices)} sample indices for a batch of {count}; "
                              "give one per sample")
-        items = self._prepared(items)
+        items, check = self._prepared(items)
         out_given = out
         if self.resident:
-            out, params, plans, raws = self._resident_batch(items, indices, batch, lib, out)
+            out, params, plans, raws = self._resident_batch(items, indices, batch, lib, out,
+                                                            check)
         else:
             out, params, plans, raws = self._host_batch(items, indices, batch, lib, out)
         _jpeg_stage(out[0], plans, params)  # channels-last, as the backend wrote them
@@ -434,11 +436,16 @@ class Synthesizer:
                      since(before, time.perf_counter() - start), raw,
                      [self._raw_info(p) for p in params] if self.with_raw else None)
 
-    def _resident_batch(self, items: list[_Inputs], indices, batch, lib: str, given):
-        """A batch put on the device: its passes batched, its outputs exported once each."""
+    def _resident_batch(self, items: list[_Inputs], indices, batch, lib: str, given,
+                        check: Callable[[], None]):
+        """A batch put on the device: its passes batched, its outputs exported once each.
+
+        ``check`` ends the inputs' checks (:meth:`_prepared`) once every pass is queued.
+        """
         runner = self.runner
         with self._queued():
             done = self._run_resident(items, indices, reuse=True)
+            check()
             shape = (done.out.h, done.out.w, 3)
             out = self._outputs(len(items), done.out, batch, lib, 3 if self.with_mask else 2,
                                 given)
@@ -622,10 +629,17 @@ class Synthesizer:
         return x
 
     # -- shared by both ----------------------------------------------------------------------
-    def _prepared(self, items: list[_Inputs]) -> list[_Inputs]:
-        """Inputs checked (and on a kernel backend put on its device), with the clip test."""
+    def _prepared(self, items: list[_Inputs]) -> tuple[list[_Inputs], Callable[[], None]]:
+        """Inputs checked (and on a kernel backend put on its device), with the clip test.
+
+        Returns the inputs and the function that ends their checks, which the caller calls
+        before any result leaves. On a kernel backend the checks count on the device and the
+        counts are read there, after the passes the caller queues in between (so the device
+        never waits for the host's look at them), unless auto saturation's clip test needs
+        them to plan the samples: then they are read here and the function does nothing.
+        """
         if not self.resident:
-            return [self._checked_on_host(item) for item in items]
+            return [self._checked_on_host(item) for item in items], _checked
         put = [self._put(item) for item in items]
         clip_test = self.scene.saturation.mode == "auto"
         images = []  # (sample, which, image): each input once (a default sharp is a frame)
@@ -635,15 +649,23 @@ class Synthesizer:
                        if getattr(item, key) is not None and (
                            getattr(p, key).dtype is None or (clip_test and key != "sharp"))]
         with timer("checks"):
-            counts = self.runner.inspect([image for _, _, image in images])
-        for (i, key, image), row in zip(images, counts, strict=True):
-            if row[:4].any():  # the host says exactly what is wrong, and where
-                _bad_values(image, put[i], key)
-            if key == "mask" and row[5]:
-                put[i].saturated = True
-            if key == "frames" and put[i].mask is None and row[4]:
-                put[i].saturated = True
-        return put
+            counts = self.runner.inspect_queued([image for _, _, image in images])
+
+        def check() -> None:
+            with timer("checks"):
+                rows = counts()
+            for (i, key, image), row in zip(images, rows, strict=True):
+                if row[:4].any():  # the host says exactly what is wrong, and where
+                    _bad_values(image, put[i], key)
+                if clip_test and key == "mask" and row[5]:
+                    put[i].saturated = True
+                if clip_test and key == "frames" and put[i].mask is None and row[4]:
+                    put[i].saturated = True
+
+        if clip_test:
+            check()
+            return put, _checked
+        return put, check
 
     def _checked_on_host(self, item: _Inputs) -> _Inputs:
         names, label = item.names, item.label
@@ -839,6 +861,10 @@ def _even(image, like: OnDevice):
         h, w = like.shape[-3:-1]
         return np.ascontiguousarray(image[:h, :w])
     return image
+
+
+def _checked() -> None:
+    """Nothing left to check (:meth:`Synthesizer._prepared`)."""
 
 
 def _bad_values(image: OnDevice, item: _Inputs, key: str):

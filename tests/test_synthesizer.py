@@ -122,6 +122,26 @@ def test_a_bad_value_names_its_sample_and_where_it_is(name, bad, words):
     assert "row 4, column 5, channel 1" in str(e.value)
 
 
+@pytest.mark.parametrize("name", ["numpy", "opencl", "warp:cpu"])
+def test_a_bad_value_leaves_out_arrays_untouched_and_the_next_batch_whole(name):
+    """Kernel backends read their input checks back after queueing the batch's passes; a bad
+    value still raises before any result leaves: out= arrays keep what they held, and the next
+    batch (on the buffers the failed one used) equals a fresh Synthesizer's."""
+    scene = scene_for("none", precision="float32")
+    given = batch_for("none", 2, np.random.default_rng(7), dtype=np.float32)
+    fresh = gpu_blur.Synthesizer(scene, backend=name)(given["batch"], mask=given["mask"])
+    synth = gpu_blur.Synthesizer(scene, backend=name)
+    out = [np.full(fresh.blurred.shape, 7.0, np.float32) for _ in range(2)]
+    mask = given["mask"].copy()
+    mask[1, 3, 4, 0] = np.inf
+    with pytest.raises(ValueError, match="sample 1 of 2: mask: 0 NaN and 1 infinite"):
+        synth(given["batch"], mask=mask, out=out)
+    assert all(np.all(o == 7.0) for o in out)
+    again = synth(given["batch"], mask=given["mask"], out=out)
+    assert np.array_equal(again.blurred, fresh.blurred)
+    assert np.array_equal(again.sharp, fresh.sharp)
+
+
 def test_a_mask_of_another_shape_or_type_is_refused_by_name():
     scene = scene_for("none")
     given = batch_for("none", 2, np.random.default_rng(6))

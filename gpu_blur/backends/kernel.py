@@ -18,7 +18,7 @@ Two functions carry the plan into the kernels:
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -921,12 +921,20 @@ class KernelBackend:
             for values, the top code 2^bits - 1 for codes: ``gpu_blur.pipeline``'s
             ``_reaches_clip_level``), above 0 (a mask's "anything to saturate").
         """
+        return self.inspect_queued(images)()
+
+    def inspect_queued(self, images: Sequence[OnDevice]) -> Callable[[], np.ndarray]:
+        """:meth:`inspect`'s launches, queued; returns the function that reads their counts.
+
+        Reading waits for everything queued before it: a batch queues its passes in between,
+        so the device never idles while the host waits for the counts.
+        """
         if not images:
-            return np.zeros((0, len(INSPECT_COLUMNS)), np.int64)
+            return lambda: np.zeros((0, len(INSPECT_COLUMNS)), np.int64)
         sources = [self._stored_dtype(image) for image in images]
         # each count as two uint32 words, (low, high)
         counts = self._zeros(len(images) * len(INSPECT_COLUMNS) * 2, np.uint32)
-        with self._timed():
+        with self._timed(sync=False):
             for row, (image, source) in enumerate(zip(images, sources, strict=True)):
                 n = int(np.prod(image.shape))
                 items = inspect_items(n)
@@ -934,8 +942,13 @@ class KernelBackend:
                 self._launch(k, "inspect", items, image.data, *_index(n, items), counts,
                              *_index(row))
         halves = OnDevice(counts, (len(images), len(INSPECT_COLUMNS), 2), self._fetch,
-                          np.uint32).numpy(np.int64)
-        return halves[..., 0] + (halves[..., 1] << 32)
+                          np.uint32)
+
+        def read() -> np.ndarray:
+            words = halves.numpy(np.int64)
+            return words[..., 0] + (words[..., 1] << 32)
+
+        return read
 
     def render_sharp(self, plan: Plan, camera: Camera, image: OnDevice, out: Region,
                      into: tuple[Slots, int] | None = None) -> OnDevice:
