@@ -284,12 +284,6 @@ def accumulate_kernels(real, source=None) -> dict:
     }
 
 
-#: Most registers a thread of the to_raw and finish kernels may use on CUDA (``__maxnreg__``;
-#: None: the compiler's choice). Fewer registers let more threads share a multiprocessor;
-#: the arithmetic, so every bit, is the same.
-CUDA_MAX_REGISTERS: dict[str, int | None] = {"to_raw": None, "finish": None}
-
-
 def _fast(real, fast_math: bool) -> bool:
     """Whether a kernel of compute type ``real`` gets fast maths (float32 only, as gb_math.h)."""
     return bool(fast_math) and real == wp.float32
@@ -317,8 +311,7 @@ def to_raw_kernel(real, config):
     clip_camera, noise = config.clip_camera, config.kept("poisson_gaussian_noise")
     poisson_normal, fast = config.poisson_normal, _fast(real, config.fast_math)
 
-    @wp.kernel(module="unique", module_options={"fast_math": fast},
-               cuda_max_registers=CUDA_MAX_REGISTERS["to_raw"])
+    @wp.kernel(module="unique", module_options={"fast_math": fast})
     def to_raw(linear_slots: wp.array2d(dtype=real), mask_slots: wp.array2d(dtype=real), x0: int,
                y0: int, w: int, sample_reals: wp.array2d(dtype=real),
                sample_words: wp.array2d(dtype=wp.uint32), lin_to_cam: wp.array(dtype=real),
@@ -442,8 +435,7 @@ def finish_kernel(real, config):
     border = 1 if config.zero_border else 0
     fast = _fast(real, config.fast_math)
 
-    @wp.kernel(module="unique", module_options={"fast_math": fast},
-               cuda_max_registers=CUDA_MAX_REGISTERS["finish"])
+    @wp.kernel(module="unique", module_options={"fast_math": fast})
     def finish(raw_slots: wp.array2d(dtype=real), saturated_slots: wp.array2d(dtype=real),
                vx0: int, vy0: int, vw: int, full_w: int, full_h: int, ox0: int, oy0: int,
                ow: int, sample_reals: wp.array2d(dtype=real),
