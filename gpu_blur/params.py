@@ -54,8 +54,31 @@ def _uniform_range(u: float, lo: float, hi: float) -> float:
     return lo + (hi - lo) * u
 
 
+def image_streams(scene: Scene) -> dict:
+    """The per-image random streams :func:`draw_params` reads for ``scene``: {stream: count}."""
+    streams = {rng.Stream.PARAMS: len(DRAW_INDEX)}
+    if scene.blur.mode == "kernel" and not scene.blur.kernel:
+        streams[rng.Stream.KERNEL] = motion_kernel.KERNEL_UNIFORMS
+    if scene.blur.mode == "trajectory":
+        streams[rng.Stream.TRAJECTORY] = shake.SHAKE_UNIFORMS
+    return streams
+
+
+def batch_uniforms(scene: Scene, *, seed: int, sample_indices) -> list[dict]:
+    """Each sample's uniforms of :func:`image_streams`, drawn for the samples at once.
+
+    Row b is what :func:`draw_params` draws for ``sample_indices[b]`` (its ``uniforms``
+    argument): the same values (:func:`gpu_blur.reference.rng.image_uniforms_batch`), in one
+    Philox evaluation per stream instead of one per sample.
+    """
+    drawn = {stream: rng.image_uniforms_batch(seed, sample_indices, stream, count)
+             for stream, count in image_streams(scene).items()}
+    return [{stream: u[b] for stream, u in drawn.items()} for b in range(len(sample_indices))]
+
+
 def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_index: int,
-                image_shape: tuple[int, int], overrides: dict | None = None) -> dict:
+                image_shape: tuple[int, int], overrides: dict | None = None,
+                uniforms: dict | None = None) -> dict:
     """Draw every random value the plan needs for one sample.
 
     Args:
@@ -67,6 +90,8 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
         image_shape: (height, width) of the sample, for the camera path.
         overrides: values to use instead of drawing (same names as the result); numbers
             must lie within :data:`OVERRIDE_LIMITS`.
+        uniforms: the sample's row of :func:`batch_uniforms` (drawn for a batch at once);
+            None: drawn here.
 
     Returns:
         A dict of plain Python scalars and, for ``kernel`` / ``homographies``, float64 arrays.
@@ -80,7 +105,15 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
     unknown = sorted(set(overrides) - known)
     if unknown:
         raise ValueError(f"unknown override {unknown[0]!r}; parameters are {sorted(known)}")
-    u = rng.image_uniforms(seed, sample_index, rng.Stream.PARAMS, len(DRAW_INDEX))
+    streams = image_streams(scene)
+    given = uniforms or {}
+
+    def stream_uniforms(stream):
+        if stream in given:
+            return given[stream]
+        return rng.image_uniforms(seed, sample_index, stream, streams[stream])
+
+    u = stream_uniforms(rng.Stream.PARAMS)
     draw = {name: float(u[i]) for name, i in DRAW_INDEX.items()}
     p: dict = {}
 
@@ -102,12 +135,11 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
         lo, hi = b.kernel_size
         sizes = [s for s in range(lo, hi + 1) if s % 2 == 1]
         put("kernel_size", sizes[min(int(draw["kernel_size"] * len(sizes)), len(sizes) - 1)])
-        ku = rng.image_uniforms(seed, sample_index, rng.Stream.KERNEL,
-                                motion_kernel.KERNEL_UNIFORMS)
+        ku = stream_uniforms(rng.Stream.KERNEL)
         put("kernel", motion_kernel.random_motion_kernel(ku, int(p["kernel_size"])))
     if plan.kept("blur") and b.mode == "trajectory":
         put("extent_px", _uniform_range(draw["extent_px"], *b.extent))
-        su = rng.image_uniforms(seed, sample_index, rng.Stream.TRAJECTORY, shake.SHAKE_UNIFORMS)
+        su = stream_uniforms(rng.Stream.TRAJECTORY)
         frame = (su, image_shape[0], image_shape[1])
         steps = b.steps or shake.auto_shake_steps(*frame, float(p["extent_px"]), float(b.roll))
         put("homographies", shake.camera_shake_homographies(

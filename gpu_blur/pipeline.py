@@ -21,7 +21,7 @@ from gpu_blur.backends.numpy import retone
 from gpu_blur.cameras import Camera, check_float32_response, get_camera
 from gpu_blur.imageio import check_image, check_layout, read_image, unit_values
 from gpu_blur.outputs import jpeg_round_trip, raw_metadata
-from gpu_blur.params import draw_params
+from gpu_blur.params import batch_uniforms, draw_params
 from gpu_blur.plan import Plan, StageName, plan, raw_round_trip
 from gpu_blur.reference import transfer
 from gpu_blur.reference.output import crop_border, quantize
@@ -772,13 +772,14 @@ class Synthesizer:
         buffers = self._batch_buffers(count, h, w, out, reuse)
         linear, sat_mask, saturated, raw, result, sharp_slots = buffers
         chunk = -(-PASS_CHUNK_PIXELS // (h * w))
+        uniforms = batch_uniforms(self.scene, seed=self.seed, sample_indices=indices)
         params, plans = [], []
         for first in range(0, count, chunk):
             samples = range(first, min(first + chunk, count))
             groups: dict = {}  # id(plan) -> (plan, its samples as Drawn, in batch order)
             for b in samples:
                 item, index = items[b], int(indices[b])
-                sample_plan, drawn = self._drawn(item, index, h, w, None)
+                sample_plan, drawn = self._drawn(item, index, h, w, None, uniforms[b])
                 params.append(drawn)
                 plans.append(sample_plan)
                 # plans are cached per clip test and size (_drawn): one object per group
@@ -814,8 +815,12 @@ class Synthesizer:
             self._buffers = (key, buffers)
         return buffers
 
-    def _drawn(self, item: _Inputs, sample_index: int, h: int, w: int, factors):
-        """A sample's plan and drawn values: (plan, params)."""
+    def _drawn(self, item: _Inputs, sample_index: int, h: int, w: int, factors,
+               uniforms: dict | None = None):
+        """A sample's plan and drawn values: (plan, params).
+
+        ``uniforms``: the sample's row of :func:`gpu_blur.params.batch_uniforms`, else drawn.
+        """
         scene = self.scene
         frames = item.frames
         key = (item.saturated, h, w, factors)
@@ -830,7 +835,8 @@ class Synthesizer:
             # nothing to saturate in this sample: a fixed alpha has nothing to act on
             overrides = {k: v for k, v in (overrides or {}).items() if k != "alpha"}
         params = draw_params(scene, sample_plan, self.camera, seed=self.seed,
-                             sample_index=sample_index, image_shape=(h, w), overrides=overrides)
+                             sample_index=sample_index, image_shape=(h, w), overrides=overrides,
+                             uniforms=uniforms)
         if factors is not None:  # the plan's factors, recorded in the manifest
             params = with_factors(sample_plan, params, frames)
         return sample_plan, params

@@ -574,6 +574,42 @@ def test_image_uniforms_of_a_few_blocks_equal_the_vectorized_philox():
                     assert got.dtype == np.float64 and np.array_equal(got, want)
 
 
+def test_a_batch_of_image_uniforms_equals_each_sample_drawn_alone():
+    """Row b of image_uniforms_batch is image_uniforms of sample_indices[b], on both of its
+    paths (a few blocks on Python ints, more through numpy), in any order of indices."""
+    indices = [5, 0, 2**32 - 1, 5, 123456]
+    for seed in (0, 2**64 - 1):
+        for stream in (rng.Stream.PARAMS, rng.Stream.KERNEL, rng.Stream.TRAJECTORY):
+            for count in (0, 3, 9, 257):
+                got = rng.image_uniforms_batch(seed, indices, stream, count)
+                assert got.shape == (len(indices), count) and got.dtype == np.float64
+                for row, index in zip(got, indices, strict=True):
+                    assert np.array_equal(row, rng.image_uniforms(seed, index, stream, count))
+    with pytest.raises(ValueError, match="sample_index"):
+        rng.image_uniforms_batch(0, [1, 2**32], rng.Stream.PARAMS, 4)
+
+
+@pytest.mark.parametrize("mode", ["average", "kernel", "trajectory"])
+def test_parameters_drawn_from_batch_uniforms_equal_those_drawn_alone(mode):
+    from gpu_blur.cameras import get_camera
+    from gpu_blur.params import batch_uniforms, draw_params
+    from gpu_blur.plan import plan
+    from gpu_blur.scene import scene_from_dict
+
+    scene = scene_from_dict({"blur": {"mode": mode}, "noise": {"model": "poisson-gaussian"},
+                             "output": {"jpeg_quality": [60, 90]}})
+    p, camera = plan(scene, size=(40, 60)), get_camera("a7r3")
+    indices = [3, 0, 9]
+    for index, uniforms in zip(indices, batch_uniforms(scene, seed=7, sample_indices=indices),
+                               strict=True):
+        alone = draw_params(scene, p, camera, seed=7, sample_index=index, image_shape=(40, 60))
+        batched = draw_params(scene, p, camera, seed=7, sample_index=index,
+                              image_shape=(40, 60), uniforms=uniforms)
+        assert alone.keys() == batched.keys()
+        for name, value in alone.items():
+            assert np.array_equal(batched[name], value), name
+
+
 def test_philox_over_several_chunks_equals_the_one_counter_computation():
     """Counters and per-counter keys across chunk boundaries give each counter's own words."""
     generator = np.random.default_rng(11)
