@@ -30,13 +30,6 @@ from gpu_blur.scheduler import Schedule, run
 from gpu_blur.tiling import Region, tiles
 from gpu_blur.timings import current, since, timer
 
-#: Pixels a chunk of a resident batch holds at least (:meth:`Synthesizer._run_resident`): its
-#: to_raw and finish passes launch once per chunk, so the device starts on the first chunk
-#: while the host still queues the later samples' accumulate passes (with one launch per batch
-#: of 1920 x 1200 images it waited for all of them). 4 Mpx: two such images, or a whole batch
-#: of 16 crops of 256 x 256 (each launch costs the host tens of microseconds).
-PASS_CHUNK_PIXELS = 1 << 22
-
 
 @dataclasses.dataclass
 class Synthesis:
@@ -752,14 +745,11 @@ class Synthesizer:
 
     def _run_resident(self, items: list[_Inputs], indices: Sequence[int], *,
                       reuse: bool = False) -> _Resident:
-        """Samples put on the device, each pass launched once per plan for a chunk of samples.
+        """Samples put on the device, each pass launched once per plan for the whole batch.
 
-        Each sample's accumulate pass writes its slot of the batch's buffers; then the chunk's
-        samples of one plan (auto saturation gives at most two) run to_raw and finish in one
-        launch each, finish writing the cropped output, and each sample's sharp reference is
-        rendered. A chunk holds at least :data:`PASS_CHUNK_PIXELS` pixels (small images: the
-        whole batch), so the device runs a chunk's passes while the host queues the next
-        chunk's. Every buffer keeps one slot per sample.
+        Each sample's accumulate pass writes its slot of the batch's buffers; then samples of
+        one plan (auto saturation gives at most two) run to_raw and finish in one launch each,
+        finish writing the cropped output. Every buffer keeps one slot per sample.
 
         ``reuse``: take the buffers of the last batch of this size (the caller copies every
         result out before the next batch), sparing device allocations; the Synthesizer holds
@@ -771,30 +761,25 @@ class Synthesizer:
         out = _inner((h, w), crop)
         buffers = self._batch_buffers(count, h, w, out, reuse)
         linear, sat_mask, saturated, raw, result, sharp_slots = buffers
-        chunk = -(-PASS_CHUNK_PIXELS // (h * w))
         uniforms = batch_uniforms(self.scene, seed=self.seed, sample_indices=indices)
+        groups: dict = {}  # id(plan) -> (plan, its samples as Drawn, in batch order)
         params, plans = [], []
-        for first in range(0, count, chunk):
-            samples = range(first, min(first + chunk, count))
-            groups: dict = {}  # id(plan) -> (plan, its samples as Drawn, in batch order)
-            for b in samples:
-                item, index = items[b], int(indices[b])
-                sample_plan, drawn = self._drawn(item, index, h, w, None, uniforms[b])
-                params.append(drawn)
-                plans.append(sample_plan)
-                # plans are cached per clip test and size (_drawn): one object per group
-                groups.setdefault(id(sample_plan), (sample_plan, []))[1].append(
-                    Drawn(drawn, index, b))
-                runner.accumulate_into(sample_plan, drawn, item.frames, item.mask, linear,
-                                       sat_mask, b)
-            for sample_plan, drawn in groups.values():
-                runner.to_raw_batch(sample_plan, camera, drawn, linear, sat_mask, saturated,
-                                    raw, (0, 0), (h, w), seed=self.seed)
-                runner.finish_batch(sample_plan, camera, drawn, raw, saturated, whole, out,
-                                    result, seed=self.seed)
-            for b in samples:
-                runner.render_sharp(plans[b], camera, items[b].sharp, out,
-                                    into=(sharp_slots, b))
+        for b, (item, index) in enumerate(zip(items, indices, strict=True)):
+            sample_plan, drawn = self._drawn(item, int(index), h, w, None, uniforms[b])
+            params.append(drawn)
+            plans.append(sample_plan)
+            # plans are cached per clip test and size (_drawn): one object per group
+            groups.setdefault(id(sample_plan), (sample_plan, []))[1].append(
+                Drawn(drawn, int(index), b))
+            runner.accumulate_into(sample_plan, drawn, item.frames, item.mask, linear, sat_mask,
+                                   b)
+        for sample_plan, drawn in groups.values():
+            runner.to_raw_batch(sample_plan, camera, drawn, linear, sat_mask, saturated, raw,
+                                (0, 0), (h, w), seed=self.seed)
+            runner.finish_batch(sample_plan, camera, drawn, raw, saturated, whole, out, result,
+                                seed=self.seed)
+        for b, (p, item) in enumerate(zip(plans, items, strict=True)):
+            runner.render_sharp(p, camera, item.sharp, out, into=(sharp_slots, b))
         return _Resident(result, sat_mask, raw, sharp_slots, params, plans, out, (h, w))
 
     def _batch_buffers(self, count: int, h: int, w: int, out: Region, reuse: bool) -> tuple:

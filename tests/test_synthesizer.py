@@ -350,25 +350,6 @@ def test_batches_after_others_equal_batches_of_a_fresh_synthesizer(name):
         assert np.array_equal(got, want)
 
 
-@pytest.mark.parametrize("name", ["warp:cpu", "opencl"])
-@pytest.mark.parametrize("mode", ["average", "kernel"])
-def test_a_batch_in_chunks_of_any_size_gives_the_bits_of_one_chunk(name, mode, monkeypatch):
-    # to_raw and finish launch once per chunk of samples (PASS_CHUNK_PIXELS); auto saturation
-    # mixes two plans in a chunk (only the first sample reaches the clip level)
-    scene = scene_for(mode)
-    given = batch_for(mode, 5, np.random.default_rng(8))
-    given["batch"][1:] = np.minimum(given["batch"][1:], 254)
-    whole = gpu_blur.Synthesizer(scene, backend=name, seed=3, with_mask=True)(given["batch"])
-    assert len({id(p) for p in whole.plans}) == 2
-    for samples in (1, 2):
-        monkeypatch.setattr(gpu_blur.pipeline, "PASS_CHUNK_PIXELS", samples * H * W)
-        chunked = gpu_blur.Synthesizer(scene, backend=name, seed=3, with_mask=True)(
-            given["batch"])
-        for got, want in ((chunked.blurred, whole.blurred), (chunked.sharp, whole.sharp),
-                          (chunked.mask, whole.mask)):
-            assert np.array_equal(got, want)
-
-
 def test_a_batched_launch_whose_slots_are_too_small_is_refused_before_it_runs():
     from gpu_blur.backends import get_backend
     from gpu_blur.backends.kernel import Drawn
