@@ -134,6 +134,10 @@ SAMPLE_WORDS = ("cfa", "sample_index", "slot")
 SAMPLE_REALS = (("alpha", 0.0), ("red_gain", 1.0), ("blue_gain", 1.0), ("shot_noise_k", 1.0),
                 ("read_noise_std", 0.0), ("gaussian_std", 0.0))
 SAMPLE_WORDS_COUNT, SAMPLE_REALS_COUNT = len(SAMPLE_WORDS), len(SAMPLE_REALS)
+#: A sample's row of uint32 words in the batched kernel blur (gb_blur_kernel): where its kernel
+#: starts in the launch's taps, the kernel's height and width, the sample's slot.
+KERNEL_WORDS = ("offset", "height", "width", "slot")
+KERNEL_WORDS_COUNT = len(KERNEL_WORDS)
 
 # -- rendering for OpenCL -------------------------------------------------------------------
 #: How a value is written in OpenCL C: in the compute type ``real`` (GB_REAL), in the
@@ -178,6 +182,7 @@ OPENCL: tuple[tuple[str, str, str], ...] = (
     *((f"GB_PTRS_{name}", f"PTRS.{name}", WIDE) for name in PTRS),
     ("GB_SAMPLE_WORDS", "SAMPLE_WORDS_COUNT", INT),
     ("GB_SAMPLE_REALS", "SAMPLE_REALS_COUNT", INT),
+    ("GB_KERNEL_WORDS", "KERNEL_WORDS_COUNT", INT),
 )
 
 #: The header on disk (see the module docstring), relative to the kernels' folder.

@@ -771,8 +771,9 @@ class Synthesizer:
             # plans are cached per clip test and size (_drawn): one object per group
             groups.setdefault(id(sample_plan), (sample_plan, []))[1].append(
                 Drawn(drawn, int(index), b))
-            runner.accumulate_into(sample_plan, drawn, item.frames, item.mask, linear, sat_mask,
-                                   b)
+        runner.accumulate_batch(plans, [Drawn(p, int(i), b) for b, (p, i) in enumerate(
+            zip(params, indices, strict=True))], [(item.frames, item.mask) for item in items],
+            linear, sat_mask)
         for sample_plan, drawn in groups.values():
             runner.to_raw_batch(sample_plan, camera, drawn, linear, sat_mask, saturated, raw,
                                 (0, 0), (h, w), seed=self.seed)

@@ -30,6 +30,7 @@ from gpu_blur.kernel_constants import (
     EXACT_COUNT_SHIFT,
     EXACT_FRAMES_MAX,
     EXACT_UNIT,
+    KERNEL_WORDS,
     SAMPLE_REALS,
     SAMPLE_WORDS,
     SATURATION_LEVEL,
@@ -539,20 +540,98 @@ class KernelBackend:
         """:meth:`accumulate` of whole inputs put on the device, into slot ``b`` of batch buffers.
 
         ``linear``, ``sat_mask``: slots of ``3 h w`` values (:meth:`slots`), as the batched
-        to_raw pass reads them. Written in place where the language has views of a buffer
-        (Warp); else into new buffers, then copied into the slots (OpenCL: NVIDIA's
-        sub-buffers cost several times the copy).
+        to_raw pass reads them.
         """
         h, w = frames.shape[-3:-1]
+        self._into_slots((linear, sat_mask), b, h * w * 3, lambda into: self._accumulate_put(
+            plan, params, frames, mask, Region.whole(h, w), into))
+
+    def accumulate_batch(self, plans: Sequence[Plan], samples: Sequence[Drawn],
+                         inputs: Sequence[tuple[OnDevice, OnDevice | None]], linear: Slots,
+                         sat_mask: Slots) -> None:
+        """:meth:`accumulate_into` for every sample of a batch, each into its slot.
+
+        Blur mode kernel takes two launches a sample fewer: each photo is linearized into its
+        slot of two batch buffers, then one launch convolves every sample with its own kernel
+        (:meth:`_blur_kernels`). The other modes run sample by sample.
+
+        Args:
+            plans: each sample's plan.
+            samples: each sample's draws, index and slot.
+            inputs: each sample's (frames, mask) put on the device (:meth:`put`).
+            linear: the batch's slots of ``3 h w`` values for the linear images.
+            sat_mask: the same for the saturation masks.
+        """
+        kernel_mode = [i for i, p in enumerate(plans) if p.variant(S.BLUR) == "kernel"]
+        for p, drawn, (frames, mask) in zip(plans, samples, inputs, strict=True):
+            if p.variant(S.BLUR) != "kernel":
+                self.accumulate_into(p, drawn.params, frames, mask, linear, sat_mask, drawn.slot)
+        if not kernel_mode:
+            return
+        h, w = inputs[kernel_mode[0]][0].shape[-3:-1]
         n = h * w * 3
-        slots = (linear, sat_mask)
-        into = tuple(self._in_slot(s, b, n) for s in slots)
-        if None in into:  # no view of slot b: new buffers, copied in below
-            into = (self._empty(n), self._empty(n))
-        self._accumulate_put(plan, params, frames, mask, Region.whole(h, w), into)
-        if self._in_slot(linear, b, n) is None:
-            for s, values in zip(slots, into, strict=True):
-                self._copy(s.buffer, values, n, b * s.stride)
+        src, ind = self.slots(linear.count, n), self.slots(linear.count, n)
+        groups: dict = {}  # the samples of each accumulate configuration and source dtype
+        for i in kernel_mode:
+            photo = inputs[i][0]
+            if photo.ndim != 3 or tuple(photo.shape[:2]) != (h, w):
+                raise ValueError(f"blur.mode = kernel takes one {h} x {w} x 3 image per sample "
+                                 f"on the device; got shape {photo.shape}")
+            source = photo.dtype or np.dtype(self.np_real)
+            config = self._of_plan(plans[i])[Pass.ACCUMULATE]
+            k = self._pass_kernels(config, source)
+            slot = samples[i].slot
+            with self._timed(sync=False):
+                self._into_slots((src, ind), slot, n, lambda into, k=k, photo=photo: self._launch(
+                    k, "linearize", n, photo.data, *into))
+            groups.setdefault((config, source.str), (k, []))[1].append(samples[i])
+        whole = Region.whole(h, w)
+        for k, drawn in groups.values():
+            with self._timed():
+                self._blur_kernels(k, drawn, src, ind, whole, whole, linear, sat_mask)
+
+    def _into_slots(self, slots: Sequence[Slots], b: int, count: int, fill) -> None:
+        """``fill(buffers)`` writes the first ``count`` values of slot ``b`` of each of ``slots``.
+
+        In place where the language has views of a buffer (Warp); else into new buffers, then
+        copied into the slots (OpenCL: NVIDIA's sub-buffers cost several times the copy).
+        """
+        into = tuple(self._in_slot(s, b, count) for s in slots)
+        if None not in into:
+            fill(into)
+            return
+        into = tuple(self._empty(count) for _ in slots)
+        fill(into)
+        for s, values in zip(slots, into, strict=True):
+            self._copy(s.buffer, values, count, b * s.stride)
+
+    def _blur_kernels(self, k, samples: Sequence[Drawn], src: Slots, ind: Slots, view: Region,
+                      region: Region, linear: Slots, sat_mask: Slots) -> None:
+        """Blur mode kernel of samples in one launch, each sample in its slot.
+
+        Each sample's linear image and saturation indicator (its slots of ``src`` and ``ind``,
+        over ``view``) convolved with its ``params["kernel"]`` into its slots of ``linear`` and
+        ``sat_mask`` (over ``region``).
+        """
+        kernels = [blur.normalize_kernel(d.params["kernel"]) for d in samples]
+        need = region.expand(max(max(kern.shape) // 2 for kern in kernels))
+        if not (view.y0 <= need.y0 and view.x0 <= need.x0 and need.y0 + need.h <= view.y0
+                + view.h and need.x0 + need.w <= view.x0 + view.w):
+            raise ValueError(f"blur kernels: the view {view} does not hold {need}, the region "
+                             "and the largest kernel's radius (a gpu_blur bug: please report it)")
+        _check_slots(samples, (("src", src, view.h * view.w * 3),
+                               ("ind", ind, view.h * view.w * 3),
+                               ("linear", linear, region.h * region.w * 3),
+                               ("sat_mask", sat_mask, region.h * region.w * 3)))
+        first = np.cumsum([0] + [kern.size for kern in kernels[:-1]])
+        words = np.array([(f, *kern.shape, d.slot)
+                          for f, kern, d in zip(first, kernels, samples, strict=True)],
+                         dtype=np.uint32).reshape(len(samples), len(KERNEL_WORDS))
+        taps = np.concatenate([kern.ravel() for kern in kernels]).astype(self.np_real)
+        self._launch(k, "blur_kernel", (len(samples), region.h, region.w), *self._slots(src),
+                     *self._slots(ind), *_view_geometry(view), self._rows(taps),
+                     self._rows(words), *self._slots(linear), *self._slots(sat_mask),
+                     *_out_geometry(region))
 
     #: Whether :meth:`_view` gives views of a buffer (else slots are read and written by copies).
     slot_views = False
@@ -692,14 +771,12 @@ class KernelBackend:
             self._launch(k, "linearize", vn, image, src, indicator)
         del image
         grid = (region.h, region.w)
-        if mode == "kernel":
-            kernel = blur.normalize_kernel(params["kernel"])
-            taps = self._rows(np.ravel(kernel).astype(self.np_real))
+        if mode == "kernel":  # a batch of one
+            n = region.h * region.w * 3
             with self._timed():
-                for values, out in ((src, linear), (indicator, sat_mask)):
-                    self._launch(k, "blur_kernel", grid, values, *_view_geometry(view), taps,
-                                 *(Arg("int", s) for s in kernel.shape), out,
-                                 *_out_geometry(region))
+                self._blur_kernels(k, [Drawn(params, 0, 0)], Slots(src, 1, vn),
+                                   Slots(indicator, 1, vn), view, region, Slots(linear, 1, n),
+                                   Slots(sat_mask, 1, n))
             return
         # compensated sums (sum, compensation) of the image and of its indicator, 3 values a
         # pixel, and of the poses' weights on the image, 1 a pixel (reference.shake, "Edges")

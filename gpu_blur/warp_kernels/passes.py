@@ -160,10 +160,21 @@ def accumulate_kernels(real, source=None) -> dict:
         mask[i] = real(saturated) / real(count)
 
     @wp.kernel(module="unique")
-    def blur_kernel(src: wp.array(dtype=real), sx0: int, sy0: int, sw: int, full_w: int,
-                    full_h: int, k: wp.array(dtype=real), kh: int, kw: int,
-                    dst: wp.array(dtype=real), dx0: int, dy0: int, dw: int):
-        y, x = wp.tid()
+    def blur_kernel(src_slots: wp.array2d(dtype=real), ind_slots: wp.array2d(dtype=real),
+                    sx0: int, sy0: int, sw: int, full_w: int, full_h: int,
+                    taps: wp.array(dtype=real), kernel_words: wp.array2d(dtype=wp.uint32),
+                    linear_slots: wp.array2d(dtype=real), mask_slots: wp.array2d(dtype=real),
+                    dx0: int, dy0: int, dw: int):
+        # a batch, as gb_blur_kernel: sample b convolves its slots of the linear image and its
+        # saturation indicator with its kernel, row b of ``kernel_words`` (KERNEL_WORDS: first
+        # tap in ``taps``, height, width, slot)
+        b, y, x = wp.tid()
+        first = int(kernel_words[b, 0])
+        kh = int(kernel_words[b, 1])
+        kw = int(kernel_words[b, 2])
+        slot = int(kernel_words[b, 3])
+        src = src_slots[slot]
+        ind = ind_slots[slot]
         gx = dx0 + x
         gy = dy0 + y
         ry = kh // 2
@@ -171,19 +182,30 @@ def accumulate_kernels(real, source=None) -> dict:
         acc0 = real(0.0)
         acc1 = real(0.0)
         acc2 = real(0.0)
+        sat0 = real(0.0)
+        sat1 = real(0.0)
+        sat2 = real(0.0)
         for i in range(kh):
             sy = pixel.reflect101(gy + ry - i, full_h)
             for j in range(kw):
-                wt = k[i * kw + j]
+                wt = taps[first + i * kw + j]
                 sx = pixel.reflect101(gx + rx - j, full_w)
                 o = 3 * ((sy - sy0) * sw + (sx - sx0))
                 acc0 = acc0 + wt * src[o]
                 acc1 = acc1 + wt * src[o + 1]
                 acc2 = acc2 + wt * src[o + 2]
+                sat0 = sat0 + wt * ind[o]
+                sat1 = sat1 + wt * ind[o + 1]
+                sat2 = sat2 + wt * ind[o + 2]
         o = 3 * (y * dw + x)
-        dst[o] = acc0
-        dst[o + 1] = acc1
-        dst[o + 2] = acc2
+        linear = linear_slots[slot]
+        mask = mask_slots[slot]
+        linear[o] = acc0
+        linear[o + 1] = acc1
+        linear[o + 2] = acc2
+        mask[o] = sat0
+        mask[o + 1] = sat1
+        mask[o + 2] = sat2
 
     @wp.func
     def tap(v: wp.array(dtype=real), o: int, c: int) -> real:

@@ -90,33 +90,51 @@ __kernel void gb_blur_average_exact(__global const uchar *frames, uint count, lo
 }
 #endif
 
-/* blur, variant kernel: out = src convolved with k (true convolution, k normalized by the host),
- * reflect-101 at the full image's edges. src is a view (first pixel (sx0, sy0), width sw) that
- * holds the output region plus the kernel's radius; dst covers the output region. */
-__kernel void gb_blur_kernel(__global const real *src, long sx0, long sy0, long sw,
-                             long full_w, long full_h, __constant real *k, int kh, int kw,
-                             __global real *dst, long dx0, long dy0, long dw, long dh)
+/* blur, variant kernel, for a batch of samples (the third grid index b): the linear image `src`
+ * and its saturation indicator `ind` convolved with the sample's kernel into `linear` and
+ * `mask` (true convolution, the kernel normalized by the host), reflect-101 at the full image's
+ * edges. Row b of kernel_words (gpu_blur.kernel_constants.KERNEL_WORDS) holds the kernel's first
+ * tap in `taps`, its height and width, and the sample's slot: each buffer holds a slot per
+ * sample, <buffer>_stride values apart. src and ind are views (first pixel (sx0, sy0), width
+ * sw) that hold the output region plus the kernel's radius; linear and mask cover the output
+ * region (first pixel (dx0, dy0), dw x dh). */
+__kernel void gb_blur_kernel(__global const real *src, long src_stride, __global const real *ind,
+                             long ind_stride, long sx0, long sy0, long sw, long full_w,
+                             long full_h, __global const real *taps,
+                             __global const uint *kernel_words, __global real *linear,
+                             long linear_stride, __global real *mask, long mask_stride, long dx0,
+                             long dy0, long dw, long dh)
 {
-    long x = get_global_id(0), y = get_global_id(1);
+    long x = get_global_id(0), y = get_global_id(1), b = get_global_id(2);
     if (x >= dw || y >= dh) return;
+    __global const uint *row = kernel_words + GB_KERNEL_WORDS * b;
+    __global const real *k = taps + row[0];
+    int kh = (int)row[1], kw = (int)row[2];
+    long slot = (long)row[3];
+    src += slot * src_stride;
+    ind += slot * ind_stride;
+    linear += slot * linear_stride;
+    mask += slot * mask_stride;
     long gx = dx0 + x, gy = dy0 + y;
     int ry = kh / 2, rx = kw / 2;
-    real acc0 = 0, acc1 = 0, acc2 = 0;
+    real acc[3] = {0, 0, 0}, sat[3] = {0, 0, 0};
     for (int i = 0; i < kh; ++i) {
         long sy = gb_reflect101(gy + ry - i, full_h);
         for (int j = 0; j < kw; ++j) {
             real w = k[i * kw + j];
             long sx = gb_reflect101(gx + rx - j, full_w);
             long o = 3 * gb_offset(sx, sy, sx0, sy0, sw);
-            acc0 += w * src[o];
-            acc1 += w * src[o + 1];
-            acc2 += w * src[o + 2];
+            for (int c = 0; c < 3; ++c) {
+                acc[c] += w * src[o + c];
+                sat[c] += w * ind[o + c];
+            }
         }
     }
     long o = 3 * (y * dw + x);
-    dst[o] = acc0;
-    dst[o + 1] = acc1;
-    dst[o + 2] = acc2;
+    for (int c = 0; c < 3; ++c) {
+        linear[o + c] = acc[c];
+        mask[o + c] = sat[c];
+    }
 }
 
 /* Channel c of the pixel at offset o of a view (gb_offset), 0 for o < 0: a tap outside the full

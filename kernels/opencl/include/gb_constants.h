@@ -79,4 +79,5 @@
 #define GB_PTRS_US_TAIL GB_WIDE(0.013)
 #define GB_SAMPLE_WORDS 3
 #define GB_SAMPLE_REALS 6
+#define GB_KERNEL_WORDS 4
 #endif
