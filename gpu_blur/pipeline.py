@@ -747,9 +747,10 @@ class Synthesizer:
                       reuse: bool = False) -> _Resident:
         """Samples put on the device, each pass launched once per plan for the whole batch.
 
-        Each sample's accumulate pass writes its slot of the batch's buffers; then samples of
-        one plan (auto saturation gives at most two) run to_raw and finish in one launch each,
-        finish writing the cropped output. Every buffer keeps one slot per sample.
+        The samples' draws come first (their per-image uniforms at once), then the accumulate
+        pass writes each sample's slot of the batch's buffers; then samples of one plan (auto
+        saturation gives at most two) run to_raw and finish in one launch each, finish writing
+        the cropped output. Every buffer keeps one slot per sample.
 
         ``reuse``: take the buffers of the last batch of this size (the caller copies every
         result out before the next batch), sparing device allocations; the Synthesizer holds
@@ -763,17 +764,16 @@ class Synthesizer:
         linear, sat_mask, saturated, raw, result, sharp_slots = buffers
         uniforms = batch_uniforms(self.scene, seed=self.seed, sample_indices=indices)
         groups: dict = {}  # id(plan) -> (plan, its samples as Drawn, in batch order)
-        params, plans = [], []
+        params, plans, samples = [], [], []
         for b, (item, index) in enumerate(zip(items, indices, strict=True)):
             sample_plan, drawn = self._drawn(item, int(index), h, w, None, uniforms[b])
             params.append(drawn)
             plans.append(sample_plan)
+            samples.append(Drawn(drawn, int(index), b))
             # plans are cached per clip test and size (_drawn): one object per group
-            groups.setdefault(id(sample_plan), (sample_plan, []))[1].append(
-                Drawn(drawn, int(index), b))
-        runner.accumulate_batch(plans, [Drawn(p, int(i), b) for b, (p, i) in enumerate(
-            zip(params, indices, strict=True))], [(item.frames, item.mask) for item in items],
-            linear, sat_mask)
+            groups.setdefault(id(sample_plan), (sample_plan, []))[1].append(samples[-1])
+        runner.accumulate_batch(plans, samples, [(item.frames, item.mask) for item in items],
+                                linear, sat_mask)
         for sample_plan, drawn in groups.values():
             runner.to_raw_batch(sample_plan, camera, drawn, linear, sat_mask, saturated, raw,
                                 (0, 0), (h, w), seed=self.seed)

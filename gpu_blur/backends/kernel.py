@@ -552,8 +552,9 @@ class KernelBackend:
         """:meth:`accumulate_into` for every sample of a batch, each into its slot.
 
         Blur mode kernel takes two launches a sample fewer: each photo is linearized into its
-        slot of two batch buffers, then one launch convolves every sample with its own kernel
-        (:meth:`_blur_kernels`). The other modes run sample by sample.
+        slot of two batch buffers made for the call (``3 h w`` values a sample each), then one
+        launch convolves every sample with its own kernel (:meth:`_blur_kernels`). The other
+        modes run sample by sample.
 
         Args:
             plans: each sample's plan.
