@@ -20,6 +20,7 @@ file carries a fitted response (``[response]``, from ``gpu-blur calibrate``), wh
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import numbers
 from pathlib import Path
@@ -189,19 +190,8 @@ def get_camera(name_or_path: str | Path, base_dir: Path | None = None) -> Camera
         base_dir: folder that relative paths are resolved against (the scene's folder).
     """
     name = str(name_or_path)
-    data = rsblur_data()
-    if name == "a7r3":
-        return _a7r3(name, WhiteBalance((1.9, 2.4), (1.5, 1.9)),
-                     "RSBlur PyTorch pipeline, dataset_RealisticDeblur.py")
-    if name == "a7r3-wb-list":
-        pairs = tuple((r, b, n) for r, b, n in data["a7r3"]["realblur_wb_pairs"])
-        return _a7r3(name, WhiteBalance(pairs=pairs), data["a7r3"]["realblur_wb_source"])
-    if name.startswith("rsblur-") and name[7:] in data["rsblur"]["sessions"]:
-        return _rsblur_session(name[7:])
-    if name == "srgb":
-        return _camera("srgb", "identity colour; RSBlur noise levels", np.eye(3),
-                       WhiteBalance(), data["rsblur"]["shot_noise_k"],
-                       data["rsblur"]["read_noise_std"])
+    if name in preset_names():
+        return _preset(name)
     path = Path(name)
     if path.suffix.lower() in (".toml", ".json"):
         if base_dir is not None and not path.is_absolute():
@@ -211,6 +201,22 @@ def get_camera(name_or_path: str | Path, base_dir: Path | None = None) -> Camera
         f"unknown camera {name!r}: use one of {', '.join(preset_names())} "
         "or the path of a .toml/.json camera file"
     )
+
+
+@functools.cache
+def _preset(name: str) -> Camera:
+    """A built-in camera, made once (a Camera is frozen, its matrices read-only)."""
+    data = rsblur_data()
+    if name == "a7r3":
+        return _a7r3(name, WhiteBalance((1.9, 2.4), (1.5, 1.9)),
+                     "RSBlur PyTorch pipeline, dataset_RealisticDeblur.py")
+    if name == "a7r3-wb-list":
+        pairs = tuple((r, b, n) for r, b, n in data["a7r3"]["realblur_wb_pairs"])
+        return _a7r3(name, WhiteBalance(pairs=pairs), data["a7r3"]["realblur_wb_source"])
+    if name.startswith("rsblur-"):
+        return _rsblur_session(name[7:])
+    return _camera("srgb", "identity colour; RSBlur noise levels", np.eye(3), WhiteBalance(),
+                   data["rsblur"]["shot_noise_k"], data["rsblur"]["read_noise_std"])
 
 
 #: The keys a camera file may hold, per table ("" is the top level); :func:`load_camera`

@@ -70,6 +70,17 @@ def test_near_singular_matrix_is_refused_with_its_condition_number():
         color.checked_inverse(np.full((3, 3), np.nan))
 
 
+def test_presets_are_made_once_and_their_matrices_are_read_only():
+    # a Synthesizer per synthesize call meets the same preset (no JSON read, no inverse, and
+    # the kernel backends' per-camera work is found again); nobody can change it under others
+    for name in cameras.preset_names():
+        camera = cameras.get_camera(name)
+        assert cameras.get_camera(name) is camera
+        for matrix in (camera.camera_to_linear, camera.linear_to_camera):
+            with pytest.raises(ValueError, match="read-only"):
+                matrix[0, 0] = 2.0
+
+
 def test_identity_camera_leaves_colours_alone(image):
     cam = cameras.get_camera("srgb")
     assert np.array_equal(color.apply_matrix(image, cam.linear_to_camera), image)

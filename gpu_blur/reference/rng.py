@@ -336,15 +336,19 @@ def image_uniforms_batch(seed: int, sample_indices, stream: Stream, count: int) 
     """:func:`image_uniforms` of several samples at once: row b is sample_indices[b]'s.
 
     One Philox evaluation over every sample's blocks, for a batch's per-image draws (numpy's
-    set-up costs about as much for one sample's blocks as for sixteen).
+    set-up costs about as much for one sample's blocks as for sixteen); up to
+    ``_SCALAR_BLOCKS`` blocks in all, each sample on Python ints as :func:`image_uniforms`.
 
     Returns:
         float64 array of shape ``(len(sample_indices), count)``.
     """
-    key = key_from_seed(seed)
     indices = [_check_sample_index(i) for i in sample_indices]
-    stream = _check_stream(stream)
     blocks = _blocks_of(count)
+    if blocks * len(indices) <= _SCALAR_BLOCKS:  # a sample or two of few draws
+        return np.array([image_uniforms(seed, i, stream, count) for i in indices]).reshape(
+            len(indices), count)
+    key = key_from_seed(seed)
+    stream = _check_stream(stream)
     counter = np.zeros((len(indices), blocks, 4), dtype=np.uint64)
     counter[:, :, 0] = np.arange(blocks, dtype=np.uint64)
     counter[:, :, 2] = np.asarray(indices, dtype=np.uint64)[:, None]
