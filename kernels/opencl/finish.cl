@@ -26,21 +26,20 @@ __kernel void gb_finish(__global const real *raw, long raw_stride,
     if (x >= ow || y >= oh) return;
     real gaussian_std = sample_reals[GB_SAMPLE_REALS * b + 5];
     gb_sample sample = gb_sample_of(sample_words, b);
-    int cfa = sample.cfa;
-    uint sample_index = sample.sample_index;
-    long slot = sample.slot;
-    raw += slot * raw_stride;
-    saturated += slot * saturated_stride;
-    out += slot * out_stride;
+    raw += sample.slot * raw_stride;
+    saturated += sample.slot * saturated_stride;
+    out += sample.slot * out_stride;
     long gx = ox0 + x, gy = oy0 + y;
     long v = 3 * gb_offset(gx, gy, vx0, vy0, vw);
     real rgb[3];
 #ifdef GB_STAGE_DEMOSAIC
     real cam[3];
 #ifdef GB_DEMOSAIC_BILINEAR
-    gb_demosaic_bilinear(raw, vx0, vy0, vw, full_w, full_h, gx, gy, cfa, GB_ZERO_BORDER, cam);
+    gb_demosaic_bilinear(raw, vx0, vy0, vw, full_w, full_h, gx, gy, sample.cfa, GB_ZERO_BORDER,
+                         cam);
 #else
-    gb_demosaic_malvar2004(raw, vx0, vy0, vw, full_w, full_h, gx, gy, cfa, GB_ZERO_BORDER, cam);
+    gb_demosaic_malvar2004(raw, vx0, vy0, vw, full_w, full_h, gx, gy, sample.cfa,
+                           GB_ZERO_BORDER, cam);
 #endif
 #ifdef GB_CLIP_DEMOSAIC
     for (int c = 0; c < 3; ++c) cam[c] = clamp(cam[c], GB_REAL(0.0), GB_REAL(1.0));
@@ -57,8 +56,8 @@ __kernel void gb_finish(__global const real *raw, long raw_stride,
 #endif
         p = clamp(p, GB_REAL(0.0), GB_REAL(1.0));
 #ifdef GB_STAGE_GAUSSIAN_NOISE
-        p += gaussian_std * gb_pixel_normal(key, sample_index, GB_STREAM_SRGB_NOISE, (uint)gx,
-                                            (uint)gy, (uint)c);
+        p += gaussian_std * gb_pixel_normal(key, sample.sample_index, GB_STREAM_SRGB_NOISE,
+                                            (uint)gx, (uint)gy, (uint)c);
         p = clamp(p, GB_REAL(0.0), GB_REAL(1.0));
 #endif
 #ifdef GB_STAGE_RESTORE_SATURATED

@@ -38,8 +38,9 @@ static inline void gb_inspect_value(gb_source v, uint *c)
  * below 0, above 1, at the clip level, above 0; KernelBackend.INSPECT_COLUMNS), each a 64-bit
  * count as two uints (gb_count_add). Work item i of `items` counts values i, i + items, ... in
  * registers (items >= n / 2^32, so each of its counts fits a uint), GB_INSPECT_LOADS of them
- * (gb_constants.h) loaded at a time, and adds each non-zero count once. The clip level is 1.0 for float values
- * and the top code (2^bits - 1) for codes; codes are never NaN, infinite, negative or above 1. */
+ * (gb_constants.h) loaded at a time, and adds each non-zero count once. The clip level is 1.0
+ * for float values and the top code (2^bits - 1) for codes; codes are never NaN, infinite,
+ * negative or above 1. */
 __kernel void gb_inspect(__global const gb_source *values, long n, long items,
                          __global volatile uint *counts, long row)
 {

@@ -30,13 +30,10 @@ __kernel void gb_to_raw(__global const real *linear, long linear_stride,
     real alpha = drawn[0], red_gain = drawn[1], blue_gain = drawn[2];
     real shot_noise_k = drawn[3], read_noise_std = drawn[4];
     gb_sample sample = gb_sample_of(sample_words, b);
-    int cfa = sample.cfa;
-    uint sample_index = sample.sample_index;
-    long slot = sample.slot;
-    linear += slot * linear_stride;
-    mask += slot * mask_stride;
-    saturated += slot * saturated_stride;
-    raw += slot * raw_stride;
+    linear += sample.slot * linear_stride;
+    mask += sample.slot * mask_stride;
+    saturated += sample.slot * saturated_stride;
+    raw += sample.slot * raw_stride;
     long i = y * w + x;
     real v[3];
 #ifdef GB_STAGE_VIGNETTING
@@ -57,7 +54,7 @@ __kernel void gb_to_raw(__global const real *linear, long linear_stride,
     }
 #ifdef GB_STAGE_MOSAIC
     long gx = x0 + x, gy = y0 + y;
-    int ch = gb_cfa_channel(cfa, gx, gy);
+    int ch = gb_cfa_channel(sample.cfa, gx, gy);
     /* linear_to_camera, only the channel the mosaic keeps */
     real s = lin_to_cam[3 * ch] * v[0] + lin_to_cam[3 * ch + 1] * v[1]
              + lin_to_cam[3 * ch + 2] * v[2];
@@ -70,12 +67,13 @@ __kernel void gb_to_raw(__global const real *linear, long linear_stride,
     uint2 key = (uint2)(key_lo, key_hi);
     real rate = fmax(s, GB_REAL(0.0)) / shot_noise_k;
 #ifdef GB_POISSON_NORMAL
-    real counts = gb_poisson_normal_above(rate, poisson_normal_above, key, sample_index, (uint)gx,
-                                          (uint)gy);
+    real counts = gb_poisson_normal_above(rate, poisson_normal_above, key, sample.sample_index,
+                                          (uint)gx, (uint)gy);
 #else
-    real counts = gb_poisson(rate, key, sample_index, (uint)gx, (uint)gy);
+    real counts = gb_poisson(rate, key, sample.sample_index, (uint)gx, (uint)gy);
 #endif
-    real z = gb_pixel_normal(key, sample_index, GB_STREAM_READ_NOISE, (uint)gx, (uint)gy, 0u);
+    real z = gb_pixel_normal(key, sample.sample_index, GB_STREAM_READ_NOISE, (uint)gx, (uint)gy,
+                             0u);
     s = shot_noise_k * counts + read_noise_std * z;
 #endif
     raw[i] = s * gain; /* white_balance */
