@@ -3,10 +3,12 @@
 For each example scene (RealBlur-J: a float32 blurred image and its mask at 1920 x 1200;
 RSBlur: 9 uint8 frames at 1920 x 1200; the training benchmark's random-kernel scene on
 256 x 256 crops) and each way in: ``synthesize`` one sample per call from numpy,
-``Synthesizer`` batches from numpy, and (with torch and CUDA) batches of torch CUDA tensors.
-Each path warms up once; reported: the median over ``--runs`` of milliseconds per sample, end
-to end (arguments in, results out, the device synchronized), and for Warp on CUDA the device's
-own kernel time per sample in one batch (Warp's CUDA activity timer).
+``Synthesizer`` batches from numpy, the same batches and their ``out=`` arrays in the
+Synthesizer's pinned memory (``Synthesizer.pinned``), and (with torch and CUDA) batches of
+torch CUDA tensors. Each path warms up once; reported: the median over ``--runs`` of
+milliseconds per sample, end to end (arguments in, results out, the device synchronized), and
+for Warp on CUDA the device's own kernel time per sample in one batch (Warp's CUDA activity
+timer) and the pinned copy bound of the bytes a sample moves (:func:`copy_bound_ms`).
 
 With an older gpu_blur on ``PYTHONPATH`` (no ``Synthesizer``) only ``synthesize`` is timed,
 so one script compares commits. On the GPU machine, from the repository root::
@@ -72,6 +74,35 @@ def device_ms(synth, given: dict, samples: int) -> float | None:
     return sum(r.elapsed for r in timer.timing_results) / samples
 
 
+def copy_bound_ms(backend, bytes_in: int, bytes_out: int) -> dict:
+    """A sample's pinned host-device copy bound on a Warp CUDA device, in ms.
+
+    Rates: 256 MB copied each way between pinned host memory and the device (best of 5).
+    ``serial``: uploads then downloads; ``duplex``: both directions at once (the copy engines
+    overlap them), the least a sample that moves these bytes can take.
+    """
+    import time
+
+    import warp as wp
+
+    n = 1 << 28
+    host = wp.empty(n, dtype=wp.uint8, device="cpu", pinned=True)
+    dev = wp.empty(n, dtype=wp.uint8, device=backend.wp_device)
+    rates = []
+    for dst, src in ((dev, host), (host, dev)):
+        best = float("inf")
+        for _ in range(5):
+            wp.synchronize()
+            start = time.perf_counter()
+            wp.copy(dst, src)
+            wp.synchronize()
+            best = min(best, time.perf_counter() - start)
+        rates.append(n / best)
+    up, down = bytes_in / rates[0] * 1e3, bytes_out / rates[1] * 1e3
+    return {"h2d_gb_s": rates[0] / 1e9, "d2h_gb_s": rates[1] / 1e9,
+            "bound_serial_ms": up + down, "bound_duplex_ms": max(up, down)}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--backend", default="warp", help="backend (default warp)")
@@ -80,8 +111,9 @@ def main(argv=None) -> int:
     p.add_argument("--scenes", default=",".join(s[0] for s in SCENES),
                    help="comma list of " + ", ".join(s[0] for s in SCENES))
     p.add_argument("--scale", type=float, default=1.0, help="size factor (CPU: e.g. 0.25)")
-    p.add_argument("--paths", default="synthesize,numpy,torch",
-                   help="which of synthesize, numpy, torch to time (default all)")
+    p.add_argument("--paths", default="synthesize,numpy,pinned,torch",
+                   help="which of synthesize, numpy, pinned (the batch and out= in "
+                   "Synthesizer.pinned memory), torch to time (default all)")
     p.add_argument("--json", help="write the results here")
     args = p.parse_args(argv)
     backend = get_backend(args.backend)
@@ -116,6 +148,20 @@ def main(argv=None) -> int:
                 row["batch_numpy_ms"] = median_ms(
                     lambda s=synth, g=given: s(g["batch"], mask=g.get("mask")), args.batch,
                     args.runs, sync)
+            if "pinned" in paths:  # the batch and out= in the Synthesizer's pinned memory
+                held = {k: synth.pinned(v.shape, v.dtype) for k, v in given.items()}
+                for k, v in given.items():
+                    held[k][...] = v
+                first = synth(held["batch"], mask=held.get("mask"))
+                out = [synth.pinned(first.blurred.shape), synth.pinned(first.sharp.shape)]
+                row["batch_pinned_ms"] = median_ms(
+                    lambda s=synth, g=held, o=out: s(g["batch"], mask=g.get("mask"), out=o),
+                    args.batch, args.runs, sync)
+                if cuda:
+                    moved = (sum(v[0].nbytes for v in given.values()),
+                             first.blurred[0].nbytes + first.sharp[0].nbytes)
+                    row["bytes_in_out"] = moved
+                    row.update(copy_bound_ms(backend, *moved))
             if "torch" in paths and cuda and torch is not None and torch.cuda.is_available():
                 on_gpu = {k: torch.from_numpy(v).cuda() for k, v in given.items()}
                 row["batch_torch_cuda_ms"] = median_ms(
@@ -124,7 +170,8 @@ def main(argv=None) -> int:
                 row["kernels_ms"] = device_ms(synth, on_gpu, args.batch)
         rows.append(row)
         print(json.dumps(row), flush=True)
-    keys = ("synthesize_ms", "batch_numpy_ms", "batch_torch_cuda_ms", "kernels_ms")
+    keys = ("synthesize_ms", "batch_numpy_ms", "batch_pinned_ms", "bound_serial_ms",
+            "bound_duplex_ms", "batch_torch_cuda_ms", "kernels_ms")
     print(f"\n{backend.device} (ms per sample, end to end; kernels: device time)")
     print(f"{'scene':<12}{'size':>10}" + "".join(f"{k[:-3]:>21}" for k in keys))
     for row in rows:

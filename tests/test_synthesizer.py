@@ -6,7 +6,7 @@ import re
 import numpy as np
 import pytest
 import torch
-from conftest import BACKEND_SPECS
+from conftest import BACKEND_SPECS, KERNEL_BACKEND_SPECS
 
 import gpu_blur
 from gpu_blur.scene import scene_from_dict
@@ -368,3 +368,62 @@ def test_a_batched_launch_whose_slots_are_too_small_is_refused_before_it_runs():
     with pytest.raises(ValueError, match="saturated has 1 slot"):
         backend.finish_batch(p, get_camera("srgb"), samples[:1], mosaic, short,
                              Region.whole(4, 4), Region.whole(4, 4), rgb, seed=0)
+
+
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+@pytest.mark.parametrize("streamed", [False, True])
+def test_batches_and_out_arrays_in_pinned_memory_give_the_plain_batch(spec, streamed,
+                                                                      monkeypatch):
+    # Synthesizer.pinned memory is copied straight to and from the device; a batch of codes
+    # in it goes in parts (STREAMED_SAMPLES) when its samples are large enough (0 here)
+    import gpu_blur.pipeline
+
+    if streamed:
+        monkeypatch.setattr(gpu_blur.pipeline, "STREAMED_BYTES", 0)
+    name, precision = spec_parts(spec)
+    scene = scene_for("average", precision=precision)
+    frames = batch_for("average", 6, np.random.default_rng(9))["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend=name, seed=4, with_mask=True)
+    plain = synth(frames)
+    held = synth.pinned(frames.shape, np.uint8)
+    held[...] = frames
+    out = [synth.pinned(plain.blurred.shape) for _ in range(3)]
+    got = synth(held, out=out)
+    assert got.blurred is out[0] and got.sharp is out[1] and got.mask is out[2]
+    for mine, want in zip(out, (plain.blurred, plain.sharp, plain.mask), strict=True):
+        assert np.array_equal(mine, want)
+    fresh = synth(held)  # pinned inputs, new outputs
+    assert np.array_equal(fresh.blurred, plain.blurred)
+    assert np.array_equal(fresh.sharp, plain.sharp)
+
+
+def test_only_this_backends_contiguous_pinned_arrays_of_the_travel_dtype_go_direct():
+    from gpu_blur.backends import get_backend
+
+    runner, other = get_backend("opencl", "float32"), get_backend("warp:cpu", "float32")
+    mine = runner.pinned((4, 6, 8, 3), np.uint8)
+    assert runner._direct(mine, np.uint8) and runner._direct(mine[1:3], np.uint8)
+    assert not runner._direct(mine[:, ::2], np.uint8)  # strided: through staging
+    assert not runner._direct(mine, np.float32)
+    assert not runner._direct(np.empty((4, 6, 8, 3), np.uint8), np.uint8)
+    assert not runner._direct(other.pinned((4, 6, 8, 3), np.uint8), np.uint8)
+    assert isinstance(gpu_blur.Synthesizer(backend="numpy").pinned((2, 3)), np.ndarray)
+
+
+def test_pinned_inputs_and_out_arrays_skip_the_staging_buffers(monkeypatch):
+    from gpu_blur.backends.opencl import OpenCLBackend
+
+    runner = OpenCLBackend("opencl", "float32", overlap=True)
+    staged = []
+    real = runner._staging_buffer
+    monkeypatch.setattr(runner, "_staging_buffer", lambda *a: staged.append(a) or real(*a))
+    synth = gpu_blur.Synthesizer(scene_for("average", precision="float32"), backend=runner)
+    frames = batch_for("average", 2, np.random.default_rng(2))["batch"]
+    shape = synth(frames).blurred.shape
+    assert staged  # plain arrays go through pinned staging buffers
+    held = synth.pinned(frames.shape, np.uint8)
+    held[...] = frames
+    out = [synth.pinned(shape) for _ in range(2)]
+    staged.clear()
+    synth(held, out=out)
+    assert staged == []

@@ -23,7 +23,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gpu_blur.backends import FRAMES_PER_LAUNCH, OnDevice, cfa_bits, copy_values
+from gpu_blur.backends import (
+    FRAMES_PER_LAUNCH,
+    OnDevice,
+    PinnedHost,
+    cfa_bits,
+    copy_values,
+    pinned_owner,
+)
 from gpu_blur.backends.flows import gap_factors, interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
 from gpu_blur.kernel_constants import (
@@ -701,6 +708,35 @@ class KernelBackend:
             image = np.stack(image)
         dtype = source_dtype(image, self.np_real)
         return self._input(self._upload(image, dtype), np.shape(image), dtype)
+
+    def pinned(self, shape, dtype=np.float32) -> np.ndarray:
+        """An uninitialized host array in page-locked memory this backend copies directly.
+
+        An input batch filled in it (``np.stack(frames, out=...)``) uploads with no staging
+        copy, and ``out=`` arrays made here receive the results straight from the device: the
+        bus's rate instead of the host's copy rate. Page-locking is slow: make them once and
+        reuse them.
+        """
+        dtype = np.dtype(dtype)
+        nbytes = max(int(np.prod(shape)) * dtype.itemsize, 1)
+        keep, address = self._pinned_bytes(nbytes)
+        flat = np.asarray(PinnedHost(self, keep, address, nbytes))
+        return flat[:int(np.prod(shape)) * dtype.itemsize].view(dtype).reshape(shape)
+
+    def _pinned_bytes(self, nbytes: int) -> tuple:
+        """(what holds it, its address): ``nbytes`` of page-locked host memory."""
+        raise NotImplementedError
+
+    def _direct(self, x, dtype=None) -> bool:
+        """Whether ``x`` copies straight to or from the device (no staging).
+
+        So it does when it is a host array in this backend's :meth:`pinned` memory,
+        contiguous, in ``dtype`` (default: the dtype it travels in).
+        """
+        if not isinstance(x, np.ndarray):
+            return False
+        dtype = source_dtype(x, self.np_real) if dtype is None else np.dtype(dtype)
+        return x.dtype == dtype and x.flags.c_contiguous and pinned_owner(x) is self
 
     def _input(self, data, shape, dtype) -> OnDevice:
         """An input put on the device, ``dtype`` recorded for codes (None: the compute type)."""

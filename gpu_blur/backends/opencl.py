@@ -471,6 +471,11 @@ class OpenCLBackend(KernelBackend):
         follow; filling the other buffer overlaps the upload. NVIDIA's OpenCL moves pinned
         memory at the bus's rate and the caller's pageable memory at a fraction of it.
         """
+        if self._direct(image):  # pinned(): no staging
+            with timer("copies"):
+                data = self._empty(image.size, image.dtype)
+                cl.enqueue_copy(self.queue, data, image, is_blocking=False)
+            return self._input(data, image.shape, image.dtype)
         if not self.overlap:
             return super().put(image)
         parts, shape, dtype, count, slot = self._staged_parts(image)
@@ -488,14 +493,26 @@ class OpenCLBackend(KernelBackend):
         With ``overlap`` through a mapped pinned buffer, copied out by threads (see
         :meth:`put`); the copy waits for the launches queued before it.
         """
+        count = int(np.prod(values.shape))
+        if self._direct(into, self.np_real) and into.size == count:  # into pinned(): no staging
+            with timer("copies"):  # unless every pass waits, the batch's caller waits
+                cl.enqueue_copy(self.queue, into, values.data, is_blocking=self.sync_passes)
+            return None
         if not self.overlap:
             return super().export(values, region, into)
-        count = int(np.prod(values.shape))
         with timer("copies"):
             staging = self._staging_buffer("export", count, values.dtype or self.real)
             cl.enqueue_copy(self.queue, staging[:count], values.data, is_blocking=True)
             copy_values(into, region.of(staging[:count].reshape(values.shape)))
         return None
+
+    def _pinned_bytes(self, nbytes: int) -> tuple:
+        buffer = cl.Buffer(self.ctx, cl.mem_flags.READ_WRITE | cl.mem_flags.ALLOC_HOST_PTR,
+                           nbytes)
+        mapped, _ = cl.enqueue_map_buffer(self.copy_queue, buffer,
+                                          cl.map_flags.READ | cl.map_flags.WRITE, 0, (nbytes,),
+                                          np.uint8, is_blocking=True)
+        return (buffer, mapped), mapped.ctypes.data
 
     def _staging_buffer(self, slot, count: int, dtype) -> np.ndarray:
         """Mapped pinned host buffer ``slot`` for ``count`` values, once its last copy is done."""
