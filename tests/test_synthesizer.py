@@ -427,3 +427,55 @@ def test_pinned_inputs_and_out_arrays_skip_the_staging_buffers(monkeypatch):
     staged.clear()
     synth(held, out=out)
     assert staged == []
+
+
+def test_a_batch_in_one_device_buffer_runs_each_input_pass_once_with_the_same_bits():
+    # a wp.array (or torch/CuPy) batch on the Warp device: its samples lie back to back, so
+    # the checks, linearize and the sharp reference launch once for the batch, not per sample
+    import collections
+
+    import warp as wp
+
+    scene = scene_for("none", precision="float32")
+    given = batch_for("none", 4, np.random.default_rng(6), dtype=np.float32)
+    synth = gpu_blur.Synthesizer(scene, backend="warp:cpu", seed=2, with_mask=True)
+    plain = synth(given["batch"], mask=given["mask"])  # host arrays: sample by sample
+    launches = collections.Counter()
+    launch = synth.runner._launch
+    synth.runner._launch = lambda k, name, *a: launches.update([name]) or launch(k, name, *a)
+    got = synth(wp.array(given["batch"], device="cpu"), mask=wp.array(given["mask"],
+                                                                       device="cpu"))
+    assert launches == {"inspect": 2, "linearize": 1, "render_sharp": 1, "to_raw": 1,
+                        "finish": 1}
+    for mine, want in zip((got.blurred, got.sharp, got.mask),
+                          (plain.blurred, plain.sharp, plain.mask), strict=True):
+        assert np.array_equal(mine.numpy(), want)
+    bad = given["mask"].copy()
+    bad[2, 5, 6, 1] = np.nan
+    with pytest.raises(ValueError, match=r"^sample 2 of 4: mask: 1 NaN and 0 infinite .* row "
+                                         r"5, column 6, channel 1"):
+        synth(wp.array(given["batch"], device="cpu"), mask=wp.array(bad, device="cpu"))
+
+
+def test_evenly_spaced_device_images_are_found_and_others_are_not():
+    import warp as wp
+
+    from gpu_blur.backends import OnDevice, get_backend
+
+    runner = get_backend("warp:cpu", "float32")
+    stacks = wp.array(np.arange(4 * 3 * 2 * 5 * 3, dtype=np.float32).reshape(4, 3, 10, 3),
+                      device="cpu")
+    flat = stacks.flatten()
+    n = 10 * 3
+
+    def image(start):
+        return OnDevice(flat[start:start + n], (2, 5, 3), None)
+
+    middles = [image(b * 3 * n + n) for b in range(4)]  # frame 1 of each 3-frame stack
+    data, stride = runner.spaced(middles)
+    assert stride == 3 * n and np.array_equal(data.numpy()[stride:stride + n],
+                                              flat.numpy()[4 * n:5 * n])
+    assert runner.consecutive(middles) is None  # spaced, not back to back
+    assert runner.consecutive([image(b * n) for b in range(4)]).shape == (4, 2, 5, 3)
+    assert runner.spaced([image(0), image(n), image(3 * n)]) is None  # uneven
+    assert get_backend("opencl", "float32").spaced(middles) is None

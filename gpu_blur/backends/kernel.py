@@ -570,6 +570,8 @@ class KernelBackend:
             linear: the batch's slots of ``3 h w`` values for the linear images.
             sat_mask: the same for the saturation masks.
         """
+        if self._linearize_batch(plans, samples, inputs, linear, sat_mask):
+            return
         kernel_mode = [i for i, p in enumerate(plans) if p.variant(S.BLUR) == "kernel"]
         for p, drawn, (frames, mask) in zip(plans, samples, inputs, strict=True):
             if p.variant(S.BLUR) != "kernel":
@@ -597,6 +599,38 @@ class KernelBackend:
         for k, drawn in groups.values():
             with self._timed():
                 self._blur_kernels(k, drawn, src, ind, whole, whole, linear, sat_mask)
+
+    def _linearize_batch(self, plans: Sequence[Plan], samples: Sequence[Drawn],
+                         inputs: Sequence[tuple[OnDevice, OnDevice | None]], linear: Slots,
+                         sat_mask: Slots) -> bool:
+        """Blur mode none for a whole batch at once, where it can: returns whether it ran.
+
+        It can when every sample's image (and every mask, if any is given) lies back to back
+        in one device buffer (:meth:`consecutive`), in slot order, the slots hold exactly one
+        image each, and the samples share one accumulate configuration: one linearize launch
+        over the batch, then its masks in one copy (or conversion), as
+        :meth:`_accumulate_put` does it sample by sample.
+        """
+        if any((p.variant(S.BLUR) or "none") != "none" for p in plans):
+            return False
+        frames = self.consecutive([f for f, _ in inputs])
+        given = [m for _, m in inputs if m is not None]
+        mask = self.consecutive(given) if given else None
+        configs = {self._of_plan(p)[Pass.ACCUMULATE] for p in plans}
+        if (frames is None or frames.ndim != 4 or len(configs) != 1
+                or (given and (len(given) != len(inputs) or mask is None))
+                or [d.slot for d in samples] != list(range(len(samples)))):
+            return False
+        n = int(np.prod(frames.shape[1:]))
+        if linear.stride != n or sat_mask.stride != n or linear.count < len(samples):
+            return False
+        source = frames.dtype or np.dtype(self.np_real)
+        k = self._pass_kernels(configs.pop(), source)
+        with self._timed(sync=False):
+            self._launch(k, "linearize", len(samples) * n, frames.data, linear.buffer,
+                         sat_mask.buffer)
+        self._mask_into(mask, len(samples) * n, sat_mask.buffer)
+        return True
 
     def _into_slots(self, slots: Sequence[Slots], b: int, count: int, fill) -> None:
         """``fill(buffers)`` writes the first ``count`` values of slot ``b`` of each of ``slots``.
@@ -764,6 +798,35 @@ class KernelBackend:
         size = parts[0].size
         for i, part in enumerate(parts):
             copy_values(host[i * size:(i + 1) * size], part)
+
+    def consecutive(self, images: Sequence[OnDevice]) -> OnDevice | None:
+        """``images`` as one ``B x shape`` image, where they lie back to back in one buffer.
+
+        Else None; see :meth:`spaced` (here the images are exactly their size apart).
+        """
+        spaced = self.spaced(images)
+        size = int(np.prod(images[0].shape)) if images else 0
+        if spaced is None or spaced[1] != size:
+            return None
+        return OnDevice(spaced[0], (len(images), *images[0].shape), self._fetch,
+                        images[0].dtype)
+
+    def spaced(self, images: Sequence[OnDevice]) -> tuple[object, int] | None:
+        """(one flat buffer from the first image's first value, the values between images).
+
+        Where ``images``, of one shape and dtype, lie evenly spaced in one device buffer (a
+        torch or CuPy batch on a Warp device; the middle frames of a batch of frame stacks),
+        batched launches read them at once; else None. Only a language with views of device
+        memory (Warp) finds them (:meth:`_spaced_data`).
+        """
+        if not images or any(i.shape != images[0].shape or i.dtype != images[0].dtype
+                             for i in images):
+            return None
+        return self._spaced_data([i.data for i in images])
+
+    def _spaced_data(self, buffers: Sequence) -> tuple[object, int] | None:
+        """:meth:`spaced` of device buffers of one size and dtype."""
+        return None
 
     def frame(self, stack: OnDevice, index: int) -> OnDevice:
         """Frame ``index`` of an ``n x H x W x 3`` stack :meth:`put` on the device."""
@@ -1090,8 +1153,54 @@ class KernelBackend:
             ValueError: when ``out`` does not lie within the image, or for an image of another
                 dtype.
         """
+        count = out.h * out.w * 3
+        result = None if into is None else self._in_slot(*into, count)
+        in_place = result is not None
+        if result is None:
+            result = self._empty(count)
+        self._render_sharp(plan, camera, image, 1, 0, out, result, 0)
+        if into is not None and not in_place:
+            self._copy(into[0].buffer, result, count, into[1] * into[0].stride)
+        return OnDevice(result, (out.h, out.w, 3), self._fetch)
+
+    def render_sharp_batch(self, plans: Sequence[Plan], camera: Camera,
+                           images: Sequence[OnDevice], out: Region, into: Slots) -> None:
+        """:meth:`render_sharp` of every sample b's ``images[b]`` into slot b of ``into``.
+
+        One launch for the batch where the images lie evenly spaced in one device buffer
+        (:meth:`spaced`: a torch or CuPy batch on a Warp device) and the plans render the
+        sharp image alike; else one launch per sample.
+        """
+        spaced = self.spaced(images)
+        first = self._of_plan(plans[0], camera)
+        alike = all(self._renders_like(first, self._of_plan(p, camera)) for p in plans[1:])
+        if spaced is None or not alike:
+            for b, (p, image) in enumerate(zip(plans, images, strict=True)):
+                self.render_sharp(p, camera, image, out, into=(into, b))
+            return
+        if into.count < len(images) or into.stride < out.h * out.w * 3:
+            raise ValueError(f"render_sharp_batch: {into.count} slot(s) of {into.stride} "
+                             f"values for {len(images)} outputs of {out.h} x {out.w} x 3 (a "
+                             "gpu_blur bug: please report it)")
+        whole = OnDevice(spaced[0], images[0].shape, self._fetch, images[0].dtype)
+        self._render_sharp(plans[0], camera, whole, len(images), spaced[1], out, into.buffer,
+                           into.stride)
+
+    @staticmethod
+    def _renders_like(one: dict, other: dict) -> bool:
+        """Whether two plans' derived values (:meth:`_of_plan`) render sharp images alike."""
+        return one["sharp"] == other["sharp"] and all(
+            np.array_equal(a, b) for a, b in zip(one["curves"], other["curves"], strict=True))
+
+    def _render_sharp(self, plan: Plan, camera: Camera, image: OnDevice, samples: int,
+                      image_stride: int, out: Region, result, out_stride: int) -> None:
+        """The sharp-reference launch over ``samples`` images.
+
+        Image b starts ``image_stride`` values after image b - 1 in ``image``; its ``out``
+        region goes to ``result``, ``out_stride`` values after output b - 1's.
+        """
         source = self._stored_dtype(image)
-        h, w = image.shape[:2]
+        h, w = image.shape[-3:-1]
         if not (0 <= out.y0 and 0 <= out.x0 and out.y0 + out.h <= h and out.x0 + out.w <= w
                 and out.h > 0 and out.w > 0):
             raise ValueError(f"render_sharp: the output region {out.h} x {out.w} at (row "
@@ -1103,32 +1212,27 @@ class KernelBackend:
         polynomial, table = derived["curves"]
         curves = (self._constant(polynomial), Arg("int", polynomial.size, extent=True),
                   self._constant(table), Arg("int", table.size, extent=True))
-        count = out.h * out.w * 3
-        result = None if into is None else self._in_slot(*into, count)
-        in_place = result is not None
-        if result is None:
-            result = self._empty(count)
+        grid = (samples, out.h, out.w)
         with self._timed():
             if source == self.np_real:
-                self._launch(k, "render_sharp", (out.h, out.w), image.data, *_index(w),
-                             *_out_geometry(out), *curves, result)
-            else:
-                # codes: the curve of every code (one pixel per 3 codes; once per build and
-                # curve), then a gather, as the host renders them (pipeline.render_sharp)
-                key = (derived["sharp"], polynomial.tobytes(), table.size, source.str)
-                if key not in self._sharp_tables:
-                    top = np.iinfo(source).max
-                    every = np.minimum(np.arange(-(-(top + 1) // 3) * 3), top)
-                    codes = Region.whole(1, every.size // 3)
-                    rendered = self._empty(every.size)
-                    self._launch(k, "render_sharp", codes.shape, self._constant(every, source),
-                                 *_index(codes.w), *_out_geometry(codes), *curves, rendered)
-                    self._sharp_tables[key] = rendered
-                self._launch(k, "gather_codes", (out.h, out.w), image.data, *_index(w),
-                             *_out_geometry(out), self._sharp_tables[key], result)
-        if into is not None and not in_place:
-            self._copy(into[0].buffer, result, count, into[1] * into[0].stride)
-        return OnDevice(result, (out.h, out.w, 3), self._fetch)
+                self._launch(k, "render_sharp", grid, image.data, *_index(w, image_stride),
+                             *_out_geometry(out), *curves, result, *_index(out_stride))
+                return
+            # codes: the curve of every code (one pixel per 3 codes; once per build and
+            # curve), then a gather, as the host renders them (pipeline.render_sharp)
+            key = (derived["sharp"], polynomial.tobytes(), table.size, source.str)
+            if key not in self._sharp_tables:
+                top = np.iinfo(source).max
+                every = np.minimum(np.arange(-(-(top + 1) // 3) * 3), top)
+                codes = Region.whole(1, every.size // 3)
+                rendered = self._empty(every.size)
+                self._launch(k, "render_sharp", (1, *codes.shape),
+                             self._constant(every, source), *_index(codes.w, 0),
+                             *_out_geometry(codes), *curves, rendered, *_index(0))
+                self._sharp_tables[key] = rendered
+            self._launch(k, "gather_codes", grid, image.data, *_index(w, image_stride),
+                         *_out_geometry(out), self._sharp_tables[key], result,
+                         *_index(out_stride))
 
 
 def average_args(stack, count: int, n: int, sums, first: bool, mean_of: int, linear, sat_mask,

@@ -540,6 +540,23 @@ class WarpBackend(KernelBackend):
     def _view(buffer, start: int, count: int) -> wp.array:
         return buffer if start == 0 and count == buffer.size else buffer[start:start + count]
 
+    def _spaced_data(self, buffers: Sequence) -> tuple[wp.array, int] | None:
+        first = buffers[0]
+        if not all(isinstance(b, wp.array) and b.is_contiguous and b.dtype == first.dtype
+                   and b.size == first.size and str(b.device) == str(first.device)
+                   for b in buffers):
+            return None
+        item = wp.types.type_size_in_bytes(first.dtype)
+        step = (buffers[1].ptr - first.ptr) if len(buffers) > 1 else first.size * item
+        if step < first.size * item or step % item:
+            return None
+        if any(b.ptr != first.ptr + i * step for i, b in enumerate(buffers)):
+            return None
+        stride = step // item
+        flat = wp.array(ptr=first.ptr, dtype=first.dtype, device=first.device,
+                        shape=((len(buffers) - 1) * stride + first.size,))
+        return flat, stride
+
     @staticmethod
     def _part(buffer, start: int, count: int, dtype) -> wp.array:
         return WarpBackend._view(buffer, start, count)

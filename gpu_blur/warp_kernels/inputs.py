@@ -142,12 +142,13 @@ def render_sharp_kernel(real, source, config):
     retone_quantize = retone_quantize_func(real, config.retone, config.bits)
 
     @wp.kernel(module="unique", module_options={"fast_math": _fast(real, config.fast_math)})
-    def render_sharp(image: wp.array(dtype=source), iw: int, ox0: int, oy0: int, ow: int,
-                     crf_polynomial: wp.array(dtype=real), crf_table: wp.array(dtype=real),
-                     out: wp.array(dtype=real)):
-        y, x = wp.tid()
-        i = 3 * ((oy0 + y) * iw + ox0 + x)
-        o = 3 * (y * ow + x)
+    def render_sharp(image: wp.array(dtype=source), iw: int, image_stride: int, ox0: int,
+                     oy0: int, ow: int, crf_polynomial: wp.array(dtype=real),
+                     crf_table: wp.array(dtype=real), out: wp.array(dtype=real),
+                     out_stride: int):
+        b, y, x = wp.tid()
+        i = b * image_stride + 3 * ((oy0 + y) * iw + ox0 + x)
+        o = b * out_stride + 3 * (y * ow + x)
         for c in range(3):
             p = source_value(image[i + c])
             if wp.static(not tone):
@@ -166,11 +167,12 @@ def gather_codes_kernel(real, source):
     """
 
     @wp.kernel(module="unique")
-    def gather_codes(image: wp.array(dtype=source), iw: int, ox0: int, oy0: int, ow: int,
-                     rendered: wp.array(dtype=real), out: wp.array(dtype=real)):
-        y, x = wp.tid()
-        i = 3 * ((oy0 + y) * iw + ox0 + x)
-        o = 3 * (y * ow + x)
+    def gather_codes(image: wp.array(dtype=source), iw: int, image_stride: int, ox0: int,
+                     oy0: int, ow: int, rendered: wp.array(dtype=real), out: wp.array(dtype=real),
+                     out_stride: int):
+        b, y, x = wp.tid()
+        i = b * image_stride + 3 * ((oy0 + y) * iw + ox0 + x)
+        o = b * out_stride + 3 * (y * ow + x)
         for c in range(3):
             out[o + c] = rendered[int(image[i + c])]
 

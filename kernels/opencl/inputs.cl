@@ -64,42 +64,48 @@ __kernel void gb_unit_values(__global const gb_source *stored, __global real *va
     values[i] = gb_source_value(stored[i]);
 }
 
-/* The sharp reference over the output region (first pixel (ox0, oy0), size ow x oh) of an image
- * of width iw, 3 values per pixel: each stored sRGB value p (a code divided as gb_linearize does)
- * becomes, as gpu_blur.pipeline.render_sharp renders it on the host,
+/* The sharp reference over the output region (first pixel (ox0, oy0), size ow x oh) of images
+ * of width iw, 3 values per pixel, image b (the launch's third axis) image_stride values after
+ * image b - 1 and its output out_stride values after output b - 1: each stored sRGB value p (a
+ * code divided as gb_linearize does) becomes, as gpu_blur.pipeline.render_sharp renders it on
+ * the host,
  *   without GB_STAGE_TONE (output.crf = none): clip(EOTF(p), 0, 1);
  *   else p;
  * then gb_finish's own last stages, gb_retone_quantize (re-toning with GB_STAGE_RETONE,
  * quantization with GB_STAGE_QUANTIZE). The curves' arguments are gb_finish's. */
-__kernel void gb_render_sharp(__global const gb_source *image, long iw, long ox0, long oy0,
-                              long ow, long oh, __constant real *crf_polynomial,
-                              int crf_polynomial_n, __global const real *crf_table,
-                              int crf_table_n, __global real *out)
+__kernel void gb_render_sharp(__global const gb_source *image, long iw, long image_stride,
+                              long ox0, long oy0, long ow, long oh,
+                              __constant real *crf_polynomial, int crf_polynomial_n,
+                              __global const real *crf_table, int crf_table_n,
+                              __global real *out, long out_stride)
 {
-    long x = get_global_id(0), y = get_global_id(1);
+    long x = get_global_id(0), y = get_global_id(1), b = get_global_id(2);
     if (x >= ow || y >= oh) return;
-    long i = 3 * ((oy0 + y) * iw + ox0 + x);
+    long i = b * image_stride + 3 * ((oy0 + y) * iw + ox0 + x);
+    long o = b * out_stride + 3 * (y * ow + x);
     for (int c = 0; c < 3; ++c) {
         real p = gb_source_value(image[i + c]);
 #ifndef GB_STAGE_TONE
         p = gb_clip01(gb_srgb_to_linear(p));
 #endif
-        out[3 * (y * ow + x) + c] = gb_retone_quantize(p, crf_polynomial, crf_polynomial_n,
-                                                       crf_table, crf_table_n);
+        out[o + c] = gb_retone_quantize(p, crf_polynomial, crf_polynomial_n, crf_table,
+                                        crf_table_n);
     }
 }
 
 #if GB_SOURCE_BITS != 0
-/* gb_render_sharp's output region from `rendered`, gb_render_sharp's values of the codes
+/* gb_render_sharp's output regions from `rendered`, gb_render_sharp's values of the codes
  * 0 .. 2^bits - 1 (the same function of the same codes, so the same bits, without a curve
  * per value), as gpu_blur.pipeline.render_sharp renders codes on the host. */
-__kernel void gb_gather_codes(__global const gb_source *image, long iw, long ox0, long oy0,
-                              long ow, long oh, __global const real *rendered,
-                              __global real *out)
+__kernel void gb_gather_codes(__global const gb_source *image, long iw, long image_stride,
+                              long ox0, long oy0, long ow, long oh,
+                              __global const real *rendered, __global real *out,
+                              long out_stride)
 {
-    long x = get_global_id(0), y = get_global_id(1);
+    long x = get_global_id(0), y = get_global_id(1), b = get_global_id(2);
     if (x >= ow || y >= oh) return;
-    long i = 3 * ((oy0 + y) * iw + ox0 + x);
-    for (int c = 0; c < 3; ++c) out[3 * (y * ow + x) + c] = rendered[image[i + c]];
+    long i = b * image_stride + 3 * ((oy0 + y) * iw + ox0 + x);
+    long o = b * out_stride + 3 * (y * ow + x);
+    for (int c = 0; c < 3; ++c) out[o + c] = rendered[image[i + c]];
 }
 #endif
