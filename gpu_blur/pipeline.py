@@ -827,8 +827,9 @@ class Synthesizer:
             samples.append(Drawn(drawn, int(index), b))
             # plans are cached per clip test and size (_drawn): one object per group
             groups.setdefault(id(sample_plan), (sample_plan, []))[1].append(samples[-1])
-        runner.accumulate_batch(plans, samples, [(item.frames, item.mask) for item in items],
-                                linear, sat_mask)
+        sat_mask = runner.accumulate_batch(plans, samples,
+                                           [(item.frames, item.mask) for item in items],
+                                           linear, sat_mask)
         for sample_plan, drawn in groups.values():
             runner.to_raw_batch(sample_plan, camera, drawn, linear, sat_mask, saturated, raw,
                                 (0, 0), (h, w), seed=self.seed)

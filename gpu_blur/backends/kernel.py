@@ -555,8 +555,12 @@ class KernelBackend:
 
     def accumulate_batch(self, plans: Sequence[Plan], samples: Sequence[Drawn],
                          inputs: Sequence[tuple[OnDevice, OnDevice | None]], linear: Slots,
-                         sat_mask: Slots) -> None:
+                         sat_mask: Slots) -> Slots:
         """:meth:`accumulate_into` for every sample of a batch, each into its slot.
+
+        Returns the slots that hold the saturation masks: ``sat_mask``, or in blur mode none
+        the given masks' own device buffer where they lie back to back in the compute type
+        (:meth:`_linearize_batch`: nothing copied; the later passes only read it).
 
         Blur mode kernel takes two launches a sample fewer: each photo is linearized into its
         slot of two batch buffers made for the call (``3 h w`` values a sample each), then one
@@ -570,14 +574,15 @@ class KernelBackend:
             linear: the batch's slots of ``3 h w`` values for the linear images.
             sat_mask: the same for the saturation masks.
         """
-        if self._linearize_batch(plans, samples, inputs, linear, sat_mask):
-            return
+        masks = self._linearize_batch(plans, samples, inputs, linear, sat_mask)
+        if masks is not None:
+            return masks
         kernel_mode = [i for i, p in enumerate(plans) if p.variant(S.BLUR) == "kernel"]
         for p, drawn, (frames, mask) in zip(plans, samples, inputs, strict=True):
             if p.variant(S.BLUR) != "kernel":
                 self.accumulate_into(p, drawn.params, frames, mask, linear, sat_mask, drawn.slot)
         if not kernel_mode:
-            return
+            return sat_mask
         h, w = inputs[kernel_mode[0]][0].shape[-3:-1]
         n = h * w * 3
         src, ind = self.slots(linear.count, n), self.slots(linear.count, n)
@@ -599,20 +604,22 @@ class KernelBackend:
         for k, drawn in groups.values():
             with self._timed():
                 self._blur_kernels(k, drawn, src, ind, whole, whole, linear, sat_mask)
+        return sat_mask
 
     def _linearize_batch(self, plans: Sequence[Plan], samples: Sequence[Drawn],
                          inputs: Sequence[tuple[OnDevice, OnDevice | None]], linear: Slots,
-                         sat_mask: Slots) -> bool:
-        """Blur mode none for a whole batch at once, where it can: returns whether it ran.
+                         sat_mask: Slots) -> Slots | None:
+        """Blur mode none for a whole batch at once, where it can; else None.
 
         It can when every sample's image (and every mask, if any is given) lies back to back
         in one device buffer (:meth:`consecutive`), in slot order, the slots hold exactly one
         image each, and the samples share one accumulate configuration: one linearize launch
-        over the batch, then its masks in one copy (or conversion), as
-        :meth:`_accumulate_put` does it sample by sample.
+        over the batch, then its masks in one conversion (8/16-bit codes) or none at all
+        (values of the compute type: their own buffer is returned), as
+        :meth:`_accumulate_put` does it sample by sample. Returns the masks' slots.
         """
         if any((p.variant(S.BLUR) or "none") != "none" for p in plans):
-            return False
+            return None
         frames = self.consecutive([f for f, _ in inputs])
         given = [m for _, m in inputs if m is not None]
         mask = self.consecutive(given) if given else None
@@ -620,17 +627,20 @@ class KernelBackend:
         if (frames is None or frames.ndim != 4 or len(configs) != 1
                 or (given and (len(given) != len(inputs) or mask is None))
                 or [d.slot for d in samples] != list(range(len(samples)))):
-            return False
+            return None
         n = int(np.prod(frames.shape[1:]))
         if linear.stride != n or sat_mask.stride != n or linear.count < len(samples):
-            return False
+            return None
         source = frames.dtype or np.dtype(self.np_real)
         k = self._pass_kernels(configs.pop(), source)
         with self._timed(sync=False):
+            # the kernel also writes each pixel's clip indicator, which the masks replace
             self._launch(k, "linearize", len(samples) * n, frames.data, linear.buffer,
                          sat_mask.buffer)
+        if mask is not None and self._stored_dtype(mask) == np.dtype(self.np_real):
+            return Slots(mask.data, len(samples), n)
         self._mask_into(mask, len(samples) * n, sat_mask.buffer)
-        return True
+        return sat_mask
 
     def _into_slots(self, slots: Sequence[Slots], b: int, count: int, fill) -> None:
         """``fill(buffers)`` writes the first ``count`` values of slot ``b`` of each of ``slots``.

@@ -555,6 +555,7 @@ class WarpBackend(KernelBackend):
         stride = step // item
         flat = wp.array(ptr=first.ptr, dtype=first.dtype, device=first.device,
                         shape=((len(buffers) - 1) * stride + first.size,))
+        flat._gb_sources = list(buffers)  # a view by address owns nothing: keep the owners
         return flat, stride
 
     @staticmethod
