@@ -479,19 +479,25 @@ class Synthesizer:
                     and pinned_owner(batch) is runner and all(map(_codes_only, items))
                     and batch.nbytes >= STREAMED_BYTES * count)
         step = STREAMED_SAMPLES if streamed else count
+        # a batch on the device gets the result buffers themselves (new ones each batch)
+        handed = given is None and step == count and self._reaches(batch, lib)
         out, params, plans = None, [], []
         with self._queued():
             for start in range(0, count, step):
                 part, check = self._prepared(items[start:start + step])
-                done = self._run_resident(part, indices[start:start + step], reuse=True)
+                done = self._run_resident(part, indices[start:start + step], reuse=True,
+                                          fresh_results=handed)
                 check()
+                params += done.params
+                plans += done.plans
+                if handed:
+                    out = self._handed_over(done, batch, lib)
+                    continue
                 if out is None:
                     out = self._outputs(count, done.out, batch, lib,
                                         3 if self.with_mask else 2, given)
                 self._export_resident(done, out if step == count else
                                       [o[start:start + len(part)] for o in out])
-                params += done.params
-                plans += done.plans
             with timer("kernels"):
                 runner.wait()
         raws = ([runner.slot_image(done.raw, b, done.size) for b in range(count)]
@@ -504,10 +510,27 @@ class Synthesizer:
         self._export_slots(out[0], done.blurred, shape)
         self._export_slots(out[1], done.sharp, shape)
         if self.with_mask:
-            masked = _inner((*done.size, 3), self.scene.output.crop)
-            for b in range(len(out[2])):
-                self.runner.export(self.runner.slot_image(done.mask, b, (*done.size, 3)),
-                                   masked, out[2][b])
+            self._export_masks(done, out[2])
+
+    def _export_masks(self, done: _Resident, into) -> None:
+        """The batch's saturation masks, cropped as the outputs are, into ``into`` (B x ...)."""
+        masked = _inner((*done.size, 3), self.scene.output.crop)
+        for b in range(len(into)):
+            self.runner.export(self.runner.slot_image(done.mask, b, (*done.size, 3)), masked,
+                               into[b])
+
+    def _handed_over(self, done: _Resident, batch, lib: str) -> list:
+        """A device batch's outputs: its blurred and sharp slots as they are, and its masks.
+
+        Nothing is copied but the masks (cropped into a new array).
+        """
+        runner, shape = self.runner, (done.out.h, done.out.w, 3)
+        out = [runner.device_array(runner.stacked(slots, shape))
+               for slots in (done.blurred, done.sharp)]
+        if self.with_mask:
+            out += self._outputs(done.blurred.count, done.out, batch, lib, 1)
+            self._export_masks(done, out[2])
+        return out
 
     def _host_batch(self, items: list[_Inputs], indices, batch, lib: str, given):
         """A batch run sample by sample from host memory (tiles, budgets, spot checks)."""
@@ -799,7 +822,7 @@ class Synthesizer:
         return tiled.blurred, tiled.mask, sharp, params, sample_plan, tiled
 
     def _run_resident(self, items: list[_Inputs], indices: Sequence[int], *,
-                      reuse: bool = False) -> _Resident:
+                      reuse: bool = False, fresh_results: bool = False) -> _Resident:
         """Samples put on the device, each pass launched once per plan for the whole batch.
 
         The samples' draws come first (their per-image uniforms at once), then the accumulate
@@ -809,13 +832,14 @@ class Synthesizer:
 
         ``reuse``: take the buffers of the last batch of this size (the caller copies every
         result out before the next batch), sparing device allocations; the Synthesizer holds
-        one batch's buffers between calls.
+        one batch's buffers between calls. ``fresh_results``: new blurred and sharp slots
+        all the same (the caller hands them over as the outputs).
         """
         runner, camera, crop = self.runner, self.camera, self.scene.output.crop
         h, w = items[0].frames.shape[-3:-1]
         count, whole = len(items), Region.whole(h, w)
         out = _inner((h, w), crop)
-        buffers = self._batch_buffers(count, h, w, out, reuse)
+        buffers = self._batch_buffers(count, h, w, out, reuse, fresh_results)
         linear, sat_mask, saturated, raw, result, sharp_slots = buffers
         uniforms = batch_uniforms(self.scene, seed=self.seed, sample_indices=indices)
         groups: dict = {}  # id(plan) -> (plan, its samples as Drawn, in batch order)
@@ -839,12 +863,17 @@ class Synthesizer:
                                   sharp_slots)
         return _Resident(result, sat_mask, raw, sharp_slots, params, plans, out, (h, w))
 
-    def _batch_buffers(self, count: int, h: int, w: int, out: Region, reuse: bool) -> tuple:
+    def _batch_buffers(self, count: int, h: int, w: int, out: Region, reuse: bool,
+                       fresh_results: bool = False) -> tuple:
         """A resident batch's device buffers: (linear, mask, saturated, raw, blurred, sharp).
 
-        With ``reuse`` the last batch's, where it had this count and size.
+        With ``reuse`` the last batch's, where it had this count and size; with
+        ``fresh_results`` new blurred and sharp slots whatever ``reuse`` says.
         """
         key = (count, h, w, out)
+        if fresh_results:
+            held = self._batch_buffers(count, h, w, out, reuse)
+            return (*held[:4], *(self.runner.slots(count, out.h * out.w * 3) for _ in range(2)))
         if reuse and self._buffers is not None and self._buffers[0] == key:
             return self._buffers[1]
         if reuse:

@@ -431,7 +431,8 @@ def test_pinned_inputs_and_out_arrays_skip_the_staging_buffers(monkeypatch):
 
 def test_a_batch_in_one_device_buffer_runs_each_input_pass_once_with_the_same_bits():
     # a wp.array (or torch/CuPy) batch on the Warp device: its samples lie back to back, so
-    # the checks, linearize and the sharp reference launch once for the batch, not per sample
+    # the checks, linearize and the sharp reference launch once for the batch, not per
+    # sample, and the results come back in the batch's own buffers
     import collections
 
     import warp as wp
@@ -447,6 +448,9 @@ def test_a_batch_in_one_device_buffer_runs_each_input_pass_once_with_the_same_bi
                                                                        device="cpu"))
     assert launches == {"inspect": 2, "linearize": 1, "render_sharp": 1, "to_raw": 1,
                         "finish": 1}
+    # the results are the batch's own buffers: the next batch must not write into them
+    synth(wp.array(given["batch"], device="cpu"), mask=wp.array(given["mask"], device="cpu"),
+          first_index=4)
     for mine, want in zip((got.blurred, got.sharp, got.mask),
                           (plain.blurred, plain.sharp, plain.mask), strict=True):
         assert np.array_equal(mine.numpy(), want)
