@@ -117,6 +117,28 @@ def as_warp(x, lib: str):
     return wp.from_dlpack(x)
 
 
+def producer_stream(x, lib: str):
+    """The ``wp.Stream`` that work writing ``x`` is queued on, or None.
+
+    torch's or CuPy's current stream on ``x``'s device; None for ``wp.array`` (queued on
+    Warp's own streams). A Warp stream reading ``x`` waits for it first: a non-default
+    torch or CuPy stream (a prefetcher's) does not synchronize with Warp's streams by itself.
+    """
+    import warp as wp
+
+    if lib == "torch":
+        import torch
+
+        return wp.stream_from_torch(torch.cuda.current_stream(x.device))
+    if lib == "cupy":
+        import cupy
+
+        with cupy.cuda.Device(x.device.id):
+            stream = cupy.cuda.get_current_stream()
+        return wp.Stream(wp.get_cuda_device(x.device.id), cuda_stream=stream.ptr)
+    return None
+
+
 def from_warp(out, lib: str, like):
     """A ``wp.array`` result as the input's type (no copy for torch and CuPy)."""
     import warp as wp

@@ -440,6 +440,8 @@ class Synthesizer:
         lib = arrays.library(batch)
         with timer("reading"):
             items = self._split(batch, mask, sharp, lib)
+        if self._reaches(batch, lib):  # read on the device only once written there
+            self.runner.wait_for(arrays.producer_stream(batch, lib))
         count = len(items)
         if indices is None:
             indices = range(first_index, first_index + count)

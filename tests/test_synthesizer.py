@@ -483,3 +483,25 @@ def test_evenly_spaced_device_images_are_found_and_others_are_not():
     assert runner.consecutive([image(b * n) for b in range(4)]).shape == (4, 2, 5, 3)
     assert runner.spaced([image(0), image(n), image(3 * n)]) is None  # uneven
     assert get_backend("opencl", "float32").spaced(middles) is None
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (run on the GPU "
+                    "machine; CI has none)")
+def test_inputs_written_on_a_side_stream_are_read_only_once_written():
+    # a non-default torch stream does not synchronize with Warp's: the batch waits for the
+    # caller's current stream, so a prefetcher's late writes are what the passes read
+    scene = scene_for("none", precision="float32")
+    given = batch_for("none", 2, np.random.default_rng(12), dtype=np.float32)
+    synth = gpu_blur.Synthesizer(scene, backend="warp:cuda:0")
+    images, masks = (torch.from_numpy(given[k]).cuda() for k in ("batch", "mask"))
+    want = synth(images, mask=masks)
+    x, m = torch.zeros_like(images), torch.zeros_like(masks)
+    torch.cuda.synchronize()
+    side = torch.cuda.Stream()
+    with torch.cuda.stream(side):
+        torch.cuda._sleep(200_000_000)  # the writes below land long after the call starts
+        x.copy_(images)
+        m.copy_(masks)
+        got = synth(x, mask=m)
+    torch.cuda.synchronize()
+    assert torch.equal(got.blurred, want.blurred) and torch.equal(got.sharp, want.sharp)

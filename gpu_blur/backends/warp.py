@@ -275,6 +275,11 @@ class WarpBackend(KernelBackend):
         """Wait for every launch and copy queued so far."""
         self._synchronize()
 
+    def wait_for(self, stream: wp.Stream | None) -> None:
+        """Launches and copies queued from now on wait for the work queued on ``stream``."""
+        if stream is not None:
+            wp.get_stream(self.wp_device).wait_stream(stream)
+
     def _synchronize(self) -> None:
         if self.overlap:  # the compute stream only: a prefetch may still be copying
             wp.synchronize_stream(wp.get_stream(self.wp_device))
