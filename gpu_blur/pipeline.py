@@ -714,29 +714,23 @@ class Synthesizer:
             return [self._checked_on_host(item) for item in items], _checked
         put = [self._put(item) for item in items]
         clip_test = self.scene.saturation.mode == "auto"
-        # (samples, which input, image counted): each input once (a default sharp is a
-        # frame); float values are checked, 8/16-bit codes only looked at for the clip test.
-        # Without the clip test, one input of every sample lying back to back in one device
-        # buffer (a torch batch on a Warp device) is counted at once, in one row.
-        images = []
-        for key in ("frames", "mask", "sharp"):
-            held = [i for i, (item, p) in enumerate(zip(items, put, strict=True))
-                    if getattr(item, key) is not None and (
-                        getattr(p, key).dtype is None or (clip_test and key != "sharp"))]
-            whole = (None if clip_test or len(held) < 2
-                     else self.runner.consecutive([getattr(put[i], key) for i in held]))
-            images += ([(held, key, whole)] if whole is not None
-                       else [([i], key, getattr(put[i], key)) for i in held])
+        # (sample, which, image): each input once (a default sharp is a frame); float values
+        # are checked, 8/16-bit codes only looked at for the clip test. Listed input by input,
+        # so a device batch's samples of one input (evenly spaced in its buffer) are counted
+        # in one launch (KernelBackend.inspect_queued)
+        images = [(i, key, getattr(p, key)) for key in ("frames", "mask", "sharp")
+                  for i, (item, p) in enumerate(zip(items, put, strict=True))
+                  if getattr(item, key) is not None and (
+                      getattr(p, key).dtype is None or (clip_test and key != "sharp"))]
         with timer("checks"):
             counts = self.runner.inspect_queued([image for _, _, image in images])
 
         def check() -> None:
             with timer("checks"):
                 rows = counts()
-            for (held, key, _), row in zip(images, rows, strict=True):
+            for (i, key, image), row in zip(images, rows, strict=True):
                 if row[:4].any():  # the host says exactly what is wrong, and where
-                    _bad_values([(getattr(put[i], key), put[i]) for i in held], key)
-                i = held[0]  # the clip test counts each sample on its own
+                    _bad_values(image, put[i], key)
                 if clip_test and key == "mask" and row[5]:
                     put[i].saturated = True
                 if clip_test and key == "frames" and put[i].mask is None and row[4]:
@@ -967,23 +961,19 @@ def _checked() -> None:
     """Nothing left to check (:meth:`Synthesizer._prepared`)."""
 
 
-def _bad_values(inputs: list[tuple[OnDevice, _Inputs]], key: str):
-    """Raise check_image's message for the first bad one of device inputs.
-
-    ``inputs``: (image, its sample) each, whose counts (together) found bad values.
-    """
-    for image, item in inputs:
-        names = item.names
-        host = image.numpy(image.dtype)
-        parts = [host] if host.ndim == 3 else list(host)
-        labels = ([names["frames"][0]] if host.ndim == 3 else names["frames"]) \
-            if key == "frames" else [names[key]]
-        for part, name in zip(parts, labels, strict=True):
-            try:
-                check_image(part, name)
-            except ValueError as e:
-                raise ValueError(f"{item.label}{e}") from None
-    raise ValueError(f"{inputs[0][1].label}{key}: values outside [0, 1] or not finite")
+def _bad_values(image: OnDevice, item: _Inputs, key: str):
+    """Raise check_image's message for a device input whose counts found bad values."""
+    names = item.names
+    host = image.numpy(image.dtype)
+    parts = [host] if host.ndim == 3 else list(host)
+    labels = ([names["frames"][0]] if host.ndim == 3 else names["frames"]) \
+        if key == "frames" else [names[key]]
+    for part, name in zip(parts, labels, strict=True):
+        try:
+            check_image(part, name)
+        except ValueError as e:
+            raise ValueError(f"{item.label}{e}") from None
+    raise ValueError(f"{item.label}{key}: values outside [0, 1] or not finite")
 
 
 def _reaches_clip_level(frames, mask) -> bool:

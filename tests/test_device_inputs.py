@@ -96,9 +96,9 @@ def test_inspect_counts_carry_into_their_high_word(spec):
     counts = backend._zeros(words.size, np.uint32)
     backend._write(counts, words.reshape(-1))
     with backend._timed():
-        backend._launch(backend._input_kernels(None, np.uint8), "inspect", 4,
+        backend._launch(backend._input_kernels(None, np.uint8), "inspect", (1, 4),
                         stored(backend, image).data, Arg("index", image.size), Arg("index", 4),
-                        counts, Arg("index", 0))
+                        counts, Arg("index", 0), Arg("index", 0))
     got = OnDevice(counts, words.shape, backend._fetch, np.uint32).numpy(np.int64)
     assert got[clip].tolist() == [7, 1]
 

@@ -505,3 +505,25 @@ def test_inputs_written_on_a_side_stream_are_read_only_once_written():
         got = synth(x, mask=m)
     torch.cuda.synchronize()
     assert torch.equal(got.blurred, want.blurred) and torch.equal(got.sharp, want.sharp)
+
+
+def test_a_device_batch_counts_each_sample_in_one_launch_for_the_clip_test():
+    # auto saturation plans each sample by its own counts: one inspect launch for a device
+    # batch still gives a row per sample (the first sample clips, the others need not)
+    import collections
+
+    import warp as wp
+
+    scene = scene_for("kernel", precision="float32")
+    photos = batch_for("kernel", 4, np.random.default_rng(13))["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend="warp:cpu", seed=5)
+    plain = synth(photos)
+    launches = collections.Counter()
+    launch = synth.runner._launch
+    synth.runner._launch = lambda k, name, *a: launches.update([name]) or launch(k, name, *a)
+    got = synth(wp.array(photos, device="cpu"))
+    assert launches["inspect"] == 1 and launches["linearize"] == 1
+    assert [p.kept("saturate") for p in got.plans] == [p.kept("saturate") for p in plain.plans]
+    assert [p.kept("saturate") for p in got.plans][0]
+    assert np.array_equal(got.blurred.numpy(), plain.blurred)
+    assert np.array_equal(got.sharp.numpy(), plain.sharp)

@@ -586,6 +586,8 @@ class KernelBackend:
         h, w = inputs[kernel_mode[0]][0].shape[-3:-1]
         n = h * w * 3
         src, ind = self.slots(linear.count, n), self.slots(linear.count, n)
+        at_once = len(kernel_mode) == len(plans) and self._linearized_at_once(
+            plans, samples, [photo for photo, _ in inputs], (src, ind))
         groups: dict = {}  # the samples of each accumulate configuration and source dtype
         for i in kernel_mode:
             photo = inputs[i][0]
@@ -596,9 +598,10 @@ class KernelBackend:
             config = self._of_plan(plans[i])[Pass.ACCUMULATE]
             k = self._pass_kernels(config, source)
             slot = samples[i].slot
-            with self._timed(sync=False):
-                self._into_slots((src, ind), slot, n, lambda into, k=k, photo=photo: self._launch(
-                    k, "linearize", n, photo.data, *into))
+            if not at_once:
+                with self._timed(sync=False):
+                    self._into_slots((src, ind), slot, n, lambda into, k=k, photo=photo:
+                                     self._launch(k, "linearize", n, photo.data, *into))
             groups.setdefault((config, source.str), (k, []))[1].append(samples[i])
         whole = Region.whole(h, w)
         for k, drawn in groups.values():
@@ -611,36 +614,49 @@ class KernelBackend:
                          sat_mask: Slots) -> Slots | None:
         """Blur mode none for a whole batch at once, where it can; else None.
 
-        It can when every sample's image (and every mask, if any is given) lies back to back
-        in one device buffer (:meth:`consecutive`), in slot order, the slots hold exactly one
-        image each, and the samples share one accumulate configuration: one linearize launch
-        over the batch, then its masks in one conversion (8/16-bit codes) or none at all
-        (values of the compute type: their own buffer is returned), as
-        :meth:`_accumulate_put` does it sample by sample. Returns the masks' slots.
+        It can where :meth:`_linearized_at_once` can, and every mask, if any is given, lies
+        back to back in one device buffer too: then its masks follow in one conversion
+        (8/16-bit codes) or none at all (values of the compute type: their own buffer is
+        returned), as :meth:`_accumulate_put` does it sample by sample. Returns the masks'
+        slots.
         """
         if any((p.variant(S.BLUR) or "none") != "none" for p in plans):
             return None
-        frames = self.consecutive([f for f, _ in inputs])
         given = [m for _, m in inputs if m is not None]
         mask = self.consecutive(given) if given else None
-        configs = {self._of_plan(p)[Pass.ACCUMULATE] for p in plans}
-        if (frames is None or frames.ndim != 4 or len(configs) != 1
-                or (given and (len(given) != len(inputs) or mask is None))
-                or [d.slot for d in samples] != list(range(len(samples)))):
+        if given and (len(given) != len(inputs) or mask is None):
             return None
-        n = int(np.prod(frames.shape[1:]))
-        if linear.stride != n or sat_mask.stride != n or linear.count < len(samples):
+        # the kernel also writes each pixel's clip indicator, which the masks replace
+        if not self._linearized_at_once(plans, samples, [f for f, _ in inputs],
+                                        (linear, sat_mask)):
             return None
-        source = frames.dtype or np.dtype(self.np_real)
-        k = self._pass_kernels(configs.pop(), source)
-        with self._timed(sync=False):
-            # the kernel also writes each pixel's clip indicator, which the masks replace
-            self._launch(k, "linearize", len(samples) * n, frames.data, linear.buffer,
-                         sat_mask.buffer)
+        n = linear.stride
         if mask is not None and self._stored_dtype(mask) == np.dtype(self.np_real):
             return Slots(mask.data, len(samples), n)
         self._mask_into(mask, len(samples) * n, sat_mask.buffer)
         return sat_mask
+
+    def _linearized_at_once(self, plans: Sequence[Plan], samples: Sequence[Drawn],
+                            photos: Sequence[OnDevice], into: tuple[Slots, Slots]) -> bool:
+        """Every sample's photo linearized in one launch, where it can; whether it ran.
+
+        Into its slots of ``into`` (linear values, clip indicators). It can when the photos
+        lie back to back in one device buffer (:meth:`consecutive`), in slot order, each slot
+        holds exactly one image, and the samples share one accumulate configuration.
+        """
+        whole = self.consecutive(photos)
+        configs = {self._of_plan(p)[Pass.ACCUMULATE] for p in plans}
+        if (whole is None or whole.ndim != 4 or len(configs) != 1
+                or [d.slot for d in samples] != list(range(len(samples)))):
+            return False
+        n = int(np.prod(whole.shape[1:]))
+        if any(s.stride != n or s.count < len(samples) for s in into):
+            return False
+        k = self._pass_kernels(configs.pop(), whole.dtype or np.dtype(self.np_real))
+        with self._timed(sync=False):
+            self._launch(k, "linearize", len(samples) * n, whole.data, into[0].buffer,
+                         into[1].buffer)
+        return True
 
     def _into_slots(self, slots: Sequence[Slots], b: int, count: int, fill) -> None:
         """``fill(buffers)`` writes the first ``count`` values of slot ``b`` of each of ``slots``.
@@ -833,6 +849,23 @@ class KernelBackend:
                              for i in images):
             return None
         return self._spaced_data([i.data for i in images])
+
+    def _spaced_runs(self, images: Sequence[OnDevice]) -> list[list[OnDevice]]:
+        """``images`` cut, in order, into runs of one image or of evenly spaced ones.
+
+        Evenly spaced: lying in one device buffer a fixed number of values apart
+        (:meth:`spaced`).
+        """
+        runs: list[list[OnDevice]] = []
+        stride = None  # the last run's spacing
+        for image in images:
+            pair = self.spaced([runs[-1][-1], image]) if runs else None
+            if pair is not None and (len(runs[-1]) == 1 or pair[1] == stride):
+                runs[-1].append(image)
+                stride = pair[1]
+            else:
+                runs.append([image])
+        return runs
 
     def _spaced_data(self, buffers: Sequence) -> tuple[object, int] | None:
         """:meth:`spaced` of device buffers of one size and dtype."""
@@ -1114,7 +1147,9 @@ class KernelBackend:
         """:meth:`inspect`'s launches, queued; returns the function that reads their counts.
 
         Reading waits for everything queued before it: a batch queues its passes in between,
-        so the device never idles while the host waits for the counts.
+        so the device never idles while the host waits for the counts. A run of images that
+        lie evenly spaced in one device buffer (:meth:`spaced`: a device batch's samples)
+        takes one launch, each image still counted into its own row.
         """
         if not images:
             return lambda: np.zeros((0, len(INSPECT_COLUMNS)), np.int64)
@@ -1122,12 +1157,16 @@ class KernelBackend:
         # each count as two uint32 words, (low, high)
         counts = self._zeros(len(images) * len(INSPECT_COLUMNS) * 2, np.uint32)
         with self._timed(sync=False):
-            for row, (image, source) in enumerate(zip(images, sources, strict=True)):
-                n = int(np.prod(image.shape))
+            row = 0
+            for run in self._spaced_runs(images):
+                spaced = self.spaced(run) if len(run) > 1 else None
+                data, stride = spaced or (run[0].data, 0)
+                n = int(np.prod(run[0].shape))
                 items = inspect_items(n)
-                k = self._input_kernels(None, source)
-                self._launch(k, "inspect", items, image.data, *_index(n, items), counts,
-                             *_index(row))
+                k = self._input_kernels(None, sources[row])
+                self._launch(k, "inspect", (len(run), items), data, *_index(n, items), counts,
+                             *_index(row, stride))
+                row += len(run)
         halves = OnDevice(counts, (len(images), len(INSPECT_COLUMNS), 2), self._fetch,
                           np.uint32)
 

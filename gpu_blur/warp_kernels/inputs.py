@@ -45,7 +45,10 @@ counts6 = wp.types.vector(length=6, dtype=wp.uint32)
 
 @functools.cache
 def inspect_kernel(source):
-    """Counts over the ``n`` values of an image into row ``row`` of ``counts``, as gb_inspect.
+    """Counts over the ``n`` values of each image into a row of ``counts``, as gb_inspect.
+
+    Image b (the launch's first axis) starts ``stride`` values after image b - 1 and counts
+    into row ``row + b``.
 
     Six columns (NaN, infinite, below 0, above 1, at the clip level, above 0), each a 64-bit
     count as two words (:func:`count_add`); thread i of ``items`` counts values i, i + items,
@@ -82,21 +85,23 @@ def inspect_kernel(source):
         return c
 
     @wp.kernel(module="unique")
-    def inspect(values: wp.array(dtype=source), n: int, items: int,
-                counts: wp.array(dtype=wp.uint32), row: int):
+    def inspect(image: wp.array(dtype=source), n: int, items: int,
+                counts: wp.array(dtype=wp.uint32), row: int, stride: int):
+        b, t = wp.tid()
+        base = b * stride
         c = counts6()
-        for i in range(wp.tid(), n, INSPECT_LOADS * items):
+        for i in range(t, n, INSPECT_LOADS * items):
             # every load issued before any count (the pass is bound by loads in flight)
             v1 = source(0)
             v2 = source(0)
             v3 = source(0)
-            v0 = values[i]
+            v0 = image[base + i]
             if i + items < n:
-                v1 = values[i + items]
+                v1 = image[base + i + items]
             if i + 2 * items < n:
-                v2 = values[i + 2 * items]
+                v2 = image[base + i + 2 * items]
             if i + 3 * items < n:
-                v3 = values[i + 3 * items]
+                v3 = image[base + i + 3 * items]
             c = tally(v0, c)
             if i + items < n:
                 c = tally(v1, c)
@@ -105,7 +110,7 @@ def inspect_kernel(source):
             if i + 3 * items < n:
                 c = tally(v3, c)
         for k in range(6):
-            count_add(counts, 12 * row + 2 * k, c[k])
+            count_add(counts, 12 * (row + b) + 2 * k, c[k])
 
     return inspect
 

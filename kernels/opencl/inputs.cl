@@ -34,16 +34,19 @@ static inline void gb_inspect_value(gb_source v, uint *c)
 #endif
 }
 
-/* Counts over the n values of `values`, into row `row` of `counts`: 6 columns (NaN, infinite,
- * below 0, above 1, at the clip level, above 0; KernelBackend.INSPECT_COLUMNS), each a 64-bit
- * count as two uints (gb_count_add). Work item i of `items` counts values i, i + items, ... in
- * registers (items >= n / 2^32, so each of its counts fits a uint), GB_INSPECT_LOADS of them
- * (gb_constants.h) loaded at a time, and adds each non-zero count once. The clip level is 1.0
- * for float values and the top code (2^bits - 1) for codes; codes are never NaN, infinite,
- * negative or above 1. */
-__kernel void gb_inspect(__global const gb_source *values, long n, long items,
-                         __global volatile uint *counts, long row)
+/* Counts over the n values of each image, into a row of `counts` per image: image b (the
+ * launch's second axis) starts stride values after image b - 1 and counts into row row + b.
+ * 6 columns (NaN, infinite, below 0, above 1, at the clip level, above 0;
+ * KernelBackend.INSPECT_COLUMNS), each a 64-bit count as two uints (gb_count_add). Work item i
+ * of `items` counts values i, i + items, ... in registers (items >= n / 2^32, so each of its
+ * counts fits a uint), GB_INSPECT_LOADS of them (gb_constants.h) loaded at a time, and adds
+ * each non-zero count once. The clip level is 1.0 for float values and the top code
+ * (2^bits - 1) for codes; codes are never NaN, infinite, negative or above 1. */
+__kernel void gb_inspect(__global const gb_source *image, long n, long items,
+                         __global volatile uint *counts, long row, long stride)
 {
+    long b = get_global_id(1);
+    __global const gb_source *values = image + b * stride;
     uint c[6] = {0u, 0u, 0u, 0u, 0u, 0u};
     for (long i = get_global_id(0); i < n; i += GB_INSPECT_LOADS * items) {
         gb_source v[GB_INSPECT_LOADS];
@@ -52,7 +55,7 @@ __kernel void gb_inspect(__global const gb_source *values, long n, long items,
         for (int u = 0; u < GB_INSPECT_LOADS; ++u)
             if (i + u * items < n) gb_inspect_value(v[u], c);
     }
-    __global volatile uint *out = counts + 12 * row;
+    __global volatile uint *out = counts + 12 * (row + b);
     for (int k = 0; k < 6; ++k) gb_count_add(out + 2 * k, c[k]);
 }
 
