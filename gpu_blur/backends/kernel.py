@@ -1162,7 +1162,7 @@ class KernelBackend:
                 spaced = self.spaced(run) if len(run) > 1 else None
                 data, stride = spaced or (run[0].data, 0)
                 n = int(np.prod(run[0].shape))
-                items = inspect_items(n)
+                items = inspect_items(n, len(run))
                 k = self._input_kernels(None, sources[row])
                 self._launch(k, "inspect", (len(run), items), data, *_index(n, items), counts,
                              *_index(row, stride))
@@ -1304,13 +1304,15 @@ INSPECT_COLUMNS = ("nan", "infinite", "below_0", "above_1", "clip_level", "above
 INSPECT_ITEMS = 65536
 
 
-def inspect_items(n: int) -> int:
-    """Work items for inspecting ``n`` values.
+def inspect_items(n: int, images: int = 1) -> int:
+    """Work items per image for inspecting ``images`` images of ``n`` values in one launch.
 
-    :data:`INSPECT_ITEMS`, fewer for small images, and enough that no item counts 2^32 values
-    (its counts are 32-bit).
+    :data:`INSPECT_ITEMS` shared by the images (each item adds its counts to its image's row
+    with atomics, so more items per row cost more than they gain: on one H200 16 RealBlur-J
+    images took 0.128 ms a sample with 65,536 items each, against 0.039 sharing 65,536),
+    fewer for small images, and enough that no item counts 2^32 values (its counts are 32-bit).
     """
-    return max(min(n, INSPECT_ITEMS), -(-n // (2**32 - 1)), 1)
+    return max(min(n, INSPECT_ITEMS // images), -(-n // (2**32 - 1)), 1)
 
 
 def sharp_config(plan: Plan) -> PassConfig:
