@@ -117,6 +117,32 @@ def as_warp(x, lib: str):
     return wp.from_dlpack(x)
 
 
+def warp_samples(x, lib: str) -> list | None:
+    """``x[b]`` for every b as ``wp.array`` views made from addresses, else None.
+
+    None unless ``x`` is contiguous on a CUDA device (or a ``wp.array``). One DLPack
+    hand-over for the batch instead of one per sample (on the 2-core CI CPU a
+    ``wp.from_torch`` took 26 us, a view from an address 5). Each view keeps the batch's
+    ``wp.array`` alive.
+    """
+    import warp as wp
+
+    contiguous = {"torch": lambda: x.is_contiguous(), "warp": lambda: x.is_contiguous,
+                  "cupy": lambda: x.flags.c_contiguous}[lib]()
+    if not contiguous or x.shape[0] == 0:
+        return None
+    flat = as_warp(x.reshape(-1) if lib != "warp" else x.flatten(), lib)
+    shape = tuple(x.shape[1:])
+    step = int(np.prod(shape)) * wp.types.type_size_in_bytes(flat.dtype)
+    views = []
+    for b in range(x.shape[0]):
+        view = wp.array(ptr=flat.ptr + b * step, dtype=flat.dtype, shape=shape,
+                        device=flat.device)
+        view._gb_sources = [flat]  # a view by address owns nothing
+        views.append(view)
+    return views
+
+
 def producer_stream(x, lib: str):
     """The ``wp.Stream`` that work writing ``x`` is queued on, or None.
 

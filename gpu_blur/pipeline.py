@@ -661,16 +661,19 @@ class Synthesizer:
                 raise ValueError(f"{key} has shape {tuple(x.shape)} but the batch "
                                  f"{tuple(parts['batch'].shape)}: give one of each per sample")
         reached = self._reaches(parts["batch"], lib)
+        samples = {key: (reached and arrays.warp_samples(x, lib))
+                   or [self._taken(x[b], lib, reached) for b in range(count)]
+                   for key, x in parts.items()}
         items = []
         for b in range(count):
             label = f"sample {b} of {count}: "
-            x = self._taken(parts["batch"][b], lib, reached)
+            x = samples["batch"][b]
             if mode == "average":
                 names = {"frames": [f"frame {i}" for i in range(x.shape[0])]}
                 items.append(_Inputs(x, None, None, names, label))
                 continue
-            m = self._taken(parts["mask"][b], lib, reached) if "mask" in parts else None
-            s = self._taken(parts["sharp"][b], lib, reached) if "sharp" in parts else None
+            m = samples["mask"][b] if "mask" in parts else None
+            s = samples["sharp"][b] if "sharp" in parts else None
             name = "blurred" if mode == "none" else "photo"
             items.append(_Inputs([x], m, s, {"frames": [name], "mask": "mask",
                                            "sharp": "sharp"}, label))
