@@ -474,7 +474,8 @@ class OpenCLBackend(KernelBackend):
         if self._direct(image):  # pinned(): no staging
             with timer("copies"):
                 data = self._empty(image.size, image.dtype)
-                cl.enqueue_copy(self.queue, data, image, is_blocking=False)
+                # queued in a batch (its caller waits before image may change), else done
+                cl.enqueue_copy(self.queue, data, image, is_blocking=self.sync_passes)
             return self._input(data, image.shape, image.dtype)
         if not self.overlap:
             return super().put(image)

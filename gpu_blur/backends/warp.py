@@ -493,8 +493,10 @@ class WarpBackend(KernelBackend):
     def _put_pinned(self, image: np.ndarray) -> OnDevice:
         """A host input in this backend's :meth:`pinned` memory: one copy, no staging.
 
-        On the copy stream with ``overlap`` (the compute stream waits for it); the caller
-        leaves ``image`` unchanged until the launches that read it are done.
+        On the copy stream with ``overlap`` (the compute stream waits for it). In a batch
+        (``sync_passes`` off) the copy is only queued, and the caller waits for it before
+        ``image`` may change (the Synthesizer waits for its batch); otherwise it is done on
+        return.
         """
         count = image.size
         self._check_size(count)
@@ -503,7 +505,10 @@ class WarpBackend(KernelBackend):
             source = self._host_view(image)
             if self.overlap:
                 wp.copy(data, source, count=count, stream=self._copier)
-                wp.get_stream(self.wp_device).wait_event(self._copier.record_event())
+                copied = self._copier.record_event()
+                wp.get_stream(self.wp_device).wait_event(copied)
+                if self.sync_passes:
+                    wp.synchronize_event(copied)
             else:
                 wp.copy(data, source, count=count)
         return self._input(data, image.shape, image.dtype)
@@ -609,6 +614,8 @@ class WarpBackend(KernelBackend):
         their sum. Waits for these copies only: launches queued after them run on.
         """
         n = flat.size
+        if n == 0:
+            return
         chunk = DOWNLOAD_CHUNK if into.flags.c_contiguous else n  # a strided into: one piece
         stream = wp.get_stream(self.wp_device)
         pending = None
