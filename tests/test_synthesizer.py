@@ -527,3 +527,43 @@ def test_a_device_batch_counts_each_sample_in_one_launch_for_the_clip_test():
     assert [p.kept("saturate") for p in got.plans][0]
     assert np.array_equal(got.blurred.numpy(), plain.blurred)
     assert np.array_equal(got.sharp.numpy(), plain.sharp)
+
+
+def test_frame_stacks_lying_back_to_back_average_in_one_launch_with_the_same_bits():
+    # a device batch of 8-bit frame stacks (torch or CuPy on a Warp device: B x F x H x W x
+    # 3, beyond a wp.array's dimensions, so built here from one flat buffer) sums every
+    # sample's frames in one exact launch; each sample equals its own accumulate
+    import collections
+
+    import warp as wp
+
+    from gpu_blur.backends import OnDevice, get_backend
+    from gpu_blur.backends.kernel import Drawn
+    from gpu_blur.plan import plan
+    from gpu_blur.tiling import Region
+
+    runner = get_backend("warp:cpu", "float32")
+    scene = scene_for("average", precision="float32")
+    frames = batch_for("average", 3, np.random.default_rng(14))["batch"]  # 3 x 3 x H x W x 3
+    flat = wp.array(frames.reshape(-1), device="cpu")
+    size = frames[0].size
+    stacks = [OnDevice(flat[b * size:(b + 1) * size], frames.shape[1:], None,
+                       np.dtype(np.uint8)) for b in range(3)]
+    sample_plan = plan(scene, size=(H, W))
+    plans, drawn = [sample_plan] * 3, [Drawn({}, b, b) for b in range(3)]
+    n = H * W * 3
+    linear, mask = runner.slots(3, n), runner.slots(3, n)
+    wants = [runner.accumulate(sample_plan, {}, stack, None, Region.whole(H, W))
+             for stack in stacks]  # one sample at a time (and the code tables made)
+    launches = collections.Counter()
+    launch = runner._launch
+    runner._launch = lambda k, name, *a: launches.update([name]) or launch(k, name, *a)
+    try:
+        runner.accumulate_batch(plans, drawn, [(s, None) for s in stacks], linear, mask)
+    finally:
+        runner._launch = launch
+    assert launches == {"blur_average_exact": 1}
+    for b, want in enumerate(wants):
+        for got, one in zip((linear, mask), want, strict=True):
+            assert np.array_equal(runner.slot_image(got, b, (H, W, 3)).numpy(np.float32),
+                                  one.numpy(np.float32))

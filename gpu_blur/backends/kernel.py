@@ -446,8 +446,8 @@ class KernelBackend:
         units = (self._exact_units(config, source)
                  if first and mean_of == count and count <= EXACT_FRAMES_MAX else None)
         if units is not None:
-            self._launch(k, "blur_average_exact", n, stack, Arg("uint", count), Arg("index", n),
-                         units, linear, sat_mask)
+            self._launch(k, "blur_average_exact", (1, n), stack, Arg("uint", count),
+                         *_index(n, 0), units, linear, sat_mask, *_index(0))
             return
         self._launch(k, "blur_average_add", n, *average_args(
             stack, count, n, sums, first, mean_of, linear, sat_mask,
@@ -577,6 +577,9 @@ class KernelBackend:
         masks = self._linearize_batch(plans, samples, inputs, linear, sat_mask)
         if masks is not None:
             return masks
+        if self._averaged_at_once(plans, samples, [frames for frames, _ in inputs], linear,
+                                  sat_mask):
+            return sat_mask
         kernel_mode = [i for i, p in enumerate(plans) if p.variant(S.BLUR) == "kernel"]
         for p, drawn, (frames, mask) in zip(plans, samples, inputs, strict=True):
             if p.variant(S.BLUR) != "kernel":
@@ -635,6 +638,38 @@ class KernelBackend:
             return Slots(mask.data, len(samples), n)
         self._mask_into(mask, len(samples) * n, sat_mask.buffer)
         return sat_mask
+
+    def _averaged_at_once(self, plans: Sequence[Plan], samples: Sequence[Drawn],
+                          stacks: Sequence[OnDevice], linear: Slots, sat_mask: Slots) -> bool:
+        """Blur mode average of every sample in one launch, where it can; whether it ran.
+
+        It can when the samples' frame stacks lie back to back in one device buffer
+        (:meth:`consecutive`), in slot order, each slot holds exactly one image, the samples
+        share one accumulate configuration and their frames sum exactly
+        (``blur_average_exact``: 8-bit codes, :meth:`_exact_units`), and the batch's frames
+        are fewer than 2^31 values (the kernels' indices).
+        """
+        if any(p.variant(S.BLUR) != "average" for p in plans):
+            return False
+        whole = self.consecutive(stacks)
+        configs = {self._of_plan(p)[Pass.ACCUMULATE] for p in plans}
+        if (whole is None or whole.ndim != 5 or len(configs) != 1 or whole.dtype is None
+                or int(np.prod(whole.shape)) >= 2**31
+                or [d.slot for d in samples] != list(range(len(samples)))):
+            return False
+        count, n = whole.shape[1], int(np.prod(whole.shape[2:]))
+        if any(s.stride != n or s.count < len(samples) for s in (linear, sat_mask)):
+            return False
+        config = configs.pop()
+        units = self._exact_units(config, whole.dtype) if count <= EXACT_FRAMES_MAX else None
+        if units is None:
+            return False
+        k = self._pass_kernels(config, whole.dtype)
+        with self._timed(sync=False):
+            self._launch(k, "blur_average_exact", (len(samples), n), whole.data,
+                         Arg("uint", count), *_index(n, count * n), units, linear.buffer,
+                         sat_mask.buffer, *_index(n))
+        return True
 
     def _linearized_at_once(self, plans: Sequence[Plan], samples: Sequence[Drawn],
                             photos: Sequence[OnDevice], into: tuple[Slots, Slots]) -> bool:

@@ -144,20 +144,24 @@ def accumulate_kernels(real, source=None) -> dict:
 
     @wp.kernel(module="unique")
     def blur_average_exact(frames: wp.array(dtype=source), count: int, stride: int,
-                           units: wp.array(dtype=wp.uint64), linear: wp.array(dtype=real),
-                           mask: wp.array(dtype=real)):
+                           sample_stride: int, units: wp.array(dtype=wp.uint64),
+                           linear: wp.array(dtype=real), mask: wp.array(dtype=real),
+                           out_stride: int):
         # 8-bit frames, all in one launch, float32: blur_average_add's means, the same bits,
         # from an exact integer sum (gb_blur_average_exact in accumulate.cl says why);
         # ``units[code]``: the code's linear value in units of EXACT_UNIT, plus
-        # 1 << EXACT_COUNT_SHIFT where it is saturated
-        i = wp.tid()
+        # 1 << EXACT_COUNT_SHIFT where it is saturated. Sample b (the first axis) reads its
+        # frames sample_stride values after sample b - 1's and writes its means out_stride
+        # values after sample b - 1's
+        b, i = wp.tid()
+        first = b * sample_stride + i
         total = wp.uint64(0)
         for k in range(count):
-            total = total + units[int(frames[k * stride + i])]
+            total = total + units[int(frames[first + k * stride])]
         saturated = total >> wp.uint64(EXACT_COUNT_SHIFT)
         value = real(total - (saturated << wp.uint64(EXACT_COUNT_SHIFT))) * real(EXACT_UNIT)
-        linear[i] = value / real(count)
-        mask[i] = real(saturated) / real(count)
+        linear[b * out_stride + i] = value / real(count)
+        mask[b * out_stride + i] = real(saturated) / real(count)
 
     @wp.kernel(module="unique")
     def blur_kernel(src_slots: wp.array2d(dtype=real), ind_slots: wp.array2d(dtype=real),

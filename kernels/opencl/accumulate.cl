@@ -74,19 +74,22 @@ __kernel void gb_blur_average_add(__global const gb_source *frames, uint count, 
  * same bits (gb_sum.h), from an exact integer sum. units[code]: the code's linear value in
  * units of GB_EXACT_UNIT, plus 1 << GB_EXACT_COUNT_SHIFT where that value is saturated; so one
  * 64-bit add a frame sums both the value and the saturation count, and the sum rounds to float
- * once. */
+ * once. Sample b (the launch's second axis) reads its frames sample_stride values after sample
+ * b - 1's (frame k of it stride values after frame k - 1) and writes its means out_stride values
+ * after sample b - 1's. */
 __kernel void gb_blur_average_exact(__global const uchar *frames, uint count, long stride,
-                                    __global const ulong *units, __global real *linear,
-                                    __global real *mask)
+                                    long sample_stride, __global const ulong *units,
+                                    __global real *linear, __global real *mask, long out_stride)
 {
     size_t i = get_global_id(0);
-    __global const uchar *code = frames + i;
+    long b = get_global_id(1);
+    __global const uchar *code = frames + b * sample_stride + i;
     ulong total = 0;
     for (uint k = 0; k < count; ++k, code += stride) total += units[*code];
     ulong saturated = total >> GB_EXACT_COUNT_SHIFT;
     real sum = (real)(total - (saturated << GB_EXACT_COUNT_SHIFT)) * GB_EXACT_UNIT;
-    linear[i] = sum / (real)count;
-    mask[i] = (real)saturated / (real)count;
+    linear[b * out_stride + i] = sum / (real)count;
+    mask[b * out_stride + i] = (real)saturated / (real)count;
 }
 #endif
 
