@@ -894,16 +894,26 @@ class KernelBackend:
         runs: list[list[OnDevice]] = []
         stride = None  # the last run's spacing
         for image in images:
-            pair = self.spaced([runs[-1][-1], image]) if runs else None
-            if pair is not None and (len(runs[-1]) == 1 or pair[1] == stride):
+            last = runs[-1][-1] if runs else None
+            gap = (self._gap(last.data, image.data) if last is not None
+                   and (last.shape, last.dtype) == (image.shape, image.dtype) else None)
+            if gap is not None and (len(runs[-1]) == 1 or gap == stride):
                 runs[-1].append(image)
-                stride = pair[1]
+                stride = gap
             else:
                 runs.append([image])
         return runs
 
     def _spaced_data(self, buffers: Sequence) -> tuple[object, int] | None:
         """:meth:`spaced` of device buffers of one size and dtype."""
+        return None
+
+    def _gap(self, first, second) -> int | None:
+        """Values from device buffer ``first``'s start to ``second``'s, or None.
+
+        None unless both are alike (size, dtype, device, contiguous) and ``second`` starts
+        at or after ``first``'s end: they are two of a run :meth:`spaced` finds.
+        """
         return None
 
     def frame(self, stack: OnDevice, index: int) -> OnDevice:

@@ -550,19 +550,27 @@ class WarpBackend(KernelBackend):
     def _view(buffer, start: int, count: int) -> wp.array:
         return buffer if start == 0 and count == buffer.size else buffer[start:start + count]
 
-    def _spaced_data(self, buffers: Sequence) -> tuple[wp.array, int] | None:
-        first = buffers[0]
-        if not all(isinstance(b, wp.array) and b.is_contiguous and b.dtype == first.dtype
-                   and b.size == first.size and str(b.device) == str(first.device)
-                   for b in buffers):
+    def _gap(self, first, second) -> int | None:
+        if not (isinstance(first, wp.array) and isinstance(second, wp.array)
+                and first.is_contiguous and second.is_contiguous
+                and first.dtype == second.dtype and first.size == second.size
+                and first.device == second.device):
             return None
         item = wp.types.type_size_in_bytes(first.dtype)
-        step = (buffers[1].ptr - first.ptr) if len(buffers) > 1 else first.size * item
-        if step < first.size * item or step % item:
+        step = second.ptr - first.ptr
+        return step // item if step >= first.size * item and step % item == 0 else None
+
+    def _spaced_data(self, buffers: Sequence) -> tuple[wp.array, int] | None:
+        first = buffers[0]
+        stride = self._gap(first, buffers[1]) if len(buffers) > 1 else None
+        if len(buffers) > 1 and stride is None:
             return None
-        if any(b.ptr != first.ptr + i * step for i, b in enumerate(buffers)):
+        if stride is None:  # one buffer
+            if not (isinstance(first, wp.array) and first.is_contiguous):
+                return None
+            stride = first.size
+        if any(self._gap(a, b) != stride for a, b in zip(buffers[:-1], buffers[1:], strict=True)):
             return None
-        stride = step // item
         flat = wp.array(ptr=first.ptr, dtype=first.dtype, device=first.device,
                         shape=((len(buffers) - 1) * stride + first.size,))
         flat._gb_sources = list(buffers)  # a view by address owns nothing: keep the owners
