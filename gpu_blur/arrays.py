@@ -134,13 +134,21 @@ def warp_samples(x, lib: str) -> list | None:
     flat = as_warp(x.reshape(-1) if lib != "warp" else x.flatten(), lib)
     shape = tuple(x.shape[1:])
     step = int(np.prod(shape)) * wp.types.type_size_in_bytes(flat.dtype)
-    views = []
-    for b in range(x.shape[0]):
-        view = wp.array(ptr=flat.ptr + b * step, dtype=flat.dtype, shape=shape,
-                        device=flat.device)
-        view._gb_sources = [flat]  # a view by address owns nothing
-        views.append(view)
-    return views
+    return [view_at(flat.ptr + b * step, flat.dtype, shape, [flat])
+            for b in range(x.shape[0])]
+
+
+def view_at(address: int, dtype, shape, owners: list):
+    """A ``wp.array`` of ``shape`` at ``address``, in memory the ``owners`` hold.
+
+    On ``owners[0]``'s device; the ``owners`` are ``wp.array``: a view by address owns
+    nothing, so it keeps them alive.
+    """
+    import warp as wp
+
+    view = wp.array(ptr=address, dtype=dtype, shape=shape, device=owners[0].device)
+    view._gb_sources = owners
+    return view
 
 
 def producer_stream(x, lib: str):

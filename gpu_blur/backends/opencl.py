@@ -508,12 +508,17 @@ class OpenCLBackend(KernelBackend):
         return None
 
     def _pinned_bytes(self, nbytes: int) -> tuple:
+        held = self._mapped_host(nbytes, np.uint8)
+        return held, held[1].ctypes.data
+
+    def _mapped_host(self, count: int, dtype) -> tuple[cl.Buffer, np.ndarray]:
+        """A pinned host buffer (``CL_MEM_ALLOC_HOST_PTR``) of ``count`` values and its mapping."""
         buffer = cl.Buffer(self.ctx, cl.mem_flags.READ_WRITE | cl.mem_flags.ALLOC_HOST_PTR,
-                           nbytes)
+                           count * np.dtype(dtype).itemsize)
         mapped, _ = cl.enqueue_map_buffer(self.copy_queue, buffer,
-                                          cl.map_flags.READ | cl.map_flags.WRITE, 0, (nbytes,),
-                                          np.uint8, is_blocking=True)
-        return (buffer, mapped), mapped.ctypes.data
+                                          cl.map_flags.READ | cl.map_flags.WRITE, 0, (count,),
+                                          dtype, is_blocking=True)
+        return buffer, mapped
 
     def _staging_buffer(self, slot, count: int, dtype) -> np.ndarray:
         """Mapped pinned host buffer ``slot`` for ``count`` values, once its last copy is done."""
@@ -523,12 +528,7 @@ class OpenCLBackend(KernelBackend):
         if held is None or held[1].dtype != dtype or held[1].size < count:
             if held is not None:
                 held[1].base.release()
-            buf = cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.ALLOC_HOST_PTR,
-                            count * np.dtype(dtype).itemsize)
-            mapped, _ = cl.enqueue_map_buffer(self.copy_queue, buf,
-                                              cl.map_flags.READ | cl.map_flags.WRITE, 0,
-                                              (count,), dtype, is_blocking=True)
-            held = (buf, mapped)
+            held = self._mapped_host(count, dtype)
             self._staging[slot] = held
         return held[1]
 

@@ -26,6 +26,7 @@ import numpy as np
 import warp as wp
 
 from gpu_blur import notices
+from gpu_blur.arrays import view_at
 from gpu_blur.backends import OnDevice, copy_values, fill_stack
 from gpu_blur.backends.kernel import (
     Arg,
@@ -571,10 +572,8 @@ class WarpBackend(KernelBackend):
             stride = first.size
         if any(self._gap(a, b) != stride for a, b in zip(buffers[:-1], buffers[1:], strict=True)):
             return None
-        flat = wp.array(ptr=first.ptr, dtype=first.dtype, device=first.device,
-                        shape=((len(buffers) - 1) * stride + first.size,))
-        flat._gb_sources = list(buffers)  # a view by address owns nothing: keep the owners
-        return flat, stride
+        return view_at(first.ptr, first.dtype, ((len(buffers) - 1) * stride + first.size,),
+                       list(buffers)), stride
 
     @staticmethod
     def _part(buffer, start: int, count: int, dtype) -> wp.array:
