@@ -2,7 +2,9 @@
 
 Memory: one process per GPU, each a ``gpu_blur.Synthesizer`` (RSBlur scene) on its own
 device, fed batches of 9 uint8 frames of 1920 x 1200 already decoded (the built-in photo
-panned 2 px per frame); batch k goes to GPU ``k % n`` and holds samples ``k * batch ...``.
+panned 2 px per frame), in pageable numpy arrays or in that GPU's pinned memory
+(``Synthesizer.pinned``, the results too, through ``out=``); batch k goes to GPU ``k % n``
+and holds samples ``k * batch ...``.
 Every process warms up on a batch that is not counted, then all start together; the rate is
 the samples made over the time from the first start to the last finish (the hashing of the
 checked batches left out).
@@ -56,16 +58,22 @@ def frames(batch: int) -> np.ndarray:
     return np.ascontiguousarray(np.broadcast_to(stack, (batch, *stack.shape)))
 
 
-def _memory_worker(spec: str, gpu: int, gpus: int, batches: int, batch: int, barrier,
-                   results) -> None:
+def _memory_worker(spec: str, gpu: int, gpus: int, batches: int, batch: int, pinned: bool,
+                   barrier, results) -> None:
     import gpu_blur
     synth = gpu_blur.Synthesizer("rsblur", backend=spec, seed=1)
     given = frames(batch)
-    synth(given, first_index=10 ** 9)  # warm-up: kernel builds, buffers, staging
+    if pinned:  # the frames and the out= arrays in this GPU's pinned memory
+        held = synth.pinned(given.shape, given.dtype)
+        held[...] = given
+        given = held
+    first = synth(given, first_index=10 ** 9)  # warm-up: kernel builds, buffers, staging
+    into = ([synth.pinned(first.blurred.shape), synth.pinned(first.sharp.shape)] if pinned
+            else None)
     barrier.wait()
     start, digests, hashing = time.perf_counter(), {}, 0.0
     for k in range(gpu, batches, gpus):
-        out = synth(given, first_index=k * batch)
+        out = synth(given, first_index=k * batch, out=into)
         if k < CHECKED:
             begin = time.perf_counter()
             digests[k] = hashlib.sha256(out.blurred.tobytes() + out.sharp.tobytes()).hexdigest()
@@ -73,12 +81,13 @@ def _memory_worker(spec: str, gpu: int, gpus: int, batches: int, batch: int, bar
     results.put((gpu, start, time.perf_counter() - hashing, digests))
 
 
-def from_memory(backend: str, gpus: int, batches: int, batch: int) -> dict:
+def from_memory(backend: str, gpus: int, batches: int, batch: int, pinned: bool) -> dict:
     """Samples per second of ``gpus`` processes, one per GPU, and the set's digest."""
     spawn = multiprocessing.get_context("spawn")
     barrier, results = spawn.Barrier(gpus), spawn.Queue()
     workers = [spawn.Process(target=_memory_worker, args=(device_spec(backend, g), g, gpus,
-                                                          batches, batch, barrier, results))
+                                                          batches, batch, pinned, barrier,
+                                                          results))
                for g in range(gpus)]
     for worker in workers:
         worker.start()
@@ -90,7 +99,7 @@ def from_memory(backend: str, gpus: int, batches: int, batch: int) -> dict:
     digests = {k: d for *_, part in done for k, d in part.items()}
     seconds = max(end for _, _, end, _ in done) - min(start for _, start, _, _ in done)
     whole = hashlib.sha256("".join(digests[k] for k in sorted(digests)).encode())
-    return {"gpus": gpus, "samples": batches * batch, "seconds": seconds,
+    return {"gpus": gpus, "pinned": pinned, "samples": batches * batch, "seconds": seconds,
             "samples_per_s": batches * batch / seconds,
             "per_gpu_seconds": {g: end - start for g, start, end, _ in done},
             "digest": whole.hexdigest()}
@@ -112,6 +121,9 @@ def main(argv=None) -> int:
                    help="memory: batches per run (default 64)")
     p.add_argument("--batch", type=int, default=16, help="memory: samples per batch (default 16)")
     p.add_argument("--samples", type=int, default=64, help="disk: samples per run (default 64)")
+    p.add_argument("--memory", default="pageable,pinned",
+                   help="memory: the frames and outputs in pageable numpy arrays, in each "
+                   "GPU's pinned memory (Synthesizer.pinned), or both (default both)")
     p.add_argument("--skip", default="", help="leave out 'memory' or 'disk'")
     p.add_argument("--json", help="write the results here")
     args = p.parse_args(argv)
@@ -122,11 +134,14 @@ def main(argv=None) -> int:
               "frames": FRAMES, "memory": [], "disk": []}
     result["devices"] = [get_backend(device_spec(args.backend, g)).device
                          for g in range(max(counts))]
+    kinds = [k for k in ("pageable", "pinned") if k in args.memory.split(",")]
     if "memory" not in args.skip:
-        for n in counts:
-            row = from_memory(args.backend, n, args.batches, args.batch)
-            result["memory"].append(row)
-            print(f"memory, {n} GPU(s): {row['samples_per_s']:.1f} samples/s", flush=True)
+        for kind in kinds:
+            for n in counts:
+                row = from_memory(args.backend, n, args.batches, args.batch, kind == "pinned")
+                result["memory"].append(row)
+                print(f"memory ({kind}), {n} GPU(s): {row['samples_per_s']:.1f} samples/s",
+                      flush=True)
     if "disk" not in args.skip:
         with tempfile.TemporaryDirectory() as tmp:
             root = Path(tmp) / "in"
@@ -139,16 +154,21 @@ def main(argv=None) -> int:
                                 cores)
                 result["disk"].append(row)
                 print(f"disk, {n} GPU(s): {row['samples_per_s']:.1f} samples/s", flush=True)
-    for source in ("memory", "disk"):
-        rows = result[source]
+    sources = {"disk": result["disk"]}
+    for kind in kinds:
+        sources["memory" if kind == "pageable" else "memory_pinned"] = [
+            r for r in result["memory"] if r["pinned"] == (kind == "pinned")]
+    for source, rows in sources.items():
         if rows:
             one = rows[0]["samples_per_s"]
             result[f"{source}_speedup"] = {r["gpus"]: r["samples_per_s"] / one for r in rows}
-            result[f"{source}_same_bytes"] = len({r["digest"] for r in rows}) == 1
             print(f"{source}: speed-up " + ", ".join(
-                f"{g} GPUs {s:.2f}x" for g, s in result[f"{source}_speedup"].items())
-                + ("; every GPU count the same bytes" if result[f"{source}_same_bytes"]
-                   else "; SETS DIFFER"))
+                f"{g} GPUs {s:.2f}x" for g, s in result[f"{source}_speedup"].items()))
+    for source in ("memory", "disk"):  # pinned or not, every GPU count: one set of bytes
+        if result[source]:
+            same = len({r["digest"] for r in result[source]}) == 1
+            result[f"{source}_same_bytes"] = same
+            print(f"{source}: " + ("every run the same bytes" if same else "SETS DIFFER"))
     if result["disk"]:
         print(f"disk bound: {result['disk_bound_samples_per_s']:.1f} samples/s ({cores} cores)")
         print("\n".join(result["disk"][-1]["summary"]))

@@ -8,7 +8,8 @@ Synthesizer's pinned memory (``Synthesizer.pinned``), and (with torch and CUDA) 
 torch CUDA tensors. Each path warms up once; reported: the median over ``--runs`` of
 milliseconds per sample, end to end (arguments in, results out, the device synchronized), and
 for Warp on CUDA the device's own kernel time per sample in one batch (Warp's CUDA activity
-timer) and the pinned copy bound of the bytes a sample moves (:func:`copy_bound_ms`).
+timer), torch batches also back to back (eight calls, one synchronization: what a loop feeding
+the device waits) and the pinned copy bound of the bytes a sample moves (:func:`copy_bound_ms`).
 
 With an older gpu_blur on ``PYTHONPATH`` (no ``Synthesizer``) only ``synthesize`` is timed,
 so one script compares commits. On the GPU machine, from the repository root::
@@ -62,6 +63,14 @@ def median_ms(run, samples: int, runs: int, sync) -> float:
     """Median milliseconds per sample of ``run()``, the device synchronized (one warm-up first)."""
     times, _ = median_time(lambda: (run(), sync()), runs)
     return statistics.median(times) / samples * 1e3
+
+
+def back_to_back_ms(run, samples: int, runs: int, sync, calls: int = 8) -> float:
+    """Median milliseconds per sample of ``calls`` calls of ``run()`` in a row and one
+    synchronization: a loop feeding the device (a training loop, generation), where a call
+    that returns before its passes end lets the next call's host work overlap them."""
+    times, _ = median_time(lambda: ([run() for _ in range(calls)], sync()), runs)
+    return statistics.median(times) / (calls * samples) * 1e3
 
 
 def device_ms(synth, given: dict, samples: int) -> float | None:
@@ -167,15 +176,19 @@ def main(argv=None) -> int:
                 row["batch_torch_cuda_ms"] = median_ms(
                     lambda s=synth, g=on_gpu: s(g["batch"], mask=g.get("mask")), args.batch,
                     args.runs, torch.cuda.synchronize)
+                row["batch_torch_cuda_back_to_back_ms"] = back_to_back_ms(
+                    lambda s=synth, g=on_gpu: s(g["batch"], mask=g.get("mask")), args.batch,
+                    args.runs, torch.cuda.synchronize)
                 row["kernels_ms"] = device_ms(synth, on_gpu, args.batch)
         rows.append(row)
         print(json.dumps(row), flush=True)
     keys = ("synthesize_ms", "batch_numpy_ms", "batch_pinned_ms", "bound_serial_ms",
-            "bound_duplex_ms", "batch_torch_cuda_ms", "kernels_ms")
+            "bound_duplex_ms", "batch_torch_cuda_ms", "batch_torch_cuda_back_to_back_ms",
+            "kernels_ms")
     print(f"\n{backend.device} (ms per sample, end to end; kernels: device time)")
-    print(f"{'scene':<12}{'size':>10}" + "".join(f"{k[:-3]:>21}" for k in keys))
+    print(f"{'scene':<12}{'size':>10}" + "".join(f"{k[:-3]:>31}" for k in keys))
     for row in rows:
-        cells = "".join(f"{row[k]:>21.3f}" if row.get(k) is not None else f"{'-':>21}"
+        cells = "".join(f"{row[k]:>31.3f}" if row.get(k) is not None else f"{'-':>31}"
                         for k in keys)
         print(f"{row['scene']:<12}{row['size']:>10}{cells}")
     if args.json:

@@ -440,8 +440,10 @@ class Synthesizer:
         lib = arrays.library(batch)
         with timer("reading"):
             items = self._split(batch, mask, sharp, lib)
-        if self._reaches(batch, lib):  # read on the device only once written there
-            self.runner.wait_for(arrays.producer_stream(batch, lib))
+        # a batch on the device is read only once written there, on the caller's stream
+        caller = arrays.producer_stream(batch, lib) if self._reaches(batch, lib) else None
+        if caller is not None:
+            self.runner.wait_for(caller)
         count = len(items)
         if indices is None:
             indices = range(first_index, first_index + count)
@@ -455,6 +457,8 @@ class Synthesizer:
             items, _ = self._prepared(items)
             out, params, plans, raws = self._host_batch(items, indices, batch, lib, out)
         _jpeg_stage(out[0], plans, params)  # channels-last, as the backend wrote them
+        if caller is not None:  # the caller's next work waits for these results, not the host
+            self.runner.hand_to(caller)
         out = ([self._returned(o, lib, batch) for o in out] if out_given is None
                else list(out_given))
         raw = None
@@ -475,6 +479,10 @@ class Synthesizer:
         no values to refuse, so no part's results leave before a later part fails its checks;
         float inputs go in one part, their checks ended (:meth:`_prepared`) once the passes
         are queued and before any result leaves.
+
+        Results handed over on the device return before the device has made them: the host
+        waits only for the checks, and the next batch's host work overlaps this batch's passes
+        (``__call__`` makes the caller's stream wait for them). Other results are waited for.
         """
         runner, count = self.runner, len(items)
         streamed = (not self.with_raw and isinstance(batch, np.ndarray)
@@ -500,8 +508,9 @@ class Synthesizer:
                                         3 if self.with_mask else 2, given)
                 self._export_resident(done, out if step == count else
                                       [o[start:start + len(part)] for o in out])
-            with timer("kernels"):
-                runner.wait()
+            if not handed:
+                with timer("kernels"):
+                    runner.wait()
         raws = ([runner.slot_image(done.raw, b, done.size) for b in range(count)]
                 if self.with_raw else [])
         return out, params, plans, raws

@@ -84,6 +84,26 @@ def test_inspect_counts_equal_numpy_counts(spec):
 
 
 @pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+def test_queued_inspects_read_in_any_order_each_give_their_own_counts(spec):
+    # counts come back in pinned words kept across calls: a second inspect queued before the
+    # first is read gets words of its own; one dropped unread gives the kept words back
+    backend = backend_of(spec)
+    images = planted_images(backend.np_real)
+    on_device = [stored(backend, x) for x in images]
+    made = []
+    pinned = backend.pinned
+    backend.pinned = lambda *a: made.append(a) or pinned(*a)
+    first = backend.inspect_queued(on_device[:2])
+    second = backend.inspect_queued(on_device[2:])
+    np.testing.assert_array_equal(second(), [numpy_counts(x) for x in images[2:]])
+    np.testing.assert_array_equal(first(), [numpy_counts(x) for x in images[:2]])
+    kept = len(made)
+    backend.inspect_queued(on_device[:1])  # dropped unread
+    np.testing.assert_array_equal(backend.inspect(on_device[1:2]), [numpy_counts(images[1])])
+    assert len(made) == kept  # the kept words served both
+
+
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
 def test_inspect_counts_carry_into_their_high_word(spec):
     # a count of 2^32 or more (an image of 4 G values) needs the high word: start the clip
     # column 3 below 2^32 and add 10 counts

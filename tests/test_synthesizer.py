@@ -507,6 +507,47 @@ def test_inputs_written_on_a_side_stream_are_read_only_once_written():
     assert torch.equal(got.blurred, want.blurred) and torch.equal(got.sharp, want.sharp)
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (run on the GPU "
+                    "machine; CI has none)")
+def test_results_handed_over_on_the_gpu_are_read_on_the_callers_stream_once_made():
+    # the call returns once the checks are read, its passes still running: the caller's
+    # current stream (here not the default one) waits for them before its next work
+    scene = gpu_blur.scene.load_scene("realblur_j")
+    given = batch_for("none", 8, np.random.default_rng(14), dtype=np.float32)
+    images, masks = (torch.from_numpy(np.ascontiguousarray(
+        np.broadcast_to(given[k][:, :1, :1], (8, 1200, 1920, 3)))).cuda()
+        for k in ("batch", "mask"))
+    synth = gpu_blur.Synthesizer(scene, backend="warp:cuda:0")
+    side = torch.cuda.Stream()
+    with torch.cuda.stream(side):
+        got = synth(images, mask=masks)
+        read_at_once = got.blurred.clone(), got.sharp.clone()
+    torch.cuda.synchronize()
+    want = synth(images.cpu().numpy(), mask=masks.cpu().numpy())
+    for early, name in zip(read_at_once, ("blurred", "sharp"), strict=True):
+        assert np.array_equal(early.cpu().numpy(), getattr(want, name)), name
+
+
+def test_a_device_batch_returns_without_waiting_for_its_passes():
+    # results handed over on the device: the host waits for the checks' counts, not for
+    # the passes (the next batch's host work overlaps them); numpy results are waited for
+    import warp as wp
+
+    scene = scene_for("kernel", precision="float32")
+    photos = batch_for("kernel", 3, np.random.default_rng(15))["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend="warp:cpu", seed=2)
+    waits = []
+    wait = synth.runner.wait
+    synth.runner.wait = lambda: waits.append(1) or wait()
+    plain = synth(photos)
+    assert waits
+    waits.clear()
+    got = synth(wp.array(photos, device="cpu"))
+    assert not waits
+    assert np.array_equal(got.blurred.numpy(), plain.blurred)
+    assert np.array_equal(got.sharp.numpy(), plain.sharp)
+
+
 def test_a_device_batch_counts_each_sample_in_one_launch_for_the_clip_test():
     # auto saturation plans each sample by its own counts: one inspect launch for a device
     # batch still gives a row per sample (the first sample clips, the others need not)

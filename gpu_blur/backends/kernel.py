@@ -18,6 +18,7 @@ Two functions carry the plan into the kernels:
 from __future__ import annotations
 
 import dataclasses
+import weakref
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
@@ -53,6 +54,7 @@ from gpu_blur.reference.rng import key_from_seed
 from gpu_blur.reference.transfer import a7r3_lookup_table
 from gpu_blur.testhooks import fault_planted, planted_fault
 from gpu_blur.tiling import Region
+from gpu_blur.timings import timer
 
 S = StageName
 
@@ -280,6 +282,8 @@ class KernelBackend:
         self._derived: dict = {}  # id(plan), id(camera) -> (plan, camera, what they give)
         self._put_turn = 0  # which of the two pinned input buffers a staged put fills next
         self._last_tables = None  # (their bytes, device tables) of the last batched launch
+        self._counts_host = None  # pinned host words that inspect counts come back in
+        self._counts_reader = None  # weak reference: the read still to come of those words
 
     # -- primitives a language supplies ----------------------------------------------------
     @property
@@ -309,6 +313,14 @@ class KernelBackend:
 
     def _fetch(self, values: OnDevice, dtype) -> np.ndarray:
         """An output's host copy (timed as ``copies``)."""
+        raise NotImplementedError
+
+    def _fetch_queued(self, buffer, into: np.ndarray) -> Callable[[], None]:
+        """Queue a copy of ``buffer``'s first ``into.size`` values into host ``into``.
+
+        ``into``: this backend's :meth:`pinned` memory, of the buffer's dtype. The function
+        returned waits for that copy alone, not for what is queued after it.
+        """
         raise NotImplementedError
 
     def _pass_kernels(self, config: PassConfig, source=None, interpolate: bool = False):
@@ -1200,8 +1212,9 @@ class KernelBackend:
     def inspect_queued(self, images: Sequence[OnDevice]) -> Callable[[], np.ndarray]:
         """:meth:`inspect`'s launches, queued; returns the function that reads their counts.
 
-        Reading waits for everything queued before it: a batch queues its passes in between,
-        so the device never idles while the host waits for the counts. A run of images that
+        The counts' copy to the host is queued right after the launches, and reading waits
+        for it alone: a batch queues its passes in between, and the device goes on with them
+        (and with the batch before, still queued) while the host reads. A run of images that
         lie evenly spaced in one device buffer (:meth:`spaced`: a device batch's samples)
         takes one launch, each image still counted into its own row.
         """
@@ -1209,7 +1222,8 @@ class KernelBackend:
             return lambda: np.zeros((0, len(INSPECT_COLUMNS)), np.int64)
         sources = [self._stored_dtype(image) for image in images]
         # each count as two uint32 words, (low, high)
-        counts = self._zeros(len(images) * len(INSPECT_COLUMNS) * 2, np.uint32)
+        words = len(images) * len(INSPECT_COLUMNS) * 2
+        counts = self._zeros(words, np.uint32)
         with self._timed(sync=False):
             row = 0
             for run in self._spaced_runs(images):
@@ -1221,14 +1235,34 @@ class KernelBackend:
                 self._launch(k, "inspect", (len(run), items), data, *_index(n, items), counts,
                              *_index(row, stride))
                 row += len(run)
-        halves = OnDevice(counts, (len(images), len(INSPECT_COLUMNS), 2), self._fetch,
-                          np.uint32)
+        host, kept = self._counts_words(words)
+        with timer("copies"):
+            copied = self._fetch_queued(counts, host)
 
         def read() -> np.ndarray:
-            words = halves.numpy(np.int64)
-            return words[..., 0] + (words[..., 1] << 32)
+            with timer("copies"):
+                copied()
+            pairs = host.reshape(len(images), len(INSPECT_COLUMNS), 2).astype(np.int64)
+            if kept:
+                self._counts_reader = None
+            return pairs[..., 0] + (pairs[..., 1] << 32)
 
+        if kept:
+            self._counts_reader = weakref.ref(read)
         return read
+
+    def _counts_words(self, words: int) -> tuple[np.ndarray, bool]:
+        """(pinned host words for one inspect's counts, whether they are the kept ones).
+
+        The kept ones unless a read of them is still to come (then new ones; a read dropped
+        unread, by an error, frees them). Pinned memory is slow to make and, on CUDA, to free
+        (that waits for the whole device).
+        """
+        if self._counts_reader is not None and self._counts_reader() is not None:
+            return self.pinned((words,), np.uint32), False
+        if self._counts_host is None or self._counts_host.size < words:
+            self._counts_host = self.pinned((max(words, 4096),), np.uint32)
+        return self._counts_host[:words], True
 
     def render_sharp(self, plan: Plan, camera: Camera, image: OnDevice, out: Region,
                      into: tuple[Slots, int] | None = None) -> OnDevice:

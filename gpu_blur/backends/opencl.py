@@ -24,7 +24,7 @@ import stat
 import sys
 import tempfile
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -433,6 +433,9 @@ class OpenCLBackend(KernelBackend):
             out = np.empty(values.shape, dtype=values.dtype or self.real)
             cl.enqueue_copy(self.queue, out, values.data)
             return out.astype(dtype, copy=False)
+
+    def _fetch_queued(self, buffer: cl.Buffer, into: np.ndarray) -> Callable[[], None]:
+        return cl.enqueue_copy(self.queue, into, buffer, is_blocking=False).wait
 
     def _frame_stacks(self, frames: Sequence[np.ndarray], region: Region):
         """Yield (stack, count): device stacks of up to FRAMES_PER_LAUNCH frames.

@@ -20,7 +20,7 @@ import dataclasses
 import functools
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import warp as wp
@@ -281,6 +281,13 @@ class WarpBackend(KernelBackend):
         if stream is not None:
             wp.get_stream(self.wp_device).wait_stream(stream)
 
+    def hand_to(self, stream: wp.Stream) -> None:
+        """Work queued on ``stream`` from now on waits for what this backend queued so far.
+
+        Results handed over on the device: the caller's stream, not the host, waits.
+        """
+        stream.wait_stream(wp.get_stream(self.wp_device))
+
     def _synchronize(self) -> None:
         if self.overlap:  # the compute stream only: a prefetch may still be copying
             wp.synchronize_stream(wp.get_stream(self.wp_device))
@@ -363,6 +370,13 @@ class WarpBackend(KernelBackend):
             host = values.data.numpy()[:count].reshape(values.shape)
             # a CPU array's numpy() is a view of memory freed with the array: always copy
             return host.astype(dtype, copy=values.data.device.is_cpu)
+
+    def _fetch_queued(self, buffer: wp.array, into: np.ndarray) -> Callable[[], None]:
+        wp.copy(self._host_view(into), buffer, count=into.size)
+        if not wp.get_device(self.wp_device).is_cuda:
+            return lambda: None  # the CPU device copied it already
+        copied = wp.get_stream(self.wp_device).record_event()
+        return lambda: wp.synchronize_event(copied)
 
     def _frame_stacks(self, frames: Sequence[np.ndarray], region: Region):
         """Yield (stack, count): device stacks of up to FRAMES_PER_LAUNCH frames of ``region``.
