@@ -511,19 +511,26 @@ def test_inputs_written_on_a_side_stream_are_read_only_once_written():
                     "machine; CI has none)")
 def test_results_handed_over_on_the_gpu_are_read_on_the_callers_stream_once_made():
     # the call returns once the checks are read, its passes still running: the caller's
-    # current stream (here not the default one) waits for them before its next work
+    # current stream (here not the default one) waits for them before its next work. Warp's
+    # stream is held back first, so the passes start only as the call returns.
+    import warp as wp
+
     scene = gpu_blur.scene.load_scene("realblur_j")
     given = batch_for("none", 8, np.random.default_rng(14), dtype=np.float32)
     images, masks = (torch.from_numpy(np.ascontiguousarray(
         np.broadcast_to(given[k][:, :1, :1], (8, 1200, 1920, 3)))).cuda()
         for k in ("batch", "mask"))
     synth = gpu_blur.Synthesizer(scene, backend="warp:cuda:0")
+    synth(images, mask=masks)  # kernels built, buffers made
+    torch.cuda.synchronize()
     side = torch.cuda.Stream()
+    with torch.cuda.stream(wp.stream_to_torch(wp.get_stream("cuda:0"))):
+        torch.cuda._sleep(200_000_000)
     with torch.cuda.stream(side):
-        got = synth(images, mask=masks)
+        got = synth(images, mask=masks, first_index=8)
         read_at_once = got.blurred.clone(), got.sharp.clone()
     torch.cuda.synchronize()
-    want = synth(images.cpu().numpy(), mask=masks.cpu().numpy())
+    want = synth(images.cpu().numpy(), mask=masks.cpu().numpy(), first_index=8)
     for early, name in zip(read_at_once, ("blurred", "sharp"), strict=True):
         assert np.array_equal(early.cpu().numpy(), getattr(want, name)), name
 
