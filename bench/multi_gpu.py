@@ -13,6 +13,9 @@ Disk: ``gpu-blur generate --devices`` with one worker per GPU over PNG frames on
 (bench/generate_gpu.py's sequence, rate without the process start), its summary saying what
 bounds it, and the host's decode-plus-encode bound.
 
+Copy bound (Warp): one process per GPU copying pinned host memory to and from its GPU at
+once; the host's aggregate rate bounds the memory runs (a sample moves 62 MB in and 55 MB out).
+
 Both check that every GPU count makes the same bytes (sha256 over the outputs: every file
 of the set from disk; the first ``CHECKED`` batches from memory).
 
@@ -105,6 +108,49 @@ def from_memory(backend: str, gpus: int, batches: int, batch: int, pinned: bool)
             "digest": whole.hexdigest()}
 
 
+#: Bytes of one copy of the copy-bound measure, each way.
+COPY_BYTES = 1 << 28
+
+
+def _copy_worker(gpu: int, reps: int, barrier, results) -> None:
+    import warp as wp
+
+    device = f"cuda:{gpu}"
+    pairs = [(wp.empty(COPY_BYTES, dtype=wp.uint8, device="cpu", pinned=True),
+              wp.empty(COPY_BYTES, dtype=wp.uint8, device=device)) for _ in range(2)]
+    up, down = wp.Stream(device), wp.Stream(device)
+    wp.copy(pairs[0][1], pairs[0][0], stream=up)  # warm-up
+    wp.synchronize_device(device)
+    barrier.wait()
+    start = time.perf_counter()
+    for _ in range(reps):  # both directions at once, as a streamed batch moves its bytes
+        wp.copy(pairs[0][1], pairs[0][0], stream=up)
+        wp.copy(pairs[1][0], pairs[1][1], stream=down)
+    wp.synchronize_device(device)
+    results.put((start, time.perf_counter()))
+
+
+def copy_bound(gpus: int, reps: int = 16) -> dict:
+    """The host's pinned copy rate with ``gpus`` Warp CUDA GPUs copying at once, both ways.
+
+    One process per GPU copies 256 MB up and 256 MB down at the same time, ``reps`` times;
+    the rate is all the bytes of one direction over the time from the first start to the
+    last end. It bounds any run that moves its frames in and its results out through host
+    memory.
+    """
+    spawn = multiprocessing.get_context("spawn")
+    barrier, results = spawn.Barrier(gpus), spawn.Queue()
+    workers = [spawn.Process(target=_copy_worker, args=(g, reps, barrier, results))
+               for g in range(gpus)]
+    for worker in workers:
+        worker.start()
+    done = [results.get(timeout=600) for _ in workers]
+    for worker in workers:
+        worker.join()
+    seconds = max(end for _, end in done) - min(start for start, _ in done)
+    return {"gpus": gpus, "gb_s_each_way": gpus * reps * COPY_BYTES / seconds / 1e9}
+
+
 def from_disk(backend: str, gpus: int, root: Path, out: Path, samples: int, cores: int) -> dict:
     devices = ",".join(device_spec(backend, g) for g in range(gpus))
     run = generate_gpu.generate(root, out, backend, samples, cores, ("--devices", devices))
@@ -135,6 +181,16 @@ def main(argv=None) -> int:
     result["devices"] = [get_backend(device_spec(args.backend, g)).device
                          for g in range(max(counts))]
     kinds = [k for k in ("pageable", "pinned") if k in args.memory.split(",")]
+    # what a sample moves: 9 uint8 frames in, blurred and sharp float32 (cropped 4 px) out
+    moved_in, moved_out = FRAMES * H * W * 3, 2 * (H - 8) * (W - 8) * 3 * 4
+    if args.backend == "warp" and "memory" not in args.skip:
+        result["copy_bound"] = []
+        for n in counts:
+            row = copy_bound(n)
+            row["samples_per_s"] = row["gb_s_each_way"] * 1e9 / max(moved_in, moved_out)
+            result["copy_bound"].append(row)
+            print(f"copy bound, {n} GPU(s): {row['gb_s_each_way']:.1f} GB/s each way at once, "
+                  f"{row['samples_per_s']:.0f} samples/s", flush=True)
     if "memory" not in args.skip:
         for kind in kinds:
             for n in counts:

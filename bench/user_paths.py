@@ -8,7 +8,7 @@ Synthesizer's pinned memory (``Synthesizer.pinned``), and (with torch and CUDA) 
 torch CUDA tensors. Each path warms up once; reported: the median over ``--runs`` of
 milliseconds per sample, end to end (arguments in, results out, the device synchronized), and
 for Warp on CUDA the device's own kernel time per sample in one batch (Warp's CUDA activity
-timer), torch batches also back to back (eight calls, one synchronization: what a loop feeding
+timer), torch batches also back to back (32 calls, one synchronization: what a loop feeding
 the device waits) and the pinned copy bound of the bytes a sample moves (:func:`copy_bound_ms`).
 
 With an older gpu_blur on ``PYTHONPATH`` (no ``Synthesizer``) only ``synthesize`` is timed,
@@ -65,11 +65,19 @@ def median_ms(run, samples: int, runs: int, sync) -> float:
     return statistics.median(times) / samples * 1e3
 
 
-def back_to_back_ms(run, samples: int, runs: int, sync, calls: int = 8) -> float:
-    """Median milliseconds per sample of ``calls`` calls of ``run()`` in a row and one
-    synchronization: a loop feeding the device (a training loop, generation), where a call
-    that returns before its passes end lets the next call's host work overlap them."""
-    times, _ = median_time(lambda: ([run() for _ in range(calls)], sync()), runs)
+def back_to_back_ms(run, samples: int, runs: int, sync, calls: int = 32) -> float:
+    """Median milliseconds per sample of ``calls`` calls of ``run()`` in a row, then one
+    synchronization.
+
+    A loop feeding the device (a training loop: each result used, then dropped), where a
+    call that returns before its passes end lets the next call's host work overlap them.
+    """
+    def loop():
+        for _ in range(calls):
+            run()
+        sync()
+
+    times, _ = median_time(loop, runs)
     return statistics.median(times) / (calls * samples) * 1e3
 
 

@@ -125,27 +125,21 @@ def make_sample(job: Job, spec: SampleSpec, inputs: tuple[np.ndarray, ...] | Non
 def make_batch(job: Job, group: list[tuple[SampleSpec, tuple]]) -> list[tuple]:
     """Decoded samples of one layout (:func:`batch_key`) made in one ``Synthesizer`` call.
 
-    Returns :func:`make_sample`'s tuples in order, the same bits (a batch gives each sample
-    what ``synthesize`` gives it). A batch a check refuses is made again sample by sample, so
-    each sample gets its own result or reason, as in a serial run; so is a group of one, and
-    any group where the batch path does not run (tiles, budgets, spot checks: the
-    scheduler's per-sample path).
+    :meth:`~gpu_blur.pipeline.Synthesizer.many` takes them as decoded (no batch array is
+    assembled). Returns :func:`make_sample`'s tuples in order, the same bits (a batch gives
+    each sample what ``synthesize`` gives it). A batch a check refuses is made again sample
+    by sample, so each sample gets its own result or reason, as in a serial run; so is a
+    group of one, and any group where the batch path does not run (tiles, budgets, spot
+    checks: the scheduler's per-sample path).
     """
     synth = _synthesizer(job)
     if len(group) == 1 or not synth.resident:
         return [make_sample(job, spec, inputs) for spec, inputs in group]
-    specs, decoded = zip(*group, strict=True)
-    # one array per input role: B x H x W x 3, or B x F x H x W x 3 for frames
-    if specs[0].roles:
-        stacks = {role: _stacked([inputs[r] for inputs in decoded])
-                  for r, role in enumerate(specs[0].roles)}
-        batch = stacks.pop("blurred")
-    else:
-        batch = (_stacked(decoded) if job.scene.blur.mode == "average"
-                 else _stacked([inputs[0] for inputs in decoded]))
-        stacks = {}
+    specs = [spec for spec, _ in group]
+    given = [dict(zip(spec.roles, inputs, strict=True)) if spec.roles else list(inputs)
+             for spec, inputs in group]
     try:
-        out = synth(batch, indices=[spec.index for spec in specs], **stacks)
+        out = synth.many(given, [spec.index for spec in specs])
     except (ValueError, MemoryError):
         return [make_sample(job, spec, inputs) for spec, inputs in group]
     share = {k: v / len(specs) for k, v in out.timings.items()}
@@ -166,19 +160,6 @@ def batch_key(spec: SampleSpec, inputs: tuple | None):
     if inputs is None or spec.problem:
         return None
     return spec.roles, tuple((x.shape, x.dtype) for x in inputs)
-
-
-def _stacked(samples) -> np.ndarray:
-    """Samples of equal arrays (or of equal tuples of them) as one array, one copy."""
-    first = np.asarray(samples[0])
-    out = np.empty((len(samples), *first.shape), first.dtype)
-    for b, sample in enumerate(samples):
-        if isinstance(sample, tuple):
-            for f, frame in enumerate(sample):
-                out[b, f] = frame
-        else:
-            out[b] = sample
-    return out
 
 
 #: This process's Synthesizer for the job it runs, as ``[(job, synthesizer)]``: its kernels

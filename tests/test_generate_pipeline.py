@@ -235,11 +235,12 @@ BATCHING = [*KERNEL_BACKEND_SPECS[:1], "warp:cpu"]
 
 
 def batch_sizes(monkeypatch) -> list:
-    """The size of every batch a Synthesizer is called on from now on."""
+    """The size of every batch a Synthesizer makes from decoded samples from now on."""
     sizes = []
-    call = gpu_blur.pipeline.Synthesizer.__call__
-    monkeypatch.setattr(gpu_blur.pipeline.Synthesizer, "__call__",
-                        lambda self, batch, **k: sizes.append(len(batch)) or call(self, batch, **k))
+    many = gpu_blur.pipeline.Synthesizer.many
+    monkeypatch.setattr(gpu_blur.pipeline.Synthesizer, "many",
+                        lambda self, given, indices: sizes.append(len(given))
+                        or many(self, given, indices))
     return sizes
 
 
@@ -282,9 +283,9 @@ def test_a_batch_a_check_refuses_is_made_sample_by_sample(tmp_path, photos, monk
     run = ["--backend", "warp:cpu", "--io-threads", "2", "--samples-per-photo", "3"]
     assert main(args(folder, scene, tmp_path / "one", *run, "--batch", "1")) == 0
 
-    def refused(self, batch, **k):
+    def refused(self, given, indices):
         raise ValueError("sample 2 of 3: refused")
 
-    monkeypatch.setattr(gpu_blur.pipeline.Synthesizer, "__call__", refused)
+    monkeypatch.setattr(gpu_blur.pipeline.Synthesizer, "many", refused)
     assert main(args(folder, scene, tmp_path / "batched", *run, "--batch", "3")) == 0
     assert_same_set(tmp_path / "batched", tmp_path / "one")
