@@ -331,6 +331,17 @@ def test_a_strided_destination_receives_every_copied_value():
     assert np.array_equal(view.reshape(-1), values)
 
 
+@pytest.mark.parametrize("sizes", [[5, 5, 5], [3_000_001] * 3, [1_000_003, 7]])
+def test_parts_are_copied_one_after_another_whatever_their_sizes(sizes):
+    # small parts in one piece, large ones in slices on the copy threads, converted
+    from gpu_blur.backends import copy_values
+
+    parts = [np.arange(n, dtype=np.uint8) + i for i, n in enumerate(sizes)]
+    into = np.zeros(sum(sizes), np.float32)
+    copy_values(into, parts)
+    assert np.array_equal(into, np.concatenate(parts).astype(np.float32))
+
+
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 @pytest.mark.parametrize("mode", ["average", "kernel", "trajectory"])
 def test_skipping_auto_saturation_gives_the_bits_of_saturation_on_where_nothing_clips(

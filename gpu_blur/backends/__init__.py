@@ -107,24 +107,37 @@ def _copy_threads():
     return concurrent.futures.ThreadPoolExecutor(workers, "gpu_blur-copy"), workers
 
 
-def copy_values(into: np.ndarray, values: np.ndarray) -> None:
+def copy_values(into: np.ndarray, values) -> None:
     """``into[...] = values``: same size, any shapes, converted to ``into``'s dtype.
 
-    Large copies go in slices on up to :data:`COPY_THREADS` threads: numpy copies without
-    holding the GIL, so a copy to or from pinned staging memory runs at several cores' rate.
-    A strided ``into`` (a channels-first ``out=`` array's view) takes one copy in its own layout.
+    ``values``: an array, or a list of arrays copied one after another (a sample's frames
+    into one staging buffer). Large copies go in slices on up to :data:`COPY_THREADS`
+    threads, all queued before the one wait: numpy copies without holding the GIL, so a
+    copy to or from pinned staging memory runs at several cores' rate, and the caller
+    wakes once however many parts there are. A strided ``into`` (a channels-first ``out=``
+    array's view) takes one copy of one array in its own layout.
     """
     if not into.flags.c_contiguous:  # its reshape(-1) would be a copy, and the values lost
         np.copyto(into, np.reshape(values, into.shape), casting="same_kind")
         return
-    dst, src = into.reshape(-1), np.ascontiguousarray(values).reshape(-1)
+    dst = into.reshape(-1)
+    sources = [np.ascontiguousarray(v).reshape(-1)
+               for v in (values if isinstance(values, list) else [values])]
     pool, workers = _copy_threads()
     if dst.size < PARALLEL_COPY_VALUES or workers == 1:
-        np.copyto(dst, src, casting="same_kind")
+        start = 0
+        for src in sources:
+            np.copyto(dst[start:start + src.size], src, casting="same_kind")
+            start += src.size
         return
-    edges = np.linspace(0, dst.size, workers + 1).astype(int)
-    parts = [pool.submit(np.copyto, dst[a:b], src[a:b], casting="same_kind")
-             for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    slices = -(-workers // len(sources))  # per source, so the threads share every source
+    parts, start = [], 0
+    for src in sources:
+        edges = np.linspace(0, src.size, slices + 1).astype(int)
+        parts += [pool.submit(np.copyto, dst[start + a:start + b], src[a:b],
+                              casting="same_kind")
+                  for a, b in zip(edges[:-1], edges[1:], strict=True)]
+        start += src.size
     for part in parts:
         part.result()
 

@@ -877,9 +877,7 @@ class KernelBackend:
     @staticmethod
     def _fill_staging(host: np.ndarray, parts) -> None:
         """Copy ``parts`` one after another into the flat pinned array ``host`` (threads)."""
-        size = parts[0].size
-        for i, part in enumerate(parts):
-            copy_values(host[i * size:(i + 1) * size], part)
+        copy_values(host[:parts[0].size * len(parts)], list(parts))
 
     def consecutive(self, images: Sequence[OnDevice]) -> OnDevice | None:
         """``images`` as one ``B x shape`` image, where they lie back to back in one buffer.
