@@ -11,9 +11,8 @@ measured here on the same images).
 
     PYTHONPATH=$PWD python3 bench/generate_gpu.py --backend warp --samples 32 --json out.json
 
-``--batch 1,8`` adds one-process runs with those ``--batch`` sizes (samples per device call)
-and ``--workers 1,2,4`` runs of ``--devices`` with that many worker processes sharing
-``--backend``'s device; every set must hold the same bytes.
+``--workers 1,2,4`` adds runs of ``--devices`` with that many worker processes sharing
+``--backend``'s device, and checks that every set holds the same bytes.
 """
 
 from __future__ import annotations
@@ -124,9 +123,6 @@ def main(argv=None) -> int:
     p.add_argument("--samples", type=int, default=64, help="samples per run (default 64)")
     p.add_argument("--threads", default="1,all", help="--io-threads of the one-process runs, "
                    "comma-separated; all: one per core (default 1,all)")
-    p.add_argument("--batch", default="", help="also run one process with each of these "
-                   "--batch values at the last --threads, comma-separated (e.g. 1,8), and "
-                   "compare the sets' bytes")
     p.add_argument("--workers", default="", help="also run --devices with each of these "
                    "numbers of workers on --backend's device, comma-separated (e.g. 1,2,4), "
                    "and compare the sets' bytes")
@@ -143,12 +139,6 @@ def main(argv=None) -> int:
         runs = [generate(root, Path(tmp) / f"out{t}", args.backend, args.samples, t)
                 for t in threads]
         digests = {"serial": set_digest(Path(tmp) / f"out{threads[-1]}")}
-        batches = {}
-        for b in [int(v) for v in args.batch.split(",") if v]:
-            out = Path(tmp) / f"batch{b}"
-            batches[b] = generate(root, out, args.backend, args.samples, threads[-1],
-                                  ("--batch", str(b)))
-            digests[f"batch {b}"] = set_digest(out)
         for n in [int(v) for v in args.workers.split(",") if v]:
             out = Path(tmp) / f"workers{n}"
             devices[n] = generate(root, out, args.backend, args.samples, cores,
@@ -157,12 +147,10 @@ def main(argv=None) -> int:
     result = {"backend": args.backend, "cores": cores, "image": [W, H], "frames": FRAMES,
               "single_core_seconds": per, "bound_samples_per_s": bound, "runs": runs,
               "ratio_to_bound": runs[-1]["samples_per_s"] / bound,
-              "batches": batches, "devices_workers": devices, "set_digests": digests,
+              "devices_workers": devices, "set_digests": digests,
               "same_bytes": len(set(digests.values())) == 1}
     for run in runs:
         print(f"io-threads {run['threads']:>2}: {run['samples_per_s']:.2f} samples/s")
-    for b, run in batches.items():
-        print(f"--batch {b:>2}: {run['samples_per_s']:.2f} samples/s")
     for n, run in devices.items():
         print(f"--devices, {n} worker(s): {run['samples_per_s']:.2f} samples/s")
     print("every set the same bytes" if result["same_bytes"] else f"SETS DIFFER: {digests}")

@@ -99,10 +99,6 @@ def _parser() -> argparse.ArgumentParser:
                    "each step in turn); memory: at most 2 x N samples wait decoded and 2 x N "
                    "wait to be written; same files either way. With --devices or --ray they "
                    "encode and write only (a --devices worker decodes in its own threads)")
-    g.add_argument("--batch", type=int, metavar="N", help="samples of one size and layout "
-                   "made in one device call, with I/O threads decoding them (default 8 on an "
-                   "NVIDIA GPU, else 1); same files either way; memory: N more samples' inputs "
-                   "and outputs")
     g.add_argument("--tile", type=int, nargs=2, metavar=("ROWS", "COLS"),
                    help="run each image in tiles of at most ROWS x COLS (bounds device memory; "
                    "the output does not change)")
@@ -384,8 +380,6 @@ def _check_setup(args, scene) -> None:
                          "where generate writes and removes the set's files; give an --output "
                          "outside the input (one inside it is fine: it is left out of the "
                          "input)")
-    if args.batch is not None and args.batch < 1:
-        raise ValueError(f"--batch {args.batch}: must be >= 1 (1: one sample per call)")
     if args.io_threads is not None and args.io_threads < 1:
         raise ValueError(f"--io-threads {args.io_threads}: must be >= 1 (1: no I/O threads)")
     if not 0.0 <= args.verify <= 1.0:
@@ -460,7 +454,6 @@ def _generate(args) -> int:
     from gpu_blur.dataset import BUILT_IN_INPUT, DatasetWriter, find_samples, library_versions
     from gpu_blur.distributed import pick_executor
     from gpu_blur.generate import (
-        GPU_BATCH,
         QUEUE_PER_THREAD,
         Job,
         WriteBehind,
@@ -537,9 +530,8 @@ def _generate(args) -> int:
     behind = WriteBehind(save, pool, QUEUE_PER_THREAD * threads, io)
     start = time.perf_counter()
     try:
-        batch = args.batch or (GPU_BATCH if getattr(backend, "uses_cuda", False) else 1)
         job = Job(scene, args.seed, args.backend, schedule, "raw" in extras,
-                  bits=scene.output.bits, with_mask="mask" in extras, batch=batch)
+                  bits=scene.output.bits, with_mask="mask" in extras)
         # one device: the pool also decodes ahead; --devices and --ray workers decode their
         # own inputs, and the pool encodes and writes what they make
         samples = (run_pipelined(job, todo, pool, io, QUEUE_PER_THREAD * threads)

@@ -34,15 +34,7 @@ from multiprocessing.connection import wait
 from gpu_blur import testhooks
 from gpu_blur.backends import usable_devices
 from gpu_blur.dataset import SampleSpec
-from gpu_blur.generate import (
-    Job,
-    decode,
-    default_io_threads,
-    for_driver,
-    make_in_batches,
-    make_sample,
-    run_serial,
-)
+from gpu_blur.generate import Job, decode, default_io_threads, for_driver, make_sample, run_serial
 
 RAY_INSTALL = "pip install 'gpu_blur[ray]'"
 #: Samples per Ray task on GPUs. Ray starts a fresh worker process for every GPU task (its
@@ -137,12 +129,11 @@ def uses_cuda(backend) -> bool:
 # -- one worker process per device of this host ---------------------------------------------
 
 def _device_worker(job: Job, driver: int, conn, threads: int = 1) -> None:
-    """A device worker process: open the device, then make the samples the driver sends.
+    """A device worker process: open the device, then make each sample the driver sends.
 
     With ``threads`` > 1, that many threads decode the input files of the samples waiting in
-    the pipe while the device makes the current ones (:func:`gpu_blur.generate.decode`, as a
-    run on one device does); the samples are made in the order they came, up to
-    ``job.batch`` decoded ones in one call (:func:`gpu_blur.generate.make_in_batches`).
+    the pipe while the device makes the current one (:func:`gpu_blur.generate.decode`, as a
+    run on one device does); the samples are made in the order they came.
 
     Messages to the driver: ``("open", device description)`` or ``("error", why)`` first,
     then per sample ``("sample", make_sample's tuple)`` or ``("error", traceback)`` for an
@@ -164,28 +155,19 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1) -> None:
         return
     pool = ThreadPoolExecutor(threads, "gpu-blur-decode") if threads > 1 else None
     waiting: deque = deque()  # (spec, its decoding or None), in the order they came
-
-    def decoded():  # (spec, inputs) in the order sent; None: nothing more is ready yet
-        while True:
-            if not waiting and not conn.poll():
-                yield None  # a batch being gathered is made now, not after the next sample
-            try:
-                while not waiting or conn.poll():  # take every sample sent, start decoding it
-                    spec = conn.recv()
-                    waiting.append((spec, pool.submit(decode, spec) if pool else None))
-            except EOFError:
-                return
-            spec, decoding = waiting.popleft()
-            yield spec, None if decoding is None else decoding.result()
-
-    made = make_in_batches(job, decoded())
     while True:
         try:
-            spec, result, error = next(made)
-            message = ("sample", (spec, for_driver(job, result), error))
-        except StopIteration:
+            while not waiting or conn.poll():  # take every sample sent, start decoding it
+                spec = conn.recv()
+                waiting.append((spec, pool.submit(decode, spec) if pool else None))
+        except EOFError:
             return
-        except Exception:  # the driver stops the run with it
+        spec, decoding = waiting.popleft()
+        try:
+            inputs = None if decoding is None else decoding.result()
+            spec, result, error = make_sample(job, spec, inputs)
+            message = ("sample", (spec, for_driver(job, result), error))
+        except Exception:
             message = ("error", traceback.format_exc())
         conn.send(message)
 
@@ -227,8 +209,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
     workers, conns = [], []
     finished = False
     threads = max(1, default_io_threads() // len(devices))  # each worker's decoding threads
-    # a batch's samples are all sent before it is made
-    depth = DEVICE_DEPTH + job.batch - 1 + (2 * threads if threads > 1 else 0)
+    depth = DEVICE_DEPTH + (2 * threads if threads > 1 else 0)
     try:
         for device in devices:
             conn, child = context.Pipe()

@@ -27,7 +27,7 @@ import numpy as np
 
 from gpu_blur.dataset import SampleSpec
 from gpu_blur.imageio import check_image, opencv_reason, read_image
-from gpu_blur.pipeline import Synthesis, Synthesizer, synthesize
+from gpu_blur.pipeline import Synthesis, synthesize
 from gpu_blur.reference.output import to_integers
 from gpu_blur.scene import Scene
 from gpu_blur.scheduler import Schedule
@@ -41,10 +41,6 @@ QUEUE_PER_THREAD = 2
 #: enough to decode 9 PNG frames of 1920 x 1200 for a few hundred samples a second, while the
 #: queues stay within a few GB (such a sample holds 62 MB of frames and 55 MB of outputs).
 MAX_DEFAULT_IO_THREADS = 32
-#: Samples ``generate --batch`` puts in one device call on an NVIDIA GPU by default: the
-#: device's passes, copies and the host's steps of a batch overlap where one sample's could
-#: not; a 9-frame 1920 x 1200 batch holds 0.5 GB of frames and 0.9 GB of float outputs.
-GPU_BATCH = 8
 
 
 def default_io_threads() -> int:
@@ -65,7 +61,6 @@ class Job:
     with_raw: bool = False  # keep each sample's RAW mosaic (generate --save raw)
     bits: int = 0  # the set's PNG bits: workers in other processes send these codes
     with_mask: bool = True  # the set saves masks (generate --save mask)
-    batch: int = 1  # samples of one size synthesized in one call (make_batch)
 
 
 def for_driver(job: Job, result: Synthesis | None) -> Synthesis | None:
@@ -122,61 +117,8 @@ def make_sample(job: Job, spec: SampleSpec, inputs: tuple[np.ndarray, ...] | Non
     return spec, result, None
 
 
-def make_batch(job: Job, group: list[tuple[SampleSpec, tuple]]) -> list[tuple]:
-    """Decoded samples of one layout (:func:`batch_key`) made in one ``Synthesizer`` call.
-
-    :meth:`~gpu_blur.pipeline.Synthesizer.many` takes them as decoded (no batch array is
-    assembled). Returns :func:`make_sample`'s tuples in order, the same bits (a batch gives
-    each sample what ``synthesize`` gives it). A batch a check refuses is made again sample
-    by sample, so each sample gets its own result or reason, as in a serial run; so is a
-    group of one, and any group where the batch path does not run (tiles, budgets, spot
-    checks: the scheduler's per-sample path).
-    """
-    synth = _synthesizer(job)
-    if len(group) == 1 or not synth.resident:
-        return [make_sample(job, spec, inputs) for spec, inputs in group]
-    specs = [spec for spec, _ in group]
-    given = [dict(zip(spec.roles, inputs, strict=True)) if spec.roles else list(inputs)
-             for spec, inputs in group]
-    try:
-        out = synth.many(given, [spec.index for spec in specs])
-    except (ValueError, MemoryError):
-        return [make_sample(job, spec, inputs) for spec, inputs in group]
-    share = {k: v / len(specs) for k, v in out.timings.items()}
-    crop, model = job.scene.output.crop, synth.runner.model
-    return [(spec, Synthesis(out.blurred[b], out.sharp[b],
-                             None if out.mask is None else out.mask[b], out.params[b],
-                             out.plans[b], dict(share), 1, 0, crop, model,
-                             None if out.raw is None else out.raw[b],
-                             None if out.raw_info is None else out.raw_info[b]), None)
-            for b, spec in enumerate(specs)]
-
-
-def batch_key(spec: SampleSpec, inputs: tuple | None):
-    """What samples in one batch share: input roles, each input's shape and dtype.
-
-    None for a sample that goes alone (inputs not decoded: a problem, a file that failed).
-    """
-    if inputs is None or spec.problem:
-        return None
-    return spec.roles, tuple((x.shape, x.dtype) for x in inputs)
-
-
-#: This process's Synthesizer for the job it runs, as ``[(job, synthesizer)]``: its kernels
-#: and device buffers serve every batch (a worker process runs one job).
-_HELD: list = []
-
-
-def _synthesizer(job: Job) -> Synthesizer:
-    if not _HELD or _HELD[0][0] is not job:
-        _HELD[:] = [(job, Synthesizer(job.scene, backend=job.backend, seed=job.seed,
-                                      schedule=job.schedule, with_mask=job.with_mask,
-                                      with_raw=job.with_raw))]
-    return _HELD[0][1]
-
-
 def run_serial(job: Job, specs: Iterable[SampleSpec]) -> Iterator[tuple]:
-    """Make the samples one after another in this process (each reads its own files)."""
+    """Make the samples one after another in this process."""
     for spec in specs:
         yield make_sample(job, spec)
 
@@ -209,57 +151,27 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
                   depth: int) -> Iterator[tuple]:
     """Make the samples in this thread, in order, while ``pool`` decodes the next ones' inputs.
 
-    At most ``depth`` samples are decoded or being decoded ahead of those being made. Up to
-    ``job.batch`` consecutive samples of one layout (:func:`batch_key`) are made in one call
-    (:func:`make_batch`). The results are :func:`run_serial`'s; the time this thread waits
-    for inputs is added to ``times.waited_for_inputs``, the pool's decoding to
-    ``times.busy["decode"]``.
+    At most ``depth`` samples are decoded or being decoded ahead of the one being made. The
+    results are :func:`run_serial`'s; the time this thread waits for inputs is added to
+    ``times.waited_for_inputs``, the pool's decoding to ``times.busy["decode"]``.
     """
     rest = iter(specs)
     ahead: deque[tuple[SampleSpec, Future]] = deque()
-
-    def top_up() -> None:
-        for spec in itertools.islice(rest, depth - len(ahead)):
-            ahead.append((spec, pool.submit(times.run, "decode", decode, spec)))
-
-    def decoded() -> Iterator[tuple]:
-        top_up()
-        while ahead:
-            spec, decoding = ahead.popleft()
+    try:
+        while True:
+            for spec in itertools.islice(rest, depth - len(ahead)):
+                ahead.append((spec, pool.submit(times.run, "decode", decode, spec)))
+            if not ahead:
+                return
+            spec, decoding = ahead[0]
             start = time.perf_counter()
             inputs = decoding.result()
             times.waited_for_inputs += time.perf_counter() - start
-            top_up()
-            yield spec, inputs
-
-    try:
-        yield from make_in_batches(job, decoded())
+            ahead.popleft()
+            yield make_sample(job, spec, inputs)
     finally:  # stopped early: nothing more is decoded
         for _, decoding in ahead:
             decoding.cancel()
-
-
-def make_in_batches(job: Job, decoded: Iterable[tuple | None]) -> Iterator[tuple]:
-    """:func:`make_sample`'s tuples, in order, for ``(spec, inputs)`` pairs as they come.
-
-    Up to ``job.batch`` consecutive samples of one layout (:func:`batch_key`) are made in one
-    call (:func:`make_batch`); a None in ``decoded`` (nothing more is ready yet) makes what
-    is gathered at once.
-    """
-    group: list = []
-    for item in decoded:
-        key = None if item is None else batch_key(*item)
-        if group and (item is None or key != batch_key(*group[0])):
-            yield from make_batch(job, group)
-            group = []
-        if item is None:
-            continue
-        group.append(item)
-        if key is None or len(group) == job.batch:
-            yield from make_batch(job, group)
-            group = []
-    if group:
-        yield from make_batch(job, group)
 
 
 class WriteBehind:

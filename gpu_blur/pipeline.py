@@ -440,42 +440,6 @@ class Synthesizer:
         lib = arrays.library(batch)
         with timer("reading"):
             items = self._split(batch, mask, sharp, lib)
-        return self._made(items, first_index, indices, batch, lib, out, start, before)
-
-    def many(self, inputs: Sequence, indices: Sequence[int]) -> Batch:
-        """Samples given one by one as :func:`synthesize` takes them, made as one batch.
-
-        For decoded images that were never stacked (``gpu-blur generate``): each sample's
-        frames go from where they lie to the device, no batch array is assembled on the host.
-
-        Args:
-            inputs: per sample, what ``synthesize`` takes (a list of frames, one photo, or
-                for mode none ``{"blurred": ..., "mask": ..., "sharp": ...}``), numpy arrays
-                of one size.
-            indices: each sample's index.
-
-        Returns:
-            The :class:`Batch` ``__call__`` gives for the same samples stacked (numpy).
-        """
-        start, before = time.perf_counter(), current().snapshot()
-        with timer("reading"):
-            items = [_gather(given, self.scene) for given in inputs]
-        (h, w) = items[0].frames[0].shape[:2]
-        for b, item in enumerate(items):
-            item.label = f"sample {b} of {len(items)}: "
-            if item.frames[0].shape[:2] != (h, w):
-                y, x = item.frames[0].shape[:2]
-                raise ValueError(f"{item.label}{item.names['frames'][0]} is {x} x {y} (width "
-                                 f"x height) but sample 0 is {w} x {h}: a batch holds one "
-                                 "size; call once per size")
-        return self._made(items, 0, indices, items[0].frames[0], "numpy", None, start, before)
-
-    def _made(self, items: list[_Inputs], first_index: int, indices, batch, lib: str, out,
-              start: float, before) -> Batch:
-        """The rest of a call: ``items`` made, returned as ``lib``'s arrays.
-
-        ``batch``: the batch's array, or any input of its library; the rest as ``__call__``.
-        """
         # a batch on the device is read only once written there, on the caller's stream
         caller = arrays.producer_stream(batch, lib) if self._reaches(batch, lib) else None
         if caller is not None:

@@ -141,16 +141,6 @@ def test_a_device_worker_decoding_ahead_in_threads_writes_the_serial_run_s_set(
     assert_same_set(out, reference("numpy"))
 
 
-@pytest.mark.skipif(WARP is None, reason="warp-lang not installed")
-def test_device_workers_making_batches_write_the_serial_run_s_set(tmp_path, photos, reference,
-                                                                  monkeypatch):
-    monkeypatch.setattr(distributed, "default_io_threads", lambda: 4)  # 2 decoding threads each
-    out = tmp_path / "out"
-    assert main(args(photos, out, "--backend", "warp:cpu", "--devices", "warp:cpu,warp:cpu",
-                     "--batch", "3")) == 1
-    assert_same_set(out, reference("warp:cpu"))
-
-
 def test_a_worker_sends_the_codes_the_writer_writes_and_no_unsaved_mask(tmp_path, photos):
     folder, scene_path = photos
     spec = discover(folder, "trajectory", 1, 2)[0]

@@ -220,7 +220,6 @@ def test_the_summary_says_which_stage_bounded_the_run(tmp_path, photos, monkeypa
 
 @pytest.mark.parametrize("extra, message", [
     (["--io-threads", "0"], "--io-threads 0: must be >= 1"),
-    (["--batch", "0"], "--batch 0: must be >= 1"),
     (["--io-threads", "0", "--devices", "numpy,numpy"], "--io-threads 0: must be >= 1"),
 ])
 def test_bad_io_threads_are_refused_before_any_work(tmp_path, photos, capsys, extra, message):
@@ -228,64 +227,3 @@ def test_bad_io_threads_are_refused_before_any_work(tmp_path, photos, capsys, ex
     assert main(args(folder, scene, tmp_path / "out", *extra)) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
-
-
-#: Kernel backends that make batches on the device: the first OpenCL device and Warp's CPU.
-BATCHING = [*KERNEL_BACKEND_SPECS[:1], "warp:cpu"]
-
-
-def batch_sizes(monkeypatch) -> list:
-    """The size of every batch a Synthesizer makes from decoded samples from now on."""
-    sizes = []
-    many = gpu_blur.pipeline.Synthesizer.many
-    monkeypatch.setattr(gpu_blur.pipeline.Synthesizer, "many",
-                        lambda self, given, indices: sizes.append(len(given))
-                        or many(self, given, indices))
-    return sizes
-
-
-@pytest.mark.parametrize("backend", BATCHING)
-def test_batches_write_the_bytes_of_one_sample_a_call_and_fail_only_bad_photos(
-        tmp_path, bad_photos, monkeypatch, backend):
-    # a, c, d are good: c and d go in one batch, a alone (b, a bad file, comes next)
-    folder, scene = bad_photos
-    run = ["--backend", backend.split("/")[0], "--io-threads", "3"]
-    assert main(args(folder, scene, tmp_path / "one", *run, "--batch", "1")) == 1
-    sizes = batch_sizes(monkeypatch)
-    assert main(args(folder, scene, tmp_path / "batched", *run, "--batch", "4")) == 1
-    assert sizes == [2]
-    assert_same_set(tmp_path / "batched", tmp_path / "one")
-
-
-@pytest.mark.parametrize("backend", BATCHING)
-def test_batches_of_frames_write_the_bytes_of_one_sample_a_call(tmp_path, monkeypatch,
-                                                                 backend):
-    # 8 windows of a 10-frame sequence of one size, in batches of 3, 3 and 2, with masks
-    folder = tmp_path / "seqs" / "a" / "sharp"
-    folder.mkdir(parents=True)
-    rng = np.random.default_rng(2)
-    for i in range(10):
-        cv2.imwrite(str(folder / f"{i}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
-    scene = tmp_path / "avg.toml"
-    scene.write_text('[blur]\nmode = "average"\nframes = 3\n')
-    run = ["--backend", backend.split("/")[0], "--io-threads", "2", "--save", "mask",
-           "--samples-per-sequence", "8"]
-    assert main(args(tmp_path / "seqs", scene, tmp_path / "one", *run, "--batch", "1")) == 0
-    sizes = batch_sizes(monkeypatch)
-    assert main(args(tmp_path / "seqs", scene, tmp_path / "batched", *run, "--batch", "3")) == 0
-    assert sizes == [3, 3, 2]
-    assert_same_set(tmp_path / "batched", tmp_path / "one")
-
-
-def test_a_batch_a_check_refuses_is_made_sample_by_sample(tmp_path, photos, monkeypatch):
-    # whatever a batch's checks refuse, each sample gets what a serial run gives it
-    folder, scene = photos
-    run = ["--backend", "warp:cpu", "--io-threads", "2", "--samples-per-photo", "3"]
-    assert main(args(folder, scene, tmp_path / "one", *run, "--batch", "1")) == 0
-
-    def refused(self, given, indices):
-        raise ValueError("sample 2 of 3: refused")
-
-    monkeypatch.setattr(gpu_blur.pipeline.Synthesizer, "many", refused)
-    assert main(args(folder, scene, tmp_path / "batched", *run, "--batch", "3")) == 0
-    assert_same_set(tmp_path / "batched", tmp_path / "one")

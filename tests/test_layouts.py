@@ -158,19 +158,3 @@ def test_mode_none_over_devices_writes_the_files_of_a_serial_run(tmp_path, layou
                 if p.is_file() and p.suffix in (".png", ".jsonl")}
                for out in (tmp_path / "two", tmp_path / "serial")]
     assert written[0] == written[1] and len(written[0]) == 9  # 4 x blur, sharp; manifest
-
-
-@pytest.mark.parametrize("backend", [*KERNEL_BACKEND_SPECS[:1], "warp:cpu"])
-def test_mode_none_in_batches_writes_the_files_of_one_sample_a_call(tmp_path, layouts,
-                                                                     backend):
-    # each role (blurred, mask, sharp) batched as its own array; masks saved too
-    scene = tmp_path / "none.toml"
-    scene.write_text(SCENE)
-    run = ["generate", "--input", str(layouts), "--scene", str(scene), "--quiet", "--backend",
-           backend.split("/")[0], "--io-threads", "2", "--save", "mask"]
-    assert main([*run, "--output", str(tmp_path / "one"), "--batch", "1"]) == 0
-    assert main([*run, "--output", str(tmp_path / "four"), "--batch", "4"]) == 0
-    written = [{p.relative_to(out).as_posix(): p.read_bytes() for p in sorted(out.rglob("*"))
-                if p.is_file() and p.suffix in (".png", ".jsonl", ".json")}
-               for out in (tmp_path / "four", tmp_path / "one")]
-    assert written[0] == written[1] and len(written[0]) == 14  # 4 x 3 images; manifest, run

@@ -69,30 +69,6 @@ def test_a_batch_equals_synthesize_sample_by_sample_bit_for_bit(spec, mode):
         assert out.plans[b] == one.plan
 
 
-@pytest.mark.parametrize("spec", BACKEND_SPECS)
-@pytest.mark.parametrize("mode", ["average", "kernel", "none"])
-def test_samples_given_one_by_one_give_the_stacked_batch_bit_for_bit(spec, mode):
-    # Synthesizer.many takes synthesize's inputs per sample (no stacked batch)
-    name, precision = spec_parts(spec)
-    scene = scene_for(mode, precision=precision)
-    given = batch_for(mode, 3, np.random.default_rng(16))
-    synth = gpu_blur.Synthesizer(scene, backend=name, seed=7, with_mask=True)
-    want = synth(given["batch"], mask=given.get("mask"), indices=[9, 4, 6])
-    got = synth.many([one_sample(mode, given, b) for b in range(3)], [9, 4, 6])
-    for key in ("blurred", "sharp", "mask"):
-        assert np.array_equal(getattr(got, key), getattr(want, key)), key
-    assert got.plans == want.plans and [p.keys() for p in got.params] == [
-        p.keys() for p in want.params]
-
-
-def test_samples_given_one_by_one_of_two_sizes_are_refused_naming_the_sample():
-    photos = batch_for("kernel", 2, np.random.default_rng(17))["batch"]
-    synth = gpu_blur.Synthesizer(scene_for("kernel"), backend="warp:cpu")
-    with pytest.raises(ValueError, match=r"sample 1 of 2: frame 0 is 8 x 6 \(width x "
-                       r"height\) but sample 0 is 34 x 36"):
-        synth.many([photos[0], photos[1][:6, :8]], [0, 1])
-
-
 @pytest.mark.parametrize("name", ["warp:cpu", "opencl", "numpy"])
 def test_numpy_torch_and_warp_batches_give_the_same_bits_and_come_back_as_they_came(name):
     import warp as wp
