@@ -66,15 +66,18 @@ class Job:
 def for_driver(job: Job, result: Synthesis | None) -> Synthesis | None:
     """A made sample as a worker process sends it: only what the set's files need.
 
-    Blurred and sharp become the codes the writer would compute (:func:`to_integers` with
-    ``job.bits``; 0 keeps float32) and the mask is left out unless the set saves it, so the
-    files are byte for byte the same while a 1920 x 1200 sample crosses the pipe as 14 MB of
-    8-bit codes instead of 83 MB of float32 (300 ms through a multiprocessing pipe on a 2-core
-    EPYC).
+    Blurred and sharp go as the set's codes (:func:`make_sample` has them made for 8/16-bit
+    sets; float32 results are converted here with :func:`to_integers`; ``job.bits`` 0 keeps
+    float32) and the mask is left out unless the set saves it, so the files are byte for byte
+    the same while a 1920 x 1200 sample crosses the pipe as 14 MB of 8-bit codes instead of
+    83 MB of float32 (300 ms through a multiprocessing pipe on a 2-core EPYC).
     """
     if result is None:
         return None
-    shrink = (lambda image: to_integers(image, job.bits)) if job.bits else (lambda image: image)
+
+    def shrink(image):
+        return to_integers(image, job.bits) if job.bits and image.dtype == np.float32 else image
+
     return dataclasses.replace(result, blurred=shrink(result.blurred),
                                sharp=shrink(result.sharp),
                                _mask=result.mask if job.with_mask else None)
@@ -102,9 +105,11 @@ def make_sample(job: Job, spec: SampleSpec, inputs: tuple[np.ndarray, ...] | Non
         given = list(spec.inputs if inputs is None else inputs)
         if spec.roles:
             given = dict(zip(spec.roles, given, strict=True))
+        # a set of 8/16-bit PNGs takes the codes, made on the device (a quarter or a half of
+        # the float32 bytes to fetch, no conversion on the host)
         result = synthesize(given, job.scene,
                             seed=job.seed, sample_index=spec.index, backend=job.backend,
-                            tile=job.schedule, with_raw=job.with_raw)
+                            tile=job.schedule, with_raw=job.with_raw, codes=bool(job.bits))
     except (ValueError, OSError) as e:
         return spec, None, str(e)
     except cv2.error as e:

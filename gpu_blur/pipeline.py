@@ -24,7 +24,7 @@ from gpu_blur.outputs import jpeg_round_trip, raw_metadata
 from gpu_blur.params import batch_uniforms, draw_params
 from gpu_blur.plan import Plan, StageName, plan, raw_round_trip
 from gpu_blur.reference import transfer
-from gpu_blur.reference.output import crop_border, quantize
+from gpu_blur.reference.output import code_dtype, crop_border, quantize, to_integers
 from gpu_blur.scene import Scene, load_scene
 from gpu_blur.scheduler import Schedule, run
 from gpu_blur.tiling import Region, tiles
@@ -154,7 +154,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
                backend: str = "numpy", overrides: Mapping | None = None,
                tile: tuple[int, int] | Schedule | None = None, on_device: bool = False,
                max_device_memory: int | str | None = None, verify: float = 0.0,
-               with_raw: bool = False) -> Synthesis:
+               with_raw: bool = False, codes: bool = False) -> Synthesis:
     """Synthesize one realistic blurred image (a :class:`Synthesizer` batch of one).
 
     Args:
@@ -187,6 +187,10 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         verify: fraction of tiles (0 to 1) recomputed with the numpy reference and compared
             pass by pass under the tolerance table (:mod:`gpu_blur.scheduler`).
         with_raw: also keep the noisy Bayer mosaic (``Synthesis.raw``, ``raw_info``).
+        codes: return ``blurred`` and ``sharp`` as the output's integer codes (uint8 for
+            ``output.bits = 8``, uint16 for 16: ``to_integers`` of the float results, bit
+            for bit), made on a kernel backend's device: a quarter (a half) of the bytes to
+            fetch and no conversion on the host (``gpu-blur generate`` writes them as they are).
 
     Returns:
         A :class:`Synthesis`. Images whose RAW round trip needs even sizes lose their last
@@ -206,7 +210,7 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         schedule = Schedule(tile, max_device_memory, verify)
     synthesizer = Synthesizer(scene, backend=backend, seed=seed, overrides=overrides,
                               schedule=schedule, with_raw=with_raw)
-    return synthesizer.sample(inputs, sample_index, on_device=on_device)
+    return synthesizer.sample(inputs, sample_index, on_device=on_device, codes=codes)
 
 
 @dataclasses.dataclass
@@ -351,10 +355,15 @@ class Synthesizer:
         return np.empty(shape, dtype)
 
     # -- one sample (synthesize) -------------------------------------------------------------
-    def sample(self, inputs, sample_index: int = 0, *, on_device: bool = False) -> Synthesis:
+    def sample(self, inputs, sample_index: int = 0, *, on_device: bool = False,
+               codes: bool = False) -> Synthesis:
         """One sample from :func:`synthesize`'s ``inputs`` (arrays or paths)."""
         start, before = time.perf_counter(), current().snapshot()
         scene = self.scene
+        if codes and (scene.output.bits not in (8, 16) or on_device):
+            raise ValueError(f"codes=True returns the output's 8- or 16-bit codes on the host; "
+                             f"this scene has output.bits = {scene.output.bits} (0 keeps float "
+                             "values)" + (" and on_device=True" if on_device else ""))
         if on_device and (self.schedule.tile is not None or self.schedule.verify
                           or scene.output.crop or not self.runner.device_arrays
                           or scene.output.jpeg_quality is not None):
@@ -370,10 +379,12 @@ class Synthesizer:
             check()
             runner, (h, w) = self.runner, done.size
             blurred = runner.slot_image(done.blurred, 0, (done.out.h, done.out.w, 3))
+            # codes made on the device, unless the JPEG stage (on the host) is still to come
+            device_codes = codes and not done.plans[0].kept(StageName.JPEG)
             out = (runner.device_array(blurred) if on_device
-                   else self._host(blurred, _inner(blurred.shape, 0)))
+                   else self._host(blurred, _inner(blurred.shape, 0), device_codes))
             sharp = self._host(runner.slot_image(done.sharp, 0, blurred.shape),
-                               _inner(blurred.shape, 0))
+                               _inner(blurred.shape, 0), codes)
             mask = runner.slot_image(done.mask, 0, (h, w, 3))  # fetched on first use
             raw = runner.slot_image(done.raw, 0, (h, w)) if self.with_raw else None
             params, sample_plan = done.params[0], done.plans[0]
@@ -390,6 +401,9 @@ class Synthesizer:
             tiles, checked = tiled.tiles, tiled.checked
         if sample_plan.kept(StageName.JPEG):
             out = jpeg_round_trip(out, params["jpeg_quality"])
+        if codes:  # what the device did not make: the same codes, made here
+            out, sharp = (x if x.dtype == code_dtype(scene.output.bits)
+                          else to_integers(x, scene.output.bits) for x in (out, sharp))
         return Synthesis(out, sharp, mask, params, sample_plan,
                          since(before, time.perf_counter() - start), tiles, checked, crop,
                          self.runner.model, raw, self._raw_info(params))
@@ -399,8 +413,15 @@ class Synthesizer:
         return (raw_metadata(params, self.camera, self.scene.output.crop) if self.with_raw
                 else None)
 
-    def _host(self, values, region: Region) -> np.ndarray:
-        out = np.empty((region.h, region.w, 3), dtype=np.float32)
+    def _host(self, values, region: Region, codes: bool = False) -> np.ndarray:
+        """``region`` of a device image on the host, float32.
+
+        With ``codes``: the output's integer codes, made on the device
+        (:meth:`~gpu_blur.backends.kernel.KernelBackend.to_codes`).
+        """
+        if codes:
+            values = self.runner.to_codes(values, self.scene.output.bits)
+        out = np.empty((region.h, region.w, 3), dtype=values.dtype or np.float32)
         self.runner.export(values, region, out)
         return out
 

@@ -103,6 +103,26 @@ def test_queued_inspects_read_in_any_order_each_give_their_own_counts(spec):
     assert len(made) == kept  # the kept words served both
 
 
+@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+def test_device_codes_of_quantized_values_are_to_integers_codes(spec, bits):
+    # every code as the finish pass stores it (code / top in the compute type), and values
+    # outside [0, 1], which clip
+    from gpu_blur.reference.output import to_integers
+
+    backend = backend_of(spec)
+    top = 2**bits - 1
+    values = (np.arange(top + 1) / top).astype(backend.np_real)
+    values = np.concatenate([values, np.array([-0.25, -0.0, 1.5, 2.0], backend.np_real)])
+    image = values.reshape(-1, 1, 2) if values.size % 2 == 0 else values
+    on_device = OnDevice(backend._upload(image, backend.np_real), image.shape, backend._fetch)
+    made = backend.to_codes(on_device, bits)
+    assert made.dtype == (np.uint8 if bits == 8 else np.uint16)
+    codes = made.numpy(made.dtype)
+    np.testing.assert_array_equal(codes, to_integers(image, bits))
+    assert codes.reshape(-1)[:top + 1].tolist() == list(range(top + 1))
+
+
 @pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
 def test_inspect_counts_carry_into_their_high_word(spec):
     # a count of 2^32 or more (an image of 4 G values) needs the high word: start the clip

@@ -69,6 +69,35 @@ def test_a_batch_equals_synthesize_sample_by_sample_bit_for_bit(spec, mode):
         assert out.plans[b] == one.plan
 
 
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+@pytest.mark.parametrize("output", [{"bits": 8}, {"bits": 16},
+                                    {"bits": 8, "jpeg_quality": [60, 90]},
+                                    {"bits": 8, "tile": True}])
+def test_codes_are_the_integers_of_the_float_results(spec, output):
+    # made on the device where the sample runs there; after the JPEG stage, and in tiles,
+    # on the host: to_integers of the float results either way
+    from gpu_blur.reference.output import to_integers
+
+    name, precision = spec_parts(spec)
+    output = dict(output)
+    tile = (16, 16) if output.pop("tile", False) else None
+    scene = scene_for("trajectory", precision=precision, **output)
+    photo = batch_for("trajectory", 1, np.random.default_rng(18))["batch"][0]
+    floats = gpu_blur.synthesize(photo, scene, seed=4, sample_index=3, backend=name, tile=tile)
+    codes = gpu_blur.synthesize(photo, scene, seed=4, sample_index=3, backend=name, tile=tile,
+                                codes=True)
+    for key in ("blurred", "sharp"):
+        want = to_integers(getattr(floats, key), output["bits"])
+        assert getattr(codes, key).dtype == want.dtype
+        assert np.array_equal(getattr(codes, key), want), key
+
+
+def test_codes_need_an_output_of_8_or_16_bits():
+    photo = batch_for("kernel", 1, np.random.default_rng(19))["batch"][0]
+    with pytest.raises(ValueError, match=r"codes=True .* output.bits = 0"):
+        gpu_blur.synthesize(photo, scene_for("kernel", bits=0), codes=True)
+
+
 @pytest.mark.parametrize("name", ["warp:cpu", "opencl", "numpy"])
 def test_numpy_torch_and_warp_batches_give_the_same_bits_and_come_back_as_they_came(name):
     import warp as wp

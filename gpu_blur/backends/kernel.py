@@ -50,6 +50,7 @@ from gpu_blur.reference.interpolate import (
     CONSISTENCY_RELATIVE,
     gap_weights,
 )
+from gpu_blur.reference.output import code_dtype
 from gpu_blur.reference.rng import key_from_seed
 from gpu_blur.reference.transfer import a7r3_lookup_table
 from gpu_blur.testhooks import fault_planted, planted_fault
@@ -1248,6 +1249,21 @@ class KernelBackend:
         if kept:
             self._counts_reader = weakref.ref(read)
         return read
+
+    def to_codes(self, values: OnDevice, bits: int) -> OnDevice:
+        """An output's integer codes, on the device: uint8 for ``bits`` 8, uint16 for 16.
+
+        :func:`gpu_blur.reference.output.to_integers` of the values, for outputs the finish
+        pass (or :meth:`render_sharp`) quantized to ``bits``: a quarter (a half) of the
+        float32 bytes to fetch, and no conversion on the host.
+        """
+        dtype = code_dtype(bits)
+        count = int(np.prod(values.shape))
+        codes = self._empty(count, dtype)
+        with self._timed():
+            self._launch(self._input_kernels(None, dtype), "to_codes", count, values.data,
+                         codes)
+        return OnDevice(codes, values.shape, self._fetch, dtype)
 
     def _counts_words(self, words: int) -> tuple[np.ndarray, bool]:
         """(pinned host words for one inspect's counts, whether they are the kept ones).

@@ -505,7 +505,8 @@ class OpenCLBackend(KernelBackend):
         if not self.overlap:
             return super().export(values, region, into)
         with timer("copies"):
-            staging = self._staging_buffer("export", count, values.dtype or self.real)
+            dtype = np.dtype(values.dtype or self.real)
+            staging = self._staging_buffer(("export", dtype.str), count, dtype)
             cl.enqueue_copy(self.queue, staging[:count], values.data, is_blocking=True)
             copy_values(into, region.of(staging[:count].reshape(values.shape)))
         return None

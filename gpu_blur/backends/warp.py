@@ -231,15 +231,18 @@ class WarpBackend(KernelBackend):
     def _input_kernels(self, config: PassConfig | None, source):
         """Warp's kernels over stored input images.
 
-        ``inspect`` and ``unit_values`` (``config`` None), else ``render_sharp`` built for
-        ``config`` (and ``gather_codes`` for 8/16-bit codes).
+        ``inspect``, ``unit_values`` (and ``to_codes`` for 8/16-bit codes) with ``config``
+        None, else ``render_sharp`` built for ``config`` (and ``gather_codes`` for codes).
         """
         from gpu_blur.warp_kernels import inputs
 
         source = self._wp_dtype(source)
         if config is None:
-            return {"inspect": inputs.inspect_kernel(source),
-                    "unit_values": inputs.unit_values_kernel(self.real, source)}
+            kernels = {"inspect": inputs.inspect_kernel(source),
+                       "unit_values": inputs.unit_values_kernel(self.real, source)}
+            if source in (wp.uint8, wp.uint16):
+                kernels["to_codes"] = inputs.to_codes_kernel(self.real, source)
+            return kernels
         kernels = {"render_sharp": inputs.render_sharp_kernel(self.real, source, config)}
         if source != self.real:
             kernels["gather_codes"] = inputs.gather_codes_kernel(self.real, source)
@@ -642,7 +645,7 @@ class WarpBackend(KernelBackend):
         pending = None
         for i, start in enumerate(range(0, n, chunk)):
             size = min(chunk, n - start)
-            staging = self._staging_buffer(("export", i % 2), size, self.real)
+            staging = self._staging_buffer(("export", flat.dtype, i % 2), size, flat.dtype)
             wp.copy(staging, flat, src_offset=start, count=size)
             ready = stream.record_event()
             if pending is not None:

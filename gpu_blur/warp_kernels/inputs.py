@@ -8,7 +8,8 @@ render_sharp):
 * :func:`render_sharp_kernel`: the sharp reference, toned like the output by the finish
   kernel's functions (gpu_blur.warp_kernels.pixel);
 * :func:`gather_codes_kernel`: the same for 8/16-bit codes, from a table that
-  ``render_sharp`` made of every code.
+  ``render_sharp`` made of every code;
+* :func:`to_codes_kernel`: output values as the set's 8/16-bit codes, for the host to fetch.
 
 ``source`` is how the image is stored: ``wp.uint8`` or ``wp.uint16`` codes, or values of the
 compute type (:func:`gpu_blur.warp_kernels.passes.source_value_func`).
@@ -129,6 +130,24 @@ def unit_values_kernel(real, source):
         values[i] = source_value(stored[i])
 
     return unit_values
+
+
+@functools.cache
+def to_codes_kernel(real, code):
+    """Values as ``code`` (``wp.uint8`` or ``wp.uint16``) codes, as gb_to_codes.
+
+    gpu_blur.reference.output.to_integers's floor(clip(x, 0, 1) * (2^bits - 1) + 0.5); exact
+    in float32 too for quantized outputs (see gb_to_codes).
+    """
+    top = SOURCE_TOP[code]
+
+    @wp.kernel(module="unique")
+    def to_codes(values: wp.array(dtype=real), codes: wp.array(dtype=code)):
+        i = wp.tid()
+        x = wp.clamp(values[i], real(0.0), real(1.0))
+        codes[i] = code(wp.floor(x * real(top) + real(0.5)))
+
+    return to_codes
 
 
 @functools.cache

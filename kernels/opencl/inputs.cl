@@ -4,7 +4,8 @@
  *   gb_inspect       counts for the input checks and auto saturation's clip test;
  *   gb_unit_values   stored values as reals in [0, 1] (blur mode none's mask);
  *   gb_render_sharp  the sharp reference, toned like the output by finish.cl's functions;
- *   gb_gather_codes  the same for 8/16-bit codes, from a table gb_render_sharp made of every code.
+ *   gb_gather_codes  the same for 8/16-bit codes, from a table gb_render_sharp made of every code;
+ *   gb_to_codes      output values as the set's 8/16-bit codes (gb_source), for the host to fetch.
  */
 #include "gb_common.h"
 #include "gb_pixel.h"
@@ -65,6 +66,18 @@ __kernel void gb_unit_values(__global const gb_source *stored, __global real *va
 {
     size_t i = get_global_id(0);
     values[i] = gb_source_value(stored[i]);
+}
+
+/* Values as the codes gpu_blur.reference.output.to_integers makes of them:
+ * floor(clip(x, 0, 1) * (2^bits - 1) + 0.5), bits = GB_SOURCE_BITS (8 or 16). The outputs are
+ * quantized already (code / (2^bits - 1) rounded to real), so this recovers each code exactly
+ * in float32 too: the product is within 2^-23 * 65535 < 0.008 of it. */
+__kernel void gb_to_codes(__global const real *values, __global gb_source *codes)
+{
+    size_t i = get_global_id(0);
+    real top = (real)((1 << GB_SOURCE_BITS) - 1);
+    codes[i] = (gb_source)floor(clamp(values[i], GB_REAL(0.0), GB_REAL(1.0)) * top
+                                + GB_REAL(0.5));
 }
 
 /* The sharp reference over the output region (first pixel (ox0, oy0), size ow x oh) of images
