@@ -109,11 +109,20 @@ def generate(root: Path, out: Path, backend: str, samples: int, threads: int,
 
 
 def set_digest(out: Path) -> str:
-    """sha256 over every file of a set (names and bytes); run.json and the lock file aside."""
+    """sha256 over every file of a set (names and bytes); run.json and the lock file aside.
+
+    The manifest's input paths are left out (the input lies in a temporary folder of its own
+    in each run of this script), so runs of different commits compare.
+    """
     digest = hashlib.sha256()
     for path in sorted(p for p in out.rglob("*") if p.is_file()
                        and p.name not in ("run.json", ".gpu_blur.lock")):
-        digest.update(path.relative_to(out).as_posix().encode() + path.read_bytes())
+        data = path.read_bytes()
+        if path.name == "manifest.jsonl":
+            lines = [json.loads(line) for line in data.decode().splitlines()]
+            data = "\n".join(json.dumps({k: v for k, v in line.items() if k != "inputs"})
+                             for line in lines).encode()
+        digest.update(path.relative_to(out).as_posix().encode() + data)
     return digest.hexdigest()
 
 

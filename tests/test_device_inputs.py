@@ -105,22 +105,28 @@ def test_queued_inspects_read_in_any_order_each_give_their_own_counts(spec):
 
 @pytest.mark.parametrize("bits", [8, 16])
 @pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
-def test_device_codes_of_quantized_values_are_to_integers_codes(spec, bits):
-    # every code as the finish pass stores it (code / top in the compute type), and values
-    # outside [0, 1], which clip
+def test_device_codes_are_to_integers_codes_of_every_value(spec, bits):
+    # every code as the finish pass stores it (code / top in the compute type), random
+    # values, values outside [0, 1], and in float32 values next to the rounding boundaries
+    # (k + 1/2) / top (a float64 build rounds those exactly, where to_integers's own float64
+    # arithmetic may not: no quantized output lies there)
     from gpu_blur.reference.output import to_integers
 
     backend = backend_of(spec)
+    real = backend.np_real
     top = 2**bits - 1
-    values = (np.arange(top + 1) / top).astype(backend.np_real)
-    values = np.concatenate([values, np.array([-0.25, -0.0, 1.5, 2.0], backend.np_real)])
-    image = values.reshape(-1, 1, 2) if values.size % 2 == 0 else values
-    on_device = OnDevice(backend._upload(image, backend.np_real), image.shape, backend._fetch)
+    boundaries = ((np.arange(top) + 0.5) / top).astype(real)
+    near = ([boundaries, np.nextafter(boundaries, real(0)), np.nextafter(boundaries, real(1))]
+            if real == np.float32 else [])
+    values = np.concatenate([
+        (np.arange(top + 1) / top).astype(real), *near,
+        np.random.default_rng(6).random(4099).astype(real),
+        np.array([-0.25, -0.0, 1.5, 2.0], real)])
+    values = values[:values.size // 3 * 3].reshape(-1, 1, 3)
+    on_device = OnDevice(backend._upload(values, real), values.shape, backend._fetch)
     made = backend.to_codes(on_device, bits)
     assert made.dtype == (np.uint8 if bits == 8 else np.uint16)
-    codes = made.numpy(made.dtype)
-    np.testing.assert_array_equal(codes, to_integers(image, bits))
-    assert codes.reshape(-1)[:top + 1].tolist() == list(range(top + 1))
+    np.testing.assert_array_equal(made.numpy(made.dtype), to_integers(values, bits))
 
 
 @pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)

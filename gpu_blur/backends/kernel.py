@@ -1253,9 +1253,10 @@ class KernelBackend:
     def to_codes(self, values: OnDevice, bits: int) -> OnDevice:
         """An output's integer codes, on the device: uint8 for ``bits`` 8, uint16 for 16.
 
-        :func:`gpu_blur.reference.output.to_integers` of the values, for outputs the finish
-        pass (or :meth:`render_sharp`) quantized to ``bits``: a quarter (a half) of the
-        float32 bytes to fetch, and no conversion on the host.
+        The codes :func:`gpu_blur.reference.output.to_integers` gives the values (the finish
+        pass's quantize_code: exact for every float32 value; a float64 build rounds exactly,
+        which to_integers matches away from the rounding boundaries, where no quantized
+        output lies): a quarter (a half) of the float32 bytes to fetch, no host conversion.
         """
         dtype = code_dtype(bits)
         count = int(np.prod(values.shape))

@@ -134,18 +134,16 @@ def unit_values_kernel(real, source):
 
 @functools.cache
 def to_codes_kernel(real, code):
-    """Values as ``code`` (``wp.uint8`` or ``wp.uint16``) codes, as gb_to_codes.
+    """Values as their ``code`` (``wp.uint8`` or ``wp.uint16``) output codes, as gb_to_codes.
 
-    gpu_blur.reference.output.to_integers's floor(clip(x, 0, 1) * (2^bits - 1) + 0.5); exact
-    in float32 too for quantized outputs (see gb_to_codes).
+    pixel.quantize_code: the code gpu_blur.reference.output.to_integers gives every value.
     """
-    top = SOURCE_TOP[code]
+    bits = 8 if code == wp.uint8 else 16
 
     @wp.kernel(module="unique")
     def to_codes(values: wp.array(dtype=real), codes: wp.array(dtype=code)):
         i = wp.tid()
-        x = wp.clamp(values[i], real(0.0), real(1.0))
-        codes[i] = code(wp.floor(x * real(top) + real(0.5)))
+        codes[i] = code(pixel.quantize_code(values[i], bits))
 
     return to_codes
 

@@ -68,16 +68,12 @@ __kernel void gb_unit_values(__global const gb_source *stored, __global real *va
     values[i] = gb_source_value(stored[i]);
 }
 
-/* Values as the codes gpu_blur.reference.output.to_integers makes of them:
- * floor(clip(x, 0, 1) * (2^bits - 1) + 0.5), bits = GB_SOURCE_BITS (8 or 16). The outputs are
- * quantized already (code / (2^bits - 1) rounded to real), so this recovers each code exactly
- * in float32 too: the product is within 2^-23 * 65535 < 0.008 of it. */
+/* Values as their output codes (gb_source: uchar for GB_SOURCE_BITS 8, ushort for 16):
+ * gb_quantize_code, the code gpu_blur.reference.output.to_integers gives every float value. */
 __kernel void gb_to_codes(__global const real *values, __global gb_source *codes)
 {
     size_t i = get_global_id(0);
-    real top = (real)((1 << GB_SOURCE_BITS) - 1);
-    codes[i] = (gb_source)floor(clamp(values[i], GB_REAL(0.0), GB_REAL(1.0)) * top
-                                + GB_REAL(0.5));
+    codes[i] = (gb_source)gb_quantize_code(values[i], GB_SOURCE_BITS);
 }
 
 /* The sharp reference over the output region (first pixel (ox0, oy0), size ow x oh) of images
