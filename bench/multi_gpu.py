@@ -84,21 +84,29 @@ def _memory_worker(spec: str, gpu: int, gpus: int, batches: int, batch: int, pin
     results.put((gpu, start, time.perf_counter() - hashing, digests))
 
 
-def from_memory(backend: str, gpus: int, batches: int, batch: int, pinned: bool) -> dict:
-    """Samples per second of ``gpus`` processes, one per GPU, and the set's digest."""
+def _together(target, args: list[tuple]) -> list:
+    """What each process put on ``results``: ``target(*a, barrier, results)`` for each ``a``.
+
+    One spawned process per entry of ``args``, started together (they meet at the barrier).
+    """
     spawn = multiprocessing.get_context("spawn")
-    barrier, results = spawn.Barrier(gpus), spawn.Queue()
-    workers = [spawn.Process(target=_memory_worker, args=(device_spec(backend, g), g, gpus,
-                                                          batches, batch, pinned, barrier,
-                                                          results))
-               for g in range(gpus)]
+    barrier, results = spawn.Barrier(len(args)), spawn.Queue()
+    workers = [spawn.Process(target=target, args=(*a, barrier, results)) for a in args]
     for worker in workers:
         worker.start()
     done = [results.get(timeout=600) for _ in workers]
     for worker in workers:
         worker.join()
         if worker.exitcode:
-            raise RuntimeError(f"a memory worker exited with status {worker.exitcode}")
+            raise RuntimeError(f"a {target.__name__} process exited with status "
+                               f"{worker.exitcode}")
+    return done
+
+
+def from_memory(backend: str, gpus: int, batches: int, batch: int, pinned: bool) -> dict:
+    """Samples per second of ``gpus`` processes, one per GPU, and the set's digest."""
+    done = _together(_memory_worker, [(device_spec(backend, g), g, gpus, batches, batch,
+                                       pinned) for g in range(gpus)])
     digests = {k: d for *_, part in done for k, d in part.items()}
     seconds = max(end for _, _, end, _ in done) - min(start for _, start, _, _ in done)
     whole = hashlib.sha256("".join(digests[k] for k in sorted(digests)).encode())
@@ -138,15 +146,7 @@ def copy_bound(gpus: int, reps: int = 16) -> dict:
     last end. It bounds any run that moves its frames in and its results out through host
     memory.
     """
-    spawn = multiprocessing.get_context("spawn")
-    barrier, results = spawn.Barrier(gpus), spawn.Queue()
-    workers = [spawn.Process(target=_copy_worker, args=(g, reps, barrier, results))
-               for g in range(gpus)]
-    for worker in workers:
-        worker.start()
-    done = [results.get(timeout=600) for _ in workers]
-    for worker in workers:
-        worker.join()
+    done = _together(_copy_worker, [(g, reps) for g in range(gpus)])
     seconds = max(end for _, end in done) - min(start for start, _ in done)
     return {"gpus": gpus, "gb_s_each_way": gpus * reps * COPY_BYTES / seconds / 1e9}
 
