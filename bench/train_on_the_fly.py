@@ -1,16 +1,22 @@
-"""Train a small deblurring network on pairs synthesized on the fly (issue 16).
+"""Train small deblurring networks on pairs synthesized on the fly (issue 16).
 
-Two loops train the same network (a few 3 x 3 convolutions with a residual connection, L1
-loss, Adam) for ``--steps`` steps of ``--batch`` random ``--crop`` crops, and report samples
-per second and where each step's time goes:
+Each network (``--nets``: ``tiny``, a few 3 x 3 convolutions; ``unet``, a U-Net the size of
+MIMO-UNet) trains with L1 loss and Adam for ``--steps`` steps of ``--batch`` random ``--crop``
+crops, in four loops over the same DataLoader (workers decode and crop the sharp inputs,
+uint8, :mod:`gpu_blur.datasets`):
 
-* **on the fly**: DataLoader workers decode and crop the sharp inputs (uint8,
-  :mod:`gpu_blur.datasets`); :class:`gpu_blur.torch.RealisticBlur` synthesizes the blurred
-  and sharp pair on the training device (Warp on CUDA, ``warp:cpu`` with ``--device cpu``).
-  Synthesis share: the transform's time (synchronized before and after) over the step time.
-* **CPU workers**: the same data set, each worker also running the numpy float64 path
-  (``gpu_blur.synthesize(..., backend="numpy")``) on its items, as a CPU DataLoader
-  pipeline would. Synthesis share: the time the step waits for the loader over the step time.
+* **on the fly**: :class:`gpu_blur.torch.RealisticBlur` synthesizes each batch on the training
+  device (Warp on CUDA, ``warp:cpu`` with ``--device cpu``); nothing else waits for the device,
+  as in a real training loop.
+* **presynthesized**: the same loop, with the synthesis replaced by one batch synthesized before
+  it (the loader still runs). **Synthesis share** = 1 - its step time / on the fly's: what
+  synthesizing on the fly adds to a step.
+* **synchronized**: on the fly with the device synchronized before and after the transform;
+  its time over the step time is the transform's share with no overlap at all (an upper
+  bound, the share this file reported before).
+* **CPU workers**: each DataLoader worker also runs the numpy float64 path
+  (``gpu_blur.synthesize(..., backend="numpy")``) on its items, as a CPU pipeline would; its
+  share is the time the step waits for the loader.
 
 Inputs: ``--input`` with a scene of blur mode none reads the RSBlur authors' averaged layouts
 (:class:`~gpu_blur.datasets.BlurredImages`); a folder of photos or, by default, the built-in
@@ -18,8 +24,8 @@ photo (:class:`~gpu_blur.datasets.Photos`) for the other modes. The first step o
 (worker start, kernel builds) is not timed.
 
 Run from the repository root, on a GPU:
-``PYTHONPATH=$PWD python bench/train_on_the_fly.py --json OUT.json`` (defaults: 300 steps of
-16 crops of 256, 8 workers);
+``PYTHONPATH=$PWD python bench/train_on_the_fly.py --json OUT.json`` (defaults: both
+networks, 300 steps of 16 crops of 256, 8 workers);
 a check on a CPU: ``--device cpu --steps 3 --batch 2 --crop 64 --workers 2``.
 """
 
@@ -42,7 +48,7 @@ from gpu_blur.torch import RealisticBlur
 DEFAULT_SCENE = {"blur": {"mode": "kernel"}, "output": {"bits": 0, "crop": 0}}
 
 
-class Deblur(torch.nn.Module):
+class Tiny(torch.nn.Module):
     """A small residual CNN: ``depth`` 3 x 3 convolutions of ``width`` channels."""
 
     def __init__(self, width: int = 32, depth: int = 4):
@@ -56,6 +62,56 @@ class Deblur(torch.nn.Module):
 
     def forward(self, x):
         return x + self.body(x)
+
+
+def _blocks(channels: int, count: int) -> torch.nn.Sequential:
+    """``count`` residual blocks of two 3 x 3 convolutions (ReLU between)."""
+
+    class Block(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.body = torch.nn.Sequential(
+                torch.nn.Conv2d(channels, channels, 3, padding=1), torch.nn.ReLU(),
+                torch.nn.Conv2d(channels, channels, 3, padding=1))
+
+        def forward(self, x):
+            return x + self.body(x)
+
+    return torch.nn.Sequential(*(Block() for _ in range(count)))
+
+
+class UNet(torch.nn.Module):
+    """An encoder-decoder deblurring network of MIMO-UNet's size, single scale.
+
+    Three scales of ``width``, 2 ``width`` and 4 ``width`` channels with ``blocks`` residual
+    blocks in each encoder and decoder stage, stride-2 convolutions down, transposed ones up,
+    skip connections added, a global residual: the layout and size of MIMO-UNet (Cho et al.,
+    ICCV 2021: 32 channels, 8 blocks a stage, 6.8 M parameters) without its multi-scale inputs
+    and outputs. Crops: multiples of 4.
+    """
+
+    def __init__(self, width: int = 32, blocks: int = 8):
+        super().__init__()
+        c1, c2, c3 = width, 2 * width, 4 * width
+        conv = torch.nn.Conv2d
+        self.head = conv(3, c1, 3, padding=1)
+        self.enc1, self.enc2, self.mid = _blocks(c1, blocks), _blocks(c2, blocks), _blocks(
+            c3, blocks)
+        self.down1, self.down2 = conv(c1, c2, 3, stride=2, padding=1), conv(c2, c3, 3, stride=2,
+                                                                            padding=1)
+        self.up2 = torch.nn.ConvTranspose2d(c3, c2, 4, stride=2, padding=1)
+        self.up1 = torch.nn.ConvTranspose2d(c2, c1, 4, stride=2, padding=1)
+        self.dec2, self.dec1 = _blocks(c2, blocks), _blocks(c1, blocks)
+        self.tail = conv(c1, 3, 3, padding=1)
+
+    def forward(self, x):
+        e1 = self.enc1(self.head(x))
+        e2 = self.enc2(self.down1(e1))
+        d2 = self.dec2(self.up2(self.mid(self.down2(e2))) + e2)
+        return x + self.tail(self.dec1(self.up1(d2) + e1))
+
+
+NETS = {"tiny": Tiny, "unet": UNet}
 
 
 class NumpySynthesis(torch.utils.data.Dataset):
@@ -85,11 +141,12 @@ def sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def train(net, loader, device, steps: int, synthesize) -> dict:
-    """``steps`` timed steps after one untimed: samples/s and the shares of the step time.
+def train(net, loader, device, steps: int, synthesize, *, synchronized: bool = False) -> dict:
+    """``steps`` timed steps after one untimed: samples/s and where the step time goes.
 
-    ``synthesize(batch)`` gives (blurred, sharp), B x 3 x H x W on ``device``; its time is
-    taken between two device synchronizations (which cost the loop a little overlap).
+    ``synthesize(batch)`` gives (blurred, sharp), B x 3 x H x W on ``device``. With
+    ``synchronized`` the device is synchronized before and after it, and its time (host and
+    device, with no overlap) is reported as ``transform_share``.
     """
     opt = torch.optim.Adam(net.parameters(), lr=1e-4)
     batches = iter(loader)
@@ -106,10 +163,12 @@ def train(net, loader, device, steps: int, synthesize) -> dict:
             batches = iter(loader)
             batch = next(batches)
         t1 = time.perf_counter()
-        sync(device)
+        if synchronized:
+            sync(device)
         t2 = time.perf_counter()
         blurred, sharp = synthesize(batch)
-        sync(device)
+        if synchronized:
+            sync(device)
         t3 = time.perf_counter()
         loss = torch.nn.functional.l1_loss(net(blurred), sharp)
         opt.zero_grad()
@@ -120,26 +179,37 @@ def train(net, loader, device, steps: int, synthesize) -> dict:
         samples += blurred.shape[0]
     sync(device)
     took = time.perf_counter() - start
-    return {"samples_per_s": samples / took, "step_ms": 1e3 * took / steps,
-            "waiting_for_data_share": waited / took, "transform_share": synthesized / took,
-            "final_loss": float(loss.item()), "steps": steps}
+    result = {"samples_per_s": samples / took, "step_ms": 1e3 * took / steps,
+              "waiting_for_data_share": waited / took, "final_loss": float(loss.item()),
+              "steps": steps}
+    if synchronized:
+        result["transform_share"] = synthesized / took
+    return result
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--steps", type=int, default=300, help="timed training steps per loop")
     p.add_argument("--batch", type=int, default=16, help="samples per step")
-    p.add_argument("--crop", type=int, default=256, help="crop size (even)")
+    p.add_argument("--crop", type=int, default=256, help="crop size (a multiple of 4)")
     p.add_argument("--workers", type=int, default=8, help="DataLoader workers")
+    p.add_argument("--nets", default="tiny,unet",
+                   help=f"networks to train, comma-separated, of {', '.join(NETS)}")
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     p.add_argument("--scene", help="scene TOML or built-in name (default: random kernels)")
     p.add_argument("--input", help="data folder (default: the built-in photo)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", help="write the results here")
     args = p.parse_args()
+    nets = args.nets.split(",")
+    unknown = sorted(set(nets) - set(NETS))
+    if unknown:
+        p.error(f"--nets {unknown[0]!r} is not a network; choose from {', '.join(NETS)}")
+    if args.crop % 4:
+        p.error(f"--crop {args.crop} must be a multiple of 4 (the U-Net halves it twice)")
     device = torch.device(args.device)
     scene = load_scene(args.scene) if args.scene else scene_from_dict(DEFAULT_SCENE)
-    items = args.steps * args.batch * 2  # enough for both loops without a second epoch
+    items = args.steps * args.batch * 2  # enough for two loops without a second epoch
     if scene.blur.mode == "none":
         data = BlurredImages(args.input, crop=args.crop, flips=True, seed=args.seed)
     else:
@@ -162,29 +232,42 @@ def main() -> None:
         return tuple(x.to(device, non_blocking=True).permute(0, 3, 1, 2)
                      for x in (blurred, sharp))
 
-    torch.manual_seed(args.seed)
+    made = on_device(next(iter(torch.utils.data.DataLoader(data, **{
+        **loader_options, "num_workers": 0, "persistent_workers": False}))))
+
+    def presynthesized(batch):
+        return made
+
     results = {"device": (torch.cuda.get_device_name(device) if device.type == "cuda"
                           else f"CPU ({platform.processor() or platform.machine()})"),
                "backend": backend, "scene": scene.to_dict(), "batch": args.batch,
                "crop": args.crop, "workers": args.workers, "items": len(data),
-               "input": args.input or "built-in photo"}
-    for name, loader, step in (
-            ("on_the_fly", torch.utils.data.DataLoader(data, **loader_options), on_device),
-            ("cpu_workers", torch.utils.data.DataLoader(
-                NumpySynthesis(data, scene, args.seed), **loader_options), from_workers)):
-        net = Deblur().to(device)
-        results[name] = train(net, loader, device, args.steps, step)
-        r = results[name]
-        print(f"{name}: {r['samples_per_s']:.1f} samples/s, {r['step_ms']:.1f} ms/step, "
-              f"waiting for data {100 * r['waiting_for_data_share']:.1f} %, transform "
-              f"{100 * r['transform_share']:.1f} %", flush=True)
-    results["synthesis_share"] = {"on_the_fly": results["on_the_fly"]["transform_share"],
-                                  "cpu_workers": results["cpu_workers"]["waiting_for_data_share"]}
-    results["speedup"] = (results["on_the_fly"]["samples_per_s"]
-                          / results["cpu_workers"]["samples_per_s"])
-    print(f"on {results['device']}: on the fly {results['speedup']:.2f}x the CPU workers; "
-          f"synthesis share {100 * results['synthesis_share']['on_the_fly']:.1f} % vs "
-          f"{100 * results['synthesis_share']['cpu_workers']:.1f} % (waiting for workers)")
+               "input": args.input or "built-in photo", "nets": {}}
+    loops = (("on_the_fly", data, on_device, False),
+             ("presynthesized", data, presynthesized, False),
+             ("synchronized", data, on_device, True),
+             ("cpu_workers", NumpySynthesis(data, scene, args.seed), from_workers, False))
+    for name in nets:
+        net_results = results["nets"][name] = {}
+        for loop, items_of, step, synchronized in loops:
+            torch.manual_seed(args.seed)
+            net = NETS[name]().to(device)
+            loader = torch.utils.data.DataLoader(items_of, **loader_options)
+            r = net_results[loop] = train(net, loader, device, args.steps, step,
+                                          synchronized=synchronized)
+            del loader  # its workers end before the next loop's start
+            print(f"{name} {loop}: {r['samples_per_s']:.1f} samples/s, {r['step_ms']:.1f} "
+                  f"ms/step, waiting for data {100 * r['waiting_for_data_share']:.1f} %"
+                  + (f", transform {100 * r['transform_share']:.1f} %" if synchronized else ""),
+                  flush=True)
+        r = net_results
+        r["parameters"] = sum(x.numel() for x in NETS[name]().parameters())
+        r["synthesis_share"] = 1 - r["presynthesized"]["step_ms"] / r["on_the_fly"]["step_ms"]
+        r["speedup_over_cpu_workers"] = (r["on_the_fly"]["samples_per_s"]
+                                         / r["cpu_workers"]["samples_per_s"])
+        print(f"{name} on {results['device']}: synthesis share {100 * r['synthesis_share']:.1f} %"
+              f" (synchronized: {100 * r['synchronized']['transform_share']:.1f} %); on the fly "
+              f"{r['speedup_over_cpu_workers']:.2f}x the CPU workers", flush=True)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(results, f, indent=1, default=float)
