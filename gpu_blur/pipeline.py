@@ -504,6 +504,12 @@ class Synthesizer:
         Results handed over on the device return before the device has made them: the host
         waits only for the checks, and the next batch's host work overlaps this batch's passes
         (``__call__`` makes the caller's stream wait for them). Other results are waited for.
+
+        Auto saturation's clip test is read once the passes are queued, too: every sample runs
+        as if it clipped, and one that does not gets skipping's plan and draws afterwards
+        (:meth:`_unclipped`), its output the same bits (on its zero mask the saturate and
+        restore stages are identities). So the device never idles while the host draws and
+        launches, at the cost of those two stages on samples that do not clip.
         """
         runner, count = self.runner, len(items)
         streamed = (not self.with_raw and isinstance(batch, np.ndarray)
@@ -512,13 +518,16 @@ class Synthesizer:
         step = STREAMED_SAMPLES if streamed else count
         # a batch on the device gets the result buffers themselves (new ones each batch)
         handed = given is None and step == count and self._reaches(batch, lib)
+        clip_test = self.scene.saturation.mode == "auto"
         out, params, plans = None, [], []
         with self._queued():
             for start in range(0, count, step):
-                part, check = self._prepared(items[start:start + step])
+                part, check = self._prepared(items[start:start + step], clip_test_later=True)
                 done = self._run_resident(part, indices[start:start + step], reuse=True,
-                                          fresh_results=handed)
+                                          fresh_results=handed, as_clipped=clip_test)
                 check()
+                if clip_test:
+                    self._unclipped(done, part)
                 params += done.params
                 plans += done.plans
                 if handed:
@@ -535,6 +544,18 @@ class Synthesizer:
         raws = ([runner.slot_image(done.raw, b, done.size) for b in range(count)]
                 if self.with_raw else [])
         return out, params, plans, raws
+
+    def _unclipped(self, done: _Resident, items: list[_Inputs]) -> None:
+        """The plans and draws of ``done``'s samples run as if they clipped that did not.
+
+        Their clip test, read after their passes were queued, says auto saturation skips
+        them: skipping's plan, and their draws without alpha (its own draw slot: nothing
+        else moves), as :meth:`_drawn` gives them.
+        """
+        for b, item in enumerate(items):
+            if not item.saturated:
+                done.plans[b] = self._plan(False, *done.size, None)
+                done.params[b] = {k: v for k, v in done.params[b].items() if k != "alpha"}
 
     def _export_resident(self, done: _Resident, out: list) -> None:
         """A resident batch's results into ``out`` (blurred, sharp[, mask]), one per sample."""
@@ -734,7 +755,8 @@ class Synthesizer:
         return x
 
     # -- shared by both ----------------------------------------------------------------------
-    def _prepared(self, items: list[_Inputs]) -> tuple[list[_Inputs], Callable[[], None]]:
+    def _prepared(self, items: list[_Inputs], *, clip_test_later: bool = False
+                  ) -> tuple[list[_Inputs], Callable[[], None]]:
         """Inputs checked (and on a kernel backend put on its device), with the clip test.
 
         Returns the inputs and the function that ends their checks, which the caller calls
@@ -742,6 +764,8 @@ class Synthesizer:
         counts are read there, after the passes the caller queues in between (so the device
         never waits for the host's look at them), unless auto saturation's clip test needs
         them to plan the samples: then they are read here and the function does nothing.
+        ``clip_test_later``: the caller plans the samples as if they clipped, and the function
+        sets each input's ``saturated`` from its counts.
         """
         if not self.resident:
             return [self._checked_on_host(item) for item in items], _checked
@@ -769,7 +793,7 @@ class Synthesizer:
                 if clip_test and key == "frames" and put[i].mask is None and row[4]:
                     put[i].saturated = True
 
-        if clip_test:
+        if clip_test and not clip_test_later:
             check()
             return put, _checked
         return put, check
@@ -851,7 +875,8 @@ class Synthesizer:
         return tiled.blurred, tiled.mask, sharp, params, sample_plan, tiled
 
     def _run_resident(self, items: list[_Inputs], indices: Sequence[int], *,
-                      reuse: bool = False, fresh_results: bool = False) -> _Resident:
+                      reuse: bool = False, fresh_results: bool = False,
+                      as_clipped: bool = False) -> _Resident:
         """Samples put on the device, each pass launched once per plan for the whole batch.
 
         The samples' draws come first (their per-image uniforms at once), then the accumulate
@@ -862,7 +887,8 @@ class Synthesizer:
         ``reuse``: take the buffers of the last batch of this size (the caller copies every
         result out before the next batch), sparing device allocations; the Synthesizer holds
         one batch's buffers between calls. ``fresh_results``: new blurred and sharp slots
-        all the same (the caller hands them over as the outputs).
+        all the same (the caller hands them over as the outputs). ``as_clipped``: plan every
+        sample as one whose input reaches the clip level (its clip test is still to be read).
         """
         runner, camera, crop = self.runner, self.camera, self.scene.output.crop
         h, w = items[0].frames.shape[-3:-1]
@@ -874,7 +900,8 @@ class Synthesizer:
         groups: dict = {}  # id(plan) -> (plan, its samples as Drawn, in batch order)
         params, plans, samples = [], [], []
         for b, (item, index) in enumerate(zip(items, indices, strict=True)):
-            sample_plan, drawn = self._drawn(item, int(index), h, w, None, uniforms[b])
+            sample_plan, drawn = self._drawn(item, int(index), h, w, None, uniforms[b],
+                                             saturated=as_clipped or item.saturated)
             params.append(drawn)
             plans.append(sample_plan)
             samples.append(Drawn(drawn, int(index), b))
@@ -915,19 +942,25 @@ class Synthesizer:
             self._buffers = (key, buffers)
         return buffers
 
+    def _plan(self, saturated: bool, h: int, w: int, factors) -> Plan:
+        """The plan of a sample of this size, clip test and interpolation (made once)."""
+        key = (saturated, h, w, factors)
+        if key not in self._plans:  # a plan depends on the scene, the clip test and the size
+            self._plans[key] = plan(self.scene, saturated=saturated, size=(h, w),
+                                    interpolation_factors=factors)
+        return self._plans[key]
+
     def _drawn(self, item: _Inputs, sample_index: int, h: int, w: int, factors,
-               uniforms: dict | None = None):
+               uniforms: dict | None = None, *, saturated: bool | None = None):
         """A sample's plan and drawn values: (plan, params).
 
         ``uniforms``: the sample's row of :func:`gpu_blur.params.batch_uniforms`, else drawn.
+        ``saturated``: the clip test's answer to plan by, for the input's own.
         """
         scene = self.scene
         frames = item.frames
-        key = (item.saturated, h, w, factors)
-        if key not in self._plans:  # a plan depends on the scene, the clip test and the size
-            self._plans[key] = plan(scene, saturated=item.saturated, size=(h, w),
-                                    interpolation_factors=factors)
-        sample_plan = self._plans[key]
+        sample_plan = self._plan(item.saturated if saturated is None else saturated, h, w,
+                                 factors)
         # Every draw has a fixed index (gpu_blur.params), so a stage the sample skips (auto
         # saturation) never shifts another draw.
         overrides = self.overrides

@@ -370,6 +370,37 @@ def test_skipping_auto_saturation_gives_the_bits_of_saturation_on_where_nothing_
     assert np.array_equal(out["auto"].mask, out["on"].mask)
 
 
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+@pytest.mark.parametrize("mode", ["average", "kernel", "trajectory", "none"])
+def test_a_batch_of_clipped_and_unclipped_samples_equals_synthesize_with_its_plans_and_draws(
+        spec, mode):
+    """A kernel backend's batch runs every sample as if it clipped and reads the clip test
+    after its passes are queued; a sample that does not clip still gets auto saturation's
+    skip: synthesize's bits, plan and draws (no alpha)."""
+    name, precision = spec_parts(spec)
+    scene = scene_for(mode, precision=precision)
+    scene = dataclasses.replace(scene, saturation=dataclasses.replace(scene.saturation,
+                                                                      mode="auto"))
+    given = batch_for(mode, 4, np.random.default_rng(21))
+    given["batch"][1:3] = np.minimum(given["batch"][1:3], 254)  # samples 1 and 2 never clip
+    if mode == "none":
+        given["mask"][1:3] = 0
+    synth = gpu_blur.Synthesizer(scene, backend=name, seed=2, with_mask=True,
+                                 overrides={"alpha": 1.25})
+    out = synth(given["batch"], mask=given.get("mask"), indices=[9, 3, 0, 7])
+    assert [p.kept("saturate") for p in out.plans] == [True, False, False, True]
+    for b, index in enumerate([9, 3, 0, 7]):
+        one = gpu_blur.synthesize(one_sample(mode, given, b), scene, seed=2, sample_index=index,
+                                  backend=name, overrides={"alpha": 1.25})
+        assert out.plans[b] == one.plan, b
+        assert out.params[b].keys() == one.params.keys(), b
+        for key, value in one.params.items():
+            assert np.array_equal(out.params[b][key], value), (b, key)
+        assert np.array_equal(out.blurred[b], one.blurred), b
+        assert np.array_equal(out.sharp[b], one.sharp), b
+        assert np.array_equal(out.mask[b], one.mask), b
+
+
 @pytest.mark.parametrize("name", ["warp:cpu", "opencl"])
 def test_batches_after_others_equal_batches_of_a_fresh_synthesizer(name):
     # a resident batch reuses the last batch's device buffers when its size repeats: nothing of
@@ -615,6 +646,28 @@ def test_a_device_batch_counts_each_sample_in_one_launch_for_the_clip_test():
     assert [p.kept("saturate") for p in got.plans][0]
     assert np.array_equal(got.blurred.numpy(), plain.blurred)
     assert np.array_equal(got.sharp.numpy(), plain.sharp)
+
+
+@pytest.mark.parametrize("name", ["warp:cpu", "opencl"])
+def test_a_batch_reads_auto_saturations_clip_test_after_queuing_every_pass(name):
+    # the host reads the counts once the passes are queued, so the device never idles while
+    # the host draws and launches (a sample is planned from its counts afterwards)
+    scene = scene_for("kernel", precision="float32")
+    photos = batch_for("kernel", 3, np.random.default_rng(16))["batch"]
+    photos[1] = np.minimum(photos[1], 254)
+    synth = gpu_blur.Synthesizer(scene, backend=name, seed=2)
+    launched, seen = [], []
+    launch, inspect = synth.runner._launch, synth.runner.inspect_queued
+    synth.runner._launch = lambda k, kname, *a: launched.append(kname) or launch(k, kname, *a)
+
+    def inspect_queued(images):
+        counts = inspect(images)
+        return lambda: seen.extend(launched) or counts()
+
+    synth.runner.inspect_queued = inspect_queued
+    got = synth(photos)
+    assert "to_raw" in seen and "finish" in seen, seen
+    assert [p.kept("saturate") for p in got.plans] == [True, False, True]
 
 
 def test_frame_stacks_lying_back_to_back_average_in_one_launch_with_the_same_bits():
