@@ -10,6 +10,8 @@ milliseconds per sample, end to end (arguments in, results out, the device synch
 for Warp on CUDA the device's own kernel time per sample in one batch (Warp's CUDA activity
 timer), torch batches also back to back (32 calls, one synchronization: what a loop feeding
 the device waits) and the pinned copy bound of the bytes a sample moves (:func:`copy_bound_ms`).
+Scenes with 8/16-bit output also time the pinned batch with ``codes=True`` (the codes made on
+the device, into pinned uint8/uint16 ``out=`` arrays) beside the bound of the bytes it moves.
 
 With an older gpu_blur on ``PYTHONPATH`` (no ``Synthesizer``) only ``synthesize`` is timed,
 so one script compares commits. On the GPU machine, from the repository root::
@@ -20,6 +22,7 @@ so one script compares commits. On the GPU machine, from the repository root::
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import platform
 import statistics
@@ -179,6 +182,18 @@ def main(argv=None) -> int:
                              first.blurred[0].nbytes + first.sharp[0].nbytes)
                     row["bytes_in_out"] = moved
                     row.update(copy_bound_ms(backend, *moved))
+                if scene.output.bits and "codes" in inspect.signature(synth).parameters:
+                    code = np.uint8 if scene.output.bits == 8 else np.uint16
+                    out = [synth.pinned(first.blurred.shape, code) for _ in range(2)]
+                    row["batch_pinned_codes_ms"] = median_ms(
+                        lambda s=synth, g=held, o=out: s(g["batch"], mask=g.get("mask"), out=o,
+                                                         codes=True),
+                        args.batch, args.runs, sync)
+                    if cuda:  # the same rates, a quarter (a half) of the bytes out
+                        up = row["bytes_in_out"][0] / row["h2d_gb_s"] / 1e6
+                        down = 2 * out[0][0].nbytes / row["d2h_gb_s"] / 1e6
+                        row["bound_serial_codes_ms"] = up + down
+                        row["bound_duplex_codes_ms"] = max(up, down)
             if "torch" in paths and cuda and torch is not None and torch.cuda.is_available():
                 on_gpu = {k: torch.from_numpy(v).cuda() for k, v in given.items()}
                 row["batch_torch_cuda_ms"] = median_ms(
@@ -191,7 +206,8 @@ def main(argv=None) -> int:
         rows.append(row)
         print(json.dumps(row), flush=True)
     keys = ("synthesize_ms", "batch_numpy_ms", "batch_pinned_ms", "bound_serial_ms",
-            "bound_duplex_ms", "batch_torch_cuda_ms", "batch_torch_cuda_back_to_back_ms",
+            "bound_duplex_ms", "batch_pinned_codes_ms", "bound_serial_codes_ms",
+            "bound_duplex_codes_ms", "batch_torch_cuda_ms", "batch_torch_cuda_back_to_back_ms",
             "kernels_ms")
     print(f"\n{backend.device} (ms per sample, end to end; kernels: device time)")
     print(f"{'scene':<12}{'size':>10}" + "".join(f"{k[:-3]:>31}" for k in keys))

@@ -221,7 +221,8 @@ class Batch:
         blurred: B x H' x W' x 3 realistic blurred images in [0, 1], RGB, of the input's
             array type and device (B x 3 x H' x W' with ``channels_first``); H', W': the
             input's size less ``output.crop`` on each side (and an odd last row or column
-            for the RAW round trip). float32 in host memory; on a device, the compute type.
+            for the RAW round trip). float32 in host memory; on a device, the compute type;
+            with ``codes=True`` the output's uint8 or uint16 codes.
         sharp: the sharp references, the same way.
         mask: the blurred saturation masks with ``with_mask=True``, else None.
         raw: with ``with_raw=True``, B x H' x W' float32 host array (numpy): the noisy
@@ -360,10 +361,10 @@ class Synthesizer:
         """One sample from :func:`synthesize`'s ``inputs`` (arrays or paths)."""
         start, before = time.perf_counter(), current().snapshot()
         scene = self.scene
-        if codes and (scene.output.bits not in (8, 16) or on_device):
-            raise ValueError(f"codes=True returns the output's 8- or 16-bit codes on the host; "
-                             f"this scene has output.bits = {scene.output.bits} (0 keeps float "
-                             "values)" + (" and on_device=True" if on_device else ""))
+        if codes and on_device:
+            raise ValueError("codes=True returns the output's 8- or 16-bit codes on the host; "
+                             "leave out on_device=True")
+        self._check_codes(codes)
         if on_device and (self.schedule.tile is not None or self.schedule.verify
                           or scene.output.crop or not self.runner.device_arrays
                           or scene.output.jpeg_quality is not None):
@@ -408,6 +409,13 @@ class Synthesizer:
                          since(before, time.perf_counter() - start), tiles, checked, crop,
                          self.runner.model, raw, self._raw_info(params))
 
+    def _check_codes(self, codes: bool) -> None:
+        """Refuse ``codes=True`` for a scene without 8- or 16-bit output."""
+        if codes and self.scene.output.bits not in (8, 16):
+            raise ValueError(f"codes=True returns the output's 8- or 16-bit codes; this scene has "
+                             f"output.bits = {self.scene.output.bits} (0 keeps float values): "
+                             "set output.bits = 8 or 16, or leave codes out")
+
     def _raw_info(self, params: dict) -> dict | None:
         """A sample's :func:`gpu_blur.outputs.raw_metadata` with ``with_raw``, else None."""
         return (raw_metadata(params, self.camera, self.scene.output.crop) if self.with_raw
@@ -427,7 +435,8 @@ class Synthesizer:
 
     # -- a batch -----------------------------------------------------------------------------
     def __call__(self, batch, *, mask=None, sharp=None, first_index: int = 0,
-                 indices: Sequence[int] | None = None, out: Sequence | None = None) -> Batch:
+                 indices: Sequence[int] | None = None, out: Sequence | None = None,
+                 codes: bool = False) -> Batch:
         """Synthesize a batch; sample b has sample index ``first_index + b``.
 
         Args:
@@ -441,9 +450,14 @@ class Synthesizer:
             indices: each sample's index instead (B of them, any order: a shuffled
                 DataLoader's), for ``first_index``.
             out: numpy batches: arrays to write the results into, (blurred, sharp) or
-                (blurred, sharp, mask) as ``with_mask`` asks, float32, each of the result's
-                shape (B x H' x W' x 3, or B x 3 x H' x W' with ``channels_first``). Reusing
-                them spares allocating (and page-faulting) fresh outputs for every batch.
+                (blurred, sharp, mask) as ``with_mask`` asks, float32 (blurred and sharp in
+                the codes' dtype with ``codes``), each of the result's shape (B x H' x W' x 3,
+                or B x 3 x H' x W' with ``channels_first``). Reusing them spares allocating
+                (and page-faulting) fresh outputs for every batch.
+            codes: blurred and sharp as the output's integer codes, uint8 (``output.bits``
+                8) or uint16 (16), ``to_integers`` of the float results; on a kernel backend
+                made on the device (a quarter or half of the float32 bytes to fetch), after
+                the JPEG stage on the host. The mask stays float32.
 
         Returns:
             A :class:`Batch`; sample b equals ``synthesize`` with ``sample_index =
@@ -454,6 +468,7 @@ class Synthesizer:
                 and the input; nothing is returned for the batch.
         """
         start, before = time.perf_counter(), current().snapshot()
+        self._check_codes(codes)
         if isinstance(batch, (list, tuple)):
             raise ValueError("a batch is one array (B x H x W x 3, or B x F x H x W x 3 for "
                              "frames), every sample of one size: stack same-size samples "
@@ -471,13 +486,19 @@ class Synthesizer:
         elif len(indices) != count:
             raise ValueError(f"indices: {len(indices)} sample indices for a batch of {count}; "
                              "give one per sample")
-        out_given = out
+        # codes made on the device, or from the float results here (JPEG stage, host batches)
+        device_codes = codes and self.resident and self.scene.output.jpeg_quality is None
+        bits = self.scene.output.bits if device_codes else 0
+        out_given, given = out, (None if codes and not device_codes else out)
         if self.resident:
-            out, params, plans, raws = self._resident_batch(items, indices, batch, lib, out)
+            out, params, plans, raws = self._resident_batch(items, indices, batch, lib, given,
+                                                            bits)
         else:
             items, _ = self._prepared(items)
-            out, params, plans, raws = self._host_batch(items, indices, batch, lib, out)
+            out, params, plans, raws = self._host_batch(items, indices, batch, lib, given)
         _jpeg_stage(out[0], plans, params)  # channels-last, as the backend wrote them
+        if codes and not device_codes:
+            out = self._codes_here(out, lib, out_given)
         if caller is not None:  # the caller's next work waits for these results, not the host
             self.runner.hand_to(caller)
         out = ([self._returned(o, lib, batch) for o in out] if out_given is None
@@ -490,8 +511,11 @@ class Synthesizer:
                      since(before, time.perf_counter() - start), raw,
                      [self._raw_info(p) for p in params] if self.with_raw else None)
 
-    def _resident_batch(self, items: list[_Inputs], indices, batch, lib: str, given):
+    def _resident_batch(self, items: list[_Inputs], indices, batch, lib: str, given,
+                        bits: int = 0):
         """A batch put on the device: its passes batched, its outputs exported once each.
+
+        ``bits`` 8 or 16: blurred and sharp leave as their codes, made on the device.
 
         A batch of 8/16-bit codes in this backend's pinned memory (:meth:`pinned`), of at least
         :data:`STREAMED_BYTES` a sample, goes in parts of :data:`STREAMED_SAMPLES`, each
@@ -516,7 +540,8 @@ class Synthesizer:
                     and pinned_owner(batch) is runner and all(map(_codes_only, items))
                     and batch.nbytes >= STREAMED_BYTES * count)
         step = STREAMED_SAMPLES if streamed else count
-        # a batch on the device gets the result buffers themselves (new ones each batch)
+        # a batch on the device gets the result buffers themselves (new ones each batch), or
+        # their codes (new arrays: the buffers are kept)
         handed = given is None and step == count and self._reaches(batch, lib)
         clip_test = self.scene.saturation.mode == "auto"
         out, params, plans = None, [], []
@@ -524,20 +549,23 @@ class Synthesizer:
             for start in range(0, count, step):
                 part, check = self._prepared(items[start:start + step], clip_test_later=True)
                 done = self._run_resident(part, indices[start:start + step], reuse=True,
-                                          fresh_results=handed, as_clipped=clip_test)
+                                          fresh_results=handed and not bits,
+                                          as_clipped=clip_test)
                 check()
                 if clip_test:
                     self._unclipped(done, part)
                 params += done.params
                 plans += done.plans
                 if handed:
-                    out = self._handed_over(done, batch, lib)
+                    out = self._handed_over(done, batch, lib, bits)
                     continue
                 if out is None:
+                    code = code_dtype(bits) if bits else np.float32
                     out = self._outputs(count, done.out, batch, lib,
-                                        3 if self.with_mask else 2, given)
+                                        [code, code, np.float32][:3 if self.with_mask else 2],
+                                        given)
                 self._export_resident(done, out if step == count else
-                                      [o[start:start + len(part)] for o in out])
+                                      [o[start:start + len(part)] for o in out], bits)
             if not handed:
                 with timer("kernels"):
                     runner.wait()
@@ -557,11 +585,14 @@ class Synthesizer:
                 done.plans[b] = self._plan(False, *done.size, None)
                 done.params[b] = {k: v for k, v in done.params[b].items() if k != "alpha"}
 
-    def _export_resident(self, done: _Resident, out: list) -> None:
-        """A resident batch's results into ``out`` (blurred, sharp[, mask]), one per sample."""
+    def _export_resident(self, done: _Resident, out: list, bits: int = 0) -> None:
+        """A resident batch's results into ``out`` (blurred, sharp[, mask]), one per sample.
+
+        ``bits`` 8 or 16: blurred and sharp as their codes, made on the device.
+        """
         shape = (done.out.h, done.out.w, 3)
-        self._export_slots(out[0], done.blurred, shape)
-        self._export_slots(out[1], done.sharp, shape)
+        self._export_slots(out[0], done.blurred, shape, bits)
+        self._export_slots(out[1], done.sharp, shape, bits)
         if self.with_mask:
             self._export_masks(done, out[2])
 
@@ -572,16 +603,17 @@ class Synthesizer:
             self.runner.export(self.runner.slot_image(done.mask, b, (*done.size, 3)), masked,
                                into[b])
 
-    def _handed_over(self, done: _Resident, batch, lib: str) -> list:
+    def _handed_over(self, done: _Resident, batch, lib: str, bits: int = 0) -> list:
         """A device batch's outputs: its blurred and sharp slots as they are, and its masks.
 
-        Nothing is copied but the masks (cropped into a new array).
+        Nothing is copied but the masks (cropped into a new array). ``bits`` 8 or 16: the
+        slots' codes instead, made on the device.
         """
         runner, shape = self.runner, (done.out.h, done.out.w, 3)
-        out = [runner.device_array(runner.stacked(slots, shape))
+        out = [runner.device_array(self._coded(runner.stacked(slots, shape), bits))
                for slots in (done.blurred, done.sharp)]
         if self.with_mask:
-            out += self._outputs(done.blurred.count, done.out, batch, lib, 1)
+            out += self._outputs(done.blurred.count, done.out, batch, lib, [np.float32])
             self._export_masks(done, out[2])
         return out
 
@@ -601,15 +633,41 @@ class Synthesizer:
             if self.with_mask:
                 results.append((sat_mask, _inner(sat_mask.shape, crop)))
             if out is None:
-                out = self._outputs(len(items), results[0][1], batch, lib, len(results), given)
+                out = self._outputs(len(items), results[0][1], batch, lib,
+                                    [np.float32] * len(results), given)
             self._export(out, b, results)
         return out, params, plans, raws
 
-    def _export_slots(self, into, slots: Slots, shape) -> None:
-        """Every sample's slot of a batch buffer into ``into`` (B x ``shape``), in one copy."""
+    def _export_slots(self, into, slots: Slots, shape, bits: int = 0) -> None:
+        """Every sample's slot of a batch buffer into ``into`` (B x ``shape``), in one copy.
+
+        ``bits`` 8 or 16: their codes, made on the device.
+        """
         # a B x h x w x 3 stack's "region": every sample, every row
-        self.runner.export(self.runner.stacked(slots, shape), Region.whole(slots.count, shape[0]),
-                           into)
+        self.runner.export(self._coded(self.runner.stacked(slots, shape), bits),
+                           Region.whole(slots.count, shape[0]), into)
+
+    def _coded(self, values: OnDevice, bits: int) -> OnDevice:
+        """Device values as their ``bits``-bit codes on the device (0: as they are)."""
+        return self.runner.to_codes(values, bits) if bits else values
+
+    def _codes_here(self, out: list, lib: str, given) -> list:
+        """A batch's float blurred and sharp as their codes, made on the host.
+
+        After the JPEG stage, and for batches run from host memory; into ``out=``'s arrays
+        (checked here), else new ones. The mask as it is.
+        """
+        bits = self.scene.output.bits
+        host = [x if isinstance(x, np.ndarray) else x.numpy() for x in out]
+        made = [to_integers(x, bits) for x in host[:2]] + host[2:]
+        if given is None:
+            return made
+        code = code_dtype(bits)
+        views = self._given_outputs(given, made[0].shape, lib,
+                                    [code, code, np.float32][:len(made)])
+        for view, x in zip(views, made, strict=True):
+            np.copyto(view, x)
+        return views
 
     @contextlib.contextmanager
     def _queued(self):
@@ -631,21 +689,25 @@ class Synthesizer:
             else:
                 np.copyto(slot[b], region.of(np.asarray(values)), casting="same_kind")
 
-    def _outputs(self, count: int, region: Region, batch, lib: str, n: int,
+    def _outputs(self, count: int, region: Region, batch, lib: str, dtypes: list,
                  given: Sequence | None = None) -> list:
-        """The batch's output arrays: ``out=``'s (channels-last views), else new ones."""
+        """The batch's output arrays, one per dtype: ``out=``'s (channels-last views), else new.
+
+        On the device (Warp) in the compute type, where the batch lies there.
+        """
         shape = (count, region.h, region.w, 3)
         if given is not None:
-            return self._given_outputs(given, shape, lib, n)
+            return self._given_outputs(given, shape, lib, dtypes)
         if self._reaches(batch, lib):
             import warp as wp
 
             return [wp.empty(shape, dtype=self.runner.real, device=self.runner.wp_device)
-                    for _ in range(n)]
-        return [np.empty(shape, np.float32) for _ in range(n)]
+                    for _ in dtypes]
+        return [np.empty(shape, dtype) for dtype in dtypes]
 
-    def _given_outputs(self, given: Sequence, shape: tuple, lib: str, n: int) -> list:
+    def _given_outputs(self, given: Sequence, shape: tuple, lib: str, dtypes: list) -> list:
         """``out=``'s arrays checked against the results they take, as channels-last views."""
+        n = len(dtypes)
         names = ("blurred", "sharp", "mask")[:n]
         if lib != "numpy":
             raise ValueError(f"out= is for numpy batches (the results are {lib} arrays made "
@@ -655,14 +717,14 @@ class Synthesizer:
                              + ("" if self.with_mask else "; with_mask=True adds the mask"))
         want = (shape[0], 3, *shape[1:3]) if self.channels_first else shape
         views = []
-        for name, array in zip(names, given, strict=True):
-            if (not isinstance(array, np.ndarray) or array.dtype != np.float32
+        for name, array, dtype in zip(names, given, dtypes, strict=True):
+            if (not isinstance(array, np.ndarray) or array.dtype != dtype
                     or array.shape != want or not array.flags.writeable):
                 got = (f"a {type(array).__name__}" if not isinstance(array, np.ndarray) else
                        f"{array.dtype} {array.shape}"
                        + ("" if array.flags.writeable else ", read-only"))
-                raise ValueError(f"out= {name}: needs a writeable float32 numpy array of "
-                                 f"shape {want}; got {got}")
+                raise ValueError(f"out= {name}: needs a writeable {np.dtype(dtype).name} numpy "
+                                 f"array of shape {want}; got {got}")
             views.append(np.moveaxis(array, 1, -1) if self.channels_first else array)
         return views
 

@@ -92,6 +92,86 @@ def test_codes_are_the_integers_of_the_float_results(spec, output):
         assert np.array_equal(getattr(codes, key), want), key
 
 
+@pytest.mark.parametrize("spec", BACKEND_SPECS)
+@pytest.mark.parametrize("output", [{"bits": 8}, {"bits": 16},
+                                    {"bits": 8, "jpeg_quality": [60, 90]}])
+def test_a_batchs_codes_equal_synthesizes_codes_sample_by_sample(spec, output):
+    # made on the device for the whole batch where it runs there, after the JPEG stage on
+    # the host; the mask stays float32
+    name, precision = spec_parts(spec)
+    scene = scene_for("kernel", precision=precision, **output)
+    photos = batch_for("kernel", 3, np.random.default_rng(22))["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend=name, seed=6, with_mask=True)
+    got = synth(photos, first_index=4, codes=True)
+    floats = synth(photos, first_index=4)
+    assert got.mask.dtype == np.float32 and np.array_equal(got.mask, floats.mask)
+    for b in range(3):
+        one = gpu_blur.synthesize(photos[b], scene, seed=6, sample_index=4 + b, backend=name,
+                                  codes=True)
+        for key in ("blurred", "sharp"):
+            assert getattr(got, key).dtype == getattr(one, key).dtype
+            assert np.array_equal(getattr(got, key)[b], getattr(one, key)), (b, key)
+
+
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+@pytest.mark.parametrize("streamed", [False, True])
+def test_codes_go_into_out_arrays_in_pinned_memory_without_staging(spec, streamed,
+                                                                   monkeypatch):
+    # uint8 out= arrays in the backend's pinned memory take the codes straight from the
+    # device, in parts when the batch streams; plain arrays the same codes through staging
+    import gpu_blur.pipeline
+
+    if streamed:
+        monkeypatch.setattr(gpu_blur.pipeline, "STREAMED_BYTES", 0)
+    name, precision = spec_parts(spec)
+    scene = scene_for("average", precision=precision, bits=8)
+    frames = batch_for("average", 6, np.random.default_rng(23))["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend=name, seed=2)
+    plain = synth(frames, codes=True)
+    held = synth.pinned(frames.shape, np.uint8)
+    held[...] = frames
+    out = [synth.pinned(plain.blurred.shape, np.uint8) for _ in range(2)]
+    seen = []  # OpenCL: staging buffers asked for; Warp: host arrays copied into directly
+    spied = "_host_view" if name.startswith("warp") else "_staging_buffer"
+    real = getattr(synth.runner, spied)
+    monkeypatch.setattr(synth.runner, spied, lambda x, *a: seen.append(x) or real(x, *a))
+    got = synth(held, out=out, codes=True)
+    assert got.blurred is out[0] and got.sharp is out[1]
+    assert np.array_equal(out[0], plain.blurred) and np.array_equal(out[1], plain.sharp)
+    if spied == "_host_view":
+        copied = {x.ctypes.data for x in seen}
+        step = gpu_blur.pipeline.STREAMED_SAMPLES if streamed else 6  # each part's start
+        assert all(o[b].ctypes.data in copied for o in out for b in range(0, 6, step))
+    else:
+        assert seen == []
+    mine = [np.zeros_like(plain.blurred) for _ in range(2)]
+    synth(frames, out=mine, codes=True)
+    assert np.array_equal(mine[0], plain.blurred) and np.array_equal(mine[1], plain.sharp)
+
+
+@pytest.mark.parametrize("name", ["warp:cpu", "opencl", "numpy"])
+def test_codes_of_a_torch_batch_come_back_as_torch_codes(name):
+    scene = scene_for("kernel", precision="float32", bits=16)
+    photos = batch_for("kernel", 2, np.random.default_rng(24))["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend=name, seed=1, channels_first=True)
+    first = np.ascontiguousarray(photos.transpose(0, 3, 1, 2))
+    plain = synth(first, codes=True)
+    got = synth(torch.from_numpy(first), codes=True)
+    assert got.blurred.dtype == torch.uint16 and got.blurred.shape == plain.blurred.shape
+    assert np.array_equal(got.blurred.numpy(), plain.blurred)
+    assert np.array_equal(got.sharp.numpy(), plain.sharp)
+
+
+def test_a_batchs_codes_need_8_or_16_bits_and_out_arrays_of_their_dtype():
+    photos = batch_for("kernel", 2, np.random.default_rng(25))["batch"]
+    with pytest.raises(ValueError, match=r"codes=True .* output.bits = 0"):
+        gpu_blur.Synthesizer(scene_for("kernel", bits=0), backend="numpy")(photos, codes=True)
+    synth = gpu_blur.Synthesizer(scene_for("kernel", bits=8), backend="warp:cpu")
+    shape = synth(photos).blurred.shape
+    with pytest.raises(ValueError, match=re.escape("out= blurred: needs a writeable uint8")):
+        synth(photos, out=[np.zeros(shape, np.float32)] * 2, codes=True)
+
+
 def test_codes_need_an_output_of_8_or_16_bits():
     photo = batch_for("kernel", 1, np.random.default_rng(19))["batch"][0]
     with pytest.raises(ValueError, match=r"codes=True .* output.bits = 0"):

@@ -498,7 +498,8 @@ class OpenCLBackend(KernelBackend):
         :meth:`put`); the copy waits for the launches queued before it.
         """
         count = int(np.prod(values.shape))
-        if self._direct(into, self.np_real) and into.size == count:  # into pinned(): no staging
+        direct = self._direct(into, values.dtype or self.np_real)  # pinned(): no staging
+        if direct and into.size == count:
             with timer("copies"):  # unless every pass waits, the batch's caller waits
                 cl.enqueue_copy(self.queue, into, values.data, is_blocking=self.sync_passes)
             return None

@@ -616,7 +616,7 @@ class WarpBackend(KernelBackend):
             with timer("copies"):
                 wp.copy(into, part)
             return None
-        direct = self._direct(into, self.np_real) and into.size == part.size
+        direct = self._direct(into, values.dtype or self.np_real) and into.size == part.size
         if not (self.overlap or direct):
             return super().export(values, region, into)
         with timer("copies"):
