@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import io
+import math
 import os
 import re
 import struct
@@ -11,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from gpu_blur import limits
 from gpu_blur.reference.output import code_dtype, to_integers
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -202,12 +205,83 @@ def _jpeg_scan(data: bytes, pos: int, interval: int,
     return ff, None
 
 
-def _decode(path: Path, where: str, fix: str) -> np.ndarray:
+def _header_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a PNG, JPEG, TIFF or BMP file's header, without decoding it.
+
+    None for another format (WebP, PNM, JPEG 2000, OpenEXR, ...: OpenCV reads them, and only
+    the decoded image is checked) or a header too damaged to read (:func:`_damage` or OpenCV
+    says why).
+    """
+    if data.startswith(_PNG_SIGNATURE):  # IHDR is the first chunk (PNG spec, 11.2.2)
+        if data[12:16] != b"IHDR" or len(data) < 24:
+            return None
+        return struct.unpack(">II", data[16:24])
+    if data.startswith(b"\xff\xd8"):
+        return _jpeg_size(data)
+    if data[:4] in (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+"):  # TIFF, BigTIFF
+        import tifffile
+
+        try:  # the first page, the one OpenCV decodes; its IFD only
+            with tifffile.TiffFile(io.BytesIO(data)) as tif:
+                page = tif.pages.first
+                return int(page.imagewidth), int(page.imagelength)
+        except Exception:  # a damaged header raises many kinds: OpenCV decides
+            return None
+    if data.startswith(b"BM") and len(data) >= 26:  # BITMAPCOREHEADER (12 bytes) or later
+        if int.from_bytes(data[14:18], "little") == 12:
+            return struct.unpack("<HH", data[18:22])
+        width, height = struct.unpack("<ii", data[18:26])  # height < 0: stored top-down
+        return abs(width), abs(height)
+    return None
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) of a JPEG's first frame header (T.81, B.2.2), or None if none is found.
+
+    Segments are skipped by their lengths up to the first SOF marker, so a thumbnail inside an
+    APP segment is not taken for the image; the structure is checked later (:func:`_damage`).
+    """
+    pos = 2
+    while pos + 4 <= len(data) and data[pos] == 0xFF:
+        marker = data[pos + 1]
+        if marker == 0xFF:  # a fill byte
+            pos += 1
+        elif marker == 0x01 or 0xD0 <= marker <= 0xD7:  # TEM, RSTn: no length
+            pos += 2
+        elif marker in _JPEG_SOF:
+            if pos + 9 > len(data):
+                return None
+            height, width = struct.unpack(">HH", data[pos + 5:pos + 9])
+            return width, height
+        elif marker in (0xD9, 0xDA):  # end of image or a scan before any frame header
+            return None
+        else:
+            pos += 2 + int.from_bytes(data[pos + 2:pos + 4], "big")
+    return None
+
+
+def _too_many_pixels(width: int, height: int) -> str | None:
+    """Why an image of ``width`` x ``height`` is refused (:func:`gpu_blur.limits.max_pixels`)."""
+    most, pixels = limits.max_pixels(), width * height
+    if pixels <= most:
+        return None
+    memory = f", {3 * pixels / 1e9:.1f} GB decoded at least" if pixels >= 10**8 else ""
+    return (f"is {width} x {height} pixels ({pixels:,}{memory}), more than the {most:,} an "
+            f"image may hold; scale it down or crop it, or raise the limit with the "
+            f"environment variable {limits.MAX_PIXELS_VARIABLE}={pixels}")
+
+
+def _decode(path: Path, where: str, fix: str,
+            refuse: Callable[[int, int], str | None] = _too_many_pixels) -> np.ndarray:
     """An image file decoded by OpenCV as stored (IMREAD_UNCHANGED), after :func:`_damage`.
 
+    Its width and height are checked with ``refuse`` first, from the header where
+    :func:`_header_size` reads it (before anything is decoded, so a small file that claims a
+    huge image costs no memory), else on the decoded image.
+
     Raises:
-        ValueError: ``where``, what is wrong (unreadable, empty, damaged, not an image), then
-            ``fix``.
+        ValueError: ``where``, what is wrong (unreadable, empty, too large, damaged, not an
+            image), then ``fix`` (a size has its own: what ``refuse`` says).
     """
     try:
         data = path.read_bytes()
@@ -216,6 +290,10 @@ def _decode(path: Path, where: str, fix: str) -> np.ndarray:
                          f"{fix}") from None
     if not data:
         raise ValueError(f"{where}: the file is empty (0 bytes){fix}")
+    size = _header_size(data)
+    problem = refuse(*size) if size else None
+    if problem:
+        raise ValueError(f"{where}: {problem}")
     problem = _damage(data)
     if problem:
         raise ValueError(f"{where}: {problem}{fix}")
@@ -226,6 +304,9 @@ def _decode(path: Path, where: str, fix: str) -> np.ndarray:
     if image is None:
         raise ValueError(f"{where}: not a readable image (corrupt, truncated or a format OpenCV "
                          f"does not read){fix}")
+    problem = None if size else refuse(image.shape[1], image.shape[0])
+    if problem:
+        raise ValueError(f"{where}: {problem}")
     return image
 
 
@@ -241,9 +322,13 @@ def read_image(path: str | Path) -> np.ndarray:
       pixel that is not is refused: the colour behind it is undefined, and gpu_blur does not
       guess a background. Flatten such images onto a background first.
 
+    Images above :func:`gpu_blur.limits.max_pixels` (2^28 pixels unless
+    ``GPU_BLUR_MAX_PIXELS`` says otherwise) are refused, for PNG, JPEG, TIFF and BMP from the
+    header before decoding.
+
     Raises:
-        ValueError: naming the file and the way out when it is missing, empty, truncated,
-            corrupt, not an image, or has transparent pixels.
+        ValueError: naming the file and the way out when it is missing, empty, too large,
+            truncated, corrupt, not an image, or has transparent pixels.
     """
     path = Path(path)
     if not path.is_file():
@@ -430,8 +515,10 @@ def write_text(path: str | Path, text: str,
 def read_kernel(path: str | Path) -> np.ndarray:
     """A blur kernel from ``.npy`` (2-D floats) or a grayscale image (PNG, ...), as float64.
 
-    The kernel is checked (odd sides, finite, non-negative, positive sum) but not normalized
-    here; the blur stage normalizes it to sum 1.
+    The kernel is checked (odd sides up to :data:`gpu_blur.limits.KERNEL_SIDE`, finite,
+    non-negative, positive sum) but not normalized here; the blur stage normalizes it to sum
+    1. Its size is checked from the header before it is loaded (:func:`_read_npy`,
+    :func:`_decode`).
 
     Raises:
         ValueError: naming the file (as ``blur.kernel = ...``) and what is wrong with it.
@@ -442,13 +529,9 @@ def read_kernel(path: str | Path) -> np.ndarray:
         raise ValueError(f"{where}: no such file (a relative path is taken from the scene "
                          "file's folder)")
     if path.suffix.lower() == ".npy":
-        try:
-            kernel = np.load(path, allow_pickle=False)
-        except (ValueError, OSError, EOFError) as e:
-            raise ValueError(f"{where}: not a numpy array file ({e}); save the kernel with "
-                             "np.save") from None
+        kernel = _read_npy(path, where)
     else:
-        kernel = _decode(path, where, "")
+        kernel = _decode(path, where, "", lambda width, height: _kernel_too_wide(height, width))
     try:
         kernel = np.asarray(kernel, dtype=np.float64)
     except (TypeError, ValueError):
@@ -457,18 +540,71 @@ def read_kernel(path: str | Path) -> np.ndarray:
     return kernel
 
 
+def _read_npy(path: Path, where: str) -> np.ndarray:
+    """A kernel's ``.npy`` file, after its header's shape and dtype are checked.
+
+    The header (format 1.0 or 2.0, what ``np.save`` writes for numbers) is read first, and a
+    shape :func:`check_kernel` refuses, or one whose data does not fit in the file, is
+    refused before any array is made: ``np.load`` makes the array the header asks for.
+    """
+    from numpy.lib import format as npy
+
+    way_out = "save the kernel with np.save"
+    try:
+        with path.open("rb") as f:
+            version = npy.read_magic(f)
+            if version not in ((1, 0), (2, 0)):
+                raise ValueError(f"format version {version[0]}.{version[1]}, not 1.0 or 2.0")
+            read_header = npy.read_array_header_1_0 if version == (1, 0) \
+                else npy.read_array_header_2_0
+            shape, _, dtype = read_header(f)
+            start = f.tell()
+    except (ValueError, OSError, EOFError) as e:
+        raise ValueError(f"{where}: not a numpy array file ({e}); {way_out}") from None
+    if dtype.hasobject:
+        raise ValueError(f"{where}: holds Python objects ({dtype}), which are not loaded; "
+                         f"{way_out} from a float array")
+    _check_kernel_shape(shape, where)
+    need, have = math.prod(shape) * dtype.itemsize, path.stat().st_size - start
+    if need > have:
+        raise ValueError(f"{where}: its header gives a {shape[0]} x {shape[1]} array of {dtype} "
+                         f"({need:,} bytes) but {have:,} bytes follow it: the file is "
+                         f"truncated or its header damaged; {way_out} again")
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as e:
+        raise ValueError(f"{where}: not a numpy array file ({e}); {way_out}") from None
+
+
+def _kernel_too_wide(rows: int, cols: int) -> str | None:
+    """Why a kernel of ``rows`` x ``cols`` is too large (limits.KERNEL_SIDE), or None."""
+    problem = limits.KERNEL_SIDE.problem(max(rows, cols))
+    if problem is None:
+        return None
+    return (f"is {rows} x {cols}; allowed sides: {problem}: crop it to the rows and columns "
+            "that hold its weight, or scale it down with the images it blurs")
+
+
+def _check_kernel_shape(shape: tuple[int, ...], where: str) -> None:
+    """Refuse a kernel shape: not 2-D, a side above limits.KERNEL_SIDE, or an even side."""
+    if len(shape) != 2:
+        raise ValueError(f"{where}: a kernel is 2-D (one channel), got shape {shape}")
+    problem = _kernel_too_wide(*shape)
+    if problem:
+        raise ValueError(f"{where}: {problem}")
+    if shape[0] % 2 == 0 or shape[1] % 2 == 0:
+        raise ValueError(f"{where}: is {shape[0]} x {shape[1]}; a kernel needs odd "
+                         "sides (its centre is the origin): pad it with a row or column of "
+                         "zeros where the blur should not move")
+
+
 def check_kernel(kernel: np.ndarray, where: str) -> None:
     """Refuse what :func:`gpu_blur.reference.motion_kernel.normalize_kernel` cannot normalize.
 
     Raises:
         ValueError: starting with ``where``, saying what is wrong and the way out.
     """
-    if kernel.ndim != 2:
-        raise ValueError(f"{where}: a kernel is 2-D (one channel), got shape {kernel.shape}")
-    if kernel.shape[0] % 2 == 0 or kernel.shape[1] % 2 == 0:
-        raise ValueError(f"{where}: is {kernel.shape[0]} x {kernel.shape[1]}; a kernel needs odd "
-                         "sides (its centre is the origin): pad it with a row or column of "
-                         "zeros where the blur should not move")
+    _check_kernel_shape(kernel.shape, where)
     bad = int(np.count_nonzero(~np.isfinite(kernel)))
     if bad:
         raise ValueError(f"{where}: holds {bad} NaN or infinite weight(s); kernel weights must "

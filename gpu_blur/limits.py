@@ -4,7 +4,8 @@ Scene keys (:data:`gpu_blur.scene.FIELDS`), camera files (:func:`gpu_blur.camera
 and overrides of drawn values (:func:`gpu_blur.params.draw_params`) check a number with
 :meth:`Limit.problem` against the constants below, so a value is refused in the same words
 wherever it is given: the caller names the file and the key, the limit says what is allowed
-and why.
+and why. Input files are bounded here too: an image's pixels (:func:`max_pixels`) and a given
+kernel's sides (:data:`KERNEL_SIDE`), both read from the file's header before it is decoded.
 
 Every number must be finite. The ranges are physical, with a margin (a white-balance gain of
 1e30 is no camera), and chosen so that float32 kernels stay within the tolerance table of the
@@ -40,6 +41,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import os
 
 from gpu_blur.reference.shake import SHAKE_AUTO_STEPS_RANGE, SHAKE_ROLL_MAX_DEG
 
@@ -116,6 +118,16 @@ ROLL = Limit(0, SHAKE_ROLL_MAX_DEG, reason="degrees of camera roll; the shake mo
 KERNEL_SIZE = Limit(1, 255, integer=True, reason=(
     "pixels across a random motion kernel, a read per pixel and tap: 255 x 255 is 65,025 "
     "taps; GoPro_U used 5 to 29"))
+#: A side of a given kernel (a blur.kernel file, or an override), about twice KERNEL_SIZE's:
+#: measured camera-shake kernels span tens of pixels (Levin et al. 2009: 13 to 27; GoPro_U's
+#: random ones 5 to 29), while 511 pixels is 27 % of a 1920 x 1200 RSBlur frame's width and
+#: 71 % of a GoPro frame's 720 rows, the largest images gpu_blur makes from the data sets: a
+#: wider kernel is not camera shake for those. Checked on a .npy file's header and an image's
+#: before they are loaded (gpu_blur.imageio.read_kernel).
+KERNEL_SIDE = Limit(1, 511, integer=True, reason=(
+    "pixels a side of a given kernel, a read per pixel and tap: 511 x 511 is 261,121 taps; "
+    "measured camera-shake kernels span tens of pixels, 511 is a quarter of a 1920-pixel "
+    "frame"))
 # -- saturation and noise -----------------------------------------------------------------------
 ALPHA = Limit(0, 100, reason=(
     "highlight boost: alpha x mask is added before clipping to 1, so alpha >= 1 already clips "
@@ -162,3 +174,41 @@ LIN2CAM_LARGEST = Limit(0, 2.0, reason=(
 CAM2LIN_LARGEST = Limit(0, 8.0, reason=(
     "the largest linear value Cam2Lin gives a [0, 1] camera colour; the presets' is at most "
     "2.2"))
+# -- input files --------------------------------------------------------------------------------
+#: The environment variable that replaces :data:`MAX_PIXELS` (see :func:`max_pixels`).
+MAX_PIXELS_VARIABLE = "GPU_BLUR_MAX_PIXELS"
+#: The most pixels (width x height) an image file may hold by default: 2^28, 268 MP. It is
+#: read from the file's header before anything is decoded (gpu_blur.imageio.read_image), as
+#: a PNG of one colour is a few hundred KB at 12000 x 12000 and decoding takes at least 3 bytes
+#: a pixel (8-bit RGB; 6 for 16 bits, 12 for float TIFFs), then 24 as float64: 0.8 GB and
+#: 6.4 GB at 2^28. One frame of the largest camera sensors is about 150 MP; the data sets
+#: gpu_blur reads are at most 1920 x 1200, the largest image of the tests and benchmarks
+#: 5000 x 5000. Raise it with GPU_BLUR_MAX_PIXELS for larger images (e.g. stitched
+#: panoramas); OpenCV's own limit, 2^30 (its OPENCV_IO_MAX_IMAGE_PIXELS), applies after it.
+MAX_PIXELS = 2**28
+IMAGE_PIXELS = Limit(1, integer=True, reason=(
+    "pixels (width x height) an image file may hold, read from its header before decoding"))
+
+
+def max_pixels() -> int:
+    """The pixel budget of an image file: ``GPU_BLUR_MAX_PIXELS`` when set, else MAX_PIXELS.
+
+    The variable is read at each call, so it may be set after import.
+
+    Raises:
+        ValueError: naming the variable and its value when it is not a whole number >= 1.
+    """
+    text = os.environ.get(MAX_PIXELS_VARIABLE, "").strip()
+    if not text:
+        return MAX_PIXELS
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    problem = IMAGE_PIXELS.problem(text if value is None else value)
+    if problem:
+        raise ValueError(
+            f"environment variable {MAX_PIXELS_VARIABLE} = {text!r} is invalid; allowed: "
+            f"{problem}; set it to a number of pixels such as {2 * MAX_PIXELS} (2^29), or "
+            f"unset it for the default, {MAX_PIXELS} (2^28)")
+    return value

@@ -5,14 +5,17 @@ Small images and the numpy backend throughout: what is checked is the refusal, n
 
 import json
 import os
+import struct
+import zlib
 
 import cv2
 import numpy as np
 import pytest
+import simplejpeg
 
 import gpu_blur
 from gpu_blur.cli import main
-from gpu_blur.imageio import read_image
+from gpu_blur.imageio import check_kernel, read_image, read_kernel
 from gpu_blur.scene import SceneError, load_scene, scene_from_dict
 
 
@@ -93,6 +96,66 @@ def test_empty_files_and_non_images_are_refused(tmp_path, content, message):
     assert str(path) in str(e.value)
     with pytest.raises(ValueError, match=f"{tmp_path / 'none.png'}: no such file"):
         read_image(tmp_path / "none.png")
+
+
+def claim_size(data, fmt, width, height):
+    """A small image file's bytes with its header doctored to say ``width`` x ``height``."""
+    data = bytearray(data)
+    if fmt == "png":  # IHDR, then its CRC again (libpng checks it)
+        struct.pack_into(">II", data, 16, width, height)
+        struct.pack_into(">I", data, 29, zlib.crc32(bytes(data[12:29])))
+    elif fmt == "jpg":  # the baseline frame header OpenCV writes
+        struct.pack_into(">HH", data, data.find(b"\xff\xc0") + 5, height, width)
+    elif fmt == "bmp":
+        struct.pack_into("<ii", data, 18, width, height)
+    else:  # TIFF: the ImageWidth (256) and ImageLength (257) entries of the IFD, SHORT or LONG
+        for tag, value in ((256, width), (257, height)):
+            at = [data.find(struct.pack("<HHI", tag, kind, 1)) for kind in (3, 4)]
+            pos, kind = max(at), 3 if at[0] >= 0 else 4
+            struct.pack_into("<H" if kind == 3 else "<I", data, pos + 8, value)
+    return bytes(data)
+
+
+@pytest.mark.parametrize("fmt", ["png", "jpg", "tiff", "bmp"])
+def test_a_small_file_claiming_a_huge_image_is_refused_before_decoding(tmp_path, monkeypatch,
+                                                                       fmt):
+    monkeypatch.delenv("GPU_BLUR_MAX_PIXELS", raising=False)
+    path = save(tmp_path / f"bomb.{fmt}", random_rgb())
+    path.write_bytes(claim_size(path.read_bytes(), fmt, 40000, 40000))
+
+    def decoded(*args, **kwargs):
+        raise AssertionError("decoded before its size was checked")
+
+    monkeypatch.setattr(cv2, "imdecode", decoded)
+    monkeypatch.setattr(simplejpeg, "decode_jpeg", decoded)  # _damage's strict decode
+    with pytest.raises(ValueError) as e:
+        read_image(path)
+    message = str(e.value)
+    assert message.startswith(f"{path}: is 40000 x 40000 pixels (1,600,000,000, 4.8 GB ")
+    assert "more than the 268,435,456 an image may hold; scale it down or crop it" in message
+    assert message.endswith("GPU_BLUR_MAX_PIXELS=1600000000")
+
+
+@pytest.mark.parametrize("fmt", ["png", "jpg", "tiff", "bmp", "webp"])
+def test_gpu_blur_max_pixels_sets_the_pixel_budget(tmp_path, monkeypatch, fmt):
+    path = save(tmp_path / f"small.{fmt}", random_rgb())  # 32 x 24: 768 pixels
+    monkeypatch.setenv("GPU_BLUR_MAX_PIXELS", "767")
+    with pytest.raises(ValueError, match=r"is 32 x 24 pixels \(768\), more than the 767 .*"
+                                         "GPU_BLUR_MAX_PIXELS=768$") as e:
+        read_image(path)
+    assert str(e.value).startswith(f"{path}: ")
+    monkeypatch.setenv("GPU_BLUR_MAX_PIXELS", "768")
+    assert read_image(path).shape == (24, 32, 3)
+
+
+@pytest.mark.parametrize("value", ["lots", "0", "1e9"])
+def test_a_bad_gpu_blur_max_pixels_is_refused_naming_it(tmp_path, monkeypatch, value):
+    path = save(tmp_path / "small.png", random_rgb())
+    monkeypatch.setenv("GPU_BLUR_MAX_PIXELS", value)
+    with pytest.raises(ValueError, match=f"environment variable GPU_BLUR_MAX_PIXELS = "
+                                         f"'{value}' is invalid; allowed: int >= 1 .*set it to "
+                                         "a number of pixels"):
+        read_image(path)
 
 
 def test_grayscale_is_expanded_to_three_equal_channels(tmp_path):
@@ -239,6 +302,44 @@ def test_a_bad_kernel_file_is_named(tmp_path, capsys, kernel, message):
     err = capsys.readouterr().err
     assert f"scene file {scene_file}: blur.kernel" in err and message in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("suffix", [".npy", ".png"])
+def test_a_kernel_wider_than_the_kernel_side_limit_is_refused(tmp_path, suffix):
+    path = tmp_path / f"wide{suffix}"
+    kernel = np.zeros((3, 513), np.uint8)
+    kernel[1, 256] = 255
+    np.save(path, kernel) if suffix == ".npy" else save(path, kernel)
+    with pytest.raises(ValueError) as e:
+        read_kernel(path)
+    assert str(e.value) == (
+        f"blur.kernel = '{path}': is 3 x 513; allowed sides: int <= 511 (pixels a side of a "
+        "given kernel, a read per pixel and tap: 511 x 511 is 261,121 taps; measured "
+        "camera-shake kernels span tens of pixels, 511 is a quarter of a 1920-pixel frame): "
+        "crop it to the rows and columns that hold its weight, or scale it down with the "
+        "images it blurs")
+    with pytest.raises(ValueError, match=r"overrides\['kernel'\]: is 3 x 513; allowed sides"):
+        check_kernel(kernel.astype(float), "overrides['kernel']")
+    np.save(path.with_suffix(".npy"), kernel[:, 1:-1])  # 511 wide: read
+    assert read_kernel(path.with_suffix(".npy")).shape == (3, 511)
+
+
+@pytest.mark.parametrize("shape, version, message", [
+    ((60001, 60001), "1_0", "is 60001 x 60001; allowed sides: int <= 511"),
+    ((501, 501), "2_0", "its header gives a 501 x 501 array of float64 (2,008,008 bytes) but "
+                        "64 bytes follow it: the file is truncated or its header damaged; save "
+                        "the kernel with np.save again"),
+], ids=["too-wide", "more-than-the-file"])
+def test_an_npy_kernel_is_refused_from_its_header_before_loading(tmp_path, shape, version,
+                                                                  message):
+    path = tmp_path / "claims.npy"
+    with path.open("wb") as f:
+        header = {"descr": "<f8", "fortran_order": False, "shape": shape}
+        getattr(np.lib.format, f"write_array_header_{version}")(f, header)
+        f.write(bytes(64))
+    with pytest.raises(ValueError) as e:
+        read_kernel(path)
+    assert str(e.value).startswith(f"blur.kernel = '{path}': {message}")
 
 
 def test_a_bad_kernel_override_is_named():
