@@ -355,11 +355,15 @@ def read_datalist(path: Path, root: Path) -> list[BlurredSample]:
     """The pairs of a datalist as the RSBlur authors ship them (``datalist/*.txt``).
 
     One ``<sharp> <blurred>`` line each, paths relative to ``root``; named by the blurred path
-    without its suffix. A pair whose file is missing has ``problem`` set.
+    without its suffix. A pair whose file is missing has ``problem`` set. Each path must lie
+    inside ``root`` once resolved: a list must not read files elsewhere (an absolute path, a
+    ``..`` out of ``root``, or a link under ``root`` that points out of it).
 
     Raises:
-        ValueError: naming the file and line when a line is not two paths.
+        ValueError: naming the file and line when a line is not two paths, or a path lies
+            outside ``root``.
     """
+    inside = root.resolve()
     pairs = []
     for number, line in enumerate(Path(path).read_text().splitlines(), 1):
         fields = line.split()
@@ -369,6 +373,18 @@ def read_datalist(path: Path, root: Path) -> list[BlurredSample]:
             raise ValueError(f"{path}, line {number}: {len(fields)} field(s) in {line!r}; a "
                              "datalist line is '<sharp path> <blurred path>', relative to the "
                              "data folder")
+        for field in fields:
+            try:
+                resolved = (root / field).resolve()
+                leads = None if resolved.is_relative_to(inside) else f"to {resolved}"
+            except (OSError, RuntimeError):
+                leads = "through a loop of links"
+            if leads:
+                raise ValueError(
+                    f"{path}, line {number}: {field} leads outside the data folder {inside} "
+                    f"({leads}); datalist paths are relative to the data folder and stay in "
+                    "it: fix the line, or pass the folder that holds the files as the data "
+                    "folder")
         sharp, blurred = root / fields[0], root / fields[1]
         missing = [str(p) for p in (blurred, sharp) if not p.is_file()]
         problem = (f"{path}, line {number}: {' and '.join(missing)} not found (paths are "

@@ -142,6 +142,27 @@ def test_bad_folders_settings_and_files_are_refused_naming_them(trees, tmp_path)
         RealBlurPairs(trees, trees / "RealBlur_J_test_list.txt")
 
 
+@pytest.mark.parametrize("way", ["dot-dot", "absolute", "link"])
+def test_datalist_paths_outside_the_data_folder_are_refused_naming_the_line(trees, way):
+    root, outside = trees / "RealBlur_J", trees / "GoPro_U" / "target_img" / "1_x_kernel_5_gt.png"
+    if way == "link":
+        (root / "elsewhere").symlink_to(outside.parent)
+    path = {"dot-dot": "../GoPro_U/target_img/1_x_kernel_5_gt.png", "absolute": str(outside),
+            "link": "elsewhere/1_x_kernel_5_gt.png"}[way]
+    datalist = trees / "list.txt"
+    datalist.write_text("scene001/../scene001/gt/gt_10.png scene001/blur/blur_10.png\n"
+                        f"{path} scene001/blur/blur_2.png\n")
+    with pytest.raises(ValueError) as e:
+        RealBlurPairs(root, datalist)
+    assert str(e.value) == (
+        f"{datalist}, line 2: {path} leads outside the data folder {root.resolve()} (to "
+        f"{outside.resolve()}); "
+        "datalist paths are relative to the data folder and stay in it: fix the line, or pass "
+        "the folder that holds the files as the data folder")
+    datalist.write_text("scene001/../scene001/gt/gt_10.png scene001/blur/blur_10.png\n")
+    assert len(RealBlurPairs(root, datalist)) == 1  # a '..' that stays inside is read
+
+
 def test_the_module_needs_no_torch():
     code = ("import sys, gpu_blur.datasets; "
             "assert 'torch' not in sys.modules, 'torch was imported'")
