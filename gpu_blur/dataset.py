@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import itertools
 import json
 import math
 import os
 import re
+import stat
 import zipfile
 from collections.abc import Callable, Iterator
 from importlib import resources
@@ -15,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.imageio import temporary_path, write_image, write_text
+from gpu_blur.imageio import open_new, temporary_path, write_image, write_new, write_text
 from gpu_blur.locking import take_lock
 from gpu_blur.outputs import write_dng, write_mask
 from gpu_blur.params import ARRAY_PARAMS
@@ -36,13 +38,17 @@ PATHS = ("blurred", "sharp", "arrays", "mask", "raw")
 #: What ``gpu-blur generate --save`` may add to each pair: the saturation mask (16-bit PNG in
 #: ``mask/``) and the noisy Bayer mosaic before demosaicing (16-bit DNG in ``raw/``).
 EXTRAS = ("mask", "raw")
-_SAMPLE_FILE = re.compile(r"\d{6,}_.*\.(png|tiff|npz|dng)")
+_SAMPLE_FILE = re.compile(r"\d{6,}_.*\.(png|tiff|npz|dng)", re.DOTALL)
 _PROBE = "gpu_blur_write_test"
 #: Temporary files (:func:`gpu_blur.imageio.temporary_path`) a killed run may leave in the set's
 #: folders: ``.<final name>[.<pid>].part[.<suffix>]`` of a sample file, the manifest, run.json
 #: or the write probe (names before the pid was added included). Nothing else is removed.
 _TEMPORARY = re.compile(rf"\.(\d{{6,}}.*|{re.escape(MANIFEST)}|{re.escape(RUN)}|{_PROBE})"
-                        r"(\.\d+)?\.part(\.[a-z]+)?")
+                        r"(\.\d+)?\.part(\.[a-z]+)?", re.DOTALL)
+#: The most bytes (UTF-8) of a sample's name its file names keep (``NNNNNN_<name>``): with
+#: the index, the temporary name's dots, pid and suffixes, a name stays under the 255 bytes a
+#: file name may have; a longer name keeps its first bytes and a hash of the whole.
+NAME_BYTES = 180
 #: run.json keys a resumed run must share with the set it finishes, with what sets each:
 #: everything that decides a sample's inputs, draws or pixels (not --tile or --limit). "files"
 #: holds the sha256 of each file the scene names (camera.name, blur.kernel), "device" the
@@ -574,18 +580,31 @@ def _plain(value):
     return json.loads(json.dumps(value, default=_jsonable))
 
 
+def _whole(path: Path, size) -> bool:
+    """Whether ``path`` is a regular file (not a link) of ``size`` bytes (None: not empty)."""
+    try:
+        info = path.lstat()
+    except OSError:
+        return False
+    return stat.S_ISREG(info.st_mode) and (
+        info.st_size == size if type(size) is int else info.st_size > 0)
+
+
 def save_arrays(path: Path, arrays: dict) -> None:
     """``np.savez`` with fixed zip timestamps, so equal arrays give equal bytes.
 
     The file appears complete or not at all (written to a temporary name, then renamed).
     """
     tmp = temporary_path(path)
-    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as z:
-        for name, value in arrays.items():
-            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-            with z.open(info, "w", force_zip64=True) as f:
-                np.lib.format.write_array(f, np.asarray(value), allow_pickle=False)
-    tmp.replace(path)
+    try:
+        with open_new(tmp) as file, zipfile.ZipFile(file, "w", zipfile.ZIP_STORED) as z:
+            for name, value in arrays.items():
+                info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+                with z.open(info, "w", force_zip64=True) as f:
+                    np.lib.format.write_array(f, np.asarray(value), allow_pickle=False)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def library_versions(backend: str) -> dict[str, str]:
@@ -655,14 +674,18 @@ class DatasetWriter:
       killed run (their naming only).
 
     Three ways to open a folder: a new set (refused if the folder holds a manifest, run.json
-    or sample files), ``overwrite`` (remove the old set's manifest, run.json and sample files,
-    then start again), or ``resume``: finish the set a previous run started. Resuming checks
-    that ``run`` matches the folder's ``run.json`` in every key of :data:`RESUME_KEYS`
-    (options, device, library versions, camera and kernel file contents) and that each
-    finished sample's index still names the same inputs, keeps the finished samples
-    (``done``; their files are not touched), and drops the other lines: failed samples (to
-    be tried again), a line torn by a kill, and any line it cannot verify (an index that is
-    not an int in ``[0, total)``, files not named as this writer names them, or missing).
+    or sample files), ``overwrite`` (remove the old set's sample files, then its manifest and
+    run.json, then start again), or ``resume``: finish the set a previous run started.
+    Sample files with neither a manifest nor run.json beside them are no set gpu-blur made:
+    refused in every way, never removed. Resuming checks that ``run`` matches the folder's
+    ``run.json`` in every key of :data:`RESUME_KEYS` (options, device, library versions,
+    camera and kernel file contents) and that each finished sample's index still names the
+    same inputs, keeps the finished samples (``done``; their files are not touched), and drops
+    the other lines: failed samples (to be tried again), a line torn by a kill, and any line
+    it cannot verify (an index that is not an int in ``[0, total)``, files not named as this
+    writer names them, missing, or not of the sizes the line records). A missing or
+    unreadable manifest, or one damaged before its last line, is refused while sample files
+    are there: resuming would remove finished samples.
 
     Args:
         out: the set's folder (created if needed).
@@ -712,6 +735,11 @@ class DatasetWriter:
         if files:
             held = [sub for sub in SUBFOLDERS if any(p.parent.name == sub for p in files)]
             found.append(f"{len(files)} sample file(s) in {', '.join(held)}")
+        if files and not (self.manifest_path.exists() or (out / RUN).exists()):
+            raise ValueError(f"--output {out}: {found[-1]} named like a set's, but no "
+                             f"{MANIFEST} or {RUN}: not a set gpu-blur made, so nothing there "
+                             "is replaced or removed; move those files out, or choose another "
+                             "--output")
         if found and not (overwrite or resume):
             raise ValueError(f"--output {out} holds a set already ({'; '.join(found)}); choose "
                              "another --output, pass --resume to finish that set (retrying "
@@ -719,19 +747,19 @@ class DatasetWriter:
         kept = None
         if resume and found:
             self._check_run(run or {})
-            kept = self._read_manifest(total)
+            kept = self._read_manifest(total, bool(files))
             self._check_inputs(specs or [])
         # nothing is changed above this line
         self._make_folders()
-        if kept is None:  # a new set: first forget the old one, so no state lists lost files
-            self.manifest_path.unlink(missing_ok=True)
-            (out / RUN).unlink(missing_ok=True)
-        else:
+        if kept is not None:
             write_text(self.manifest_path, "".join(kept))
         listed = {out / line[k] for line in self.done.values() for k in PATHS if k in line}
         for path in files:
             if path not in listed:
                 path.unlink()  # of the set replaced, or of a sample not finished
+        if kept is None:  # a new set: its files are gone, now the state that listed them
+            self.manifest_path.unlink(missing_ok=True)
+            (out / RUN).unlink(missing_ok=True)
         for folder in (out, *(out / sub for sub in SUBFOLDERS)):
             for entry in folder.iterdir() if folder.is_dir() else ():
                 if _TEMPORARY.fullmatch(entry.name) and not entry.is_dir():
@@ -800,9 +828,7 @@ class DatasetWriter:
             for sub in ("blur", "sharp"):
                 (self.out / sub).mkdir(exist_ok=True)
             for folder in (self.out, self.out / "blur", self.out / "sharp"):
-                probe = temporary_path(folder / _PROBE)
-                probe.write_bytes(b"")
-                probe.unlink()
+                write_new(temporary_path(folder / _PROBE), b"").unlink()
         except OSError as e:
             raise self._unwritable(e) from None
 
@@ -832,21 +858,42 @@ class DatasetWriter:
                     "device, library versions, camera and kernel files), or start a new set "
                     "with --overwrite or another --output")
 
-    def _read_manifest(self, total: int | None) -> list[str]:
-        """The manifest lines to keep (finished samples whose files exist), filling ``done``.
+    def _read_manifest(self, total: int | None, files: bool) -> list[str]:
+        """The manifest lines to keep (finished samples whose files are whole), filling ``done``.
 
         A line is trusted only as far as it is checked: its index an int in ``[0, total)``,
         its name and inputs strings, and its files exactly the names :meth:`write` gives that
-        index and name, present as regular files (not links). Other lines are dropped (their
+        index and name, present as regular files (not links) of the sizes the line records
+        (not empty, for lines written before sizes were). Other lines are dropped (their
         samples made again), so no path in a manifest is ever read or removed.
+
+        Raises:
+            ValueError: with sample files there (``files``), a manifest that is missing or
+                unreadable, or holds a line that is not JSON before its last (a kill cuts
+                only the last): resuming would remove finished samples.
         """
+        fix = ("restore it, or start the set again with --overwrite (which removes its "
+               "samples), or use another --output")
         if not self.manifest_path.is_file():
+            if files:
+                raise ValueError(f"--resume: {self.manifest_path} is missing, so which of the "
+                                 f"sample files in {self.out} are finished is unknown; {fix}")
             return []
+        try:
+            texts = self.manifest_path.read_text(errors="replace").splitlines(keepends=True)
+        except OSError as e:
+            raise ValueError(f"--resume: cannot read {self.manifest_path} ({e.strerror or e}); "
+                             f"{fix}") from None
         kept = []
-        for text in self.manifest_path.read_text(errors="replace").splitlines(keepends=True):
+        for number, text in enumerate(texts, 1):
             try:
                 line = json.loads(text)
             except ValueError:
+                if number < len(texts) and files:
+                    raise ValueError(f"--resume: {self.manifest_path}, line {number}, is not "
+                                     "JSON: the manifest is damaged (a kill cuts only its last "
+                                     f"line), and its samples would be made again; {fix}"
+                                     ) from None
                 line = None  # cut by a kill: that sample is made again
             if not (isinstance(line, dict) and type(line.get("index")) is int
                     and 0 <= line["index"] < (total if total is not None else math.inf)
@@ -859,17 +906,26 @@ class DatasetWriter:
                 continue
             paths = self._paths(line["index"], line["name"])
             keys = [k for k in PATHS if k in line]
+            sizes = line.get("bytes") if isinstance(line.get("bytes"), dict) else {}
             if line["index"] in self.done or keys[:2] != ["blurred", "sharp"] or any(
-                    line[k] != paths[k] or (self.out / paths[k]).is_symlink()
-                    or not (self.out / paths[k]).is_file() for k in keys):
-                continue  # a repeat, files named otherwise, or files gone: made again
+                    line[k] != paths[k] or not _whole(self.out / paths[k], sizes.get(k))
+                    for k in keys):
+                continue  # a repeat, files named otherwise, gone or cut: made again
             self.done[line["index"]] = line
             kept.append(text if text.endswith("\n") else text + "\n")
         return kept
 
     def _paths(self, index: int, name: str) -> dict[str, str]:
-        """The files of sample ``index`` named ``name``, relative to the set's folder."""
-        stem = f"{index:06d}_{name.replace('/', '_')}"
+        """The files of sample ``index`` named ``name``, relative to the set's folder.
+
+        ``NNNNNN_<name>`` with ``/`` as ``_``; a name of more than :data:`NAME_BYTES` bytes
+        keeps its first bytes and the first 16 hex digits of its sha256.
+        """
+        flat = name.replace("/", "_")
+        if len(flat.encode()) > NAME_BYTES:
+            digest = hashlib.sha256(flat.encode()).hexdigest()[:16]
+            flat = flat.encode()[:NAME_BYTES - 17].decode(errors="ignore") + "~" + digest
+        stem = f"{index:06d}_{flat}"
         ext = ".png" if self.bits else ".tiff"
         return {"blurred": f"blur/{stem}{ext}", "sharp": f"sharp/{stem}{ext}",
                 "arrays": f"params/{stem}.npz", "mask": f"mask/{stem}.png",
@@ -962,6 +1018,8 @@ class DatasetWriter:
             write_dng(self.out / paths["raw"], result.raw, result.raw_info)
             line["raw"] = paths["raw"]
             line["raw_info"] = result.raw_info
+        # what a resume checks the files against (a file cut by a crash is made again)
+        line["bytes"] = {k: (self.out / line[k]).stat().st_size for k in PATHS if k in line}
         return line
 
     def add(self, line: dict) -> dict:

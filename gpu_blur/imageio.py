@@ -456,9 +456,31 @@ def temporary_path(path: Path) -> Path:
     """Where ``path`` is written before it is renamed into place.
 
     ``.<name>.<pid>.part<suffix>`` beside it: the process id keeps two processes apart, the
-    suffix keeps the format.
+    suffix keeps the format. Open it with :func:`open_new`.
     """
     return path.with_name(f".{path.name}.{os.getpid()}.part{path.suffix}")
+
+
+def open_new(path: Path):
+    """``path`` opened for writing (binary) as a new regular file of its folder.
+
+    Whatever is there is removed first (a file a killed run left, or a link someone put
+    there: the link itself, not what it points to); then ``O_EXCL | O_NOFOLLOW`` make sure
+    the bytes land in a file made here, never through a link onto another file.
+
+    Raises:
+        OSError: the file cannot be made (also when something appears there in between).
+    """
+    path.unlink(missing_ok=True)
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+    return os.fdopen(os.open(path, flags, 0o666), "wb")
+
+
+def write_new(path: Path, data: bytes) -> Path:
+    """``data`` as the new file ``path`` (:func:`open_new`); returns ``path``."""
+    with open_new(path) as f:
+        f.write(data)
+    return path
 
 
 def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
@@ -466,8 +488,8 @@ def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
 
     ``image`` may also be its codes already (:func:`to_integers`: uint8 for 8 bits, uint16
     for 16), as a worker process sends them (:func:`gpu_blur.generate.for_driver`).
-    The file appears complete or not at all (written to a temporary name, then renamed; the
-    temporary file is removed on failure).
+    The file appears complete or not at all (encoded, written to a new temporary file, then
+    renamed; the temporary file is removed on failure).
     """
     path = Path(path)
     tmp = temporary_path(path)
@@ -478,13 +500,15 @@ def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
     else:
         data = to_integers(image, bits)[:, :, ::-1]
     try:
+        encoded, ok = None, False
         try:
-            written = cv2.imwrite(str(tmp), np.ascontiguousarray(data))
+            ok, encoded = cv2.imencode(".tiff" if bits == 0 else ".png",
+                                       np.ascontiguousarray(data))
         except cv2.error:
-            written = False
-        if not written:
-            raise OSError(f"{path}: could not write the image")
-        tmp.replace(path)
+            pass
+        if not ok:
+            raise OSError(f"{path}: could not encode the image")
+        write_new(tmp, encoded.tobytes()).replace(path)
     finally:
         tmp.unlink(missing_ok=True)
 
@@ -502,7 +526,7 @@ def write_text(path: str | Path, text: str,
     path = Path(path)
     tmp = temporary_path(path)
     try:
-        tmp.write_text(text)
+        write_new(tmp, text.encode())
         if check is not None:
             check(tmp)
         tmp.replace(path)

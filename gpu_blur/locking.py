@@ -6,6 +6,7 @@ import errno
 import fcntl
 import os
 import socket
+import stat
 import time
 from pathlib import Path
 
@@ -26,11 +27,29 @@ def take_lock(path: Path, what: str, fix: str) -> int:
         what: what the lock guards, for the message (``--output out``).
         fix: the way out, for the message.
 
+    The file is opened without following a link, and must be a regular file with no other
+    name (no hard link): the holder's line is written into it, so it must not be a way onto
+    another file.
+
     Raises:
         LockHeld: another process holds it, naming that process, then ``fix``.
-        OSError: the lock file cannot be created or locked.
+        OSError: the lock file cannot be created or locked, or is a link, not a regular
+            file, or has other names.
     """
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    flags = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags, 0o644)
+    except OSError as e:
+        if e.errno != errno.ELOOP:
+            raise
+        raise OSError(errno.ELOOP, "the lock file is a symbolic link, which gpu-blur does "
+                      "not write through; remove it", str(path)) from None
+    info = os.fstat(fd)
+    if not stat.S_ISREG(info.st_mode) or info.st_nlink != 1:
+        os.close(fd)
+        kind = "a hard link" if stat.S_ISREG(info.st_mode) else "not a regular file"
+        raise OSError(errno.EPERM, f"the lock file is {kind}, which gpu-blur does not write "
+                      "into; remove it", str(path))
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError as e:

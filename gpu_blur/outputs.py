@@ -8,6 +8,7 @@ are; the sharp reference is left as it is (a training target without JPEG artefa
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import cv2
@@ -109,7 +110,7 @@ def write_dng(path, raw: np.ndarray, info: dict) -> None:
     import tifffile
 
     from gpu_blur.constants import XYZ_TO_SRGB
-    from gpu_blur.imageio import temporary_path
+    from gpu_blur.imageio import temporary_path, write_new
 
     gains = np.asarray(info["wb_gains"], np.float64)
     lin2cam = np.linalg.inv(np.asarray(info["camera_to_linear"], np.float64))
@@ -131,10 +132,11 @@ def write_dng(path, raw: np.ndarray, info: dict) -> None:
     ]
     path = Path(path)
     tmp = temporary_path(path)
+    encoded = io.BytesIO()
+    tifffile.imwrite(encoded, raw_codes(raw, info), photometric="cfa", extratags=tags,
+                     subfiletype=0)
     try:
-        tifffile.imwrite(tmp, raw_codes(raw, info), photometric="cfa", extratags=tags,
-                         subfiletype=0)
-        tmp.replace(path)
+        write_new(tmp, encoded.getvalue()).replace(path)
     finally:
         tmp.unlink(missing_ok=True)
 

@@ -6,6 +6,7 @@ write fails or the run is stopped.
 Small images and the numpy backend throughout.
 """
 
+import errno
 import os
 import re
 import threading
@@ -128,16 +129,16 @@ def test_a_failing_write_stops_the_run_and_loses_nothing(tmp_path, photos, monke
     reference = tmp_path / "reference"
     assert main(args(folder, scene, reference, "--samples-per-photo", "4")) == 0
     expected = (reference / "manifest.jsonl").read_text().splitlines(keepends=True)
-    imwrite = cv2.imwrite
+    write_new = gpu_blur.imageio.write_new
 
-    def encoder_fails_on_sample_3(name, image, *rest):
-        if os.path.basename(name).startswith(".000003_"):
-            with open(name, "wb") as f:  # half an image under the temporary name
-                f.write(b"\x89PNG half")
-            return False
-        return imwrite(name, image, *rest)
+    def write_fails_on_sample_3(path, data):
+        if path.name.startswith(".000003_"):
+            with open(path, "wb") as f:  # half an image under the temporary name
+                f.write(data[:len(data) // 2])
+            raise OSError(errno.EIO, os.strerror(errno.EIO), str(path))
+        return write_new(path, data)
 
-    monkeypatch.setattr(gpu_blur.imageio.cv2, "imwrite", encoder_fails_on_sample_3)
+    monkeypatch.setattr(gpu_blur.imageio, "write_new", write_fails_on_sample_3)
     out = tmp_path / "out"
     run = args(folder, scene, out, "--samples-per-photo", "4", "--io-threads", threads)
     assert main(run) == 2

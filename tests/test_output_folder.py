@@ -9,11 +9,11 @@ import subprocess
 import sys
 import time
 
-import cv2
 import numpy as np
 import pytest
 from conftest import files, manifest_lines
 
+import gpu_blur.imageio
 from gpu_blur import dataset
 from gpu_blur.cli import main
 from gpu_blur.dataset import DatasetWriter, SampleSpec
@@ -58,12 +58,32 @@ def test_a_second_run_on_a_folder_being_written_stops_at_once_naming_the_holder(
 
 def test_temporary_names_hold_the_process_id(tmp_path, monkeypatch):
     written = []
-    real = cv2.imwrite
-    monkeypatch.setattr(cv2, "imwrite", lambda name, data: written.append(name)
-                        or real(name, data))
+    real = gpu_blur.imageio.write_new
+    monkeypatch.setattr(gpu_blur.imageio, "write_new", lambda path, data: written.append(path)
+                        or real(path, data))
     write_image(tmp_path / "x.png", np.zeros((2, 2, 3)), 8)
-    assert written == [str(tmp_path / f".x.png.{os.getpid()}.part.png")]
+    assert written == [tmp_path / f".x.png.{os.getpid()}.part.png"]
     assert [p.name for p in tmp_path.iterdir()] == ["x.png"]
+
+
+@pytest.mark.parametrize("write", [
+    lambda path: write_image(path, np.zeros((2, 2, 3)), 8),
+    lambda path: gpu_blur.imageio.write_text(path, "{}"),
+    lambda path: dataset.save_arrays(path, {"kernel": np.ones((3, 3))}),
+], ids=["image", "text", "arrays"])
+def test_a_link_planted_at_a_temporary_name_is_not_written_through(tmp_path, write):
+    # someone who can write the output folder links the temporary name to another file: the
+    # link is replaced by a new file, and the other file keeps its contents
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    out = tmp_path / "out"
+    out.mkdir()
+    final = out / "x.png"
+    gpu_blur.imageio.temporary_path(final).symlink_to(victim)
+    write(final)
+    assert victim.read_text() == "precious"
+    assert final.is_file() and not final.is_symlink()
+    assert sorted(p.name for p in out.iterdir()) == ["x.png"]
 
 
 def test_resume_removes_only_temporary_files_of_its_own_naming(tmp_path, photos):
@@ -117,17 +137,21 @@ def test_files_gpu_blur_did_not_write_in_the_sets_folders_are_never_removed(
     assert files(out) == {**before, "blur/notes.txt": b"mine", "sharp/holiday.png": b"mine"}
 
 
-def test_a_folder_with_sample_files_but_no_manifest_needs_resume_or_overwrite(
-        tmp_path, photos, capsys):
+@pytest.mark.parametrize("flag", [[], ["--overwrite"], ["--resume"]])
+def test_sample_files_without_a_manifest_or_run_json_are_neither_replaced_nor_removed(
+        tmp_path, photos, capsys, flag):
+    # files named like a set's, with nothing saying gpu-blur made them (a user's own files,
+    # or a set whose records are gone): refused whatever the flag, and left as they are
     out = tmp_path / "out"
     assert main(args(photos, out)) == 0
     (out / "manifest.jsonl").unlink()
     (out / "run.json").unlink()
-    assert main(args(photos, out)) == 2
+    before = files(out)
+    assert main(args(photos, out, *flag)) == 2
     err = capsys.readouterr().err
-    assert f"--output {out} holds a set already (12 sample file(s) in blur, sharp, params)" in err
-    assert main(args(photos, out, "--overwrite", "--limit", "1")) == 0
-    assert len(list((out / "blur").iterdir())) == 1
+    assert (f"--output {out}: 12 sample file(s) in blur, sharp, params named like a set's, but "
+            "no manifest.jsonl or run.json") in err
+    assert files(out) == before
 
 
 def test_an_output_folder_inside_the_input_is_not_read_back_as_input(tmp_path, photos,
@@ -202,3 +226,39 @@ def test_manifest_lines_are_written_in_sample_order_whatever_order_samples_finis
     writer.close()
     lines = (tmp_path / "out" / "manifest.jsonl").read_text().splitlines()
     assert [json.loads(x)["index"] for x in lines] == [0, 1, 2, 3]
+
+
+@pytest.mark.parametrize("kind", ["symlink", "hardlink"])
+def test_a_lock_file_that_leads_to_another_file_is_refused_and_that_file_kept(
+        tmp_path, photos, capsys, kind):
+    out = tmp_path / "out"
+    out.mkdir()
+    precious = tmp_path / "precious.txt"
+    precious.write_text("precious")
+    if kind == "symlink":
+        (out / dataset.LOCK).symlink_to(precious)
+    else:
+        os.link(precious, out / dataset.LOCK)
+    assert main(args(photos, out)) == 2
+    assert "the lock file is " in capsys.readouterr().err
+    assert precious.read_text() == "precious"
+
+
+def test_long_and_odd_sample_names_give_file_names_a_set_can_hold(tmp_path, photos):
+    # a 240-character photo name and one with a newline: file names under 255 bytes (a hash
+    # keeps long ones apart), and the set resumes and is replaced like any other
+    folder, scene = photos
+    long_name = "p" * 236 + "_end"
+    (folder / "a.png").rename(folder / f"{long_name}.png")
+    (folder / "b.png").rename(folder / "line\nbreak.png")
+    out = tmp_path / "out"
+    run = ["generate", "--input", str(folder), "--output", str(out), "--scene", str(scene),
+           "--quiet"]
+    assert main(run) == 0
+    names = sorted(p.name for p in (out / "blur").iterdir())
+    assert len(names) == 2 and all(len(n.encode()) <= 200 for n in names)
+    assert any(n[7:].startswith("p" * 100) and "~" in n for n in names)
+    assert {x["name"] for x in manifest_lines(out)} == {long_name, "line\nbreak"}
+    assert main([*run, "--resume"]) == 0
+    assert main([*run, "--overwrite"]) == 0
+    assert sorted(p.name for p in (out / "blur").iterdir()) == names

@@ -265,3 +265,45 @@ def test_a_hand_edited_run_json_is_refused_with_a_message(tmp_path, photos, caps
     assert main(args(photos, out, "--limit", "1", "--resume")) == 2
     err = capsys.readouterr().err
     assert message in err and "with --overwrite" in err
+
+
+def test_resume_refuses_a_missing_manifest_and_removes_no_sample(tmp_path, photos, capsys):
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--limit", "3")) == 0
+    (out / "manifest.jsonl").unlink()
+    before = files(out)
+    assert main(args(photos, out, "--resume", "--limit", "1")) == 2
+    assert f"--resume: {out / 'manifest.jsonl'} is missing" in capsys.readouterr().err
+    assert files(out) == before
+
+
+def test_resume_refuses_a_manifest_damaged_before_its_last_line(tmp_path, photos, capsys):
+    # a kill cuts only the last line; a line that is not JSON before it is damage, and
+    # dropping it would remove a finished sample
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--limit", "3")) == 0
+    lines = (out / "manifest.jsonl").read_text().splitlines(keepends=True)
+    lines[1] = lines[1][:40] + "\n"
+    (out / "manifest.jsonl").write_text("".join(lines))
+    before = files(out)
+    assert main(args(photos, out, "--resume", "--limit", "3")) == 2
+    assert "manifest.jsonl, line 2, is not JSON: the manifest is damaged" in (
+        capsys.readouterr().err)
+    assert files(out) == before
+
+
+@pytest.mark.parametrize("damage", ["empty", "cut"])
+def test_resume_makes_again_a_sample_whose_file_was_cut_short(tmp_path, photos, capsys,
+                                                                damage):
+    # each line records its files' sizes: a file a crash left empty or short is made again
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--limit", "3")) == 0
+    lines = manifest_lines(out)
+    assert lines[1]["bytes"]["blurred"] == (out / lines[1]["blurred"]).stat().st_size
+    victim = out / lines[1]["sharp"]
+    data = victim.read_bytes()
+    victim.write_bytes(b"" if damage == "empty" else data[:len(data) // 2])
+    capsys.readouterr()
+    assert main(args(photos, out, "--resume", "--limit", "3")) == 0
+    assert "2 of 3 samples done, 1 to make" in capsys.readouterr().out
+    assert victim.read_bytes() == data

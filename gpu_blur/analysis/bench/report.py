@@ -8,6 +8,7 @@ from pathlib import Path
 from gpu_blur.analysis.bench.peers import BORDER_PX, KERNEL_SIZE
 from gpu_blur.analysis.bench.plot import write_plot
 from gpu_blur.analysis.bench.workload import MIN_RUNS
+from gpu_blur.imageio import write_text
 
 
 def _number(value, digits: int = 3) -> str:
@@ -132,8 +133,8 @@ def write_report(report: dict, folder: Path, tag: str) -> list[Path]:
     """Write the JSON, Markdown and PNG files of a report; returns their paths."""
     folder.mkdir(parents=True, exist_ok=True)
     paths = report_paths(folder, tag)
-    paths[0].write_text(json.dumps(report, indent=1, allow_nan=False) + "\n")
-    paths[1].write_text(markdown(report))
+    write_text(paths[0], json.dumps(report, indent=1, allow_nan=False) + "\n")
+    write_text(paths[1], markdown(report))
     size = report["size"]
     write_plot(report["rows"], paths[2], f"gpu_blur accuracy against time, {report['frames']} "
                f"frames of {size[0]} x {size[1]}, {report['cpu']}; "
