@@ -428,7 +428,7 @@ class Synthesizer:
         (:meth:`~gpu_blur.backends.kernel.KernelBackend.to_codes`).
         """
         if codes:
-            values = self.runner.to_codes(values, self.scene.output.bits)
+            values = self._coded(values, self.scene.output.bits, kept=True)
         out = np.empty((region.h, region.w, 3), dtype=values.dtype or np.float32)
         self.runner.export(values, region, out)
         return out
@@ -644,12 +644,18 @@ class Synthesizer:
         ``bits`` 8 or 16: their codes, made on the device.
         """
         # a B x h x w x 3 stack's "region": every sample, every row
-        self.runner.export(self._coded(self.runner.stacked(slots, shape), bits),
+        self.runner.export(self._coded(self.runner.stacked(slots, shape), bits, kept=True),
                            Region.whole(slots.count, shape[0]), into)
 
-    def _coded(self, values: OnDevice, bits: int) -> OnDevice:
-        """Device values as their ``bits``-bit codes on the device (0: as they are)."""
-        return self.runner.to_codes(values, bits) if bits else values
+    def _coded(self, values: OnDevice, bits: int, kept: bool = False) -> OnDevice:
+        """Device values as their ``bits``-bit codes on the device (0: as they are).
+
+        ``kept``: in the runner's kept buffer (codes fetched at once), else a new one.
+        """
+        if not bits:
+            return values
+        into = (self.runner.codes_buffer(int(np.prod(values.shape)), bits) if kept else None)
+        return self.runner.to_codes(values, bits, into)
 
     def _codes_here(self, out: list, lib: str, given) -> list:
         """A batch's float blurred and sharp as their codes, made on the host.

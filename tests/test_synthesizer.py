@@ -149,6 +149,34 @@ def test_codes_go_into_out_arrays_in_pinned_memory_without_staging(spec, streame
     assert np.array_equal(mine[0], plain.blurred) and np.array_equal(mine[1], plain.sharp)
 
 
+@pytest.mark.parametrize("name", ["warp:cpu", "opencl"])
+def test_codes_fetched_at_once_reuse_one_device_buffer(name, monkeypatch):
+    # a new device buffer for each batch's codes costs more than their download on a GPU:
+    # host-bound codes are made in a kept buffer; a device batch's codes are new arrays
+    scene = scene_for("kernel", precision="float32", bits=8)
+    photos = batch_for("kernel", 3, np.random.default_rng(26))["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend=name, seed=1)
+    buffers = []
+    to_codes = synth.runner.to_codes
+    monkeypatch.setattr(synth.runner, "to_codes",
+                        lambda values, bits, into=None: buffers.append(into)
+                        or to_codes(values, bits, into))
+    first = synth(photos, codes=True)
+    again = synth(photos, codes=True)
+    one = synth.sample(photos[0], codes=True)
+    assert len(buffers) == 6 and all(b is not None for b in buffers)
+    assert all(b is buffers[0] for b in buffers[:4])  # blurred and sharp, both batches
+    assert np.array_equal(again.blurred, first.blurred)
+    assert np.array_equal(again.sharp, first.sharp)
+    assert np.array_equal(one.blurred, first.blurred[0])
+    if name == "warp:cpu":  # a batch on the Warp device: its codes are new device arrays
+        import warp as wp
+
+        handed = synth(wp.array(photos, device="cpu"), codes=True)
+        assert buffers[6] is None and buffers[7] is None
+        assert np.array_equal(handed.blurred.numpy(), first.blurred)
+
+
 @pytest.mark.parametrize("name", ["warp:cpu", "opencl", "numpy"])
 def test_codes_of_a_torch_batch_come_back_as_torch_codes(name):
     scene = scene_for("kernel", precision="float32", bits=16)
