@@ -219,6 +219,8 @@ def _parser() -> argparse.ArgumentParser:
                    "SYNTH's geometry to warp onto REAL's grid (needs --output)")
     a.add_argument("--output", type=Path, metavar="DIR", help="folder for the warped frames "
                    "and alignment.json")
+    a.add_argument("--overwrite", action="store_true", help="replace warped frames and "
+                   "alignment.json already in --output (refused otherwise)")
     a.add_argument("--levels", type=int, default=3, help="Gaussian pyramid levels (1: full "
                    "resolution only; default 3)")
     a.add_argument("--max-iterations", type=int, default=100, metavar="N",
@@ -790,6 +792,12 @@ def _align(args) -> int:
                                                                  for f in args.frames]
         _refuse_writing_over_inputs(f"--output {args.output}", outputs, inputs,
                                     "give --output a folder that holds none of the inputs")
+        there = [str(p) for p in outputs if p.exists() or p.is_symlink()]
+        if there and not args.overwrite:
+            more = f" and {len(there) - 3} more" if len(there) > 3 else ""
+            raise ValueError(f"--output {args.output} holds {', '.join(there[:3])}{more} "
+                             "already; pass --overwrite to replace them, or choose another "
+                             "--output")
     real = _read_unit(args.real, "REAL")
     synth = _read_unit(args.synth, "SYNTH")
     result = align_ecc(real, synth, levels=args.levels, max_iterations=args.max_iterations)

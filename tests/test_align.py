@@ -208,3 +208,19 @@ def test_align_command_refuses_an_output_folder_where_it_would_overwrite_a_frame
            f"{frames[hit]} (the same file)" in err
     assert "give --output a folder that holds none of the inputs" in err
     assert {p: p.read_bytes() for p in seq.iterdir()} == before  # nothing written, no json
+
+
+def test_align_command_replaces_earlier_outputs_only_with_overwrite(tmp_path, coffee_rgb,
+                                                                     capsys):
+    small = coffee_rgb[:64, :96]
+    real = write_png(tmp_path / "real.png", small)
+    frame = write_png(tmp_path / "frame.png", small)
+    out = tmp_path / "aligned"
+    out.mkdir()
+    (out / "frame.png").write_bytes(b"someone's own file")
+    assert main(["align", real, real, frame, "--output", str(out)]) == 2
+    assert f"--output {out} holds {out / 'frame.png'} already; pass --overwrite" in (
+        capsys.readouterr().err)
+    assert (out / "frame.png").read_bytes() == b"someone's own file"
+    assert main(["align", real, real, frame, "--output", str(out), "--overwrite"]) == 0
+    assert cv2.imread(str(out / "frame.png")).shape == small.shape
