@@ -140,8 +140,10 @@ def _identity(path: Path | None) -> tuple[int, int] | None:
 def _walk(folder: Path, skip: tuple[int, int] | None) -> Iterator[tuple[Path, bool]]:
     """(path, is a folder) of every entry under ``folder``, depth first, in natural order.
 
-    The folder whose :func:`_identity` is ``skip`` is left out with all it holds. Linked
-    folders are listed but not entered, and unreadable ones skipped, as ``Path.rglob`` does.
+    The folder whose :func:`_identity` is ``skip`` is left out with all it holds, and so is
+    every folder holding a set ``gpu-blur generate`` wrote (its :data:`MANIFEST` and
+    :data:`RUN`): a set made inside the input is never read back as input. Linked folders are
+    listed but not entered, and unreadable ones skipped, as ``Path.rglob`` does.
     """
     try:
         with os.scandir(folder) as it:
@@ -150,11 +152,17 @@ def _walk(folder: Path, skip: tuple[int, int] | None) -> Iterator[tuple[Path, bo
         return
     for entry in entries:
         is_dir = entry.is_dir()
-        if is_dir and skip is not None and _identity(Path(entry.path)) == skip:
+        if is_dir and ((skip is not None and _identity(Path(entry.path)) == skip)
+                       or _holds_a_set(Path(entry.path))):
             continue
         yield Path(entry.path), is_dir
         if is_dir and not entry.is_symlink():
             yield from _walk(Path(entry.path), skip)
+
+
+def _holds_a_set(folder: Path) -> bool:
+    """Whether ``folder`` holds a set ``gpu-blur generate`` wrote (a manifest and run.json)."""
+    return (folder / MANIFEST).is_file() and (folder / RUN).is_file()
 
 
 def _images(folder: Path) -> list[Path]:

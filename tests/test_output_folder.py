@@ -165,6 +165,15 @@ def test_an_output_folder_inside_the_input_is_not_read_back_as_input(tmp_path, p
                                                              str(folder / "b.png")}
 
 
+def test_a_set_an_earlier_run_wrote_inside_the_input_is_not_read_as_input(tmp_path, photos):
+    folder, scene = photos
+    assert main(args(photos, folder / "first")) == 0
+    second = tmp_path / "second"
+    assert main(args(photos, second)) == 0
+    assert {x["inputs"][0] for x in manifest_lines(second)} == {str(folder / "a.png"),
+                                                                str(folder / "b.png")}
+
+
 @pytest.mark.parametrize("inside", [False, True])
 def test_an_input_that_is_the_output_or_inside_it_is_refused(tmp_path, photos, capsys,
                                                              inside):
