@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
+import gpu_blur.imageio
 from gpu_blur.analysis import metrics
 from gpu_blur.analysis.align import corner_displacement
 from gpu_blur.cli import main
@@ -315,12 +316,12 @@ def test_compare_json_is_written_whole_or_not_at_all(tmp_path, triple, monkeypat
     out = tmp_path / "scores.json"
     out.write_text("the scores of an earlier run\n")
 
-    def write_half(self, text, *args, **kwargs):
-        with open(self, "w") as f:
-            f.write(text[:len(text) // 2])
+    def write_half(path, data):  # a full disk: half the bytes, then the error
+        with open(path, "wb") as f:
+            f.write(data[:len(data) // 2])
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(Path, "write_text", write_half)
+    monkeypatch.setattr(gpu_blur.imageio, "write_new", write_half)
     assert main(["compare", triple["real"], triple["synth"], "--json", str(out)]) == 2
     monkeypatch.undo()
     assert out.read_text() == "the scores of an earlier run\n"
