@@ -355,6 +355,18 @@ def read_image(path: str | Path) -> np.ndarray:
     if channels != 3:
         raise ValueError(f"{path}: has {channels} channels; gpu_blur reads grayscale, RGB and "
                          "opaque RGBA images: convert it to RGB first")
+    return swap_red_blue(image)
+
+
+def swap_red_blue(image: np.ndarray) -> np.ndarray:
+    """An H x W x 3 image with its first and last channels swapped (OpenCV's BGR <-> RGB).
+
+    A new contiguous array of the same values: OpenCV's ``cvtColor`` for uint8, uint16 and
+    float32 (a permutation; about 15 times faster than copying numpy's reversed view, 0.9
+    against 16 ms for 1920 x 1200 uint8 on a 2-core VM), numpy for other dtypes.
+    """
+    if image.dtype in (np.uint8, np.uint16, np.float32):
+        return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     return np.ascontiguousarray(image[:, :, ::-1])
 
 
@@ -494,16 +506,15 @@ def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
     path = Path(path)
     tmp = temporary_path(path)
     if bits == 0:
-        data = np.asarray(image, dtype=np.float32)[:, :, ::-1]
+        data = np.asarray(image, dtype=np.float32)
     elif np.asarray(image).dtype == code_dtype(bits):
-        data = np.asarray(image)[:, :, ::-1]
+        data = np.asarray(image)
     else:
-        data = to_integers(image, bits)[:, :, ::-1]
+        data = to_integers(image, bits)
     try:
         encoded, ok = None, False
         try:
-            ok, encoded = cv2.imencode(".tiff" if bits == 0 else ".png",
-                                       np.ascontiguousarray(data))
+            ok, encoded = cv2.imencode(".tiff" if bits == 0 else ".png", swap_red_blue(data))
         except cv2.error:
             pass
         if not ok:

@@ -14,6 +14,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from gpu_blur.imageio import swap_red_blue
+
 #: float32(c / 255) for every 8-bit code c, as quantization gives them (a gather, not a divide).
 _CODE_VALUES = (np.arange(256) / 255.0).astype(np.float32)
 
@@ -31,7 +33,7 @@ def jpeg_round_trip(image: np.ndarray, quality: int) -> np.ndarray:
     """
     image = np.asarray(image)
     codes = np.rint(image * image.dtype.type(255)).astype(np.uint8)  # exact: c / 255 * 255
-    ok, data = cv2.imencode(".jpg", np.ascontiguousarray(codes[:, :, ::-1]),
+    ok, data = cv2.imencode(".jpg", swap_red_blue(codes),
                             [cv2.IMWRITE_JPEG_QUALITY, int(quality),
                              cv2.IMWRITE_JPEG_SAMPLING_FACTOR,
                              cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420])
@@ -39,7 +41,7 @@ def jpeg_round_trip(image: np.ndarray, quality: int) -> np.ndarray:
         raise ValueError(f"OpenCV could not encode a {codes.shape[1]} x {codes.shape[0]} "
                          f"image as JPEG (quality {quality})")
     decoded = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
-    return _CODE_VALUES[decoded[:, :, ::-1]]
+    return _CODE_VALUES[swap_red_blue(decoded)]
 
 
 # -- the RAW mosaic ------------------------------------------------------------------------------

@@ -8,7 +8,9 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from conftest import files, manifest_lines
@@ -271,3 +273,17 @@ def test_long_and_odd_sample_names_give_file_names_a_set_can_hold(tmp_path, phot
     assert main([*run, "--resume"]) == 0
     assert main([*run, "--overwrite"]) == 0
     assert sorted(p.name for p in (out / "blur").iterdir()) == names
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.float64])
+def test_red_and_blue_swap_as_numpys_reversed_channels_whatever_the_layout(dtype):
+    # images are read and written through OpenCV's BGR order: the swap is a permutation
+    rng = np.random.default_rng(3)
+    image = (rng.random((9, 14, 4)) * 1000).astype(dtype)
+    for view in (image[:, :, :3], image[:, ::2, 1:], np.ascontiguousarray(image[:, :, :3])):
+        got = gpu_blur.imageio.swap_red_blue(view)
+        assert got.dtype == view.dtype and got.flags.c_contiguous
+        assert np.array_equal(got, view[:, :, ::-1])
+    path = Path(gpu_blur.imageio.__file__).parent / "data" / "coffee.png"
+    rgb = gpu_blur.imageio.read_image(path)
+    assert np.array_equal(rgb, cv2.imread(str(path), cv2.IMREAD_UNCHANGED)[:, :, ::-1])
