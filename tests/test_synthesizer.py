@@ -92,6 +92,22 @@ def test_codes_are_the_integers_of_the_float_results(spec, output):
         assert np.array_equal(getattr(codes, key), want), key
 
 
+def six_stacks(spec: str, streamed: bool, monkeypatch, data_seed: int, options: dict,
+               **output):
+    """A Synthesizer of blur mode average on ``spec`` and a batch of 6 stacks of uint8 frames.
+
+    ``streamed``: any pinned batch of codes goes in parts (STREAMED_BYTES 0).
+    """
+    import gpu_blur.pipeline
+
+    if streamed:
+        monkeypatch.setattr(gpu_blur.pipeline, "STREAMED_BYTES", 0)
+    name, precision = spec_parts(spec)
+    scene = scene_for("average", precision=precision, **output)
+    frames = batch_for("average", 6, np.random.default_rng(data_seed))["batch"]
+    return gpu_blur.Synthesizer(scene, backend=name, **options), frames
+
+
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 @pytest.mark.parametrize("output", [{"bits": 8}, {"bits": 16},
                                     {"bits": 8, "jpeg_quality": [60, 90]}])
@@ -119,14 +135,8 @@ def test_codes_go_into_out_arrays_in_pinned_memory_without_staging(spec, streame
                                                                    monkeypatch):
     # uint8 out= arrays in the backend's pinned memory take the codes straight from the
     # device, in parts when the batch streams; plain arrays the same codes through staging
-    import gpu_blur.pipeline
-
-    if streamed:
-        monkeypatch.setattr(gpu_blur.pipeline, "STREAMED_BYTES", 0)
-    name, precision = spec_parts(spec)
-    scene = scene_for("average", precision=precision, bits=8)
-    frames = batch_for("average", 6, np.random.default_rng(23))["batch"]
-    synth = gpu_blur.Synthesizer(scene, backend=name, seed=2)
+    synth, frames = six_stacks(spec, streamed, monkeypatch, 23, {"seed": 2}, bits=8)
+    name = spec_parts(spec)[0]
     plain = synth(frames, codes=True)
     held = synth.pinned(frames.shape, np.uint8)
     held[...] = frames
@@ -555,14 +565,7 @@ def test_batches_and_out_arrays_in_pinned_memory_give_the_plain_batch(spec, stre
                                                                       monkeypatch):
     # Synthesizer.pinned memory is copied straight to and from the device; a batch of codes
     # in it goes in parts (STREAMED_SAMPLES) when its samples are large enough (0 here)
-    import gpu_blur.pipeline
-
-    if streamed:
-        monkeypatch.setattr(gpu_blur.pipeline, "STREAMED_BYTES", 0)
-    name, precision = spec_parts(spec)
-    scene = scene_for("average", precision=precision)
-    frames = batch_for("average", 6, np.random.default_rng(9))["batch"]
-    synth = gpu_blur.Synthesizer(scene, backend=name, seed=4, with_mask=True)
+    synth, frames = six_stacks(spec, streamed, monkeypatch, 9, {"seed": 4, "with_mask": True})
     plain = synth(frames)
     held = synth.pinned(frames.shape, np.uint8)
     held[...] = frames
