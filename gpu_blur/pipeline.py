@@ -949,8 +949,8 @@ class Synthesizer:
 
         The samples' draws come first (their per-image uniforms at once), then the accumulate
         pass writes each sample's slot of the batch's buffers; then samples of one plan (auto
-        saturation gives at most two) run to_raw and finish in one launch each, finish writing
-        the cropped output. Every buffer keeps one slot per sample.
+        saturation gives at most two, unless ``as_clipped``) run to_raw and finish in one
+        launch each, finish writing the cropped output. Every buffer keeps one slot per sample.
 
         ``reuse``: take the buffers of the last batch of this size (the caller copies every
         result out before the next batch), sparing device allocations; the Synthesizer holds
