@@ -97,6 +97,7 @@ def _jpeg_damage(data: bytes) -> str | None:
     size, pos = len(data), 2
     frame: tuple[int, int, dict[int, tuple[int, int]], int] | None = None
     interval = scans = 0
+    ffs = None
     while True:
         if pos >= size:
             return _TRUNCATED_JPEG
@@ -149,7 +150,9 @@ def _jpeg_damage(data: bytes) -> str | None:
             if not ids or any(i not in frame[2] for i in ids):
                 return f"corrupt JPEG (scan header at byte {at} is malformed)"
             scans += 1
-            pos, problem = _jpeg_scan(data, pos, interval, _jpeg_mcus(frame, ids))
+            if ffs is None:  # every 0xFF byte of the file, found once for all its scans
+                ffs = np.flatnonzero(np.frombuffer(data, np.uint8) == 0xFF)
+            pos, problem = _jpeg_scan(data, pos, interval, _jpeg_mcus(frame, ids), ffs)
             if problem:
                 return f"corrupt JPEG ({problem} in scan {scans})"
 
@@ -171,32 +174,45 @@ def _jpeg_mcus(frame: tuple[int, int, dict[int, tuple[int, int]], int],
     return up(width, 8 * hmax) * up(height, 8 * vmax)
 
 
-def _jpeg_scan(data: bytes, pos: int, interval: int,
-               mcus: int | None) -> tuple[int, str | None]:
-    """Walk entropy-coded data from ``pos``: the marker that ends it, and what is wrong."""
-    size, found = len(data), 0
-    while True:
-        ff = data.find(b"\xff", pos)
-        if ff < 0:
-            return size, None  # the caller reports the missing end of image
-        code = ff + 1
-        while code < size and data[code] == 0xFF:
-            code += 1
-        if code >= size:
-            return size, None
-        if data[code] == 0x00:  # a stuffed 0xFF data byte
-            pos = code + 1
-            continue
-        if not 0xD0 <= data[code] <= 0xD7:
-            break
+def _jpeg_scan(data: bytes, pos: int, interval: int, mcus: int | None,
+               ffs: np.ndarray | None = None) -> tuple[int, str | None]:
+    """Walk entropy-coded data from ``pos``: the marker that ends it, and what is wrong.
+
+    Every run of 0xFF bytes from ``pos`` on is looked at at once (numpy), not one by one: the
+    byte after a run says what it is (0x00 a stuffed data byte, RST0..RST7 a restart marker,
+    anything else the marker that ends the scan), so a file of stuffed bytes costs no Python
+    loop. ``ffs``: the positions of every 0xFF byte of ``data`` (made here if not given).
+    """
+    size = len(data)
+    if ffs is None:
+        ffs = np.flatnonzero(np.frombuffer(data, np.uint8) == 0xFF)
+    ffs = ffs[np.searchsorted(ffs, pos):]
+    if not len(ffs):
+        return size, None  # the caller reports the missing end of image
+    # runs of consecutive 0xFF bytes: where each starts and the byte just after it
+    breaks = np.flatnonzero(np.diff(ffs) != 1)
+    starts = ffs[np.concatenate(([0], breaks + 1))]
+    after = ffs[np.concatenate((breaks, [len(ffs) - 1]))] + 1
+    codes = np.frombuffer(data, np.uint8)[np.minimum(after, size - 1)].astype(np.int32)
+    codes[after >= size] = -1  # a run that reaches the end of the data
+    restart = (codes >= 0xD0) & (codes <= 0xD7)
+    ending = np.flatnonzero((codes != 0x00) & ~restart)
+    last = ending[0] if len(ending) else len(codes)
+    restarts = np.flatnonzero(restart[:last])
+    if len(restarts):
+        first = int(starts[restarts[0]])
         if not interval:
-            return ff, f"restart marker at byte {ff} without a restart interval"
-        if data[code] - 0xD0 != found % 8:
-            return ff, (f"restart marker RST{data[code] - 0xD0} at byte {ff} where "
-                        f"RST{found % 8} is due: image data is missing or damaged")
-        found += 1
-        pos = code + 1
-    invalid = data[code] < 0xC0 or data[code] == 0xD8  # the caller names that marker
+            return first, f"restart marker at byte {first} without a restart interval"
+        due = np.arange(len(restarts)) % 8
+        wrong = np.flatnonzero(codes[restarts] - 0xD0 != due)
+        if len(wrong):
+            at, k = int(starts[restarts[wrong[0]]]), int(wrong[0])
+            return at, (f"restart marker RST{codes[restarts[k]] - 0xD0} at byte {at} where "
+                        f"RST{k % 8} is due: image data is missing or damaged")
+    if last == len(codes) or codes[last] < 0:
+        return size, None
+    ff, code, found = int(starts[last]), int(codes[last]), len(restarts)
+    invalid = code < 0xC0 or code == 0xD8  # the caller names that marker
     if interval and mcus is not None and not invalid:
         needed = -(-mcus // interval) - 1
         if found not in (needed, needed + 1):

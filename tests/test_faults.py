@@ -171,6 +171,28 @@ def test_whole_jpegs_are_read_and_damaged_ones_refused(tmp_path, rocket_rgb, opt
                        "image data is missing or damaged")
 
 
+@pytest.mark.parametrize("data, pos, interval, mcus, want", [
+    # fill bytes before the end marker: the scan ends at the first of them
+    (b"\x12\xff\x00\x34\xff\xff\xff\xd9", 0, 0, None, (4, None)),
+    (b"\x12\xff\xd0\x34\xff\xd1\x56\xff\xd9", 0, 2, 6, (7, None)),
+    (b"\x12\xff\xd0\x34\xff\xd2\x56\xff\xd9", 0, 2, 6,
+     (4, "restart marker RST2 at byte 4 where RST1 is due: image data is missing or damaged")),
+    (b"\x12\xff\xd0\x34\xff\xd9", 0, 0, None,
+     (1, "restart marker at byte 1 without a restart interval")),
+    (b"\x12\xff\xd0\x34\xff\xd9", 0, 4, 40,
+     (4, "1 restart markers where its 40 MCUs in intervals of 4 need 9: image data is missing "
+         "or damaged")),
+    (b"\x12\xff\x00\x34\xff\xff", 0, 0, None, (6, None)),  # data ends inside a run
+    (b"\x12\x34\x56", 0, 0, None, (3, None)),  # no marker at all
+    (b"\xff\x00\xff\xd9", 2, 0, None, (2, None)),  # from the given position on
+])
+def test_a_scans_stuffed_bytes_restart_markers_and_end_are_read_from_every_0xff_run(
+        data, pos, interval, mcus, want):
+    from gpu_blur.imageio import _jpeg_scan
+
+    assert _jpeg_scan(data, pos, interval, mcus) == want
+
+
 # ---- no command writes over its own inputs (align and compare: test_align, test_metrics) ---
 
 @pytest.mark.parametrize("option", ["--chart", "--reference"])
