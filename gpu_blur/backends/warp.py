@@ -480,7 +480,7 @@ class WarpBackend(KernelBackend):
                              f"values (this backend's precision); got {dtype}")
         flat = image.flatten()
         if str(image.device) != str(wp.get_device(self.wp_device)):
-            on_device = self._empty(flat.size, dtype)
+            on_device = self._copy_target(flat.size, dtype)
             with timer("copies"):
                 if self.overlap:
                     wp.copy(on_device, flat, stream=self._copier)
@@ -502,7 +502,7 @@ class WarpBackend(KernelBackend):
         with timer("copies"):
             staging = self._staging_buffer(slot, count, self._wp_dtype(dtype))
             self._fill_staging(staging.numpy(), parts)
-            data = self._empty(count, dtype)
+            data = self._copy_target(count, dtype)
             wp.copy(data, staging, count=count, stream=self._copier)
             self._staged[slot] = self._copier.record_event()
             wp.get_stream(self.wp_device).wait_event(self._staged[slot])
@@ -519,7 +519,7 @@ class WarpBackend(KernelBackend):
         count = image.size
         self._check_size(count)
         with timer("copies"):
-            data = self._empty(count, image.dtype)
+            data = self._copy_target(count, image.dtype)
             source = self._host_view(image)
             if self.overlap:
                 wp.copy(data, source, count=count, stream=self._copier)
@@ -530,6 +530,19 @@ class WarpBackend(KernelBackend):
             else:
                 wp.copy(data, source, count=count)
         return self._input(data, image.shape, image.dtype)
+
+    def _copy_target(self, count: int, dtype) -> wp.array:
+        """A device buffer for the copy stream to fill (with ``overlap``), allocated there.
+
+        Device memory is stream-ordered: a block freed on the compute stream may be handed at
+        once to the next allocation on that stream, while launches queued before the free
+        still read it, and the copy stream, which does not wait for them, would overwrite it.
+        Allocated on the copy stream, a block comes back only once its release is done.
+        """
+        if not self.overlap:
+            return self._empty(count, dtype)
+        with wp.ScopedStream(self._copier, sync_enter=False):
+            return self._empty(count, dtype)
 
     def _host_view(self, x: np.ndarray) -> wp.array:
         """A flat ``wp.array`` over the contiguous host array ``x`` (no copy)."""
