@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import io
 import itertools
 import json
 import math
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.imageio import open_new, temporary_path, write_image, write_new, write_text
+from gpu_blur.imageio import temporary_path, write_image, write_new, write_text, write_whole
 from gpu_blur.locking import take_lock
 from gpu_blur.outputs import write_dng, write_mask
 from gpu_blur.params import ARRAY_PARAMS
@@ -603,16 +604,13 @@ def save_arrays(path: Path, arrays: dict) -> None:
 
     The file appears complete or not at all (written to a temporary name, then renamed).
     """
-    tmp = temporary_path(path)
-    try:
-        with open_new(tmp) as file, zipfile.ZipFile(file, "w", zipfile.ZIP_STORED) as z:
-            for name, value in arrays.items():
-                info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-                with z.open(info, "w", force_zip64=True) as f:
-                    np.lib.format.write_array(f, np.asarray(value), allow_pickle=False)
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    encoded = io.BytesIO()
+    with zipfile.ZipFile(encoded, "w", zipfile.ZIP_STORED) as z:
+        for name, value in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            with z.open(info, "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asarray(value), allow_pickle=False)
+    write_whole(path, encoded.getvalue())
 
 
 def library_versions(backend: str) -> dict[str, str]:

@@ -484,13 +484,13 @@ def temporary_path(path: Path) -> Path:
     """Where ``path`` is written before it is renamed into place.
 
     ``.<name>.<pid>.part<suffix>`` beside it: the process id keeps two processes apart, the
-    suffix keeps the format. Open it with :func:`open_new`.
+    suffix keeps the format. Written with :func:`write_new`.
     """
     return path.with_name(f".{path.name}.{os.getpid()}.part{path.suffix}")
 
 
-def open_new(path: Path):
-    """``path`` opened for writing (binary) as a new regular file of its folder.
+def write_new(path: Path, data: bytes) -> Path:
+    """``data`` as the new regular file ``path`` of its folder; returns ``path``.
 
     Whatever is there is removed first (a file a killed run left, or a link someone put
     there: the link itself, not what it points to); then ``O_EXCL | O_NOFOLLOW`` make sure
@@ -501,14 +501,26 @@ def open_new(path: Path):
     """
     path.unlink(missing_ok=True)
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
-    return os.fdopen(os.open(path, flags, 0o666), "wb")
-
-
-def write_new(path: Path, data: bytes) -> Path:
-    """``data`` as the new file ``path`` (:func:`open_new`); returns ``path``."""
-    with open_new(path) as f:
+    with os.fdopen(os.open(path, flags, 0o666), "wb") as f:
         f.write(data)
     return path
+
+
+def write_whole(path: Path, data: bytes, check: Callable[[Path], None] | None = None) -> None:
+    """``data`` as the file ``path``, which appears complete or not at all.
+
+    Written to :func:`temporary_path` (:func:`write_new`), then renamed onto ``path``; the
+    temporary file is removed on failure. ``check``: called with the temporary file before
+    the rename; what it raises leaves ``path`` as it was.
+    """
+    tmp = temporary_path(path)
+    try:
+        write_new(tmp, data)
+        if check is not None:
+            check(tmp)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
@@ -520,7 +532,6 @@ def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
     renamed; the temporary file is removed on failure).
     """
     path = Path(path)
-    tmp = temporary_path(path)
     if bits == 0:
         data = np.asarray(image, dtype=np.float32)
     elif np.asarray(image).dtype == code_dtype(bits):
@@ -528,16 +539,12 @@ def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
     else:
         data = to_integers(image, bits)
     try:
-        encoded, ok = None, False
-        try:
-            ok, encoded = cv2.imencode(".tiff" if bits == 0 else ".png", swap_red_blue(data))
-        except cv2.error:
-            pass
-        if not ok:
-            raise OSError(f"{path}: could not encode the image")
-        write_new(tmp, encoded.tobytes()).replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
+        ok, encoded = cv2.imencode(".tiff" if bits == 0 else ".png", swap_red_blue(data))
+    except cv2.error:
+        ok = False
+    if not ok:
+        raise OSError(f"{path}: could not encode the image")
+    write_whole(path, encoded.tobytes())
 
 
 def write_text(path: str | Path, text: str,
@@ -551,16 +558,10 @@ def write_text(path: str | Path, text: str,
             raises leaves ``path`` as it was.
     """
     path = Path(path)
-    tmp = temporary_path(path)
     try:
-        write_new(tmp, text.encode())
-        if check is not None:
-            check(tmp)
-        tmp.replace(path)
+        write_whole(path, text.encode(), check)
     except OSError as e:
         raise OSError(e.errno, e.strerror, str(path)) from None  # the name asked for
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def read_kernel(path: str | Path) -> np.ndarray:

@@ -112,7 +112,7 @@ def write_dng(path, raw: np.ndarray, info: dict) -> None:
     import tifffile
 
     from gpu_blur.constants import XYZ_TO_SRGB
-    from gpu_blur.imageio import temporary_path, write_new
+    from gpu_blur.imageio import write_whole
 
     gains = np.asarray(info["wb_gains"], np.float64)
     lin2cam = np.linalg.inv(np.asarray(info["camera_to_linear"], np.float64))
@@ -132,15 +132,10 @@ def write_dng(path, raw: np.ndarray, info: dict) -> None:
         (50728, "2I", 3, _rationals(neutral), True),  # AsShotNeutral
         (50778, "H", 1, 21, True),  # CalibrationIlluminant1: D65
     ]
-    path = Path(path)
-    tmp = temporary_path(path)
     encoded = io.BytesIO()
     tifffile.imwrite(encoded, raw_codes(raw, info), photometric="cfa", extratags=tags,
                      subfiletype=0)
-    try:
-        write_new(tmp, encoded.getvalue()).replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    write_whole(Path(path), encoded.getvalue())
 
 
 _DENOMINATOR = 10**6
