@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gpu_blur.backends.flows import REGIONS_KEY
 from gpu_blur.imageio import temporary_path, write_image, write_new, write_text, write_whole
 from gpu_blur.locking import take_lock
 from gpu_blur.outputs import write_dng, write_mask
@@ -104,7 +105,15 @@ ARRAY_CONVENTIONS = {
         "blurred[y, x] = sum over i, j of k[i, j] sharp[y + kh // 2 - i, x + kw // 2 - j], in "
         "linear RGB, reflect-101 borders, on the input's grid before output.crop "
         "(gpu_blur.reference.motion_kernel.convolve_kernel)."),
+    REGIONS_KEY: (
+        "gaps x rows x columns uint8, blur.interpolation = 'auto' with regions: gap g's frame-"
+        "rate factor (1, 2, 4 or 8) in the square of side blur.interpolation_region pixels at "
+        "that row and column of a grid from the input's top-left pixel, before output.crop; "
+        "interpolation_factors holds each gap's largest (gpu_blur.reference.interpolate, "
+        "module step 7)."),
 }
+#: Parameters saved in the sample's arrays file rather than in its manifest line.
+SAVED_ARRAYS = (*ARRAY_PARAMS, REGIONS_KEY)
 
 
 def default_photo() -> Path:
@@ -983,9 +992,11 @@ class DatasetWriter:
     def save(self, spec: SampleSpec, result, record: dict) -> dict:
         """Write one sample's files; returns its manifest line, for :meth:`add` to write.
 
-        The line holds, besides ``record``, how many tiles the sample ran in and how many of
-        them were spot-checked (``spot_check`` "passed", or "none" when no tile was checked:
-        a failed check fails the sample); its arrays' file holds each array's convention.
+        The line holds, besides ``record``, how many tiles the sample ran in, how many of them
+        skipped saturation (``unsaturated_tiles``: no clipped pixel there, so the stages
+        were identities) and how many were spot-checked (``spot_check`` "passed", or "none"
+        when no tile was checked: a failed check fails the sample), the stages that ran and
+        why each other one did not (``skipped``); its arrays' file holds each array's convention.
         With :attr:`extras`, the sample's saturation mask (``mask``: a 16-bit PNG, codes
         ``round(m * 65535)``) and RAW mosaic (``raw``: a 16-bit DNG, and ``raw_info``, its
         :func:`gpu_blur.outputs.raw_metadata`) are written too, cropped like the pair.
@@ -995,7 +1006,7 @@ class DatasetWriter:
         paths = self._paths(spec.index, spec.name)
         write_image(self.out / paths["blurred"], result.blurred, self.bits)
         write_image(self.out / paths["sharp"], result.sharp, self.bits)
-        arrays = {k: result.params[k] for k in ARRAY_PARAMS if k in result.params}
+        arrays = {k: result.params[k] for k in SAVED_ARRAYS if k in result.params}
         line = {
             "index": spec.index,
             "name": spec.name,
@@ -1004,11 +1015,13 @@ class DatasetWriter:
             "sharp": paths["sharp"],
             **record,
             "tiles": result.tiles,
+            "unsaturated_tiles": result.unsaturated_tiles,
             "spot_checked_tiles": result.spot_checks,
             "spot_check": "passed" if result.spot_checks else "none",
             "status": "ok",
             "params": {k: _jsonable(v) for k, v in result.params.items() if k not in arrays},
             "stages": [s.name for s in result.plan.stages if s.kept],
+            "skipped": {s.name: s.reason for s in result.plan.stages if not s.kept},
         }
         if arrays:
             (self.out / "params").mkdir(exist_ok=True)

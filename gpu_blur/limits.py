@@ -113,6 +113,10 @@ INTERPOLATION_TOLERANCE = Limit(0, 1000, low_open=True, reason=(
     "pixels a step between consecutive averaged frames may span under blur.interpolation = "
     "'auto': a gap moving more gets 2, 4 or 8 x its frames (8 at most, so a tiny tolerance "
     "gives 8x everywhere); a tolerance above the motion inserts nothing"))
+INTERPOLATION_REGION = Limit(0, 4096, integer=True, reason=(
+    "pixels a side of the square regions that get their own factor under blur.interpolation "
+    "= 'auto', 0 for one factor per gap; a multiple of 16 (whole pixels of the 1/4-size "
+    "motion measure), and 4,096 is beyond a frame's side"))
 EXTENT = Limit(0, reason="pixels the image centre moves; the image's size bounds it per sample")
 ROLL = Limit(0, SHAKE_ROLL_MAX_DEG, reason="degrees of camera roll; the shake model's largest")
 KERNEL_SIZE = Limit(1, 255, integer=True, reason=(

@@ -24,6 +24,7 @@ from gpu_blur.outputs import jpeg_round_trip, raw_metadata
 from gpu_blur.params import batch_uniforms, draw_params
 from gpu_blur.plan import Plan, StageName, plan, raw_round_trip
 from gpu_blur.reference import transfer
+from gpu_blur.reference.interpolate import RegionFactors
 from gpu_blur.reference.output import code_dtype, crop_border, quantize, to_integers
 from gpu_blur.scene import Scene, load_scene
 from gpu_blur.scheduler import Schedule, run
@@ -64,6 +65,8 @@ class Synthesis:
             copies, kernels, checks; writing is 0 here), plus ``other`` and ``total``.
         tiles: how many tiles the image ran in.
         spot_checks: how many of them were checked against the numpy reference.
+        unsaturated_tiles: how many of several tiles skipped the saturate and restore stages
+            the plan keeps, identities there (:func:`gpu_blur.scheduler.saturation_is_identity`).
         device: the model of device that made it, in words (the backend's ``model``:
             ``warp NVIDIA H200, float32``, without the device's number on this host, so a
             set's manifest is the same whichever GPU made each sample).
@@ -84,6 +87,7 @@ class Synthesis:
     device: str = ""
     _raw: object = dataclasses.field(default=None, repr=False)
     raw_info: dict | None = None
+    unsaturated_tiles: int = 0
 
     @property
     def mask(self) -> np.ndarray | None:
@@ -374,7 +378,7 @@ class Synthesizer:
         with timer("reading"):
             item = _gather(inputs, scene)
         (item,), check = self._prepared([item])
-        crop, tiles, checked = scene.output.crop, 1, 0
+        crop, tiles, checked, unsaturated = scene.output.crop, 1, 0, 0
         if self.resident:
             done = self._run_resident([item], [sample_index])
             check()
@@ -399,7 +403,7 @@ class Synthesizer:
             raw = tiled.raw  # the same way
             if isinstance(raw, np.ndarray):
                 raw = crop_border(raw, crop).astype(np.float32, copy=False)
-            tiles, checked = tiled.tiles, tiled.checked
+            tiles, checked, unsaturated = tiled.tiles, tiled.checked, tiled.unsaturated
         if sample_plan.kept(StageName.JPEG):
             out = jpeg_round_trip(out, params["jpeg_quality"])
         if codes:  # what the device did not make: the same codes, made here
@@ -407,7 +411,7 @@ class Synthesizer:
                           else to_integers(x, scene.output.bits) for x in (out, sharp))
         return Synthesis(out, sharp, mask, params, sample_plan,
                          since(before, time.perf_counter() - start), tiles, checked, crop,
-                         self.runner.model, raw, self._raw_info(params))
+                         self.runner.model, raw, self._raw_info(params), unsaturated)
 
     def _check_codes(self, codes: bool) -> None:
         """Refuse ``codes=True`` for a scene without 8- or 16-bit output."""
@@ -929,8 +933,8 @@ class Synthesizer:
         frames = item.frames
         h, w = frames[0].shape[:2]
         # interpolation auto: each gap's factor, measured on the host frames
-        factors = scene_factors(scene, frames)
-        sample_plan, params = self._drawn(item, sample_index, h, w, factors)
+        measured = scene_factors(scene, frames)
+        sample_plan, params = self._drawn(item, sample_index, h, w, measured)
         # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
         crop = scene.output.crop
         tiled = run(self.runner, sample_plan, params, self.camera, frames, item.mask,
@@ -1018,17 +1022,19 @@ class Synthesizer:
                                     interpolation_factors=factors)
         return self._plans[key]
 
-    def _drawn(self, item: _Inputs, sample_index: int, h: int, w: int, factors,
-               uniforms: dict | None = None, *, saturated: bool | None = None):
+    def _drawn(self, item: _Inputs, sample_index: int, h: int, w: int,
+               measured: RegionFactors | None, uniforms: dict | None = None, *,
+               saturated: bool | None = None):
         """A sample's plan and drawn values: (plan, params).
 
+        ``measured``: the gaps' factors under interpolation auto (:func:`scene_factors`).
         ``uniforms``: the sample's row of :func:`gpu_blur.params.batch_uniforms`, else drawn.
         ``saturated``: the clip test's answer to plan by, for the input's own.
         """
         scene = self.scene
         frames = item.frames
         sample_plan = self._plan(item.saturated if saturated is None else saturated, h, w,
-                                 factors)
+                                 measured.gaps if measured else None)
         # Every draw has a fixed index (gpu_blur.params), so a stage the sample skips (auto
         # saturation) never shifts another draw.
         overrides = self.overrides
@@ -1038,8 +1044,8 @@ class Synthesizer:
         params = draw_params(scene, sample_plan, self.camera, seed=self.seed,
                              sample_index=sample_index, image_shape=(h, w), overrides=overrides,
                              uniforms=uniforms)
-        if factors is not None:  # the plan's factors, recorded in the manifest
-            params = with_factors(sample_plan, params, frames)
+        if measured is not None:  # the plan's factors, recorded in the manifest
+            params = with_factors(sample_plan, params, frames, measured)
         return sample_plan, params
 
     def _rendered_in_bands(self, sample_plan: Plan, sharp: np.ndarray) -> np.ndarray:

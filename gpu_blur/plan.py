@@ -237,8 +237,12 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
         average = (f"mean of {b.frames} linear frames and their saturation masks, each gap "
                    f"interpolated 1, 2, 4 or 8x ({b.flow} optical flow) to keep its motion, "
                    f"measured per sample at 1/{MOTION_SCALE} size, under "
-                   f"{b.interpolation_tolerance:g} px a step (blur.interpolation = auto; the "
-                   "factors go to the sample's interpolation_factors)")
+                   f"{b.interpolation_tolerance:g} px a step"
+                   + (f", in {b.interpolation_region} px squares that each get their own "
+                      "factor (the gap's is their largest)" if b.interpolation_region else "")
+                   + " (blur.interpolation = auto; the factors go to the sample's "
+                   "interpolation_factors"
+                   + (" and interpolation_regions)" if b.interpolation_region else ")"))
     elif b.interpolation > 1:
         average = (f"mean of {(b.frames - 1) * b.interpolation + 1} linear frames and their "
                    f"saturation masks: {b.frames} frames and {b.interpolation - 1} interpolated "
@@ -248,6 +252,7 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
     options = {"interpolation": b.interpolation, "flow": b.flow} if b.mode == "average" else {}
     if options and b.interpolation == INTERPOLATION_AUTO:
         options["tolerance"] = float(b.interpolation_tolerance)
+        options["region"] = int(b.interpolation_region)
         if interpolation_factors is not None:
             options["factors"] = tuple(int(f) for f in interpolation_factors)
             average += (f"; this sample's factors per gap: "

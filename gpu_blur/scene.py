@@ -23,7 +23,12 @@ else:  # pragma: no cover
 from gpu_blur import limits
 from gpu_blur.constants import GAUSSIAN_SRGB_NOISE_STD
 from gpu_blur.limits import Limit
-from gpu_blur.reference.interpolate import FLOW_METHODS, INTERPOLATION_AUTO, INTERPOLATION_FACTORS
+from gpu_blur.reference.interpolate import (
+    FLOW_METHODS,
+    INTERPOLATION_AUTO,
+    INTERPOLATION_FACTORS,
+    REGION_STEP,
+)
 
 PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 
@@ -63,6 +68,11 @@ FIELDS: dict[str, dict[str, Field]] = {
             1.0, "blur.interpolation = 'auto': the largest step, pixels, between consecutive "
             "averaged frames; each gap gets the fewest inserted frames that keep its motion "
             "(99th percentile) under it", limit=limits.INTERPOLATION_TOLERANCE),
+        "interpolation_region": Field(
+            64, "blur.interpolation = 'auto': side, pixels (a multiple of 16), of the squares "
+            "that each get their own factor per gap, so a still part of a moving sequence "
+            "inserts no frames; 0 = one factor per gap for the whole frame",
+            limit=limits.INTERPOLATION_REGION),
         "flow": Field("dis", "optical flow for blur.interpolation other than 1, computed on "
                       "the host with OpenCV: 'dis' (DIS, preset medium) or 'farneback'",
                       choices=FLOW_METHODS),
@@ -301,6 +311,9 @@ def _check_consistency(sections: dict, where: str) -> None:
         raise SceneError(f"{where}: blur.interpolation = {blur.interpolation!r} needs "
                          f"blur.mode = 'average' (it is {blur.mode!r}); allowed: 1 for "
                          "this mode, or set blur.mode = 'average'")
+    if blur.interpolation_region % REGION_STEP:
+        raise SceneError(f"{where}: blur.interpolation_region = {blur.interpolation_region!r} "
+                         f"is invalid; allowed: 0 or a multiple of {REGION_STEP} (e.g. 64)")
     lo, hi = blur.kernel_size
     if blur.mode == "kernel" and not blur.kernel and lo % 2 == 0 and lo == hi:
         raise SceneError(f"{where}: blur.kernel_size = {blur.kernel_size!r} holds no odd "

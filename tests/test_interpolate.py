@@ -429,12 +429,25 @@ class OpenCLInterpolate:
                     self.buffer(frame0[view], self.real), self.buffer(frame1[view], self.real),
                     self.buffer(fw[view], np.float32), self.buffer(bw[view], np.float32),
                     i64(g.vx0), i64(g.vy0), i64(g.vw), i64(g.full_w), i64(g.full_h), pos(t),
-                    pos(CONSISTENCY_RELATIVE), pos(CONSISTENCY_ABSOLUTE_PX2), self.real.type(1),
+                    pos(CONSISTENCY_RELATIVE), pos(CONSISTENCY_ABSOLUTE_PX2), *self.weight_one(t),
                     total, comp, saturated, i64(g.x0), i64(g.y0), i64(dw), i64(dh))  # fmt: skip
         out = [np.empty((dh, dw, 3), self.real) for _ in range(3)]
         for host, buf in zip(out, (total, comp, saturated), strict=True):
             self.cl.enqueue_copy(self.queue, host, buf)
         return out
+
+    def weight_one(self, t):
+        """The step, factor and region arguments of the frame at ``t`` with weight 1."""
+        step, factor = factor_step(t)
+        return (np.uint32(step), np.uint32(factor),
+                self.buffer(np.array([factor]), np.uint32), np.int64(0), np.int64(0),
+                np.int64(1), np.uint32(factor))
+
+
+def factor_step(t) -> tuple[int, int]:
+    """``t`` as ``step / factor``, factor 8 (every test time is a multiple of 1/8)."""
+    assert (t * 8) % 1 == 0
+    return int(t * 8), 8
 
 
 @pytest.fixture(scope="module", params=["float32", "float64"])
@@ -485,8 +498,15 @@ class WarpInterpolate:
             self.array(frame0[view], self.real), self.array(frame1[view], self.real),
             self.array(fw[view], np.float32), self.array(bw[view], np.float32),
             g.vx0, g.vy0, g.vw, g.full_w, g.full_h, t, CONSISTENCY_RELATIVE,
-            CONSISTENCY_ABSOLUTE_PX2, 1.0, *out, g.x0, g.y0, dw])
+            CONSISTENCY_ABSOLUTE_PX2, *self.weight_one(t), *out, g.x0, g.y0, dw])
         return [a.numpy().reshape(dh, dw, 3) for a in out]
+
+    def weight_one(self, t):
+        """The step, factor and region arguments of the frame at ``t`` with weight 1."""
+        step, factor = factor_step(t)
+        table = self.wp.array(np.array([factor], np.uint32), dtype=self.wp.uint32,
+                              device=self.device)
+        return step, factor, table, 0, 0, 1, factor
 
 
 def warp_devices() -> list[str]:

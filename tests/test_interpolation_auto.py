@@ -1,8 +1,10 @@
-"""Adaptive frame interpolation: ``blur.interpolation = "auto"`` (reference.interpolate, step 6).
+"""Adaptive frame interpolation: ``blur.interpolation = "auto"`` (reference.interpolate, 6-7).
 
 The motion measure and the per-gap factor; still gaps get no flows; per-gap factors weigh every
 gap the same time; one factor in every gap gives the fixed factor's bits on every backend; the
-factors reach the sample's params; the scene key and its limit.
+factors reach the sample's params; the scene key and its limit. Regions: a still part of a
+moving sequence gets factor 1; each region averages with the bits of its own factors applied
+to the whole frame, on every backend; tiles cutting regions give the whole image's bits.
 """
 
 from __future__ import annotations
@@ -149,7 +151,8 @@ def test_auto_without_motion_runs_the_plain_average():
 
 def test_scene_takes_auto_with_a_positive_tolerance_in_mode_average_only():
     stage = plan(average_scene("auto", 0.5))["blur"]
-    assert stage.options == {"interpolation": "auto", "flow": "dis", "tolerance": 0.5}
+    assert stage.options == {"interpolation": "auto", "flow": "dis", "tolerance": 0.5,
+                             "region": 64}
     assert "0.5 px a step" in stage.reason
     with pytest.raises(SceneError, match="interpolation_tolerance = 0 is invalid"):
         average_scene("auto", 0)
@@ -176,6 +179,16 @@ def test_generate_records_the_factors_of_each_sample_in_the_manifest(tmp_path):
     (line,) = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
     assert line["status"] == "ok" and "flows" not in line["params"]
     assert line["params"]["interpolation_factors"] == [1, 8]
+    # each gap's factor per 64 px region (96 x 160: 2 x 3 regions) in the arrays file
+    assert "interpolation_regions" not in line["params"]
+    arrays = np.load(out / line["arrays"])
+    regions = arrays["interpolation_regions"]
+    assert regions.shape == (2, 2, 3) and regions.dtype == np.uint8
+    assert (regions[0] == 1).all() and regions[1].max() == 8
+    assert "frame-rate factor" in str(arrays["interpolation_regions_convention"])
+    # what the sample skipped and why
+    assert line["skipped"]["gaussian_noise"] == "noise.model = poisson-gaussian"
+    assert line["unsaturated_tiles"] == 0
 
 
 def test_the_sample_plan_shows_the_factors_it_ran():
@@ -197,3 +210,149 @@ def test_tiled_auto_with_spot_checks_equals_the_whole_image(spec):
                         schedule=Schedule(tile=(48, 64), verify=1.0)).sample(frames)
     assert tiled.tiles == 6 and tiled.spot_checks == 6
     assert np.array_equal(tiled.blurred, whole.blurred)
+
+
+# -- regions: each square of the frame gets its own factor per gap (module step 7) ----------
+#: Region side of the tests below: 96 x 160 frames hold 3 x 5 regions.
+SIDE = 32
+
+
+def half_moving(gaps: int, moving_from: int = 0) -> list[np.ndarray]:
+    """uint8 frames whose left half stays still and right half pans PAN_PX a frame.
+
+    The right half starts panning at gap ``moving_from``.
+    """
+    photo = read_image(default_photo())
+    still = photo[100:100 + H, 40:40 + W // 2]
+    frames = []
+    for i in range(gaps + 1):
+        x = 40 + W // 2 + PAN_PX * max(0, i - moving_from)
+        frames.append(np.ascontiguousarray(np.concatenate(
+            [still, photo[100:100 + H, x:x + W // 2]], axis=1)))
+    return frames
+
+
+def region_scene(precision: str = "float64", side: int = SIDE, frames: int = 4):
+    return scene_from_dict({"blur": {"mode": "average", "frames": frames,
+                                     "interpolation": "auto", "interpolation_region": side},
+                            "saturation": {"mode": "off"}, "noise": {"model": "none"},
+                            "output": {"precision": precision}})
+
+
+def test_still_regions_of_a_moving_sequence_get_factor_1():
+    frames = [unit_values(f) for f in half_moving(2)]
+    regions = interpolate.region_factors(frames, 1.0, SIDE)
+    assert regions.factors.shape == (2, 3, 5) and regions.factors.dtype == np.uint8
+    assert (regions.factors[:, :, :2] == 1).all()  # columns 0..63: the still half
+    assert (regions.factors[:, :, 3:] == 8).all()  # columns 96..159: 6 px a frame
+    assert regions.gaps == (8, 8)
+    # without regions the whole frame takes the moving half's factor
+    assert interpolate.adaptive_factors(frames, 1.0) == (8, 8)
+
+
+def test_region_motion_of_the_whole_frame_is_the_gap_motion():
+    frames = [unit_values(f) for f in half_moving(1)]
+    assert interpolate.region_motion(*frames, 0)[0, 0] == gap_motion(*frames)
+    with pytest.raises(ValueError, match="multiple of 16"):
+        interpolate.region_motion(*frames, 24)
+
+
+def test_a_sliver_past_the_shrunk_frame_takes_its_neighbours_motion():
+    # 96 x 97 frames shrink by 2 (a quarter would be under 32 rows) to 48 x 48: the seventh
+    # column of 16 px regions is column 96 alone, which no shrunk pixel covers
+    frames = [unit_values(f)[:, :97] for f in half_moving(1)]
+    motion = interpolate.region_motion(*frames, 16)
+    assert motion.shape == (6, 7)
+    assert np.array_equal(motion[:, 6], motion[:, 5])
+
+
+def test_each_region_averages_bit_for_bit_as_a_frame_with_its_factors_everywhere():
+    frames = [unit_values(f) for f in half_moving(2, moving_from=1)]
+    flows = sequence_flows(frames)
+    # gap 0 at 8x everywhere (so every region's largest is the sample's M = 8); gap 1 at 1x on
+    # the left, 8x in the middle column, 4x on the right
+    maps = np.empty((2, 3, 5), np.uint8)
+    maps[0] = 8
+    maps[1] = [1, 1, 8, 4, 4]
+    blurred, mask = interpolated_average(frames, interpolate.RegionFactors(SIDE, maps), flows)
+    for columns, gaps in ((slice(0, 64), (8, 1)), (slice(64, 96), (8, 8)),
+                          (slice(96, 160), (8, 4))):
+        own_blurred, own_mask = interpolated_average(frames, gaps, flows)
+        assert np.array_equal(blurred[:, columns], own_blurred[:, columns])
+        assert np.array_equal(mask[:, columns], own_mask[:, columns])
+
+
+@pytest.mark.parametrize("spec", ["numpy", *KERNEL_BACKEND_SPECS])
+def test_a_backend_averages_each_region_with_the_bits_of_its_factors_everywhere(spec):
+    from conftest import make_backend
+
+    from gpu_blur.backends.flows import FACTORS_KEY, REGIONS_KEY
+    from gpu_blur.tiling import Region
+
+    frames = half_moving(2, moving_from=1)
+    flows = sequence_flows([unit_values(f) for f in frames])
+    maps = np.empty((2, 3, 5), np.uint8)
+    maps[0] = 8
+    maps[1] = [1, 1, 8, 4, 4]
+    backend = make_backend(spec)
+    scene = region_scene(spec.partition("/")[2] or "float64", frames=3)
+    whole = Region.whole(H, W)
+
+    def averaged(factors, regions=None):
+        params = {"flows": flows, FACTORS_KEY: list(factors)}
+        if regions is not None:
+            params[REGIONS_KEY] = regions
+        sample_plan = plan(scene if regions is not None else scene_without_regions(scene),
+                           interpolation_factors=factors)
+        return backend.accumulate(sample_plan, params, frames, None, whole)
+
+    linear, mask = averaged((8, 8), maps)
+    for columns, gaps in ((slice(0, 64), (8, 1)), (slice(64, 96), (8, 8)),
+                          (slice(96, 160), (8, 4))):
+        own_linear, own_mask = averaged(gaps)
+        assert np.array_equal(linear[:, columns], own_linear[:, columns])
+        assert np.array_equal(mask[:, columns], own_mask[:, columns])
+
+
+def scene_without_regions(scene):
+    import dataclasses
+
+    return dataclasses.replace(scene, blur=dataclasses.replace(scene.blur,
+                                                               interpolation_region=0))
+
+
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+def test_kernel_backends_average_regions_as_the_reference(spec):
+    frames = half_moving(3, moving_from=1)
+    name, _, precision = spec.partition("/")
+    reference = Synthesizer(region_scene(), backend="numpy").sample(frames)
+    kernel = Synthesizer(region_scene(precision or "float64"), backend=name).sample(frames)
+    assert np.array_equal(reference.params["interpolation_regions"],
+                          kernel.params["interpolation_regions"])
+    assert (reference.params["interpolation_regions"][:, :, 0] == 1).all()
+    assert np.abs(kernel.blurred - reference.blurred).max() <= 1 / 255 + 1e-6
+
+
+@pytest.mark.parametrize("spec", ["numpy", *KERNEL_BACKEND_SPECS])
+def test_tiles_across_regions_give_the_whole_image_bit_for_bit(spec):
+    from gpu_blur.scheduler import Schedule
+
+    frames = half_moving(3, moving_from=1)
+    name, _, precision = spec.partition("/")
+    scene = region_scene(precision or "float64")
+    whole = Synthesizer(scene, backend=name).sample(frames)
+    # 40 x 56 tiles cut the 32 px regions anywhere
+    tiled = Synthesizer(scene, backend=name, schedule=Schedule(tile=(40, 56))).sample(frames)
+    assert tiled.tiles == 9
+    assert np.array_equal(tiled.blurred, whole.blurred)
+    assert np.array_equal(tiled.mask, whole.mask)
+
+
+def test_scene_region_is_a_multiple_of_16_and_0_measures_whole_frames():
+    with pytest.raises(SceneError, match="interpolation_region = 24 is invalid"):
+        region_scene(side=24)
+    frames = half_moving(2)
+    result = Synthesizer(region_scene(side=0, frames=3), backend="numpy").sample(frames)
+    assert result.params["interpolation_factors"] == [8, 8]
+    assert "interpolation_regions" not in result.params
+    assert "in 32 px squares" in str(plan(region_scene()))

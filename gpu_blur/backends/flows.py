@@ -19,7 +19,8 @@ from gpu_blur.plan import Plan
 from gpu_blur.reference.interpolate import (
     INTERPOLATION_AUTO,
     INTERPOLATION_FACTORS,
-    adaptive_factors,
+    RegionFactors,
+    region_factors,
     sequence_flows,
 )
 from gpu_blur.timings import timer
@@ -27,6 +28,10 @@ from gpu_blur.timings import timer
 #: The parameter holding each gap's factor under ``blur.interpolation = "auto"`` (measured per
 #: sample, recorded in the manifest).
 FACTORS_KEY = "interpolation_factors"
+#: The parameter holding each gap's factor per region (``blur.interpolation_region`` > 0): an
+#: ``(n - 1) x BH x BW`` uint8 array (:class:`~gpu_blur.reference.interpolate.RegionFactors`),
+#: saved with the sample's arrays.
+REGIONS_KEY = "interpolation_regions"
 
 
 def interpolation_factor(plan: Plan) -> int:
@@ -41,36 +46,41 @@ def interpolation_factor(plan: Plan) -> int:
     return INTERPOLATION_FACTORS[-1] if factor == INTERPOLATION_AUTO else int(factor)
 
 
-def scene_factors(scene, frames: Sequence[np.ndarray]) -> tuple[int, ...] | None:
-    """Each gap's factor under ``blur.interpolation = "auto"``, else ``None``.
+def scene_factors(scene, frames: Sequence[np.ndarray]) -> RegionFactors | None:
+    """Each gap's factors under ``blur.interpolation = "auto"``, else ``None``.
 
-    Measured once per sample from the host frames as stored
-    (:func:`gpu_blur.reference.interpolate.adaptive_factors`, timed as ``kernels``).
+    Measured once per sample from the host frames as stored, per region when
+    ``blur.interpolation_region`` > 0 (:func:`gpu_blur.reference.interpolate.region_factors`,
+    timed as ``kernels``).
     """
     b = scene.blur
     if b.mode != "average" or b.interpolation != INTERPOLATION_AUTO:
         return None
     with timer("kernels"):
-        return adaptive_factors(UnitFrames(frames), b.interpolation_tolerance, b.flow)
+        return region_factors(UnitFrames(frames), b.interpolation_tolerance,
+                              b.interpolation_region, b.flow)
 
 
-def with_factors(plan: Plan, params: dict, frames: Sequence[np.ndarray]) -> dict:
-    """``params`` with ``interpolation_factors``, each gap's factor, under interpolation auto.
+def with_factors(plan: Plan, params: dict, frames: Sequence[np.ndarray],
+                 measured: RegionFactors | None = None) -> dict:
+    """``params`` with the gaps' factors under interpolation auto.
 
-    The plan's (:func:`gpu_blur.plan.plan` ``interpolation_factors``), else measured from the
-    host frames (:func:`scene_factors`); ``params`` as they are for a fixed factor or when they
-    hold the factors already.
+    ``interpolation_factors`` (each gap's) and, with regions, ``interpolation_regions``:
+    ``measured``'s, else measured here from the host frames as :func:`scene_factors` does.
+    ``params`` as they are for a fixed factor or when they hold the factors already.
     """
     stage = plan["blur"]
     if (interpolation_factor(plan) == 1 or FACTORS_KEY in params
             or stage.options["interpolation"] != INTERPOLATION_AUTO):
         return params
-    factors = stage.options.get("factors")
-    if factors is None:
+    if measured is None:
         with timer("kernels"):
-            factors = adaptive_factors(UnitFrames(frames), stage.options["tolerance"],
-                                       stage.options["flow"])
-    return {**params, FACTORS_KEY: list(factors)}
+            measured = region_factors(UnitFrames(frames), stage.options["tolerance"],
+                                      stage.options["region"], stage.options["flow"])
+    params = {**params, FACTORS_KEY: list(measured.gaps)}
+    if measured.side:
+        params[REGIONS_KEY] = measured.factors
+    return params
 
 
 def gap_factors(plan: Plan, params: dict, gaps: int) -> tuple[int, ...]:
@@ -91,6 +101,31 @@ def gap_factors(plan: Plan, params: dict, gaps: int) -> tuple[int, ...]:
         raise ValueError(f"params[{FACTORS_KEY!r}] = {list(factors)} must hold {gaps} factors "
                          f"(one per gap), each one of {INTERPOLATION_FACTORS}")
     return factors
+
+
+def gap_regions(plan: Plan, params: dict, gaps: int) -> RegionFactors:
+    """Each of ``gaps`` gaps' factors per region (one region per gap without regions).
+
+    Raises:
+        ValueError: as :func:`gap_factors`, or when ``interpolation_regions`` is missing under
+            ``blur.interpolation_region`` > 0 or disagrees with ``interpolation_factors``.
+    """
+    factors = gap_factors(plan, params, gaps)
+    options = plan["blur"].options
+    if options.get("interpolation") != INTERPOLATION_AUTO or not options.get("region"):
+        return RegionFactors.uniform(factors)
+    if REGIONS_KEY not in params:
+        raise ValueError(f"blur.interpolation_region > 0 needs params[{REGIONS_KEY!r}] (each "
+                         "gap's factor per region, measured by "
+                         "gpu_blur.backends.flows.with_factors)")
+    regions = RegionFactors(options["region"], np.asarray(params[REGIONS_KEY]))
+    if (regions.factors.dtype != np.uint8 or regions.factors.ndim != 3
+            or not np.isin(regions.factors, INTERPOLATION_FACTORS).all()
+            or regions.gaps != factors):
+        raise ValueError(f"params[{REGIONS_KEY!r}] must be a uint8 array of {gaps} x rows x "
+                         f"columns factors, each one of {INTERPOLATION_FACTORS}, whose "
+                         f"largest per gap are params[{FACTORS_KEY!r}] = {list(factors)}")
+    return regions
 
 
 class UnitFrames:

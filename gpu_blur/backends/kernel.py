@@ -32,7 +32,7 @@ from gpu_blur.backends import (
     copy_values,
     pinned_owner,
 )
-from gpu_blur.backends.flows import gap_factors, interpolation_factor, with_flows
+from gpu_blur.backends.flows import gap_regions, interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
 from gpu_blur.kernel_constants import (
     EXACT_COUNT_SHIFT,
@@ -1012,13 +1012,26 @@ class KernelBackend:
         interpolate kernels); intermediate frames are never stored.
         """
         params = with_flows(plan, params, frames)
-        factors = gap_factors(plan, params, len(frames) - 1)
+        regions = gap_regions(plan, params, len(frames) - 1)
+        factors = regions.gaps
         if max(factors, default=1) == 1:  # interpolation auto, no gap moves: a plain average
             self._average(config, frames, region, linear, sat_mask)
             return
-        # each gap's frames stand for weights[i] frames (reference.interpolate, step 6): all 1
-        # for one factor everywhere, so a fixed factor adds exactly what it always did
-        weights, total = gap_weights(factors)
+        # each gap's frames stand for M / f frames (reference.interpolate, steps 6 and 7), f
+        # the factor of the pixel's region: all 1 for one factor everywhere, so a fixed factor
+        # adds exactly what it always did
+        most = max(factors)
+        _, total = gap_weights(factors)
+        # the gaps' region factors, then one region of M for the last frame (weight 1)
+        per_gap, cols = regions.factors[0].size, regions.factors.shape[2]
+        maps = self._empty(regions.factors.size + 1, np.uint32)
+        self._write(maps, np.append(regions.factors.ravel(), most).astype(np.uint32))
+
+        def weights(gap: int) -> tuple[Arg, ...]:  # a gap's factors per region, and M
+            if gap == len(factors):
+                return maps, *_index(regions.factors.size, 0, 1), Arg("uint", most)
+            return maps, *_index(gap * per_gap, regions.side, cols), Arg("uint", most)
+
         source = source_dtype(frames[0], self.np_real)
         k = self._pass_kernels(config, source, interpolate=True)
         flows = params["flows"]
@@ -1042,10 +1055,10 @@ class KernelBackend:
                     self._launch(k, "blur_interpolate_add", grid, frame_bufs[(i - 1) % 2],
                                  frame_bufs[i % 2], *flow_bufs, *geometry, *full,
                                  Arg("position", step / factor), *test,
-                                 Arg("real", weights[i - 1]), *sums, *_out_geometry(region))
+                                 Arg("uint", step), Arg("uint", factor), *weights(i - 1),
+                                 *sums, *_out_geometry(region))
                 self._launch(k, "blur_interpolate_add_frame", grid, frame_bufs[i % 2],
-                             *geometry, Arg("real", weights[i] if i < len(weights) else 1),
-                             *sums, *_out_geometry(region))
+                             *geometry, *weights(i), *sums, *_out_geometry(region))
         with self._timed():
             self._launch(k, "blur_interpolate_finish", n, *sums, Arg("uint", total), linear,
                          sat_mask)

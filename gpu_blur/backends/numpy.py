@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from gpu_blur.backends.flows import UnitFrames, gap_factors, interpolation_factor, with_flows
+from gpu_blur.backends.flows import UnitFrames, gap_regions, interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
 from gpu_blur.plan import Plan, StageName
 from gpu_blur.reference import bayer, blur, demosaic, noise, transfer
@@ -97,7 +97,7 @@ class NumpyBackend:
         if mode == "average" and interpolation_factor(plan) > 1:
             params = with_flows(plan, params, frames)
             linear, sat_mask = interpolated_average(
-                UnitFrames(frames), gap_factors(plan, params, len(frames) - 1), params["flows"])
+                UnitFrames(frames), gap_regions(plan, params, len(frames) - 1), params["flows"])
         elif mode == "average":
             acc = blur.FrameAccumulator(*frames[0].shape[:2])
             for frame in frames:

@@ -56,23 +56,30 @@ class FrameAccumulator:
         self._count = 0
 
     @property
-    def count(self) -> int:
-        """Number of frames added so far (a weighted frame counts its weight)."""
+    def count(self):
+        """Frames added so far, a weighted frame counting its weight.
+
+        An int, or per pixel an ``H x W x 1`` int array once a frame came with per-pixel
+        weights.
+        """
         return self._count
 
-    def add(self, frame_linear, saturated=None, weight: int = 1) -> None:
+    def add(self, frame_linear, saturated=None, weight=1) -> None:
         """Add one linear frame.
 
         Args:
             frame_linear: ``H x W x C`` linear values (any real dtype; summed in float64).
             saturated: ``H x W x C`` saturated fraction of each value in [0, 1], or ``None``
                 for ``[frame_linear >= 1]``.
-            weight: how many frames this one stands for (an integer >= 1: a frame of an
-                adaptively interpolated gap, :func:`gpu_blur.reference.interpolate.gap_weights`);
-                1 adds it as every other frame, operation for operation.
+            weight: how many frames this one stands for: an integer >= 1 (a frame of an
+                adaptively interpolated gap, :func:`gpu_blur.reference.interpolate.gap_weights`;
+                1 adds it as every other frame, operation for operation), or per pixel an
+                ``H x W`` array of integers >= 0 (regions of a gap with their own factors;
+                0 leaves a pixel's sums as they are: ``+0.0`` is added).
 
         Raises:
-            ValueError: if the frame's shape is not the accumulator's, or it is not finite.
+            ValueError: if the frame's shape is not the accumulator's, it is not finite, or a
+                weight is not an allowed integer.
         """
         frame = np.asarray(frame_linear, dtype=np.float64)
         if frame.shape != self.shape:
@@ -81,15 +88,23 @@ class FrameAccumulator:
             )
         if not np.isfinite(frame).all():
             raise ValueError("frame must be finite (no NaN or inf)")
-        if weight < 1 or weight != int(weight):
-            raise ValueError(f"frame weight must be an integer >= 1; got {weight!r}")
         indicator = (frame >= SATURATION_LEVEL if saturated is None
                      else np.asarray(saturated, dtype=np.float64))
-        if weight != 1:
+        if np.ndim(weight):
+            weight = np.asarray(weight)
+            if (weight.shape != self.shape[:2] or weight.dtype.kind not in "iu"
+                    or weight.min() < 0):
+                raise ValueError(f"per-pixel frame weights must be a {self.shape[:2]} array "
+                                 f"of integers >= 0; got {weight.dtype} {weight.shape}")
+            weight = weight[:, :, None]
+            frame, indicator = frame * weight, indicator * weight
+        elif weight < 1 or weight != int(weight):
+            raise ValueError(f"frame weight must be an integer >= 1; got {weight!r}")
+        elif weight != 1:
             frame, indicator = frame * weight, indicator * weight
         self._sum += frame
         self._saturated += indicator
-        self._count += int(weight)
+        self._count = self._count + (weight if np.ndim(weight) else int(weight))
 
     def result(self) -> tuple[np.ndarray, np.ndarray]:
         """Return ``(blurred, saturation_mask)``, both ``H x W x C`` float64.
@@ -102,7 +117,7 @@ class FrameAccumulator:
         Raises:
             ValueError: if no frame was added.
         """
-        if self._count == 0:
+        if np.any(np.asarray(self._count) == 0):
             raise ValueError("cannot average zero frames")
         return self._sum / self._count, self._saturated / self._count
 

@@ -66,6 +66,16 @@ flow, computed on the host with OpenCV, and a warp-and-blend of the two neighbou
    covers the same time, ``M``, as at the fixed factor ``M``; the last frame counts 1. The
    mean divides by ``(n - 1) M + 1``. With one factor ``f`` in every gap, every weight is 1 and
    the average is the fixed factor ``f``'s, operation for operation.
+7. **Regions** (``blur.interpolation_region = s`` px, 0 for none): the frame is cut into
+   ``s x s`` squares on a grid fixed to the image (so tiles do not move it), and each square
+   gets its own factor per gap from the same measure over its part of the shrunk flow
+   (:func:`region_motion`); the gap's factor is its squares' largest. A pixel of a square with
+   factor ``f`` in a gap of factor ``F`` joins the intermediates at ``t = k / F`` whose ``k f``
+   is a multiple of ``F`` (its own times ``j / f``), each with the weight ``M / f``, as does
+   its original frame: per pixel, exactly the average of step 6 with the square's factors
+   (the others are not added: :class:`FrameAccumulator` adds ``+0.0``). A still part of a
+   moving sequence then inserts no frames; a uniform pan gets one factor everywhere and the
+   operations of step 6.
 
 Limits: flows taken at the intermediate pixel are right for uniform motion and blur the edges
 of a moving object against a differently moving background (the occlusion rule keeps one
@@ -76,6 +86,7 @@ OpenCV version may move them slightly.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 
@@ -91,6 +102,8 @@ __all__ = [
     "INTERPOLATION_AUTO",
     "INTERPOLATION_FACTORS",
     "MOTION_SCALE",
+    "REGION_STEP",
+    "RegionFactors",
     "adaptive_factors",
     "check_flow_size",
     "flow_consistent",
@@ -102,6 +115,8 @@ __all__ = [
     "interpolation_halo",
     "interpolation_times",
     "optical_flow",
+    "region_factors",
+    "region_motion",
     "sequence_flows",
 ]
 
@@ -117,6 +132,9 @@ MOTION_MIN_SIDE = 32
 #: Percentile of the flow magnitude taken as a gap's motion: the fast part of the frame, not
 #: a handful of wrong vectors.
 MOTION_PERCENTILE = 99.0
+#: ``blur.interpolation_region`` is a multiple of this many pixels: a region is then whole
+#: pixels of the motion measure's shrunk frames at every shrink factor (step 7).
+REGION_STEP = 16
 #: Optical-flow methods: OpenCV's DIS (preset MEDIUM) or Farneback.
 FLOW_METHODS = ("dis", "farneback")
 
@@ -226,13 +244,35 @@ def gap_motion(frame0, frame1, method: str = "dis") -> float:
         ``F`` measured on the frames' grayscale shrunk by up to :data:`MOTION_SCALE` (OpenCV's
         area average) and multiplied back by the shrink factor. 0 for identical frames.
     """
+    return float(region_motion(frame0, frame1, 0, method)[0, 0])
+
+
+def region_motion(frame0, frame1, side: int, method: str = "dis") -> np.ndarray:
+    """:func:`gap_motion` of each ``side x side`` region of the frames (module step 7).
+
+    Args:
+        frame0: ``H x W x C`` sRGB frame in [0, 1].
+        frame1: the next frame, same shape.
+        side: region side, pixels, a multiple of :data:`REGION_STEP`; 0 for the whole frame.
+        method: the flow method (:data:`FLOW_METHODS`).
+
+    Returns:
+        ``ceil(H / side) x ceil(W / side)`` float64 (``1 x 1`` for side 0), pixels: the
+        percentile over the shrunk flow's pixels lying in each region; a region past the
+        shrunk frame's last whole pixel (a sliver under the shrink factor wide) takes its
+        neighbour's. All 0 for identical frames.
+    """
     import cv2
 
+    if side < 0 or side % REGION_STEP:
+        raise ValueError(f"region side must be 0 or a multiple of {REGION_STEP} px; "
+                         f"got {side!r}")
     a, b = _frame_pair(frame0, frame1, ("frame0", "frame1"), "to measure motion", method)
+    h, w = a.shape[:2]
+    shape = (-(-h // side), -(-w // side)) if side else (1, 1)
     g0, g1 = _gray8(a), _gray8(b)
     if np.array_equal(g0, g1):
-        return 0.0
-    h, w = g0.shape
+        return np.zeros(shape)
     scale = MOTION_SCALE
     while scale > 1 and min(h, w) // scale < max(MOTION_MIN_SIDE, FLOW_MIN_SIDE[method]):
         scale //= 2
@@ -242,7 +282,29 @@ def gap_motion(frame0, frame1, method: str = "dis") -> float:
         g1 = cv2.resize(g1, size, interpolation=cv2.INTER_AREA)
     flow = _flow_gray(g0, g1, method).astype(np.float64)
     magnitude = np.hypot(flow[:, :, 0], flow[:, :, 1])
-    return float(np.percentile(magnitude, MOTION_PERCENTILE)) * scale
+    step = side // scale if side else max(magnitude.shape)
+    motion = _block_percentiles(magnitude, step, MOTION_PERCENTILE) * scale
+    # regions past the shrunk frame (its size rounded down) take their neighbour's
+    return np.pad(motion, [(0, n - m) for n, m in zip(shape, motion.shape, strict=True)],
+                  mode="edge")
+
+
+def _block_percentiles(values: np.ndarray, step: int, percentile: float) -> np.ndarray:
+    """The percentile of each ``step x step`` block of a 2-D array (the last ones partial)."""
+    h, w = values.shape
+    out = np.empty((-(-h // step), -(-w // step)))
+    full_h, full_w = h // step * step, w // step * step
+    rows = [(0, full_h, step)] + ([(full_h, h, h - full_h)] if h > full_h else [])
+    cols = [(0, full_w, step)] + ([(full_w, w, w - full_w)] if w > full_w else [])
+    for r0, r1, rh in rows:
+        for c0, c1, cw in cols:
+            if r1 == r0 or c1 == c0:
+                continue
+            nr, nc = (r1 - r0) // rh, (c1 - c0) // cw
+            blocks = values[r0:r1, c0:c1].reshape(nr, rh, nc, cw).swapaxes(1, 2)
+            out[r0 // step:r0 // step + nr, c0 // step:c0 // step + nc] = np.percentile(
+                blocks.reshape(nr, nc, rh * cw), percentile, axis=-1)
+    return out
 
 
 def gap_factor(motion_px: float, tolerance_px: float) -> int:
@@ -261,7 +323,7 @@ def gap_factor(motion_px: float, tolerance_px: float) -> int:
 
 def adaptive_factors(frames: Sequence, tolerance_px: float,
                      method: str = "dis") -> tuple[int, ...]:
-    """Each gap's factor for ``blur.interpolation = "auto"``.
+    """Each gap's factor for ``blur.interpolation = "auto"`` without regions (module step 6).
 
     The gap's motion by :func:`gap_motion`, its factor by :func:`gap_factor`.
 
@@ -273,12 +335,65 @@ def adaptive_factors(frames: Sequence, tolerance_px: float,
     Returns:
         ``n - 1`` factors, one per gap, in time order.
     """
-    factors = []
+    return region_factors(frames, tolerance_px, 0, method).gaps
+
+
+@dataclasses.dataclass(frozen=True)
+class RegionFactors:
+    """Each gap's factor in each square region of the frame (module step 7).
+
+    Attributes:
+        side: the regions' side, pixels, on a grid from the image's top-left corner; 0 for
+            one region covering the frame.
+        factors: ``(n - 1) x BH x BW`` uint8, one of :data:`INTERPOLATION_FACTORS` per gap and
+            region (``BH = ceil(H / side)``, ``BW = ceil(W / side)``; 1 x 1 for side 0).
+    """
+
+    side: int
+    factors: np.ndarray
+
+    @classmethod
+    def uniform(cls, factors: Sequence[int]) -> RegionFactors:
+        """One region per gap with the gap's factor: steps 5 and 6 as they are."""
+        return cls(0, np.asarray(factors, dtype=np.uint8).reshape(-1, 1, 1))
+
+    @property
+    def gaps(self) -> tuple[int, ...]:
+        """Each gap's factor: the largest of its regions'."""
+        return tuple(int(f) for f in self.factors.max(axis=(1, 2), initial=1))
+
+    def of_pixels(self, gap: int, height: int, width: int) -> np.ndarray:
+        """Gap ``gap``'s factor at every pixel of a ``height x width`` frame, int64."""
+        f = self.factors[gap].astype(np.int64)
+        if not self.side:
+            return np.broadcast_to(f[0, 0], (height, width))
+        return np.repeat(np.repeat(f, self.side, 0), self.side, 1)[:height, :width]
+
+
+def region_factors(frames: Sequence, tolerance_px: float, side: int,
+                   method: str = "dis") -> RegionFactors:
+    """Each gap's factor per region for ``blur.interpolation = "auto"`` (module step 7).
+
+    Each region's motion by :func:`region_motion`, its factor as :func:`gap_factor` picks it.
+
+    Args:
+        frames: ``n >= 1`` sRGB frames ``H x W x C`` in [0, 1]; read by index, two at a time.
+        tolerance_px: the largest step allowed between consecutive averaged frames, pixels.
+        side: region side, pixels (a multiple of :data:`REGION_STEP`), 0 for whole frames.
+        method: the flow method the motion is measured with.
+    """
+    if not tolerance_px > 0:
+        raise ValueError(f"interpolation tolerance must be > 0 px; got {tolerance_px!r}")
+    maps = []
     current = frames[0] if len(frames) else None
     for i in range(1, len(frames)):
         previous, current = current, frames[i]
-        factors.append(gap_factor(gap_motion(previous, current, method), tolerance_px))
-    return tuple(factors)
+        motion = region_motion(previous, current, side, method)
+        factor = np.full(motion.shape, INTERPOLATION_FACTORS[-1], dtype=np.uint8)
+        for f in reversed(INTERPOLATION_FACTORS):  # the smallest that keeps the step wins
+            factor[motion / f <= tolerance_px] = f
+        maps.append(factor)
+    return RegionFactors(side, np.stack(maps) if maps else np.ones((0, 1, 1), np.uint8))
 
 
 def gap_weights(factors: Sequence[int]) -> tuple[tuple[int, ...], int]:
@@ -466,15 +581,16 @@ def interpolation_times(factor: int) -> tuple[float, ...]:
     return tuple(k / factor for k in range(1, factor))
 
 
-def interpolated_average(frames: Sequence, factor: int | Sequence[int], flows=None,
-                         method: str = "dis") -> tuple[np.ndarray, np.ndarray]:
-    """Average a sequence at ``factor`` times its frame rate (module steps 5 and 6).
+def interpolated_average(frames: Sequence, factor: int | Sequence[int] | RegionFactors,
+                         flows=None, method: str = "dis") -> tuple[np.ndarray, np.ndarray]:
+    """Average a sequence at ``factor`` times its frame rate (module steps 5 to 7).
 
     Args:
         frames: ``n >= 1`` sRGB frames ``H x W x C`` in [0, 1], one shape; read by index, two
             at a time.
         factor: 1, 2, 4 or 8 (1 is plain averaging), or one such factor per gap
-            (``n - 1`` of them: adaptive interpolation, weighted by :func:`gap_weights`).
+            (``n - 1`` of them: adaptive interpolation, weighted by :func:`gap_weights`), or
+            each gap's factors per region (:class:`RegionFactors`, step 7).
         flows: ``(n - 1) x 2 x H x W x 2`` from :func:`sequence_flows`, or ``None`` to compute
             them with ``method`` (unused when every factor is 1).
         method: flow method when ``flows`` is ``None``.
@@ -485,34 +601,49 @@ def interpolated_average(frames: Sequence, factor: int | Sequence[int], flows=No
     """
     if len(frames) < 1:
         raise ValueError("cannot average zero frames")
-    factors = ((factor,) * (len(frames) - 1) if isinstance(factor, (int, np.integer))
-               else tuple(factor))
+    if isinstance(factor, RegionFactors):
+        regions = factor
+    elif isinstance(factor, (int, np.integer)):
+        regions = RegionFactors.uniform((factor,) * (len(frames) - 1))
+    else:
+        regions = RegionFactors.uniform(tuple(factor))
+    factors = regions.gaps
     if len(factors) != len(frames) - 1:
         raise ValueError(f"{len(factors)} interpolation factors for {len(frames) - 1} gaps; "
                          "give one per gap")
     weights, _ = gap_weights(factors)
+    most = max(factors, default=1)
     current = _check_frame(frames[0], "frame 0")
+    h, w = current.shape[:2]
     interpolating = any(f > 1 for f in factors)
     if interpolating and flows is None:
         flows = sequence_flows(frames, method, factors)
     if interpolating:
-        expected = (len(frames) - 1, 2, *current.shape[:2], 2)
+        expected = (len(frames) - 1, 2, h, w, 2)
         if np.shape(flows) != expected:
             raise ValueError(f"flows must be (n - 1) x 2 x H x W x 2 = {expected}; got "
                              f"{np.shape(flows)}")
+
+    def weight(gap: int, step: int = 0):
+        """The weight of gap ``gap``'s frame at ``step / factors[gap]``: an int, or per pixel."""
+        if not regions.side:
+            return weights[gap]
+        own = regions.of_pixels(gap, h, w)  # a pixel's own factor f joins where k f / F is whole
+        return np.where(step * own % factors[gap] == 0, most // own, 0)
+
     acc = FrameAccumulator(*current.shape)
-    acc.add(srgb_to_linear(current), weight=weights[0] if weights else 1)
+    acc.add(srgb_to_linear(current), weight=weight(0) if factors else 1)
     for i in range(1, len(frames)):
         previous, current = current, _check_frame(frames[i], f"frame {i}")
-        times, weight = interpolation_times(factors[i - 1]), weights[i - 1]
+        times = interpolation_times(factors[i - 1])
         if times:  # the gap's trust decisions serve all its times
             fw = _check_flow(flows[i - 1, 0], current.shape[:2], "flow_fw")
             bw = _check_flow(flows[i - 1, 1], current.shape[:2], "flow_bw")
             trust = _trust(fw, bw)
-        for t in times:
+        for step, t in enumerate(times, start=1):
             values, saturated = _frame_with_saturation(previous, current, fw, bw, t, trust)
-            acc.add(srgb_to_linear(values), saturated, weight)
-        acc.add(srgb_to_linear(current), weight=weights[i] if i < len(weights) else 1)
+            acc.add(srgb_to_linear(values), saturated, weight(i - 1, step))
+        acc.add(srgb_to_linear(current), weight=weight(i) if i < len(factors) else 1)
     return acc.result()
 
 

@@ -25,6 +25,15 @@ from gpu_blur.warp_kernels.passes import add_compensated, source_value_func
 
 
 @wp.func
+def region_factor(factors: wp.array(dtype=wp.uint32), map0: int, side: int, cols: int, gx: int,
+                  gy: int) -> wp.uint32:
+    """The factor of the region holding global pixel ``(gx, gy)``: ``gb_region_factor``."""
+    if side == 0:
+        return factors[map0]
+    return factors[map0 + (gy / side) * cols + gx / side]
+
+
+@wp.func
 def sample_flow(flow: wp.array(dtype=wp.float32), sx0: int, sy0: int, sw: int, full_w: int,
                 full_h: int, px: wp.float64, py: wp.float64) -> wp.vec2d:
     """Bilinear sample of a flow view at ``(px, py)``, reflect-101 neighbours, in float64."""
@@ -132,14 +141,21 @@ def interpolate_kernels(real, source=None) -> dict:
                              flow_fw: wp.array(dtype=wp.float32),
                              flow_bw: wp.array(dtype=wp.float32), sx0: int, sy0: int, sw: int,
                              full_w: int, full_h: int, t: wp.float64, relative: wp.float64,
-                             absolute_px2: wp.float64, weight: real,
-                             total: wp.array(dtype=real),
+                             absolute_px2: wp.float64, step: wp.uint32, factor: wp.uint32,
+                             factors: wp.array(dtype=wp.uint32), map0: int, side: int,
+                             cols: int, most: wp.uint32, total: wp.array(dtype=real),
                              compensation: wp.array(dtype=real),
                              saturated: wp.array(dtype=real), dx0: int, dy0: int, dw: int):
-        # launched over (dh, dw); flow_fw maps frame0 to frame1, flow_bw frame1 to frame0
+        # launched over (dh, dw); flow_fw maps frame0 to frame1, flow_bw frame1 to frame0; the
+        # frame at t = step / factor joins where the pixel's region factor f makes step f /
+        # factor whole, with the weight M / f (reference.interpolate, steps 6 and 7)
         y, x = wp.tid()
         gx = dx0 + x
         gy = dy0 + y
+        own = region_factor(factors, map0, side, cols, gx, gy)
+        if (step * own) % factor != wp.uint32(0):
+            return
+        weight = real(most / own)
         o = 2 * ((gy - sy0) * sw + (gx - sx0))
         fwx = wp.float64(flow_fw[o])
         fwy = wp.float64(flow_fw[o + 1])
@@ -173,12 +189,15 @@ def interpolate_kernels(real, source=None) -> dict:
 
     @wp.kernel(module="unique")
     def blur_interpolate_add_frame(frame: wp.array(dtype=source), sx0: int, sy0: int, sw: int,
-                                   weight: real, total: wp.array(dtype=real),
+                                   factors: wp.array(dtype=wp.uint32), map0: int, side: int,
+                                   cols: int, most: wp.uint32, total: wp.array(dtype=real),
                                    compensation: wp.array(dtype=real),
                                    saturated: wp.array(dtype=real), dx0: int, dy0: int,
                                    dw: int):
-        # an original frame (a view holding the output region), as an intermediate is added
+        # an original frame (a view holding the output region), as an intermediate is added,
+        # weighing M / f, f the factor of the pixel's region in the gap it starts
         y, x = wp.tid()
+        weight = real(most / region_factor(factors, map0, side, cols, dx0 + x, dy0 + y))
         o = 3 * ((dy0 + y - sy0) * sw + (dx0 + x - sx0))
         od = 3 * (y * dw + x)
         for c in range(3):

@@ -12,8 +12,11 @@
  * precision), all row-major. The host adds, in time order, each original frame
  * (gb_blur_interpolate_add_frame) and the intermediates after it (gb_blur_interpolate_add) to
  * one set of sums, each times its weight (1, or the frames it stands for under adaptive
- * interpolation: reference.interpolate, step 6), then takes the mean over the total weight
- * (gb_blur_interpolate_finish). The frames and flows are views
+ * interpolation: reference.interpolate, steps 6 and 7, M / f for a pixel whose region has
+ * factor f), then takes the mean over the total weight (gb_blur_interpolate_finish). Each
+ * gap's factors per region come as a uint table from map0 (rows of cols regions of side
+ * pixels on a grid from the image's top-left pixel; side 0: one region); an intermediate at
+ * step / factor is added only at pixels whose region's factor f makes step f / factor whole. The frames and flows are views
  * (first pixel (sx0, sy0), width sw) of one region that holds the output region plus the halo of
  * gpu_blur.reference.interpolate.interpolation_halo; the sums cover the output region. Pixels are
  * addressed by global coordinates (gb_common.h), so a tile gives the whole image's values.
@@ -31,6 +34,13 @@
 
 /* Saturation indicator of one stored sRGB value: 1 at or above 1 (linear 1), else 0. */
 #define GB_SATURATED(v) ((v) >= GB_SATURATION_LEVEL ? GB_REAL(1.0) : GB_REAL(0.0))
+
+/* The factor of the region holding global pixel (gx, gy) in a gap's table (see above). */
+static inline uint gb_region_factor(__global const uint *factors, long map0, long side,
+                                    long cols, long gx, long gy)
+{
+    return factors[map0 + (side ? (gy / side) * cols + gx / side : 0)];
+}
 
 /* Bilinear sample of an RGB frame view at (px, py), reflect-101 neighbours, as
  * reference.sampling.bilinear_sample: a + f (b - a) along x, then along y. sat gets the same
@@ -100,9 +110,10 @@ static inline int gb_interp_consistent(__global const float *flow, __global cons
     return ex * ex + ey * ey <= relative * norms + absolute_px2;
 }
 
-/* blur, variant average with interpolation: add the frame at time t in (0, 1) between frame0
- * and frame1, linearized, to the compensated sums, and its saturated fractions (the blend of
- * the frames' sampled indicators) to saturated. flow_fw
+/* blur, variant average with interpolation: add the frame at time t = step / factor in (0, 1)
+ * between frame0 and frame1, linearized, to the compensated sums, and its saturated fractions
+ * (the blend of the frames' sampled indicators) to saturated, each times M / f (most over the
+ * pixel's region factor), where the region takes this time. flow_fw
  * maps frame0 to frame1, flow_bw frame1 to frame0 (pixels, OpenCV's convention); relative and
  * absolute_px2 are the occlusion test's constants (reference.interpolate.CONSISTENCY_*).
  * Launched over (dw, dh) work items or more (extra ones return). */
@@ -111,13 +122,18 @@ __kernel void gb_blur_interpolate_add(__global const gb_source *frame0,
                                       __global const float *flow_fw,
                                       __global const float *flow_bw, long sx0, long sy0, long sw,
                                       long full_w, long full_h, gb_pos t, gb_pos relative,
-                                      gb_pos absolute_px2, real weight, __global real *sum,
+                                      gb_pos absolute_px2, uint step, uint factor,
+                                      __global const uint *factors, long map0, long side,
+                                      long cols, uint most, __global real *sum,
                                       __global real *compensation, __global real *saturated,
                                       long dx0, long dy0, long dw, long dh)
 {
     long x = get_global_id(0), y = get_global_id(1);
     if (x >= dw || y >= dh) return;
     long gx = dx0 + x, gy = dy0 + y;
+    uint own = gb_region_factor(factors, map0, side, cols, gx, gy);
+    if ((step * own) % factor != 0) return; /* not one of this region's times */
+    real weight = (real)(most / own);
     long o = 2 * gb_offset(gx, gy, sx0, sy0, sw);
     gb_pos fwx = flow_fw[o], fwy = flow_fw[o + 1];
     gb_pos bwx = flow_bw[o], bwy = flow_bw[o + 1];
@@ -143,17 +159,20 @@ __kernel void gb_blur_interpolate_add(__global const gb_source *frame0,
     }
 }
 
-/* blur, variant average with interpolation: add an original frame, linearized, to the sums and
- * its saturated channels (1 where the linear value is >= 1) to saturated. frame is a
+/* blur, variant average with interpolation: add an original frame, linearized, times M / f (f
+ * the factor of the pixel's region in the gap it starts; 1 for the last frame) to the sums and
+ * its saturated channels (M / f where the linear value is >= 1) to saturated. frame is a
  * view (first pixel (sx0, sy0), width sw) holding the output region (dx0, dy0, dw, dh). */
 __kernel void gb_blur_interpolate_add_frame(__global const gb_source *frame, long sx0, long sy0,
-                                            long sw, real weight, __global real *sum,
-                                            __global real *compensation,
+                                            long sw, __global const uint *factors, long map0,
+                                            long side, long cols, uint most,
+                                            __global real *sum, __global real *compensation,
                                             __global real *saturated, long dx0, long dy0,
                                             long dw, long dh)
 {
     long x = get_global_id(0), y = get_global_id(1);
     if (x >= dw || y >= dh) return;
+    real weight = (real)(most / gb_region_factor(factors, map0, side, cols, dx0 + x, dy0 + y));
     long o = 3 * gb_offset(dx0 + x, dy0 + y, sx0, sy0, sw);
     long od = 3 * (y * dw + x);
     for (int c = 0; c < 3; ++c) {
