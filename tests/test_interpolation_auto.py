@@ -239,13 +239,17 @@ def region_scene(precision: str = "float64", side: int = SIDE, frames: int = 4):
                             "output": {"precision": precision}})
 
 
-def test_still_regions_of_a_moving_sequence_get_factor_1():
+def test_still_regions_away_from_moving_ones_get_factor_1():
     frames = [unit_values(f) for f in half_moving(2)]
     regions = interpolate.region_factors(frames, 1.0, SIDE)
     assert regions.factors.shape == (2, 3, 5) and regions.factors.dtype == np.uint8
-    assert (regions.factors[:, :, :2] == 1).all()  # columns 0..63: the still half
-    assert (regions.factors[:, :, 3:] == 8).all()  # columns 96..159: 6 px a frame
+    # columns 0..79 stand still, 80..159 pan 6 px a frame: the region at 64..95 holds both,
+    # the one at 32..63 takes its neighbour's factor, the one at 0..31 stays at 1
+    assert (regions.factors[:, :, 0] == 1).all()
+    assert (regions.factors[:, :, 1:] == 8).all()
     assert regions.gaps == (8, 8)
+    own = interpolate.region_motion(frames[0], frames[1], SIDE)
+    assert (own[:, :2] < 0.5).all() and (own[:, 3:] > 5).all()
     # without regions the whole frame takes the moving half's factor
     assert interpolate.adaptive_factors(frames, 1.0) == (8, 8)
 
