@@ -992,11 +992,10 @@ class DatasetWriter:
     def save(self, spec: SampleSpec, result, record: dict) -> dict:
         """Write one sample's files; returns its manifest line, for :meth:`add` to write.
 
-        The line holds, besides ``record``, how many tiles the sample ran in, how many of them
-        skipped saturation (``unsaturated_tiles``: no clipped pixel there, so the stages
-        were identities) and how many were spot-checked (``spot_check`` "passed", or "none"
-        when no tile was checked: a failed check fails the sample), the stages that ran and
-        why each other one did not (``skipped``); its arrays' file holds each array's convention.
+        The line holds, besides ``record``, how many tiles the sample ran in and how many of
+        them were spot-checked (``spot_check`` "passed", or "none" when no tile was checked:
+        a failed check fails the sample), the stages that ran and why each other one did not
+        (``skipped``); its arrays' file holds each array's convention.
         With :attr:`extras`, the sample's saturation mask (``mask``: a 16-bit PNG, codes
         ``round(m * 65535)``) and RAW mosaic (``raw``: a 16-bit DNG, and ``raw_info``, its
         :func:`gpu_blur.outputs.raw_metadata`) are written too, cropped like the pair.
@@ -1015,7 +1014,6 @@ class DatasetWriter:
             "sharp": paths["sharp"],
             **record,
             "tiles": result.tiles,
-            "unsaturated_tiles": result.unsaturated_tiles,
             "spot_checked_tiles": result.spot_checks,
             "spot_check": "passed" if result.spot_checks else "none",
             "status": "ok",

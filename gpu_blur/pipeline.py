@@ -65,8 +65,6 @@ class Synthesis:
             copies, kernels, checks; writing is 0 here), plus ``other`` and ``total``.
         tiles: how many tiles the image ran in.
         spot_checks: how many of them were checked against the numpy reference.
-        unsaturated_tiles: how many of several tiles skipped the saturate and restore stages
-            the plan keeps, identities there (:func:`gpu_blur.scheduler.saturation_is_identity`).
         device: the model of device that made it, in words (the backend's ``model``:
             ``warp NVIDIA H200, float32``, without the device's number on this host, so a
             set's manifest is the same whichever GPU made each sample).
@@ -87,7 +85,6 @@ class Synthesis:
     device: str = ""
     _raw: object = dataclasses.field(default=None, repr=False)
     raw_info: dict | None = None
-    unsaturated_tiles: int = 0
 
     @property
     def mask(self) -> np.ndarray | None:
@@ -378,7 +375,7 @@ class Synthesizer:
         with timer("reading"):
             item = _gather(inputs, scene)
         (item,), check = self._prepared([item])
-        crop, tiles, checked, unsaturated = scene.output.crop, 1, 0, 0
+        crop, tiles, checked = scene.output.crop, 1, 0
         if self.resident:
             done = self._run_resident([item], [sample_index])
             check()
@@ -403,7 +400,7 @@ class Synthesizer:
             raw = tiled.raw  # the same way
             if isinstance(raw, np.ndarray):
                 raw = crop_border(raw, crop).astype(np.float32, copy=False)
-            tiles, checked, unsaturated = tiled.tiles, tiled.checked, tiled.unsaturated
+            tiles, checked = tiled.tiles, tiled.checked
         if sample_plan.kept(StageName.JPEG):
             out = jpeg_round_trip(out, params["jpeg_quality"])
         if codes:  # what the device did not make: the same codes, made here
@@ -411,7 +408,7 @@ class Synthesizer:
                           else to_integers(x, scene.output.bits) for x in (out, sharp))
         return Synthesis(out, sharp, mask, params, sample_plan,
                          since(before, time.perf_counter() - start), tiles, checked, crop,
-                         self.runner.model, raw, self._raw_info(params), unsaturated)
+                         self.runner.model, raw, self._raw_info(params))
 
     def _check_codes(self, codes: bool) -> None:
         """Refuse ``codes=True`` for a scene without 8- or 16-bit output."""

@@ -11,11 +11,6 @@ inputs); this module decides *how*:
 * **streaming frames**: a sample's frames are decoded once into host memory; for each tile
   the accumulate pass sends them to the device one at a time (at most two in flight: one
   summed while the next uploads), so device memory does not grow with ``blur.frames``.
-* **per-tile skips**: in a run of several tiles, a tile whose blurred mask is 0 and whose
-  linear image lies in [0, 1), halo included, runs to_raw and finish without the saturate and
-  restore stages, identities there (:func:`saturation_is_identity`; one inspect launch per tile
-  on a kernel backend). A whole-image run keeps the sample's plan: ``saturation.mode =
-  "auto"`` already skips a sample whose input never clips, before any pass.
 * **spot checks** (``verify``): a fraction of the tiles, chosen from (seed, sample index),
   is recomputed pass by pass with the numpy float64 reference and compared under the
   tolerance table of :mod:`gpu_blur.testing`; a disagreement raises :class:`SpotCheckError`.
@@ -101,7 +96,6 @@ import numpy as np
 
 from gpu_blur.backends import FRAMES_PER_LAUNCH, Backend, OnDevice, to_host
 from gpu_blur.backends.flows import interpolation_factor, with_flows
-from gpu_blur.backends.kernel import INSPECT_COLUMNS
 from gpu_blur.plan import Plan, StageName
 from gpu_blur.reference import blur, rng
 from gpu_blur.reference.demosaic import halo as demosaic_halo
@@ -400,8 +394,6 @@ class Tiled:
         checked: how many of them were spot-checked.
         raw: with ``keep_raw``, the to_raw pass's noisy white-balanced ``h x w`` mosaic:
             float32, or for a whole-image run what the backend returned; else None.
-        unsaturated: how many tiles of a run in several skipped the saturate and restore
-            stages, identities there (:func:`saturation_is_identity`).
     """
 
     blurred: object
@@ -409,7 +401,6 @@ class Tiled:
     tiles: int
     checked: int
     raw: object = None
-    unsaturated: int = 0
 
 
 def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
@@ -461,7 +452,7 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
     if len(regions) == 1:  # the whole image: results stay where the backend left them
         region = regions[0]
         view = region.expand(halo).aligned(2 if raw else 1)
-        linear, view_mask, image, saturated, result, _ = _passes(
+        linear, view_mask, image, saturated, result = _passes(
             runner, sample_plan, params, camera, frames, mask, view, region, seed, sample_index)
         if chosen:
             with timer("checks"):
@@ -472,16 +463,10 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
     out = np.empty((h, w, 3), dtype=np.float32)
     sat_mask = np.empty((h, w, 3), dtype=np.float32)
     raw_out = np.empty((h, w), dtype=np.float32) if keep_raw else None
-    unsaturated = 0
-    # a tile where saturate and restore are identities runs without them
-    without = (_without(_without(sample_plan, S.SATURATE), S.RESTORE_SATURATED)
-               if sample_plan.kept(S.SATURATE) else None)
     for i, region in enumerate(regions):
         view = region.expand(halo).aligned(2 if raw else 1)
-        linear, view_mask, image, saturated, result, skipped = _passes(
-            runner, sample_plan, params, camera, frames, mask, view, region, seed, sample_index,
-            unsaturated_plan=without)
-        unsaturated += skipped
+        linear, view_mask, image, saturated, result = _passes(
+            runner, sample_plan, params, camera, frames, mask, view, region, seed, sample_index)
         if i in chosen:
             with timer("checks"):
                 check.tile(f"tile {i + 1} of {len(regions)}", region, view, linear, view_mask,
@@ -490,42 +475,21 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
         region.of(sat_mask)[...] = to_host(view_mask, np.float32)[region.within(view)]
         if keep_raw:
             region.of(raw_out)[...] = to_host(image, np.float32)[region.within(view)]
-    return Tiled(out, sat_mask, len(regions), len(chosen), raw_out, unsaturated)
+    return Tiled(out, sat_mask, len(regions), len(chosen), raw_out)
 
 
 def _passes(runner: Backend, sample_plan, params, camera, frames, mask, view: Region,
-            region: Region, seed: int, sample_index: int, unsaturated_plan: Plan | None = None):
-    """One tile's three passes: (linear, mask, image, saturated, result, skipped).
+            region: Region, seed: int, sample_index: int):
+    """One tile's three passes: (linear, mask, image, saturated, result).
 
     Outputs are as the backend leaves them: on its device for kernel backends.
-    ``unsaturated_plan``: the plan without saturate and restore, which a tile where they
-    change nothing (:func:`saturation_is_identity`) runs to_raw and finish with (``skipped``).
     """
     linear, view_mask = runner.accumulate(sample_plan, params, frames, mask, view)
-    tile_plan = sample_plan
-    if unsaturated_plan is not None and saturation_is_identity(runner, linear, view_mask):
-        tile_plan = unsaturated_plan
-    image, saturated = runner.to_raw(tile_plan, params, camera, linear, view_mask,
+    image, saturated = runner.to_raw(sample_plan, params, camera, linear, view_mask,
                                      view.origin, seed=seed, sample_index=sample_index)
-    result = runner.finish(tile_plan, params, camera, image, saturated, view, region,
+    result = runner.finish(sample_plan, params, camera, image, saturated, view, region,
                            seed=seed, sample_index=sample_index)
-    return linear, view_mask, image, saturated, result, tile_plan is not sample_plan
-
-
-def saturation_is_identity(runner: Backend, linear, mask) -> bool:
-    """Whether the saturate and restore stages leave a tile's values as they are.
-
-    True when its mask is 0 everywhere and its linear image lies in [0, 1): then
-    ``clip(B + alpha * 0, 0, 1)`` is ``B`` and no value reaches the 1 that restore looks for
-    (vignetting only lowers it). Tested on the device's own values (one inspect launch for a
-    kernel backend), over the tile's view, halo included: every value to_raw and finish read.
-    """
-    if isinstance(linear, np.ndarray):
-        return not np.any(mask) and bool(np.all((linear >= 0.0) & (linear < 1.0)))
-    image, of_mask = runner.inspect([linear, mask])  # a row of INSPECT_COLUMNS counts each
-    column = {name: i for i, name in enumerate(INSPECT_COLUMNS)}
-    return not (image[column["nan"]] or image[column["below_0"]] or image[column["clip_level"]]
-                or of_mask[column["nan"]] or of_mask[column["above_0"]])
+    return linear, view_mask, image, saturated, result
 
 
 def _without(sample_plan: Plan, stage: str) -> Plan:

@@ -170,7 +170,7 @@ def test_with_raw_returns_the_to_raw_pass_output_with_its_metadata(spec):
     assert out.raw.shape == (2, 24, 38) and out.raw.dtype == np.float32
     for b in range(2):
         params, sample_plan = out.params[b], out.plans[b]
-        _, _, image, _, _, _ = _passes(synth.runner, sample_plan, params, synth.camera,
+        _, _, image, _, _ = _passes(synth.runner, sample_plan, params, synth.camera,
                                     [PHOTOS[b]], None, Region.whole(30, 44),
                                     Region.whole(30, 44), 6, 10 + b)
         held = gpu_blur.backends.to_host(image, np.float32)[3:-3, 3:-3]

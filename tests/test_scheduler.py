@@ -121,41 +121,6 @@ def test_a_budget_smaller_than_the_image_completes_bit_for_bit(spec, small):
     assert explicit.tiles == 1
 
 
-@pytest.mark.parametrize("spec", BACKEND_SPECS)
-def test_tiles_without_clipped_pixels_skip_saturation_with_the_whole_images_bits(spec, small):
-    # the spoon's highlights clip in some tiles only; camera shake (its mask is exactly 0 away
-    # from them: the reference's FFT convolution of mode kernel leaves 1e-17 everywhere, and
-    # a tile is then rightly not skipped), saturation on, Poisson noise, float output
-    scene = scene_for(spec, saturation={"mode": "on"}, output={"bits": 0},
-                      blur={"extent": [3, 3]})
-    backend = spec.split("/")[0]
-    kw = {"seed": SEED, "sample_index": SAMPLE, "backend": backend}
-    whole = gpu_blur.synthesize([small], scene, **kw)
-    tiled = gpu_blur.synthesize([small], scene, tile=(16, 16), verify=1.0, **kw)
-    assert tiled.tiles == 12 and tiled.spot_checks == 12
-    assert whole.unsaturated_tiles == 0 and 0 < tiled.unsaturated_tiles < 12
-    assert np.array_equal(tiled.blurred, whole.blurred)
-    assert np.array_equal(tiled.mask, whole.mask)
-
-
-@pytest.mark.parametrize("spec", BACKEND_SPECS)
-def test_a_tile_at_the_clip_level_with_an_empty_mask_keeps_saturation(spec, small):
-    # blur mode none with a zero mask: saturate adds nothing, but restore still sets the
-    # clipped patch to exactly 1 (a skip tested on the mask alone would lose it)
-    blurred = np.minimum(small, 0.98)
-    blurred[:16, :16] = 1.0
-    scene = scene_for(spec, blur={"mode": "none"}, saturation={"mode": "on"},
-                      output={"bits": 0})
-    inputs = {"blurred": blurred, "mask": np.zeros(blurred.shape, np.float32)}
-    kw = {"seed": SEED, "sample_index": SAMPLE, "backend": spec.split("/")[0]}
-    whole = gpu_blur.synthesize(inputs, scene, **kw)
-    tiled = gpu_blur.synthesize(inputs, scene, tile=(16, 16), **kw)
-    # the Malvar halo reaches 2 px into the neighbours of the clipped tile: those keep it too
-    assert tiled.unsaturated_tiles == 12 - 4
-    assert np.all(whole.blurred[:16, :16] == 1.0)
-    assert np.array_equal(tiled.blurred, whole.blurred)
-
-
 def test_a_budget_too_small_for_the_smallest_tile_names_the_minimum(small):
     scene = scene_from_dict({})
     whole = gpu_blur.synthesize([small], scene, seed=SEED, sample_index=SAMPLE)
