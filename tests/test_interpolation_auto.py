@@ -83,13 +83,27 @@ def test_still_gaps_get_factor_1_and_no_flow_is_computed_for_them(monkeypatch):
     frames = [unit_values(f) for f in still_then_pan(2, 2)]
     factors = interpolate.adaptive_factors(frames, 1.0)
     assert factors == (1, 1, 8, 8)
-    calls = []
-    real_flow = interpolate.optical_flow
-    monkeypatch.setattr(interpolate, "optical_flow",
-                        lambda a, b, m: calls.append(1) or real_flow(a, b, m))
+    calls, grays = [], []
+    real_flow, real_gray = interpolate._flow, interpolate.gray8
+    monkeypatch.setattr(interpolate, "_flow", lambda a, b, m: calls.append(1) or real_flow(a, b, m))
+    monkeypatch.setattr(interpolate, "gray8", lambda f: grays.append(1) or real_gray(f))
     flows = sequence_flows(frames, "dis", factors)
     assert len(calls) == 4  # forward and backward of the two moving gaps only
+    assert len(grays) == 4  # frames 0 (for the size), 2, 3 and 4, each once
     assert not flows[:2].any() and flows[2:].any()
+
+
+def test_flows_from_stored_codes_are_the_flows_from_their_values():
+    codes = np.arange(256, dtype=np.uint8).reshape(16, 16, 1).repeat(3, axis=2)
+    assert np.array_equal(interpolate.gray8(codes), interpolate.gray8(codes / 255.0))
+    frames = still_then_pan(0, 2)
+    from gpu_blur.backends.flows import UnitFrames
+
+    assert np.array_equal(sequence_flows(UnitFrames(frames)),
+                          sequence_flows([unit_values(f) for f in frames]))
+    assert np.array_equal(interpolate.region_factors(UnitFrames(frames), 1.0, SIDE).factors,
+                          interpolate.region_factors([unit_values(f) for f in frames], 1.0,
+                                                     SIDE).factors)
 
 
 def test_gap_weights_give_every_gap_the_time_of_the_largest_factor():

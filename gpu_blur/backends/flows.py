@@ -20,6 +20,7 @@ from gpu_blur.reference.interpolate import (
     INTERPOLATION_AUTO,
     INTERPOLATION_FACTORS,
     RegionFactors,
+    gray8,
     region_factors,
     sequence_flows,
 )
@@ -143,6 +144,11 @@ class UnitFrames:
 
     def __getitem__(self, index: int) -> np.ndarray:
         return unit_values(self._frames[index])
+
+    def gray8(self, index: int) -> np.ndarray:
+        """Frame ``index``'s :func:`~gpu_blur.reference.interpolate.gray8` (8-bit: its codes)."""
+        stored = self._frames[index]
+        return gray8(stored if stored.dtype == np.uint8 else unit_values(stored))
 
 
 def with_flows(plan: Plan, params: dict, frames: Sequence[np.ndarray]) -> dict:

@@ -112,6 +112,7 @@ __all__ = [
     "gap_factor",
     "gap_motion",
     "gap_weights",
+    "gray8",
     "interpolate_frame",
     "interpolated_average",
     "interpolation_halo",
@@ -180,14 +181,47 @@ def _check_flow(flow, shape: tuple[int, int], name: str) -> np.ndarray:
     return arr
 
 
-def _gray8(frame: np.ndarray) -> np.ndarray:
-    """8-bit grayscale of an sRGB frame in [0, 1]: codes rounded, then OpenCV's BT.601 weights."""
+def gray8(frame: np.ndarray) -> np.ndarray:
+    """8-bit grayscale of an sRGB frame, the image the flows and the motion measure see.
+
+    Values in [0, 1] are rounded to 8-bit codes (uint8 codes are taken as they are: the same
+    codes), then OpenCV's BT.601 weights combine RGB; a one-channel frame is its codes.
+    """
     import cv2
 
-    codes = np.rint(np.clip(frame, 0.0, 1.0) * 255.0).astype(np.uint8)
+    frame = np.asarray(frame)
+    codes = (frame if frame.dtype == np.uint8
+             else np.rint(np.clip(frame, 0.0, 1.0) * 255.0).astype(np.uint8))
     if codes.shape[2] == 1:
         return np.ascontiguousarray(codes[:, :, 0])
     return cv2.cvtColor(np.ascontiguousarray(codes[:, :, :3]), cv2.COLOR_RGB2GRAY)
+
+
+class _Grays:
+    """The :func:`gray8` of each frame of a sequence, made once while two gaps need it.
+
+    ``frames`` may offer ``gray8(i)`` (:class:`gpu_blur.backends.flows.UnitFrames`: straight
+    from the stored codes); otherwise each frame is checked and converted. Grays are checked
+    for one shape and for the flow method's smallest size.
+    """
+
+    def __init__(self, frames: Sequence, method: str):
+        self._frames, self._method, self._kept = frames, method, {}
+
+    def __getitem__(self, index: int) -> np.ndarray:
+        if index not in self._kept:
+            made = getattr(self._frames, "gray8", None)
+            gray = (made(index) if made is not None
+                    else gray8(_check_frame(self._frames[index], f"frame {index}")))
+            for other in self._kept.values():
+                if other.shape != gray.shape:
+                    raise ValueError(f"frames must have one shape; frame {index} is "
+                                     f"{gray.shape[0]} x {gray.shape[1]}, the one before "
+                                     f"{other.shape[0]} x {other.shape[1]}")
+            check_flow_size(gray.shape, self._method)
+            self._kept = {k: v for k, v in self._kept.items() if abs(k - index) == 1}
+            self._kept[index] = gray
+        return self._kept[index]
 
 
 def _flow_gray(g0: np.ndarray, g1: np.ndarray, method: str) -> np.ndarray:
@@ -219,8 +253,12 @@ def optical_flow(frame_from, frame_to, method: str = "dis") -> np.ndarray:
         raise ValueError(f"flow method {method!r} is unknown; use one of {FLOW_METHODS}")
     a, b = _frame_pair(frame_from, frame_to, ("frame_from", "frame_to"), "for optical flow",
                        method)
-    flow = _flow_gray(_gray8(a), _gray8(b), method)
-    return np.ascontiguousarray(flow, dtype=np.float32)
+    return _flow(gray8(a), gray8(b), method)
+
+
+def _flow(g0: np.ndarray, g1: np.ndarray, method: str) -> np.ndarray:
+    """:func:`optical_flow` of two frames' grays, as contiguous float32."""
+    return np.ascontiguousarray(_flow_gray(g0, g1, method), dtype=np.float32)
 
 
 def _frame_pair(frame0, frame1, names: tuple[str, str], purpose: str, method: str):
@@ -264,15 +302,19 @@ def region_motion(frame0, frame1, side: int, method: str = "dis") -> np.ndarray:
         shrunk frame's last whole pixel (a sliver under the shrink factor wide) takes its
         neighbour's. All 0 for identical frames.
     """
+    a, b = _frame_pair(frame0, frame1, ("frame0", "frame1"), "to measure motion", method)
+    return _region_motion(gray8(a), gray8(b), side, method)
+
+
+def _region_motion(g0: np.ndarray, g1: np.ndarray, side: int, method: str) -> np.ndarray:
+    """:func:`region_motion` of two frames' grays."""
     import cv2
 
     if side < 0 or side % REGION_STEP:
         raise ValueError(f"region side must be 0 or a multiple of {REGION_STEP} px; "
                          f"got {side!r}")
-    a, b = _frame_pair(frame0, frame1, ("frame0", "frame1"), "to measure motion", method)
-    h, w = a.shape[:2]
+    h, w = g0.shape
     shape = (-(-h // side), -(-w // side)) if side else (1, 1)
-    g0, g1 = _gray8(a), _gray8(b)
     if np.array_equal(g0, g1):
         return np.zeros(shape)
     scale = MOTION_SCALE
@@ -387,10 +429,9 @@ def region_factors(frames: Sequence, tolerance_px: float, side: int,
     if not tolerance_px > 0:
         raise ValueError(f"interpolation tolerance must be > 0 px; got {tolerance_px!r}")
     maps = []
-    current = frames[0] if len(frames) else None
+    grays = _Grays(frames, method)
     for i in range(1, len(frames)):
-        previous, current = current, frames[i]
-        motion = region_motion(previous, current, side, method)
+        motion = _region_motion(grays[i - 1], grays[i], side, method)
         factor = np.full(motion.shape, INTERPOLATION_FACTORS[-1], dtype=np.uint8)
         for f in reversed(INTERPOLATION_FACTORS):  # the smallest that keeps the step wins
             factor[motion / f <= tolerance_px] = f
@@ -463,16 +504,17 @@ def sequence_flows(frames: Sequence, method: str = "dis",
     """
     if len(frames) < 1:
         raise ValueError("sequence_flows needs at least one frame")
-    current = _check_frame(frames[0], "frame 0")
-    h, w = current.shape[:2]
+    if method not in FLOW_METHODS:
+        raise ValueError(f"flow method {method!r} is unknown; use one of {FLOW_METHODS}")
+    grays = _Grays(frames, method)  # each frame's gray made once, for both its gaps
+    h, w = grays[0].shape
     flows = np.empty((len(frames) - 1, 2, h, w, 2), dtype=np.float32)
     for i in range(1, len(frames)):
-        previous, current = current, _check_frame(frames[i], f"frame {i}")
         if factors is not None and factors[i - 1] == 1:
             flows[i - 1] = 0.0
             continue
-        flows[i - 1, 0] = optical_flow(previous, current, method)
-        flows[i - 1, 1] = optical_flow(current, previous, method)
+        flows[i - 1, 0] = _flow(grays[i - 1], grays[i], method)
+        flows[i - 1, 1] = _flow(grays[i], grays[i - 1], method)
     return flows
 
 
