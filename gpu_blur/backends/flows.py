@@ -67,13 +67,18 @@ def with_factors(plan: Plan, params: dict, frames: Sequence[np.ndarray],
     """``params`` with the gaps' factors under interpolation auto.
 
     ``interpolation_factors`` (each gap's) and, with regions, ``interpolation_regions``:
-    ``measured``'s, else measured here from the host frames as :func:`scene_factors` does.
-    ``params`` as they are for a fixed factor or when they hold the factors already.
+    ``measured``'s, else without regions the plan's (:func:`gpu_blur.plan.plan`
+    ``interpolation_factors``), else measured here from the host frames as
+    :func:`scene_factors` does. ``params`` as they are for a fixed factor or when they hold
+    the factors already.
     """
     stage = plan["blur"]
     if (interpolation_factor(plan) == 1 or FACTORS_KEY in params
             or stage.options["interpolation"] != INTERPOLATION_AUTO):
         return params
+    planned = stage.options.get("factors")
+    if measured is None and planned is not None and not stage.options["region"]:
+        measured = RegionFactors.uniform(planned)
     if measured is None:
         with timer("kernels"):
             measured = region_factors(UnitFrames(frames), stage.options["tolerance"],
