@@ -106,6 +106,16 @@ def test_flows_from_stored_codes_are_the_flows_from_their_values():
                                                      SIDE).factors)
 
 
+def test_flows_made_in_threads_are_each_pairs_own_flow(monkeypatch):
+    frames = [unit_values(f) for f in still_then_pan(0, 3)]
+    flows = sequence_flows(frames)
+    for i in range(3):
+        assert np.array_equal(flows[i, 0], interpolate.optical_flow(frames[i], frames[i + 1]))
+        assert np.array_equal(flows[i, 1], interpolate.optical_flow(frames[i + 1], frames[i]))
+    monkeypatch.setattr(interpolate.os, "cpu_count", lambda: 1)  # one thread: the same bits
+    assert np.array_equal(sequence_flows(frames), flows)
+
+
 def test_gap_weights_give_every_gap_the_time_of_the_largest_factor():
     assert gap_weights((1, 2, 8)) == ((8, 4, 1), 25)
     assert gap_weights((4, 4)) == ((1, 1), 9)
