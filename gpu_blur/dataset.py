@@ -23,6 +23,7 @@ from gpu_blur.imageio import temporary_path, write_image, write_new, write_text,
 from gpu_blur.locking import take_lock
 from gpu_blur.outputs import write_dng, write_mask
 from gpu_blur.params import ARRAY_PARAMS
+from gpu_blur.reference.interpolate import INTERPOLATION_AUTO
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 MANIFEST = "manifest.jsonl"
@@ -646,15 +647,23 @@ def library_versions(backend: str) -> dict[str, str]:
 
 
 def _set_keys(scene):
-    """A recorded scene without its None-valued keys.
+    """A recorded scene without its None-valued keys, as resume compares it.
 
     A key added to the scene format since a set was made is absent from its run.json, and
-    None means the same (a stage off, or the camera's level).
+    None means the same (a stage off, or the camera's level). ``blur.interpolation_region``
+    counts only under ``blur.interpolation = "auto"``, where a set made before it had one
+    factor per gap: 0.
     """
     if not isinstance(scene, dict):
         return scene
-    return {section: ({k: v for k, v in keys.items() if v is not None}
-                      if isinstance(keys, dict) else keys) for section, keys in scene.items()}
+    scene = {section: ({k: v for k, v in keys.items() if v is not None}
+                       if isinstance(keys, dict) else keys) for section, keys in scene.items()}
+    blur = scene.get("blur")
+    if isinstance(blur, dict):
+        scene["blur"] = ({"interpolation_region": 0, **blur}
+                         if blur.get("interpolation") == INTERPOLATION_AUTO
+                         else {k: v for k, v in blur.items() if k != "interpolation_region"})
+    return scene
 
 
 def _difference(name: str, old, new) -> str:

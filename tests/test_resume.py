@@ -307,3 +307,24 @@ def test_resume_makes_again_a_sample_whose_file_was_cut_short(tmp_path, photos, 
     assert main(args(photos, out, "--resume", "--limit", "3")) == 0
     assert "2 of 3 samples done, 1 to make" in capsys.readouterr().out
     assert victim.read_bytes() == data
+
+
+def test_a_set_made_before_interpolation_regions_resumes_where_they_do_not_apply(tmp_path,
+                                                                                photos):
+    out = tmp_path / "out"
+    assert main(args(photos, out)) == 0
+    run = json.loads((out / "run.json").read_text())
+    del run["scene"]["blur"]["interpolation_region"]  # as a set of the version before wrote it
+    (out / "run.json").write_text(json.dumps(run))
+    assert main(args(photos, out, "--resume")) == 0  # camera shake: regions do not apply
+
+
+def test_an_auto_interpolation_set_made_before_regions_resumes_only_without_them():
+    from gpu_blur.dataset import _set_keys
+
+    old = {"blur": {"mode": "average", "interpolation": "auto"}}
+    with_regions = {"blur": {"mode": "average", "interpolation": "auto",
+                             "interpolation_region": 64}}
+    without = {"blur": {"mode": "average", "interpolation": "auto", "interpolation_region": 0}}
+    assert _set_keys(old) != _set_keys(with_regions)  # the old set had one factor per gap
+    assert _set_keys(old) == _set_keys(without)
