@@ -62,7 +62,8 @@ rows) as far as the budget allows; the whole image when it fits. The smallest ti
 :data:`MIN_TILE` x :data:`MIN_TILE` (or the image's side, when smaller); a budget below that
 tile's peak is an error naming the minimum. The numpy backend
 keeps the float64 reference's whole-image accumulate pass whatever the budget (it is the
-truth, not a memory saver); the budget still sets its tiles.
+truth, not a memory saver), run once per sample and cut for each tile; the budget still sets
+its tiles.
 
 Spot checks
 -----------
@@ -463,10 +464,14 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
     out = np.empty((h, w, 3), dtype=np.float32)
     sat_mask = np.empty((h, w, 3), dtype=np.float32)
     raw_out = np.empty((h, w), dtype=np.float32) if keep_raw else None
+    # numpy's accumulate pass is the whole image's whatever the region: once for every tile
+    whole = (runner.accumulate(sample_plan, params, frames, mask, Region.whole(h, w))
+             if runner.name == "numpy" else None)
     for i, region in enumerate(regions):
         view = region.expand(halo).aligned(2 if raw else 1)
         linear, view_mask, image, saturated, result = _passes(
-            runner, sample_plan, params, camera, frames, mask, view, region, seed, sample_index)
+            runner, sample_plan, params, camera, frames, mask, view, region, seed, sample_index,
+            whole)
         if i in chosen:
             with timer("checks"):
                 check.tile(f"tile {i + 1} of {len(regions)}", region, view, linear, view_mask,
@@ -479,12 +484,14 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
 
 
 def _passes(runner: Backend, sample_plan, params, camera, frames, mask, view: Region,
-            region: Region, seed: int, sample_index: int):
+            region: Region, seed: int, sample_index: int, whole=None):
     """One tile's three passes: (linear, mask, image, saturated, result).
 
-    Outputs are as the backend leaves them: on its device for kernel backends.
+    Outputs are as the backend leaves them: on its device for kernel backends. ``whole``: the
+    whole image's accumulate pass (linear, mask), cut to the view instead of running it.
     """
-    linear, view_mask = runner.accumulate(sample_plan, params, frames, mask, view)
+    linear, view_mask = ((view.of(whole[0]), view.of(whole[1])) if whole is not None
+                         else runner.accumulate(sample_plan, params, frames, mask, view))
     image, saturated = runner.to_raw(sample_plan, params, camera, linear, view_mask,
                                      view.origin, seed=seed, sample_index=sample_index)
     result = runner.finish(sample_plan, params, camera, image, saturated, view, region,
