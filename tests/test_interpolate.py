@@ -251,6 +251,12 @@ def test_interpolation_halo_is_largest_flow_component_plus_one():
     flows[1, 0, 2, 3, 1] = -6.25
     assert interpolation_halo(flows) == 8
     assert interpolation_halo(np.zeros((0, 2, 4, 5, 2))) == 0
+    assert interpolation_halo(flows.astype(np.float64)) == 8
+    for bad in (np.nan, np.inf, -np.inf):  # one value among finite ones is enough
+        spoiled = flows.copy()
+        spoiled[0, 1, 1, 1, 0] = bad
+        with pytest.raises(ValueError, match="flows must be finite"):
+            interpolation_halo(spoiled)
 
 
 @pytest.mark.parametrize("call, message", [
