@@ -448,8 +448,12 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
         raise ValueError(f"on_device=True needs the whole image in one tile and no spot "
                          f"checks; this schedule gives {len(regions)} tile(s) and checks "
                          f"{len(chosen)}")
+    # numpy's accumulate pass is the whole image's whatever the region: once for every tile,
+    # and it is the spot checks' reference pass too
+    whole = (runner.accumulate(sample_plan, params, frames, mask, Region.whole(h, w))
+             if runner.name == "numpy" and len(regions) > 1 else None)
     check = _SpotCheck(runner, sample_plan, params, camera, frames, mask, seed=seed,
-                       sample_index=sample_index) if chosen else None
+                       sample_index=sample_index, accumulated=whole) if chosen else None
     if len(regions) == 1:  # the whole image: results stay where the backend left them
         region = regions[0]
         view = region.expand(halo).aligned(2 if raw else 1)
@@ -464,9 +468,6 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
     out = np.empty((h, w, 3), dtype=np.float32)
     sat_mask = np.empty((h, w, 3), dtype=np.float32)
     raw_out = np.empty((h, w), dtype=np.float32) if keep_raw else None
-    # numpy's accumulate pass is the whole image's whatever the region: once for every tile
-    whole = (runner.accumulate(sample_plan, params, frames, mask, Region.whole(h, w))
-             if runner.name == "numpy" else None)
     for i, region in enumerate(regions):
         view = region.expand(halo).aligned(2 if raw else 1)
         linear, view_mask, image, saturated, result = _passes(
@@ -509,7 +510,8 @@ class _SpotCheck:
     """Recomputes checked tiles with the numpy reference and compares pass by pass."""
 
     def __init__(self, runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask, *,
-                 seed: int, sample_index: int):
+                 seed: int, sample_index: int, accumulated=None):
+        """``accumulated``: the reference's whole-image accumulate pass, when already run."""
         from gpu_blur.backends.numpy import NumpyBackend
 
         self.runner, self.plan, self.params, self.camera = runner, sample_plan, params, camera
@@ -518,7 +520,7 @@ class _SpotCheck:
         self.backend, self.dtype = runner.name, runner.precision
         if sample_plan.fast_math and self.dtype == "float32":
             self.dtype = "float32-fast"  # the rows of fast maths (gpu_blur.testing)
-        self._accumulated = None
+        self._accumulated = accumulated
 
     def _whole_accumulate(self):
         """The reference accumulate pass over the whole image, once per sample."""
