@@ -255,23 +255,31 @@ def test_compensated_float32_sum_of_8bit_frames_is_the_exactly_rounded_sum(count
 
 @pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
 @pytest.mark.parametrize("count", [3, 9, EXACT_FRAMES_MAX])
-def test_frames_on_the_device_average_to_the_bits_of_streamed_frames(spec, count):
+@pytest.mark.parametrize("shape", [(32, 64), (31, 63)], ids=["codes_in_words", "odd_size"])
+def test_frames_on_the_device_average_to_the_bits_of_streamed_frames(spec, count, shape,
+                                                                      monkeypatch):
     """8-bit frames put on the device are summed in one launch (float32: exactly, in integers,
-    gb_blur_average_exact); frames streamed from the host a few per launch, by compensated
-    sums. Both give the same bits, and float32's are the exact sum rounded once."""
-    h, w = 32, 64
+    gb_blur_average_exact, four codes a work item, where the image's values come in fours;
+    else by the compensated sum); frames streamed from the host a few per launch, by
+    compensated sums. All give the same bits, and float32's are the exact sum rounded once."""
+    h, w = shape
     codes = frame_codes(count, h * w * 3, 7)
     frames = [c.reshape(h, w, 3) for c in codes]
     p, _, params = prepare(spec, {"blur": {"mode": "average", "frames": count}}, (h, w))
     region = Region.whole(h, w)
     backend = make_backend(spec)
+    launched = []
+    launch = backend.backend._launch
+    monkeypatch.setattr(backend.backend, "_launch",
+                        lambda k, name, *a: launched.append(name) or launch(k, name, *a))
     on_dev = backend.accumulate(p, params, backend.put(np.stack(frames)), None, region)
+    exact = spec_dtype(spec) == "float32" and h * w * 3 % 4 == 0
+    assert ("blur_average_exact" in launched) == exact
     streamed = backend.accumulate(p, params, frames, None, region)
     for a, b in zip(on_dev, streamed, strict=True):
         assert np.array_equal(a, b)
     if spec_dtype(spec) == "float32":
         config = pass_config(p, Pass.ACCUMULATE)
-        assert backend.backend._exact_units(config, np.uint8) is not None  # the integer sum ran
         table = OnDevice(backend.backend._code_table(config, np.uint8), (256,),
                          backend.backend._fetch).numpy(np.float32)
         mean = exact_sum_float32(table, codes) / np.float32(count)

@@ -454,18 +454,28 @@ class KernelBackend:
         """Launch the average's sum of ``count`` frames of ``n`` values each from ``stack``.
 
         Exactly in integers (``blur_average_exact``) when these are all the frames (``first``,
-        ``mean_of == count``), at most EXACT_FRAMES_MAX 8-bit ones in a float32 build; else the
-        compensated sum (``blur_average_add``, :func:`average_args`). The same bits either way.
+        ``mean_of == count``), at most EXACT_FRAMES_MAX 8-bit ones in a float32 build read four
+        codes at a time (:meth:`_exact_quads`); else the compensated sum (``blur_average_add``,
+        :func:`average_args`). The same bits either way.
         """
         units = (self._exact_units(config, source)
                  if first and mean_of == count and count <= EXACT_FRAMES_MAX else None)
-        if units is not None:
-            self._launch(k, "blur_average_exact", (1, n), stack, Arg("uint", count),
-                         *_index(n, 0), units, linear, sat_mask, *_index(0))
+        quads = self._exact_quads(stack, n) if units is not None else None
+        if quads is not None:
+            self._launch(k, "blur_average_exact", (1, n // 4), quads, Arg("uint", count),
+                         *_index(n // 4, 0), units, linear, sat_mask, *_index(0))
             return
         self._launch(k, "blur_average_add", n, *average_args(
             stack, count, n, sums, first, mean_of, linear, sat_mask,
             self._code_table(config, source)))
+
+    def _exact_quads(self, stack, n: int):
+        """8-bit frames of ``n`` values each as ``blur_average_exact`` reads them, or None.
+
+        The kernel reads four codes as one 4-byte word, so ``n`` must be a multiple of 4; the
+        buffer itself here (an OpenCL kernel takes it as ``uchar4``), a word view in Warp.
+        """
+        return stack if n % 4 == 0 else None
 
     # -- pass 1: accumulate ----------------------------------------------------------------
     def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
@@ -658,7 +668,7 @@ class KernelBackend:
         """Blur mode average of every sample in one launch, where it can; whether it ran.
 
         It can where :meth:`_at_once` can and the frames sum exactly (``blur_average_exact``:
-        8-bit codes, :meth:`_exact_units`).
+        8-bit codes, :meth:`_exact_units`, :meth:`_exact_quads`).
         """
         if any(p.variant(S.BLUR) != "average" for p in plans):
             return False
@@ -668,13 +678,14 @@ class KernelBackend:
         whole, config, n = batch
         count = whole.shape[1]
         units = self._exact_units(config, whole.dtype) if count <= EXACT_FRAMES_MAX else None
-        if units is None:
+        quads = self._exact_quads(whole.data, n) if units is not None else None
+        if quads is None:
             return False
         k = self._pass_kernels(config, whole.dtype)
         with self._timed(sync=False):
-            self._launch(k, "blur_average_exact", (len(samples), n), whole.data,
-                         Arg("uint", count), *_index(n, count * n), units, linear.buffer,
-                         sat_mask.buffer, *_index(n))
+            self._launch(k, "blur_average_exact", (len(samples), n // 4), quads,
+                         Arg("uint", count), *_index(n // 4, count * n // 4), units,
+                         linear.buffer, sat_mask.buffer, *_index(n))
         return True
 
     def _linearized_at_once(self, plans: Sequence[Plan], samples: Sequence[Drawn],

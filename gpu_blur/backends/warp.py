@@ -311,6 +311,17 @@ class WarpBackend(KernelBackend):
     def _wp_dtype(self, dtype):
         return self.real if dtype is None else wp.dtype_from_numpy(np.dtype(dtype))
 
+    def _exact_quads(self, stack: wp.array, n: int) -> wp.array | None:
+        """The 8-bit stack as 32-bit words (four codes each), the same memory, or None.
+
+        See :meth:`KernelBackend._exact_quads`; a view needs a contiguous stack on a 4-byte
+        boundary.
+        """
+        if n % 4 or stack.ptr % 4 or not stack.is_contiguous:
+            return None
+        return wp.array(ptr=stack.ptr, dtype=wp.uint32, shape=(stack.size // 4,),
+                        device=stack.device)
+
     def _upload(self, values, dtype=None) -> wp.array:
         if isinstance(values, OnDevice):
             return values.data

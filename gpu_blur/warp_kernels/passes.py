@@ -142,26 +142,47 @@ def accumulate_kernels(real, source=None) -> dict:
             compensation[i] = c
             saturated[i] = n
 
+    @wp.func
+    def store_exact_mean(total: wp.uint64, count: int, linear: wp.array(dtype=real),
+                         mask: wp.array(dtype=real), o: int):
+        # an exact sum of ``count`` units entries (blur_average_exact) as the two means at o
+        saturated = total >> wp.uint64(EXACT_COUNT_SHIFT)
+        value = real(total - (saturated << wp.uint64(EXACT_COUNT_SHIFT))) * real(EXACT_UNIT)
+        linear[o] = value / real(count)
+        mask[o] = real(saturated) / real(count)
+
     @wp.kernel(module="unique")
-    def blur_average_exact(frames: wp.array(dtype=source), count: int, stride: int,
+    def blur_average_exact(words: wp.array(dtype=wp.uint32), count: int, stride: int,
                            sample_stride: int, units: wp.array(dtype=wp.uint64),
                            linear: wp.array(dtype=real), mask: wp.array(dtype=real),
                            out_stride: int):
         # 8-bit frames, all in one launch, float32: blur_average_add's means, the same bits,
         # from an exact integer sum (gb_blur_average_exact in accumulate.cl says why);
         # ``units[code]``: the code's linear value in units of EXACT_UNIT, plus
-        # 1 << EXACT_COUNT_SHIFT where it is saturated. Sample b (the first axis) reads its
-        # frames sample_stride values after sample b - 1's and writes its means out_stride
+        # 1 << EXACT_COUNT_SHIFT where it is saturated. Four codes a thread, read as one 32-bit
+        # word of the frames' bytes (code j in bits 8j .. 8j + 7: every Warp device is
+        # little-endian), so a thread has four sums in flight and reads a word, not a byte, a
+        # frame. Sample b (the first axis) reads its frames sample_stride words after sample
+        # b - 1's (frame k stride words after frame k - 1) and writes its means out_stride
         # values after sample b - 1's
-        b, i = wp.tid()
-        first = b * sample_stride + i
-        total = wp.uint64(0)
+        b, q = wp.tid()
+        first = b * sample_stride + q
+        byte = wp.uint32(255)
+        t0 = wp.uint64(0)
+        t1 = wp.uint64(0)
+        t2 = wp.uint64(0)
+        t3 = wp.uint64(0)
         for k in range(count):
-            total = total + units[int(frames[first + k * stride])]
-        saturated = total >> wp.uint64(EXACT_COUNT_SHIFT)
-        value = real(total - (saturated << wp.uint64(EXACT_COUNT_SHIFT))) * real(EXACT_UNIT)
-        linear[b * out_stride + i] = value / real(count)
-        mask[b * out_stride + i] = real(saturated) / real(count)
+            word = words[first + k * stride]
+            t0 = t0 + units[int(word & byte)]
+            t1 = t1 + units[int((word >> wp.uint32(8)) & byte)]
+            t2 = t2 + units[int((word >> wp.uint32(16)) & byte)]
+            t3 = t3 + units[int(word >> wp.uint32(24))]
+        o = b * out_stride + 4 * q
+        store_exact_mean(t0, count, linear, mask, o)
+        store_exact_mean(t1, count, linear, mask, o + 1)
+        store_exact_mean(t2, count, linear, mask, o + 2)
+        store_exact_mean(t3, count, linear, mask, o + 3)
 
     @wp.kernel(module="unique")
     def blur_kernel(src_slots: wp.array2d(dtype=real), ind_slots: wp.array2d(dtype=real),

@@ -69,27 +69,45 @@ __kernel void gb_blur_average_add(__global const gb_source *frames, uint count, 
 }
 
 #if GB_SOURCE_BITS == 8 && !defined(GB_FP64)
+/* The two means of an exact sum of `count` units entries (gb_blur_average_exact) at out[o]. */
+static inline void gb_store_exact_mean(ulong total, uint count, __global real *linear,
+                                       __global real *mask, long o)
+{
+    ulong saturated = total >> GB_EXACT_COUNT_SHIFT;
+    real sum = (real)(total - (saturated << GB_EXACT_COUNT_SHIFT)) * GB_EXACT_UNIT;
+    linear[o] = sum / (real)count;
+    mask[o] = (real)saturated / (real)count;
+}
+
 /* blur, variant average, when all `count` 8-bit frames (at most EXACT_FRAMES_MAX of
  * gpu_blur.kernel_constants) join one launch in a float build: gb_blur_average_add's means, the
  * same bits (gb_sum.h), from an exact integer sum. units[code]: the code's linear value in
  * units of GB_EXACT_UNIT, plus 1 << GB_EXACT_COUNT_SHIFT where that value is saturated; so one
  * 64-bit add a frame sums both the value and the saturation count, and the sum rounds to float
- * once. Sample b (the launch's second axis) reads its frames sample_stride values after sample
- * b - 1's (frame k of it stride values after frame k - 1) and writes its means out_stride values
- * after sample b - 1's. */
-__kernel void gb_blur_average_exact(__global const uchar *frames, uint count, long stride,
+ * once. Four codes a work item, read as one uchar4, so each has four sums in flight and one
+ * 4-byte load a frame. Sample b (the launch's second axis) reads its frames sample_stride
+ * quads after sample b - 1's (frame k of it stride quads after frame k - 1) and writes its
+ * means out_stride values after sample b - 1's. */
+__kernel void gb_blur_average_exact(__global const uchar4 *quads, uint count, long stride,
                                     long sample_stride, __global const ulong *units,
                                     __global real *linear, __global real *mask, long out_stride)
 {
-    size_t i = get_global_id(0);
+    size_t q = get_global_id(0);
     long b = get_global_id(1);
-    __global const uchar *code = frames + b * sample_stride + i;
-    ulong total = 0;
-    for (uint k = 0; k < count; ++k, code += stride) total += units[*code];
-    ulong saturated = total >> GB_EXACT_COUNT_SHIFT;
-    real sum = (real)(total - (saturated << GB_EXACT_COUNT_SHIFT)) * GB_EXACT_UNIT;
-    linear[b * out_stride + i] = sum / (real)count;
-    mask[b * out_stride + i] = (real)saturated / (real)count;
+    __global const uchar4 *code = quads + b * sample_stride + q;
+    ulong t0 = 0, t1 = 0, t2 = 0, t3 = 0;
+    for (uint k = 0; k < count; ++k, code += stride) {
+        uchar4 c = *code;
+        t0 += units[c.x];
+        t1 += units[c.y];
+        t2 += units[c.z];
+        t3 += units[c.w];
+    }
+    long o = b * out_stride + 4 * (long)q;
+    gb_store_exact_mean(t0, count, linear, mask, o);
+    gb_store_exact_mean(t1, count, linear, mask, o + 1);
+    gb_store_exact_mean(t2, count, linear, mask, o + 2);
+    gb_store_exact_mean(t3, count, linear, mask, o + 3);
 }
 #endif
 
