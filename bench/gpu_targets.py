@@ -19,7 +19,10 @@ Poisson-Gaussian noise, RAW round trip, Malvar, A7R3 CRF, 8-bit output), float32
   waiting for each pass, and without, as a training loop that reads results on the device's
   stream runs it), against the
   bound set by pinned host-to-device bandwidth (one sample's frames per sample);
-* **each pass alone** replayed as a CUDA graph: its time and its minimal bytes per second.
+* **each pass alone** replayed as a CUDA graph: its time and its minimal bytes per second;
+* **the RealBlur-J scene** (``realblur_j.toml``: one blurred 8-bit image and its 8-bit mask on
+  the device, no blur, float output): each pass and the whole sample as CUDA graphs, against
+  the copy bandwidth likewise.
 
 Run on the GPU machine from the repository root:
 ``PYTHONPATH=$PWD python3 bench/gpu_targets.py OUT.json``; prints a table, writes the JSON.
@@ -42,10 +45,12 @@ from gpu_blur.cameras import get_camera
 from gpu_blur.dataset import default_photo
 from gpu_blur.params import draw_params
 from gpu_blur.plan import plan
-from gpu_blur.scene import scene_from_dict
+from gpu_blur.scene import load_scene, scene_from_dict
 from gpu_blur.tiling import Region
 
 H, W, FRAMES = 1200, 1920, 9
+#: The scene of gpu_blur/data/scenes/realblur_j.toml, measured beside the RSBlur-like SCENE.
+REALBLUR_J = "realblur_j"
 SCENE = {"blur": {"mode": "average", "frames": FRAMES}, "saturation": {"mode": "on"},
          "noise": {"model": "poisson-gaussian"}, "isp": {"round_trip": "always"},
          "output": {"bits": 8, "precision": "float32"}}
@@ -71,7 +76,10 @@ def median_seconds(fn, sync, runs: int) -> float:
 
 
 def minimal_bytes(pixels: int, frames: int, itemsize: int = 4) -> dict[str, int]:
-    """Bytes each pass must read and write once: uint8 frames in, float buffers between."""
+    """Bytes each pass must read and write once: uint8 frames in, float buffers between.
+
+    ``frames``: the 8-bit RGB images the first pass reads (RealBlur-J: its image and mask, 2).
+    """
     rgb, raw = 3 * pixels * itemsize, pixels * itemsize
     passes = {
         "accumulate": frames * 3 * pixels + 2 * rgb,  # frames in; linear image and mask out
@@ -99,7 +107,8 @@ def bandwidths(wp, device: str) -> dict:
 
 
 def prepared(scene_dict):
-    scene = scene_from_dict(scene_dict)
+    """(scene, plan, camera, drawn values) of sample 0 at H x W: a scene dict or a name."""
+    scene = load_scene(scene_dict) if isinstance(scene_dict, str) else scene_from_dict(scene_dict)
     p = plan(scene, saturated=True)
     camera = get_camera(scene.camera.name)
     params = draw_params(scene, p, camera, seed=1, sample_index=0, image_shape=(H, W))
@@ -216,16 +225,65 @@ def per_pass(wp, frames: np.ndarray, device: str) -> dict:
     moved = minimal_bytes(H * W, FRAMES)
     out = {}
     for name, fn in passes.items():
-        wp.capture_begin(device)
-        try:
-            fn()
-        finally:
-            graph = wp.capture_end(device)
-        t = median_seconds(lambda g=graph: wp.capture_launch(g),
-                           lambda: wp.synchronize_device(device), 50)
+        t = graph_seconds(wp, device, fn)
         out[name] = {"seconds": t, "bytes_per_s": moved[name] / t}
     backend.sync_passes = True
     return out
+
+
+def realblur_j_inputs(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """RealBlur-J's inputs: the first frame as its blurred image, and an 8-bit saturation mask
+    (255 in every channel of a pixel whose brightest channel is 250 or more, else 0)."""
+    image = frames[0]
+    bright = image.max(axis=2, keepdims=True) >= 250
+    return image, np.repeat(bright, 3, axis=2).astype(np.uint8) * 255
+
+
+def realblur_j_on_device(wp, frames: np.ndarray, device: str, band: dict) -> dict:
+    """The RealBlur-J scene (gpu_blur/data/scenes/realblur_j.toml: no blur, saturation, A7R3
+    RAW round trip with Poisson-Gaussian noise, polynomial re-toning, float output) with its
+    image and mask already on the device: each pass and the whole sample as CUDA graphs."""
+    from gpu_blur.backends.warp import WarpBackend
+
+    _, p, camera, params = prepared(REALBLUR_J)
+    backend = WarpBackend(f"warp:{device}", "float32")
+    region = Region.whole(H, W)
+    image, mask = (backend.put(a) for a in realblur_j_inputs(frames))
+    kw = {"seed": 1, "sample_index": 0}
+
+    def sample():
+        linear = backend.accumulate(p, params, image, mask, region)
+        raw = backend.to_raw(p, params, camera, *linear, (0, 0), **kw)
+        return backend.finish(p, params, camera, *raw, region, region, **kw)
+
+    linear = backend.accumulate(p, params, image, mask, region)
+    raw = backend.to_raw(p, params, camera, *linear, (0, 0), **kw)
+    sample()
+    backend.sync_passes = False
+    passes = {"accumulate": lambda: backend.accumulate(p, params, image, mask, region),
+              "to_raw": lambda: backend.to_raw(p, params, camera, *linear, (0, 0), **kw),
+              "finish": lambda: backend.finish(p, params, camera, *raw, region, region, **kw)}
+    moved = minimal_bytes(H * W, 2)
+    out = {"scene": REALBLUR_J, "minimal_bytes": moved, "per_pass": {}}
+    for name, fn in passes.items():
+        t = graph_seconds(wp, device, fn)
+        out["per_pass"][name] = {"seconds": t, "bytes_per_s": moved[name] / t}
+    out["graph_seconds"] = graph_seconds(wp, device, sample)
+    backend.sync_passes = True
+    out["kernel_bytes_per_s"] = moved["total"] / out["graph_seconds"]
+    out["ratio_to_d2d_copy"] = out["kernel_bytes_per_s"] / band["d2d_copy_bytes_per_s"]
+    return out
+
+
+def graph_seconds(wp, device: str, fn, runs: int = 50) -> float:
+    """Median time of ``fn``'s launches captured once as a CUDA graph and replayed."""
+    wp.capture_begin(device)
+    try:
+        fn()
+    finally:
+        graph = wp.capture_end(device)
+    return median_seconds(lambda: wp.capture_launch(graph),
+                          lambda: wp.synchronize_device(device), runs)
 
 
 def through_synthesize(make_backend, frames: np.ndarray, samples: int, on_device: bool) -> dict:
@@ -324,6 +382,8 @@ def main() -> int:
         return OpenCLBackend("opencl", "float32", overlap=overlap)
 
     section(results, "warp_per_pass", lambda: per_pass(wp, frames, device))
+    section(results, "warp_realblur_j_on_device",
+            lambda: realblur_j_on_device(wp, frames, device, band))
     section(results, "warp_synthesize_numpy_frames",
             lambda: through_synthesize(warp_backend, frames, samples, on_device=True))
     section(results, "opencl_synthesize_numpy_frames",
@@ -363,6 +423,11 @@ def main() -> int:
         if isinstance(r, dict):
             rows.append((f"{name}: graph ms", 1e3 * r["seconds"]))
             rows.append((f"{name}: GB/s of its minimal bytes", r["bytes_per_s"] / 1e9))
+    realblur = results["warp_realblur_j_on_device"]
+    rows.append(("RealBlur-J on device: CUDA graph ms",
+                 1e3 * realblur.get("graph_seconds", float("nan"))))
+    rows.append(("RealBlur-J kernel bytes / d2d copy rate",
+                 realblur.get("ratio_to_d2d_copy", float("nan"))))
     for backend in ("warp", "opencl"):
         r = results[f"{backend}_synthesize_numpy_frames"]
         for mode in ("overlapped", "serial"):

@@ -460,22 +460,24 @@ class KernelBackend:
         """
         units = (self._exact_units(config, source)
                  if first and mean_of == count and count <= EXACT_FRAMES_MAX else None)
-        quads = self._exact_quads(stack, n) if units is not None else None
+        quads = self._exact_quads((stack, linear, sat_mask), n) if units is not None else None
         if quads is not None:
-            self._launch(k, "blur_average_exact", (1, n // 4), quads, Arg("uint", count),
-                         *_index(n // 4, 0), units, linear, sat_mask, *_index(0))
+            self._launch(k, "blur_average_exact", (1, n // 4), quads[0], Arg("uint", count),
+                         *_index(n // 4, 0), units, *quads[1:], *_index(0))
             return
         self._launch(k, "blur_average_add", n, *average_args(
             stack, count, n, sums, first, mean_of, linear, sat_mask,
             self._code_table(config, source)))
 
-    def _exact_quads(self, stack, n: int):
-        """8-bit frames of ``n`` values each as ``blur_average_exact`` reads them, or None.
+    def _exact_quads(self, buffers, n: int):
+        """The frames, linear image and mask as ``blur_average_exact`` takes them, or None.
 
-        The kernel reads four codes as one 4-byte word, so ``n`` must be a multiple of 4; the
-        buffer itself here (an OpenCL kernel takes it as ``uchar4``), a word view in Warp.
+        Its work items read four 8-bit codes as one 4-byte word a frame and write four means as
+        one 4-vector, so ``n``, the values of an image, must be a multiple of 4. The buffers
+        themselves here (the OpenCL kernel takes them as ``uchar4`` and ``float4``); word and
+        4-vector views in Warp.
         """
-        return stack if n % 4 == 0 else None
+        return tuple(buffers) if n % 4 == 0 else None
 
     # -- pass 1: accumulate ----------------------------------------------------------------
     def accumulate(self, plan: Plan, params: dict, frames: Sequence[np.ndarray],
@@ -678,14 +680,15 @@ class KernelBackend:
         whole, config, n = batch
         count = whole.shape[1]
         units = self._exact_units(config, whole.dtype) if count <= EXACT_FRAMES_MAX else None
-        quads = self._exact_quads(whole.data, n) if units is not None else None
+        quads = (self._exact_quads((whole.data, linear.buffer, sat_mask.buffer), n)
+                 if units is not None else None)
         if quads is None:
             return False
         k = self._pass_kernels(config, whole.dtype)
         with self._timed(sync=False):
-            self._launch(k, "blur_average_exact", (len(samples), n // 4), quads,
+            self._launch(k, "blur_average_exact", (len(samples), n // 4), quads[0],
                          Arg("uint", count), *_index(n // 4, count * n // 4), units,
-                         linear.buffer, sat_mask.buffer, *_index(n))
+                         *quads[1:], *_index(n // 4))
         return True
 
     def _linearized_at_once(self, plans: Sequence[Plan], samples: Sequence[Drawn],
@@ -1156,7 +1159,7 @@ class KernelBackend:
         tables = self._tables(samples)
         matrix = self._constant(camera.camera_to_linear)
         with self._timed():
-            self._launch(k, "finish", (len(samples), out.h, out.w), *finish_args(
+            self._launch(k, "finish", (len(samples), out.h, (out.w + 1) // 2), *finish_args(
                 plan, tables, view, out, (self._slots(raw), self._slots(saturated)), matrix,
                 (self._constant(polynomial), polynomial.size),
                 (self._constant(table), table.size), self._slots(result), seed=seed))

@@ -311,16 +311,21 @@ class WarpBackend(KernelBackend):
     def _wp_dtype(self, dtype):
         return self.real if dtype is None else wp.dtype_from_numpy(np.dtype(dtype))
 
-    def _exact_quads(self, stack: wp.array, n: int) -> wp.array | None:
-        """The 8-bit stack as 32-bit words (four codes each), the same memory, or None.
+    def _exact_quads(self, buffers, n: int) -> tuple | None:
+        """The frames as 32-bit words and the means as 4-vectors: views of the same memory.
 
-        See :meth:`KernelBackend._exact_quads`; a view needs a contiguous stack on a 4-byte
-        boundary.
+        See :meth:`KernelBackend._exact_quads`; None unless each buffer is contiguous on a
+        boundary of its view's size (4 bytes, 16 bytes).
         """
-        if n % 4 or stack.ptr % 4 or not stack.is_contiguous:
-            return None
-        return wp.array(ptr=stack.ptr, dtype=wp.uint32, shape=(stack.size // 4,),
-                        device=stack.device)
+        views = []
+        for buffer, dtype in zip(buffers, (wp.uint32, wp.vec4f, wp.vec4f), strict=True):
+            size = wp.types.type_size_in_bytes(dtype)
+            if n % 4 or buffer.ptr % size or not buffer.is_contiguous:
+                return None
+            nbytes = buffer.size * wp.types.type_size_in_bytes(buffer.dtype)
+            views.append(wp.array(ptr=buffer.ptr, dtype=dtype, shape=(nbytes // size,),
+                                  device=buffer.device))
+        return tuple(views)
 
     def _upload(self, values, dtype=None) -> wp.array:
         if isinstance(values, OnDevice):

@@ -142,29 +142,30 @@ def accumulate_kernels(real, source=None) -> dict:
             compensation[i] = c
             saturated[i] = n
 
+    vec2 = wp.types.vector(length=2, dtype=real)
+    vec4 = wp.types.vector(length=4, dtype=real)
+
     @wp.func
-    def store_exact_mean(total: wp.uint64, count: int, linear: wp.array(dtype=real),
-                         mask: wp.array(dtype=real), o: int):
-        # an exact sum of ``count`` units entries (blur_average_exact) as the two means at o
+    def exact_means(total: wp.uint64, count: int) -> vec2:
+        # an exact sum of ``count`` units entries (blur_average_exact): (linear, mask) means
         saturated = total >> wp.uint64(EXACT_COUNT_SHIFT)
         value = real(total - (saturated << wp.uint64(EXACT_COUNT_SHIFT))) * real(EXACT_UNIT)
-        linear[o] = value / real(count)
-        mask[o] = real(saturated) / real(count)
+        return vec2(value / real(count), real(saturated) / real(count))
 
     @wp.kernel(module="unique")
     def blur_average_exact(words: wp.array(dtype=wp.uint32), count: int, stride: int,
                            sample_stride: int, units: wp.array(dtype=wp.uint64),
-                           linear: wp.array(dtype=real), mask: wp.array(dtype=real),
+                           linear: wp.array(dtype=vec4), mask: wp.array(dtype=vec4),
                            out_stride: int):
         # 8-bit frames, all in one launch, float32: blur_average_add's means, the same bits,
         # from an exact integer sum (gb_blur_average_exact in accumulate.cl says why);
         # ``units[code]``: the code's linear value in units of EXACT_UNIT, plus
-        # 1 << EXACT_COUNT_SHIFT where it is saturated. Four codes a thread, read as one 32-bit
-        # word of the frames' bytes (code j in bits 8j .. 8j + 7: every Warp device is
-        # little-endian), so a thread has four sums in flight and reads a word, not a byte, a
-        # frame. Sample b (the first axis) reads its frames sample_stride words after sample
+        # 1 << EXACT_COUNT_SHIFT where it is saturated. Four values a thread: it reads one
+        # 32-bit word of the frames' bytes a frame (code j in bits 8j .. 8j + 7: every Warp
+        # device is little-endian), keeps four sums in flight and writes one 4-vector of each
+        # mean. Sample b (the first axis) reads its frames sample_stride words after sample
         # b - 1's (frame k stride words after frame k - 1) and writes its means out_stride
-        # values after sample b - 1's
+        # 4-vectors after sample b - 1's
         b, q = wp.tid()
         first = b * sample_stride + q
         byte = wp.uint32(255)
@@ -178,11 +179,12 @@ def accumulate_kernels(real, source=None) -> dict:
             t1 = t1 + units[int((word >> wp.uint32(8)) & byte)]
             t2 = t2 + units[int((word >> wp.uint32(16)) & byte)]
             t3 = t3 + units[int(word >> wp.uint32(24))]
-        o = b * out_stride + 4 * q
-        store_exact_mean(t0, count, linear, mask, o)
-        store_exact_mean(t1, count, linear, mask, o + 1)
-        store_exact_mean(t2, count, linear, mask, o + 2)
-        store_exact_mean(t3, count, linear, mask, o + 3)
+        m0 = exact_means(t0, count)
+        m1 = exact_means(t1, count)
+        m2 = exact_means(t2, count)
+        m3 = exact_means(t3, count)
+        linear[b * out_stride + q] = vec4(m0[0], m1[0], m2[0], m3[0])
+        mask[b * out_stride + q] = vec4(m0[1], m1[1], m2[1], m3[1])
 
     @wp.kernel(module="unique")
     def blur_kernel(src_slots: wp.array2d(dtype=real), ind_slots: wp.array2d(dtype=real),
@@ -464,8 +466,9 @@ def retone_quantize_func(real, retone: str, bits: int):
 def finish_kernel(real, config):
     """Pass 3 built for ``config`` (gpu_blur.backends.kernel.PassConfig), kept stages as flags.
 
-    One launch over (samples, rows, columns) runs a batch of one plan, as :func:`to_raw_kernel`
-    (its ``gaussian_std``: column 5 of ``sample_reals``).
+    One launch over (samples, rows, half the columns rounded up: two pixels a thread) runs a
+    batch of one plan, as :func:`to_raw_kernel` (its ``gaussian_std``: column 5 of
+    ``sample_reals``).
 
     Stages: demosaic ("" when there is no RAW round trip), camera_to_linear, tone,
     gaussian_noise, restore_saturated, retone (the plan's ``retone_curve``: "", "polynomial"
@@ -482,21 +485,14 @@ def finish_kernel(real, config):
     border = 1 if config.zero_border else 0
     fast = _fast(real, config.fast_math)
 
-    @wp.kernel(module="unique", module_options={"fast_math": fast})
-    def finish(raw_slots: wp.array2d(dtype=real), saturated_slots: wp.array2d(dtype=real),
-               vx0: int, vy0: int, vw: int, full_w: int, full_h: int, ox0: int, oy0: int,
-               ow: int, sample_reals: wp.array2d(dtype=real),
-               sample_words: wp.array2d(dtype=wp.uint32), cam_to_lin: wp.array(dtype=real),
-               key0: wp.uint32, key1: wp.uint32, crf_polynomial: wp.array(dtype=real),
-               crf_table: wp.array(dtype=real), out_slots: wp.array2d(dtype=real)):
-        b, y, x = wp.tid()
-        gaussian_std = sample_reals[b, 5]
-        cfa, sample_index, slot = sample_of(sample_words, b)
-        raw = raw_slots[slot]
-        saturated = saturated_slots[slot]
-        out = out_slots[slot]
-        gx = ox0 + x
-        gy = oy0 + y
+    @wp.func
+    def finish_pixel(raw: wp.array(dtype=real), saturated: wp.array(dtype=real), vx0: int,
+                     vy0: int, vw: int, full_w: int, full_h: int, gx: int, gy: int,
+                     out: wp.array(dtype=real), o: int, cfa: int, sample_index: wp.uint32,
+                     gaussian_std: real, cam_to_lin: wp.array(dtype=real), key0: wp.uint32,
+                     key1: wp.uint32, crf_polynomial: wp.array(dtype=real),
+                     crf_table: wp.array(dtype=real)):
+        # the pixel at global (gx, gy) into out[o], out[o + 1], out[o + 2]
         v = 3 * ((gy - vy0) * vw + (gx - vx0))
         rgb = vec3(saturated[v], saturated[v + 1], saturated[v + 2])
         if wp.static(demosaic != ""):
@@ -512,7 +508,6 @@ def finish_kernel(real, config):
                 cam_to_lin[0] * cam[0] + cam_to_lin[1] * cam[1] + cam_to_lin[2] * cam[2],
                 cam_to_lin[3] * cam[0] + cam_to_lin[4] * cam[1] + cam_to_lin[5] * cam[2],
                 cam_to_lin[6] * cam[0] + cam_to_lin[7] * cam[1] + cam_to_lin[8] * cam[2])
-        o = 3 * (y * ow + x)
         for c in range(3):
             p = rgb[c]
             if wp.static(tone):
@@ -532,5 +527,25 @@ def finish_kernel(real, config):
                 if saturated[v + c] >= real(1.0):
                     p = real(1.0)
             out[o + c] = retone_quantize(p, crf_polynomial, crf_table)
+
+    @wp.kernel(module="unique", module_options={"fast_math": fast})
+    def finish(raw_slots: wp.array2d(dtype=real), saturated_slots: wp.array2d(dtype=real),
+               vx0: int, vy0: int, vw: int, full_w: int, full_h: int, ox0: int, oy0: int,
+               ow: int, sample_reals: wp.array2d(dtype=real),
+               sample_words: wp.array2d(dtype=wp.uint32), cam_to_lin: wp.array(dtype=real),
+               key0: wp.uint32, key1: wp.uint32, crf_polynomial: wp.array(dtype=real),
+               crf_table: wp.array(dtype=real), out_slots: wp.array2d(dtype=real)):
+        # two pixels a thread, columns 2 t and 2 t + 1 of the output: at each of the two steps
+        # every thread of a row is at a site of one Bayer colour, so the demosaic's branches
+        # do not diverge
+        b, y, t = wp.tid()
+        cfa, sample_index, slot = sample_of(sample_words, b)
+        for half in range(2):
+            x = 2 * t + half
+            if x < ow:
+                finish_pixel(raw_slots[slot], saturated_slots[slot], vx0, vy0, vw, full_w,
+                             full_h, ox0 + x, oy0 + y, out_slots[slot], 3 * (y * ow + x), cfa,
+                             sample_index, sample_reals[b, 5], cam_to_lin, key0, key1,
+                             crf_polynomial, crf_table)
 
     return finish

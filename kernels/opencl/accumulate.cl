@@ -69,14 +69,13 @@ __kernel void gb_blur_average_add(__global const gb_source *frames, uint count, 
 }
 
 #if GB_SOURCE_BITS == 8 && !defined(GB_FP64)
-/* The two means of an exact sum of `count` units entries (gb_blur_average_exact) at out[o]. */
-static inline void gb_store_exact_mean(ulong total, uint count, __global real *linear,
-                                       __global real *mask, long o)
+/* The two means of an exact sum of `count` units entries (gb_blur_average_exact): x the linear
+ * value's, y the saturation mask's. */
+static inline float2 gb_exact_means(ulong total, uint count)
 {
     ulong saturated = total >> GB_EXACT_COUNT_SHIFT;
-    real sum = (real)(total - (saturated << GB_EXACT_COUNT_SHIFT)) * GB_EXACT_UNIT;
-    linear[o] = sum / (real)count;
-    mask[o] = (real)saturated / (real)count;
+    float sum = (float)(total - (saturated << GB_EXACT_COUNT_SHIFT)) * GB_EXACT_UNIT;
+    return (float2)(sum / (float)count, (float)saturated / (float)count);
 }
 
 /* blur, variant average, when all `count` 8-bit frames (at most EXACT_FRAMES_MAX of
@@ -84,13 +83,14 @@ static inline void gb_store_exact_mean(ulong total, uint count, __global real *l
  * same bits (gb_sum.h), from an exact integer sum. units[code]: the code's linear value in
  * units of GB_EXACT_UNIT, plus 1 << GB_EXACT_COUNT_SHIFT where that value is saturated; so one
  * 64-bit add a frame sums both the value and the saturation count, and the sum rounds to float
- * once. Four codes a work item, read as one uchar4, so each has four sums in flight and one
- * 4-byte load a frame. Sample b (the launch's second axis) reads its frames sample_stride
- * quads after sample b - 1's (frame k of it stride quads after frame k - 1) and writes its
- * means out_stride values after sample b - 1's. */
+ * once. Four values a work item: one uchar4 load a frame, four sums in flight, one float4
+ * store of each mean. Sample b (the launch's second axis) reads its frames sample_stride quads
+ * after sample b - 1's (frame k of it stride quads after frame k - 1) and writes its means
+ * out_stride quads after sample b - 1's. */
 __kernel void gb_blur_average_exact(__global const uchar4 *quads, uint count, long stride,
                                     long sample_stride, __global const ulong *units,
-                                    __global real *linear, __global real *mask, long out_stride)
+                                    __global float4 *linear, __global float4 *mask,
+                                    long out_stride)
 {
     size_t q = get_global_id(0);
     long b = get_global_id(1);
@@ -103,11 +103,10 @@ __kernel void gb_blur_average_exact(__global const uchar4 *quads, uint count, lo
         t2 += units[c.z];
         t3 += units[c.w];
     }
-    long o = b * out_stride + 4 * (long)q;
-    gb_store_exact_mean(t0, count, linear, mask, o);
-    gb_store_exact_mean(t1, count, linear, mask, o + 1);
-    gb_store_exact_mean(t2, count, linear, mask, o + 2);
-    gb_store_exact_mean(t3, count, linear, mask, o + 3);
+    float2 m0 = gb_exact_means(t0, count), m1 = gb_exact_means(t1, count);
+    float2 m2 = gb_exact_means(t2, count), m3 = gb_exact_means(t3, count);
+    linear[b * out_stride + q] = (float4)(m0.x, m1.x, m2.x, m3.x);
+    mask[b * out_stride + q] = (float4)(m0.y, m1.y, m2.y, m3.y);
 }
 #endif
 
