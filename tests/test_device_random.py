@@ -240,27 +240,6 @@ def test_poisson_edge_rates(program):
     assert np.isnan(counts[3]) and counts[4] == np.inf
 
 
-def test_quick_poisson_counts_are_the_samplers_and_it_defers_the_rest(program):
-    """poisson_quick, what to_raw's first launch draws: each count it gives is the whole
-    sampler's, bit for bit; it defers every rate in (0, 10) and PTRS pixels whose first attempt
-    the squeeze does not take (a fifth at rates 1e3 to 1e7, two thirds at 10), nothing else."""
-    rates = np.array([0.0, -1.0, np.nan, np.inf, 1e-12, 3.0, 9.99, 10.0, 15.0, 1e3, 1e4, 1e7])
-    ys, xs = poisson_grid(400, 500)
-    grid = np.broadcast_to(rates[:, None, None], (rates.size, *ys.shape))
-    both = [np.asarray(device_counts, np.float64).reshape(grid.shape) for device_counts in (
-        program.run(name, grid.size, [*program.key(SEED), np.uint32(7), grid.astype(
-            program.real), np.broadcast_to(xs, grid.shape), np.broadcast_to(ys, grid.shape)],
-            [(grid.shape, program.real)])[0] for name in ("t_poisson_quick", "t_poisson"))]
-    quick, whole = both
-    deferred = quick == -1.0
-    given = ~deferred
-    assert np.array_equal(quick[given], whole[given], equal_nan=True)
-    assert np.array_equal(np.signbit(quick[given]), np.signbit(whole[given]))
-    share = deferred.mean(axis=(1, 2))
-    assert np.all(share[:4] == 0.0) and np.all(share[4:7] == 1.0)
-    assert np.all((share[7:] > 0.15) & (share[7:] < 0.7)) and np.all(share[9:] < 0.3), share
-
-
 @pytest.mark.parametrize("rate", [0.5, 3.0, 9.99, 10.0, 30.0, 1e4, 1e7])
 def test_poisson_mean_and_variance_match_rate(program, rate):
     ys, xs = poisson_grid(400, 500)

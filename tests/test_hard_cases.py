@@ -286,34 +286,6 @@ def test_frames_on_the_device_average_to_the_bits_of_streamed_frames(spec, count
         assert np.array_equal(on_dev[0].ravel(), mean.astype(np.float64))
 
 
-@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
-@pytest.mark.parametrize("poisson", ["exact", "normal"])
-def test_deferred_poisson_pixels_get_the_bits_of_one_launch(spec, poisson, coffee_rgb):
-    """On GPUs to_raw leaves the pixels whose Poisson count is not quick to a second launch
-    (gb_to_raw_deferred); CPUs draw every count in one. Both give the same bits: a tile off the
-    origin with black, dark (rates below 10) and bright pixels, and a batch of three samples
-    through the public API; the second launch had pixels to do and not all of them."""
-    h, w = 24, 40
-    settings = {"blur": {"mode": "none"}, "noise": {"poisson": poisson}}
-    p, camera, params = prepare(spec, settings, (h, w))
-    linear = coffee_rgb[200:200 + h, 300:300 + w].astype(np.float64) / 255.0
-    linear[:4] = 0.0
-    linear[4:8] *= 1e-4
-    mask = (linear > 0.9).astype(np.float64)
-    backend = make_backend(spec)
-    outputs = {}
-    for defer in (False, True):
-        backend.backend.defers_poisson = defer
-        got = backend.to_raw(p, params, camera, linear, mask, (5, 7), seed=3, sample_index=2)
-        stack = np.stack([coffee_rgb[100 * k:100 * k + h, :w] for k in range(3)])
-        synth = gpu_blur.Synthesizer(scene_for(spec, settings), backend=backend.backend, seed=4)
-        outputs[defer] = [np.asarray(a) for a in (*got, synth(stack).blurred)]
-    counted = OnDevice(backend.backend._deferred[1], (1,), backend.backend._fetch, np.uint32)
-    assert 0 < counted.numpy(np.uint32)[0] < 3 * h * w  # the batch's deferred pixels
-    for a, b in zip(outputs[False], outputs[True], strict=True):
-        assert np.array_equal(a, b)
-
-
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 def test_camera_path_of_1000_poses_stays_within_the_stated_bound(spec, coffee_rgb):
     photo = np.ascontiguousarray(coffee_rgb[240:272, 330:362])

@@ -59,10 +59,6 @@ from gpu_blur.timings import timer
 
 S = StageName
 
-#: Most pixels of one to_raw batch: its deferred list numbers them (b h + y) w + x in 32-bit
-#: words, and Warp indexes them with int32 (to_raw_deferred).
-MAX_DEFERRED = 2**31 - 1
-
 
 @dataclasses.dataclass(frozen=True)
 class PassConfig:
@@ -237,8 +233,8 @@ def to_raw_args(plan: Plan, tables, origin: tuple[int, int], h: int, w: int, inp
     (linear, mask) and ``outputs`` (saturated, raw): each a (buffer, stride) pair.
     """
     (linear, mask), (saturated, raw) = inputs, outputs
-    return (*linear, *mask, *_index(origin[1], origin[0], w, h), *tables, matrix,
-            Arg("real", plan[S.POISSON_GAUSSIAN_NOISE].options["normal_above"]),
+    return (*linear, *mask, *_index(origin[1], origin[0], w), Arg("index", h, extent=True),
+            *tables, matrix, Arg("real", plan[S.POISSON_GAUSSIAN_NOISE].options["normal_above"]),
             *_random_key(seed), *saturated, *raw, *stage_values(plan, Pass.TO_RAW))
 
 
@@ -280,11 +276,6 @@ class KernelBackend:
     #: CUDA graph capture: bench/gpu_targets.py); timings then hold launch times only.
     sync_passes = True
 
-    #: Whether the to_raw pass leaves the pixels whose Poisson count is not quick to a second
-    #: launch (gb_to_raw_deferred): on GPUs, where they would hold up whole warps (H200:
-    #: 165 -> 105 us for 1920 x 1200); not on CPUs, where it costs 10 to 45 %. The same bits.
-    defers_poisson = False
-
     def __init__(self):
         self._constants: dict = {}  # (bytes, dtype) -> device copy of a small constant
         self._code_tables: dict = {}  # (config, source dtype) -> the 8-bit linear table
@@ -295,7 +286,6 @@ class KernelBackend:
         self._counts_host = None  # pinned host words that inspect counts come back in
         self._counts_reader = None  # weak reference: the read still to come of those words
         self._kept_codes: dict = {}  # (count, bits) -> device codes buffer (codes_buffer)
-        self._deferred = None  # (pixel numbers, their count, room): the to_raw pass's list
 
     # -- primitives a language supplies ----------------------------------------------------
     @property
@@ -821,11 +811,8 @@ class KernelBackend:
         """
         raise NotImplementedError
 
-    def _fill_zeros(self, buffer, count: int, dtype=None) -> None:
-        """Set the first ``count`` values of a device buffer to zero, in queue order.
-
-        ``dtype``: the buffer's type, the compute type by default.
-        """
+    def _fill_zeros(self, buffer, count: int) -> None:
+        """Set the first ``count`` values of a device buffer to zero, in queue order."""
         raise NotImplementedError
 
     def _mask_values(self, mask: OnDevice | None, n: int, shape) -> OnDevice:
@@ -1130,36 +1117,12 @@ class KernelBackend:
         _check_slots(samples, (("linear", linear, 3 * h * w), ("mask", mask, 3 * h * w),
                                ("saturated", saturated, 3 * h * w),
                                ("raw", raw, h * w if plan.raw_round_trip else 1)))
-        pixels = len(samples) * h * w
-        if self.defers_poisson and pixels > MAX_DEFERRED:
-            raise ValueError(f"a to_raw batch of {len(samples)} samples of {h} x {w} holds "
-                             f"{pixels} pixels, more than the {MAX_DEFERRED} its deferred "
-                             f"list numbers: run fewer samples a batch")
         tables = self._tables(samples)
         matrix = self._constant(camera.linear_to_camera)
-        defer = self.defers_poisson and plan.raw_round_trip and plan.kept(
-            S.POISSON_GAUSSIAN_NOISE)
-        deferred = self._deferred_list(pixels if defer else 1)
-        args = (*to_raw_args(plan, tables, origin, h, w, (self._slots(linear), self._slots(mask)),
-                             matrix, (self._slots(saturated), self._slots(raw)), seed=seed),
-                *deferred)
         with self._timed():
-            if defer:
-                self._fill_zeros(deferred[1], 1, np.uint32)
-            self._launch(k, "to_raw", (len(samples), h, w), *args)
-            if defer:
-                self._launch(k, "to_raw_deferred", pixels, *args)
-
-    def _deferred_list(self, pixels: int) -> tuple:
-        """The to_raw pass's list of deferred pixels, room for ``pixels``, and its count.
-
-        Kept between batches (the queue runs one batch's launches after another's) and grown
-        when a batch needs more.
-        """
-        if self._deferred is None or self._deferred[2] < pixels:
-            self._deferred = (self._empty(pixels, np.uint32), self._empty(1, np.uint32),
-                              pixels)
-        return self._deferred[:2]
+            self._launch(k, "to_raw", (len(samples), h, w), *to_raw_args(
+                plan, tables, origin, h, w, (self._slots(linear), self._slots(mask)), matrix,
+                (self._slots(saturated), self._slots(raw)), seed=seed))
 
     # -- pass 3: finish --------------------------------------------------------------------
     def finish(self, plan: Plan, params: dict, camera: Camera, image, saturated, view: Region,

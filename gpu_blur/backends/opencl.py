@@ -290,7 +290,6 @@ class OpenCLBackend(KernelBackend):
         self.position_dtype = np.float64 if self.info.fp64 else np.float32
         self.device = f"{self.info.spec} {self.info.name} ({self.info.platform}), {precision}"
         self.model = f"opencl {self.info.name} ({self.info.platform}), {precision}"
-        self.defers_poisson = self.info.kind == "GPU"
         self.ctx = cl.Context([self.cl_device])
         self.queue = cl.CommandQueue(self.ctx)
         self.overlap = bool(overlap)
@@ -356,8 +355,6 @@ class OpenCLBackend(KernelBackend):
         defines = config_defines(config)
         if config.pass_ == Pass.ACCUMULATE:
             defines["GB_SOURCE_BITS"] = str(SOURCE_BITS.get(np.dtype(source), 0))
-        if config.pass_ == Pass.TO_RAW and self.defers_poisson:
-            defines["GB_POISSON_DEFER"] = "1"
         return self.kernels("interpolate.cl" if interpolate else SOURCES[config.pass_],
                             defines)
 
@@ -420,9 +417,9 @@ class OpenCLBackend(KernelBackend):
         cl.enqueue_copy(self.queue, into, values, byte_count=count * size,
                         dst_offset=offset * size)
 
-    def _fill_zeros(self, buffer, count: int, dtype=None) -> None:
-        zero = np.zeros(1, dtype or self.real)
-        cl.enqueue_fill_buffer(self.queue, buffer, zero, 0, count * zero.itemsize)
+    def _fill_zeros(self, buffer, count: int) -> None:
+        cl.enqueue_fill_buffer(self.queue, buffer, np.zeros(1, self.real), 0,
+                               count * np.dtype(self.real).itemsize)
 
     def _part(self, buffer, start: int, count: int, dtype) -> cl.Buffer:
         size = np.dtype(dtype or self.real).itemsize

@@ -199,7 +199,6 @@ class WarpBackend(KernelBackend):
         self.device = f"warp:{self.wp_device} {device.name}, {precision}"
         self.model = f"warp {device.name}, {precision}"
         self.overlap = bool(overlap and device.is_cuda)
-        self.defers_poisson = device.is_cuda
         self._copier = wp.Stream(self.wp_device) if self.overlap else None
         self._staging: dict = {}  # slot -> pinned host buffer (kept across samples)
         self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
@@ -226,7 +225,7 @@ class WarpBackend(KernelBackend):
             factory = interpolate_kernels if interpolate else accumulate_kernels
             return factory(self.real, self._wp_dtype(source))
         if config.pass_ == Pass.TO_RAW:
-            return to_raw_kernel(self.real, config, self.defers_poisson)
+            return {"to_raw": to_raw_kernel(self.real, config)}
         return {"finish": finish_kernel(self.real, config)}
 
     def _input_kernels(self, config: PassConfig | None, source):
@@ -631,7 +630,7 @@ class WarpBackend(KernelBackend):
         wp.copy(into, values, dest_offset=offset, count=count)
 
     @staticmethod
-    def _fill_zeros(buffer, count: int, dtype=None) -> None:
+    def _fill_zeros(buffer, count: int) -> None:
         buffer[:count].zero_()
 
     def export(self, values: OnDevice, region: Region, into) -> None:

@@ -339,20 +339,12 @@ def _fast(real, fast_math: bool) -> bool:
 
 
 @functools.cache
-def to_raw_kernel(real, config, deferring: bool = True):
+def to_raw_kernel(real, config):
     """Pass 2 built for ``config`` (gpu_blur.backends.kernel.PassConfig), kept stages as flags.
 
-    Two kernels, ``to_raw`` and ``to_raw_deferred``, as gb_to_raw and gb_to_raw_deferred. One
-    launch of ``to_raw`` over (samples, rows, columns) runs a batch of one plan: sample b's
+    One launch over (samples, rows, columns) runs a batch of one plan, as gb_to_raw: sample b's
     drawn values are row b of ``sample_reals`` (kernel_constants.SAMPLE_REALS) and
     ``sample_words`` (SAMPLE_WORDS), and its buffers are row ``slot`` of each 2-D buffer.
-    ``deferring`` (the Warp side of -DGB_POISSON_DEFER; CUDA): it finishes only the pixels
-    whose Poisson count is quick (random.poisson_quick: about four in five at rates of 1e3 and
-    more) and lists the others, which one launch of ``to_raw_deferred``, a thread per pixel of
-    the batch, finishes with the whole sampler, so the sampler's rare logarithmic branch runs
-    on packed pixels instead of holding up whole warps. Each count comes from its pixel's own
-    words, so this changes no bit. Without it (CPUs, where it only costs) ``to_raw`` draws
-    every count.
 
     Stages: saturate, vignetting, linear_to_camera, mosaic, inverse_white_balance,
     poisson_gaussian_noise, white_balance; the last arguments are the plan's to_raw stage
@@ -368,25 +360,29 @@ def to_raw_kernel(real, config, deferring: bool = True):
     clip_camera, noise = config.clip_camera, config.kept("poisson_gaussian_noise")
     poisson_normal, fast = config.poisson_normal, _fast(real, config.fast_math)
 
-    vec2 = wp.types.vector(length=2, dtype=real)
-
-    @wp.func
-    def camera_value(linear_slots: wp.array2d(dtype=real), mask_slots: wp.array2d(dtype=real),
-                     saturated_slots: wp.array2d(dtype=real), sample_reals: wp.array2d(dtype=real),
-                     b: int, slot: int, cfa: int, i: int, gx: int, gy: int,
-                     lin_to_cam: wp.array(dtype=real), vignetting: real, full_h: real,
-                     full_w: real) -> vec2:
-        # pixel i of the slot's buffers (global column gx, row gy): its saturated RGB, written,
-        # and with the mosaic (s, gain): the camera value it keeps, white balance undone, and
-        # that white balance's gain
+    @wp.kernel(module="unique", module_options={"fast_math": fast})
+    def to_raw(linear_slots: wp.array2d(dtype=real), mask_slots: wp.array2d(dtype=real), x0: int,
+               y0: int, w: int, sample_reals: wp.array2d(dtype=real),
+               sample_words: wp.array2d(dtype=wp.uint32), lin_to_cam: wp.array(dtype=real),
+               poisson_normal_above: real, key0: wp.uint32, key1: wp.uint32,
+               saturated_slots: wp.array2d(dtype=real), raw_slots: wp.array2d(dtype=real),
+               vignetting: real, full_h: real, full_w: real):
+        b, y, x = wp.tid()
+        alpha = sample_reals[b, 0]
+        red_gain = sample_reals[b, 1]
+        blue_gain = sample_reals[b, 2]
+        shot_noise_k = sample_reals[b, 3]
+        read_noise_std = sample_reals[b, 4]
+        cfa, sample_index, slot = sample_of(sample_words, b)
         linear = linear_slots[slot]
         mask = mask_slots[slot]
         saturated = saturated_slots[slot]
+        raw = raw_slots[slot]
+        i = y * w + x
         v0 = linear[3 * i]
         v1 = linear[3 * i + 1]
         v2 = linear[3 * i + 2]
         if wp.static(saturate):
-            alpha = sample_reals[b, 0]
             v0 = wp.clamp(v0 + alpha * mask[3 * i], real(0.0), real(1.0))
             v1 = wp.clamp(v1 + alpha * mask[3 * i + 1], real(0.0), real(1.0))
             v2 = wp.clamp(v2 + alpha * mask[3 * i + 2], real(0.0), real(1.0))
@@ -394,8 +390,8 @@ def to_raw_kernel(real, config, deferring: bool = True):
             # 1 - s (r / r_corner)^2 about the image centre, as reference.optics.vignetting_gain
             cy = real(0.5) * full_h
             cx = real(0.5) * full_w
-            dy = (real(gy) + real(0.5)) - cy
-            dx = (real(gx) + real(0.5)) - cx
+            dy = (real(y0 + y) + real(0.5)) - cy
+            dx = (real(x0 + x) + real(0.5)) - cx
             shade = real(1.0) - vignetting * ((dx * dx + dy * dy) / (cx * cx + cy * cy))
             v0 = v0 * shade
             v1 = v1 * shade
@@ -403,124 +399,42 @@ def to_raw_kernel(real, config, deferring: bool = True):
         saturated[3 * i] = v0
         saturated[3 * i + 1] = v1
         saturated[3 * i + 2] = v2
-        s = real(0.0)
-        gain = real(1.0)
         if wp.static(mosaic):
+            gx = x0 + x
+            gy = y0 + y
             ch = pixel.cfa_channel(cfa, gx, gy)
             # linear_to_camera, only the channel the mosaic keeps
             s = (lin_to_cam[3 * ch] * v0 + lin_to_cam[3 * ch + 1] * v1
                  + lin_to_cam[3 * ch + 2] * v2)
             if wp.static(clip_camera):
                 s = wp.clamp(s, real(0.0), real(1.0))
+            gain = real(1.0)
             if ch == 0:
-                gain = sample_reals[b, 1]
+                gain = red_gain
             if ch == 2:
-                gain = sample_reals[b, 2]
+                gain = blue_gain
             s = s / gain  # inverse_white_balance
-        return vec2(s, gain)
-
-    @wp.func
-    def shot_rate(s: real, sample_reals: wp.array2d(dtype=real), b: int) -> wp.float64:
-        # the Poisson rate of camera value s: max(s, 0) / K, rounded to ``real``
-        return wp.float64(wp.max(s, real(0.0)) / sample_reals[b, 3])
-
-    def counts_func(quick: bool):
-        # the shot-noise counts of a pixel: the whole sampler, or its quick cases (random)
-        exact = random.poisson_quick if quick else random.poisson
-        normal = random.poisson_normal_above_quick if quick else random.poisson_normal_above
-
-        @wp.func
-        def counts(rate: wp.float64, normal_above: real, key0: wp.uint32, key1: wp.uint32,
-                   sample_index: wp.uint32, gx: int, gy: int) -> wp.float64:
-            if wp.static(poisson_normal):
-                return normal(rate, wp.float64(normal_above), key0, key1, sample_index,
-                              wp.uint32(gx), wp.uint32(gy))
-            return exact(rate, key0, key1, sample_index, wp.uint32(gx), wp.uint32(gy))
-
-        return counts
-
-    whole_counts = counts_func(False)
-    poisson_counts = counts_func(deferring)
-
-    @wp.func
-    def write_raw(raw_slots: wp.array2d(dtype=real), slot: int, i: int, s: real, gain: real,
-                  counts: wp.float64, sample_reals: wp.array2d(dtype=real), b: int,
-                  key0: wp.uint32, key1: wp.uint32, sample_index: wp.uint32, gx: int, gy: int):
-        # the pixel's RAW value: its counts (noise kept) and read noise, white balance redone
-        if wp.static(noise):
-            if wp.static(fast):
-                z = real(random.pixel_normal_fast(
-                    key0, key1, sample_index, wp.uint32(random.READ_NOISE), wp.uint32(gx),
-                    wp.uint32(gy), wp.uint32(0)))
-            else:
-                z = real(random.pixel_normal(
-                    key0, key1, sample_index, wp.uint32(random.READ_NOISE), wp.uint32(gx),
-                    wp.uint32(gy), wp.uint32(0)))
-            s = sample_reals[b, 3] * real(counts) + sample_reals[b, 4] * z
-        raw_slots[slot][i] = s * gain  # white_balance
-
-    @wp.kernel(module="unique", module_options={"fast_math": fast})
-    def to_raw(linear_slots: wp.array2d(dtype=real), mask_slots: wp.array2d(dtype=real), x0: int,
-               y0: int, w: int, h: int, sample_reals: wp.array2d(dtype=real),
-               sample_words: wp.array2d(dtype=wp.uint32), lin_to_cam: wp.array(dtype=real),
-               poisson_normal_above: real, key0: wp.uint32, key1: wp.uint32,
-               saturated_slots: wp.array2d(dtype=real), raw_slots: wp.array2d(dtype=real),
-               vignetting: real, full_h: real, full_w: real,
-               deferred: wp.array(dtype=wp.uint32), deferred_count: wp.array(dtype=wp.uint32)):
-        # every pixel but those whose Poisson count is not quick (random.poisson_quick): their
-        # numbers (b h + y) w + x go to ``deferred`` (in no particular order, counted in
-        # deferred_count[0]) for to_raw_deferred
-        b, y, x = wp.tid()
-        cfa, sample_index, slot = sample_of(sample_words, b)
-        i = y * w + x
-        gx = x0 + x
-        gy = y0 + y
-        value = camera_value(linear_slots, mask_slots, saturated_slots, sample_reals, b, slot,
-                             cfa, i, gx, gy, lin_to_cam, vignetting, full_h, full_w)
-        if wp.static(mosaic):
-            counts = wp.float64(0.0)
             if wp.static(noise):
-                rate = shot_rate(value[0], sample_reals, b)
-                counts = poisson_counts(rate, poisson_normal_above, key0, key1, sample_index,
-                                        gx, gy)
-            if wp.static(deferring) and counts == random.POISSON_DEFERRED:
-                deferred[int(wp.atomic_add(deferred_count, 0, wp.uint32(1)))] = wp.uint32(
-                    (b * h + y) * w + x)
-            else:
-                write_raw(raw_slots, slot, i, value[0], value[1], counts, sample_reals, b, key0,
-                          key1, sample_index, gx, gy)
+                rate = wp.max(s, real(0.0)) / shot_noise_k
+                if wp.static(poisson_normal):
+                    counts = random.poisson_normal_above(
+                        wp.float64(rate), wp.float64(poisson_normal_above), key0, key1,
+                        sample_index, wp.uint32(gx), wp.uint32(gy))
+                else:
+                    counts = random.poisson(wp.float64(rate), key0, key1, sample_index,
+                                            wp.uint32(gx), wp.uint32(gy))
+                if wp.static(fast):
+                    z = real(random.pixel_normal_fast(
+                        key0, key1, sample_index, wp.uint32(random.READ_NOISE), wp.uint32(gx),
+                        wp.uint32(gy), wp.uint32(0)))
+                else:
+                    z = real(random.pixel_normal(
+                        key0, key1, sample_index, wp.uint32(random.READ_NOISE), wp.uint32(gx),
+                        wp.uint32(gy), wp.uint32(0)))
+                s = shot_noise_k * real(counts) + read_noise_std * z
+            raw[i] = s * gain  # white_balance
 
-    @wp.kernel(module="unique", module_options={"fast_math": fast})
-    def to_raw_deferred(linear_slots: wp.array2d(dtype=real),
-                        mask_slots: wp.array2d(dtype=real), x0: int, y0: int, w: int, h: int,
-                        sample_reals: wp.array2d(dtype=real),
-                        sample_words: wp.array2d(dtype=wp.uint32),
-                        lin_to_cam: wp.array(dtype=real), poisson_normal_above: real,
-                        key0: wp.uint32, key1: wp.uint32,
-                        saturated_slots: wp.array2d(dtype=real),
-                        raw_slots: wp.array2d(dtype=real), vignetting: real, full_h: real,
-                        full_w: real, deferred: wp.array(dtype=wp.uint32),
-                        deferred_count: wp.array(dtype=wp.uint32)):
-        # the pixels to_raw deferred, one a thread, their counts by the whole sampler (the same
-        # words, so the same count as one pass would give); threads past the count return
-        t = wp.tid()
-        if t < int(deferred_count[0]):
-            number = int(deferred[t])
-            x = number % w
-            y = (number // w) % h
-            b = number // (w * h)
-            cfa, sample_index, slot = sample_of(sample_words, b)
-            i = y * w + x
-            gx = x0 + x
-            gy = y0 + y
-            value = camera_value(linear_slots, mask_slots, saturated_slots, sample_reals, b,
-                                 slot, cfa, i, gx, gy, lin_to_cam, vignetting, full_h, full_w)
-            rate = shot_rate(value[0], sample_reals, b)
-            counts = whole_counts(rate, poisson_normal_above, key0, key1, sample_index, gx, gy)
-            write_raw(raw_slots, slot, i, value[0], value[1], counts, sample_reals, b, key0,
-                      key1, sample_index, gx, gy)
-
-    return {"to_raw": to_raw, "to_raw_deferred": to_raw_deferred}
+    return to_raw
 
 
 @functools.cache

@@ -57,7 +57,6 @@ __all__ = [
     "KERNEL",
     "LOG_FACTORIAL_TABLE",
     "PARAMS",
-    "POISSON_DEFERRED",
     "POISSON_INVERSION_MAX_K",
     "POISSON_PTRS_MIN_RATE",
     "READ_NOISE",
@@ -75,9 +74,7 @@ __all__ = [
     "pixel_normal_fast",
     "poisson",
     "poisson_normal_above",
-    "poisson_normal_above_quick",
     "poisson_normal_count",
-    "poisson_quick",
     "uniform",
 ]
 
@@ -324,47 +321,27 @@ def log_factorial(k: wp.float64) -> wp.float64:
 
 
 @wp.func
-def _ptrs_candidate(word_u: wp.uint32, word_v: wp.uint32, mu: wp.float64, a: wp.float64,
-                    b: wp.float64) -> wp.vec3d:
-    """A PTRS attempt's candidate (rng._ptrs_attempt's first lines): ``vec3d(k, us, v)``."""
-    big_u = uniform(word_u) - _F_HALF
-    v = uniform(word_v)
-    us = _F_HALF - wp.abs(big_u)
-    # k stays floating: a rejected candidate can lie far outside the int range.
-    k = wp.floor((_F2 * a / us + b) * big_u + mu + _PTRS_SHIFT)
-    return wp.vec3d(k, us, v)
-
-
-@wp.func
-def _ptrs_shape(mu: wp.float64) -> wp.vec4d:
-    """PTRS's constants for rate ``mu`` (Hoermann 1993): ``vec4d(a, b, inv_alpha, v_r)``."""
-    b = _PTRS_B0 + _PTRS_B1 * wp.sqrt(mu)
-    a = _PTRS_A0 + _PTRS_A1 * b
-    inv_alpha = _PTRS_IA0 + _PTRS_IA1 / (b - _PTRS_IA2)
-    v_r = _PTRS_VR0 - _PTRS_VR1 / (b - _F2)
-    return wp.vec4d(a, b, inv_alpha, v_r)
-
-
-@wp.func
 def _ptrs_attempt(
     word_u: wp.uint32,
     word_v: wp.uint32,
     mu: wp.float64,
     log_mu: wp.float64,
-    shape: wp.vec4d,
+    a: wp.float64,
+    b: wp.float64,
+    inv_alpha: wp.float64,
+    v_r: wp.float64,
 ) -> wp.vec2d:
     """One PTRS attempt (rng._ptrs_attempt): ``vec2d(k, 1.0)`` if accepted, else ``(k, 0.0)``."""
-    a = shape[0]
-    b = shape[1]
-    candidate = _ptrs_candidate(word_u, word_v, mu, a, b)
-    k = candidate[0]
-    us = candidate[1]
-    v = candidate[2]
-    if us >= _PTRS_US_SQUEEZE and v <= shape[3]:
+    big_u = uniform(word_u) - _F_HALF
+    v = uniform(word_v)
+    us = _F_HALF - wp.abs(big_u)
+    # k stays floating: a rejected candidate can lie far outside the int range.
+    k = wp.floor((_F2 * a / us + b) * big_u + mu + _PTRS_SHIFT)
+    if us >= _PTRS_US_SQUEEZE and v <= v_r:
         return wp.vec2d(k, _F1)
     if k < _F0 or (us < _PTRS_US_TAIL and v > us):
         return wp.vec2d(k, _F0)
-    lhs = wp.log(v * shape[2] / (a / (us * us) + b))
+    lhs = wp.log(v * inv_alpha / (a / (us * us) + b))
     rhs = -mu + k * log_mu - log_factorial(k)
     if lhs <= rhs:
         return wp.vec2d(k, _F1)
@@ -412,57 +389,21 @@ def poisson(
 
     # PTRS (Hoermann 1993).
     log_mu = wp.log(mu)
-    shape = _ptrs_shape(mu)
+    b = _PTRS_B0 + _PTRS_B1 * wp.sqrt(mu)
+    a = _PTRS_A0 + _PTRS_A1 * b
+    inv_alpha = _PTRS_IA0 + _PTRS_IA1 / (b - _PTRS_IA2)
+    v_r = _PTRS_VR0 - _PTRS_VR1 / (b - _F2)
     block = wp.uint32(0)
     while block < ROUND_LIMIT:
         bits = pixel_bits(key0, key1, sample_index, SHOT_NOISE, x, y, block)
-        first = _ptrs_attempt(bits[0], bits[1], mu, log_mu, shape)
+        first = _ptrs_attempt(bits[0], bits[1], mu, log_mu, a, b, inv_alpha, v_r)
         if first[1] != _F0:
             return first[0]
-        second = _ptrs_attempt(bits[2], bits[3], mu, log_mu, shape)
+        second = _ptrs_attempt(bits[2], bits[3], mu, log_mu, a, b, inv_alpha, v_r)
         if second[1] != _F0:
             return second[0]
         block = block + wp.uint32(1)
     return _NAN  # unreachable: each attempt accepts with probability > 0.9
-
-
-#: :func:`poisson_quick`'s answer for a pixel it leaves to :func:`poisson`.
-POISSON_DEFERRED = wp.constant(wp.float64(-1.0))
-
-
-@wp.func
-def poisson_quick(
-    rate: wp.float64,
-    key0: wp.uint32,
-    key1: wp.uint32,
-    sample_index: wp.uint32,
-    x: wp.uint32,
-    y: wp.uint32,
-) -> wp.float64:
-    """:func:`poisson`'s count where it comes without a logarithm, else POISSON_DEFERRED.
-
-    The cheap cases: NaN, +inf, rate <= 0 (inversion's 0: exp(-0) = 1 covers every uniform),
-    and a PTRS rate whose first attempt the squeeze accepts (measured: 76 % of pixels at rate
-    1e3, 80 % at 1e7, 35 % at 10). Each is the very count :func:`poisson` gives, from the same
-    operations; the rest (inversion below rate 10, PTRS's logarithmic test, later attempts) is
-    for :func:`poisson` to draw. The to_raw pass runs this on every pixel and :func:`poisson`
-    on the deferred ones in a second launch, so the costly branch runs on packed pixels, not
-    diverging warps.
-    """
-    if wp.isnan(rate):
-        return rate
-    if rate <= _F0:
-        return _F0
-    if wp.isinf(rate):
-        return rate
-    if rate < POISSON_PTRS_MIN_RATE:
-        return POISSON_DEFERRED
-    shape = _ptrs_shape(rate)
-    bits = pixel_bits(key0, key1, sample_index, SHOT_NOISE, x, y, wp.uint32(0))
-    candidate = _ptrs_candidate(bits[0], bits[1], rate, shape[0], shape[1])
-    if candidate[1] >= _PTRS_US_SQUEEZE and candidate[2] <= shape[3]:
-        return candidate[0]
-    return POISSON_DEFERRED
 
 
 @wp.func
@@ -508,23 +449,3 @@ def poisson_normal_above(
     if rate > normal_above and not wp.isinf(rate):
         return poisson_normal_count(rate, key0, key1, sample_index, x, y)
     return poisson(rate, key0, key1, sample_index, x, y)
-
-
-@wp.func
-def poisson_normal_above_quick(
-    rate: wp.float64,
-    normal_above: wp.float64,
-    key0: wp.uint32,
-    key1: wp.uint32,
-    sample_index: wp.uint32,
-    x: wp.uint32,
-    y: wp.uint32,
-) -> wp.float64:
-    """:func:`poisson_normal_above` where it is quick (:func:`poisson_quick`), else deferred.
-
-    The normal approximation is always quick; the rates at or below ``normal_above`` go to
-    :func:`poisson_quick`.
-    """
-    if rate > normal_above and not wp.isinf(rate):
-        return poisson_normal_count(rate, key0, key1, sample_index, x, y)
-    return poisson_quick(rate, key0, key1, sample_index, x, y)

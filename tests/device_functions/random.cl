@@ -73,14 +73,6 @@ __kernel void t_poisson_normal_above(const uint key0, const uint key1, const uin
                                      xs[i], ys[i]);
 }
 
-__kernel void t_poisson_quick(const uint key0, const uint key1, const uint sample_index,
-                              __global const real *rate, __global const uint *xs,
-                              __global const uint *ys, __global real *out)
-{
-    const size_t i = get_global_id(0);
-    out[i] = gb_poisson_quick(rate[i], (uint2)(key0, key1), sample_index, xs[i], ys[i]);
-}
-
 __kernel void t_srgb(__global const real *x, __global real *linear, __global real *encoded)
 {
     const size_t i = get_global_id(0);

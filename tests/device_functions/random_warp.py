@@ -78,14 +78,6 @@ def t_poisson(key0: wp.uint32, key1: wp.uint32, sample_index: wp.uint32,
 
 
 @wp.kernel
-def t_poisson_quick(key0: wp.uint32, key1: wp.uint32, sample_index: wp.uint32,
-                    rates: wp.array(dtype=wp.float64), xs: wp.array(dtype=wp.uint32),
-                    ys: wp.array(dtype=wp.uint32), out: wp.array(dtype=wp.float64)):
-    i = wp.tid()
-    out[i] = wr.poisson_quick(rates[i], key0, key1, sample_index, xs[i], ys[i])
-
-
-@wp.kernel
 def t_poisson_normal_above(key0: wp.uint32, key1: wp.uint32, sample_index: wp.uint32,
                            normal_above: wp.float64, rates: wp.array(dtype=wp.float64),
                            xs: wp.array(dtype=wp.uint32), ys: wp.array(dtype=wp.uint32),
@@ -125,7 +117,7 @@ T_SRGB = srgb_kernel({"enable_backward": False})
 BUILDS = {
     "float64": {k.func.__name__: k for k in (t_philox, t_pixel_uniforms, t_uniform, t_box_muller,
                                              t_pixel_normals, t_log_factorial, t_poisson,
-                                             t_poisson_quick, t_poisson_normal_above)},
+                                             t_poisson_normal_above)},
     "float32-fast": {"t_srgb": T_SRGB_FAST, "t_pixel_normals": t_pixel_normals_fast},
 }
 

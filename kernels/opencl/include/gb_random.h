@@ -3,9 +3,8 @@
  *
  * Provides Philox4x32-10 (gb_philox, from pyopencl's bundled Random123 philox.cl), the per-pixel
  * words (gb_pixel_bits), uniforms (gb_uniform), Box-Muller normals (gb_box_muller,
- * gb_pixel_normal), log(k!) (gb_log_factorial), the Poisson sampler (gb_poisson), its quick
- * cases alone (gb_poisson_quick) and its normal approximation above a threshold rate
- * (gb_poisson_normal_above, gb_poisson_normal_above_quick; scene noise.poisson = "normal").
+ * gb_pixel_normal), log(k!) (gb_log_factorial), the Poisson sampler (gb_poisson) and its normal
+ * approximation above a threshold rate (gb_poisson_normal_above, scene noise.poisson = "normal").
  *
  * The contract is rng.py's module docstring, repeated here operation for operation:
  *   key      (seed & 0xFFFFFFFF, seed >> 32), passed as a uint2
@@ -155,34 +154,6 @@ static inline gb_wide gb_log_factorial(gb_wide k)
     return (k + GB_WIDE(0.5)) * log(k) - k + GB_HALF_LOG_TWO_PI + series;
 }
 
-/* PTRS's constants for rate mu (Hoermann 1993). */
-typedef struct {
-    gb_wide a, b, inv_alpha, v_r;
-} gb_ptrs_shape;
-
-static inline gb_ptrs_shape gb_ptrs_shape_of(gb_wide mu)
-{
-#pragma OPENCL FP_CONTRACT OFF
-    gb_ptrs_shape shape;
-    shape.b = GB_PTRS_B0 + GB_PTRS_B1 * sqrt(mu);
-    shape.a = GB_PTRS_A0 + GB_PTRS_A1 * shape.b;
-    shape.inv_alpha = GB_PTRS_IA0 + GB_PTRS_IA1 / (shape.b - GB_PTRS_IA2);
-    shape.v_r = GB_PTRS_VR0 - GB_PTRS_VR1 / (shape.b - GB_WIDE(2.0));
-    return shape;
-}
-
-/* A PTRS attempt's candidate k on words (word_u, word_v), with its us and v. */
-static inline gb_wide gb_ptrs_candidate(uint word_u, uint word_v, gb_wide mu, gb_ptrs_shape shape,
-                                        gb_wide *us, gb_wide *v)
-{
-#pragma OPENCL FP_CONTRACT OFF
-    const gb_wide big_u = (gb_wide)gb_uniform(word_u) - GB_WIDE(0.5);
-    *v = (gb_wide)gb_uniform(word_v);
-    *us = GB_WIDE(0.5) - fabs(big_u);
-    /* k stays floating: a rejected candidate can lie far outside the int range. */
-    return floor((GB_WIDE(2.0) * shape.a / *us + shape.b) * big_u + mu + GB_PTRS_K_SHIFT);
-}
-
 /* One Poisson count at pixel (x, y) of stream SHOT_NOISE (rng.poisson), as a real.
  * The rate is clamped at 0 (negative rates give 0). The reference refuses non-finite rates; here
  * NaN gives NaN and +inf gives +inf, so that the PTRS loop never runs on them. In a float build
@@ -215,48 +186,29 @@ static inline real gb_poisson(real rate_in, uint2 key, uint sample_index, uint x
     /* PTRS (Hoermann 1993), mu = rate. */
     const gb_wide mu = rate;
     const gb_wide log_mu = log(mu);
-    const gb_ptrs_shape shape = gb_ptrs_shape_of(mu);
+    const gb_wide b = GB_PTRS_B0 + GB_PTRS_B1 * sqrt(mu);
+    const gb_wide a = GB_PTRS_A0 + GB_PTRS_A1 * b;
+    const gb_wide inv_alpha = GB_PTRS_IA0 + GB_PTRS_IA1 / (b - GB_PTRS_IA2);
+    const gb_wide v_r = GB_PTRS_VR0 - GB_PTRS_VR1 / (b - GB_WIDE(2.0));
     for (uint round = 0u; round < GB_ROUND_LIMIT; ++round) {
         const uint4 bits = gb_pixel_bits(key, sample_index, GB_STREAM_SHOT_NOISE, x, y, round);
         for (int attempt = 0; attempt < 2; ++attempt) {
-            gb_wide us, v;
-            const gb_wide k = gb_ptrs_candidate(attempt == 0 ? bits.x : bits.z,
-                                                attempt == 0 ? bits.y : bits.w, mu, shape, &us,
-                                                &v);
-            if (us >= GB_PTRS_US_SQUEEZE && v <= shape.v_r) return (real)k;
+            const uint word_u = attempt == 0 ? bits.x : bits.z;
+            const uint word_v = attempt == 0 ? bits.y : bits.w;
+            const gb_wide big_u = (gb_wide)gb_uniform(word_u) - GB_WIDE(0.5);
+            const gb_wide v = (gb_wide)gb_uniform(word_v);
+            const gb_wide us = GB_WIDE(0.5) - fabs(big_u);
+            /* k stays floating: a rejected candidate can lie far outside the int range. */
+            const gb_wide k =
+                floor((GB_WIDE(2.0) * a / us + b) * big_u + mu + GB_PTRS_K_SHIFT);
+            if (us >= GB_PTRS_US_SQUEEZE && v <= v_r) return (real)k;
             if (k < GB_WIDE(0.0) || (us < GB_PTRS_US_TAIL && v > us)) continue;
-            const gb_wide lhs = log(v * shape.inv_alpha / (shape.a / (us * us) + shape.b));
+            const gb_wide lhs = log(v * inv_alpha / (a / (us * us) + b));
             const gb_wide rhs = -mu + k * log_mu - gb_log_factorial(k);
             if (lhs <= rhs) return (real)k;
         }
     }
     return (real)NAN; /* unreachable: each attempt accepts with probability > 0.9 */
-}
-
-/* gb_poisson_quick's answer for a pixel it leaves to gb_poisson. */
-#define GB_POISSON_DEFERRED GB_REAL(-1.0)
-
-/* gb_poisson's count where it comes without a logarithm, else GB_POISSON_DEFERRED: NaN, +inf,
- * rate <= 0 (inversion's 0: exp(-0) = 1 covers every uniform), and a PTRS rate whose first
- * attempt the squeeze accepts (measured: 76 % of pixels at rate 1e3, 80 % at 1e7, 35 % at 10);
- * each is the very count gb_poisson gives, from the same operations. The rest (inversion below
- * rate 10, PTRS's logarithmic test, later attempts) is gb_poisson's to draw: gb_to_raw runs
- * this on every pixel and gb_to_raw_deferred gb_poisson on the deferred ones, so the costly
- * branch runs on packed pixels instead of diverging warps. */
-static inline real gb_poisson_quick(real rate_in, uint2 key, uint sample_index, uint x, uint y)
-{
-#pragma OPENCL FP_CONTRACT OFF
-    const gb_wide rate = (gb_wide)rate_in;
-    if (isnan(rate)) return rate_in;
-    if (rate <= GB_WIDE(0.0)) return GB_REAL(0.0);
-    if (isinf(rate)) return (real)INFINITY;
-    if (rate < GB_POISSON_PTRS_MIN_RATE) return GB_POISSON_DEFERRED;
-    const gb_ptrs_shape shape = gb_ptrs_shape_of(rate);
-    const uint4 bits = gb_pixel_bits(key, sample_index, GB_STREAM_SHOT_NOISE, x, y, 0u);
-    gb_wide us, v;
-    const gb_wide k = gb_ptrs_candidate(bits.x, bits.y, rate, shape, &us, &v);
-    if (us >= GB_PTRS_US_SQUEEZE && v <= shape.v_r) return (real)k;
-    return GB_POISSON_DEFERRED;
 }
 
 /* A Poisson count by the normal approximation (rng.poisson_normal_approximation) for a finite
@@ -286,17 +238,6 @@ static inline real gb_poisson_normal_above(real rate_in, real normal_above, uint
     if (rate > (gb_wide)normal_above && !isinf(rate))
         return (real)gb_poisson_normal_count(rate, key, sample_index, x, y);
     return gb_poisson(rate_in, key, sample_index, x, y);
-}
-
-/* gb_poisson_normal_above where it is quick (gb_poisson_quick), else GB_POISSON_DEFERRED: the
- * normal approximation always is. */
-static inline real gb_poisson_normal_above_quick(real rate_in, real normal_above, uint2 key,
-                                                 uint sample_index, uint x, uint y)
-{
-    const gb_wide rate = (gb_wide)rate_in;
-    if (rate > (gb_wide)normal_above && !isinf(rate))
-        return (real)gb_poisson_normal_count(rate, key, sample_index, x, y);
-    return gb_poisson_quick(rate_in, key, sample_index, x, y);
 }
 
 #endif
