@@ -286,6 +286,36 @@ def test_frames_on_the_device_average_to_the_bits_of_streamed_frames(spec, count
         assert np.array_equal(on_dev[0].ravel(), mean.astype(np.float64))
 
 
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+@pytest.mark.parametrize("shape", [(32, 64), (31, 63)], ids=["codes_in_words", "odd_size"])
+def test_8bit_image_and_mask_in_mode_none_give_the_bits_of_their_float_values(spec, shape,
+                                                                            monkeypatch):
+    """Blur mode none takes an 8-bit image and mask on the device four codes a work item (the
+    image through the code table, linearize_codes; the mask by unit_values_codes) where the
+    values come in fours: the same bits as the same values given as floats (code / 255), from
+    the device and from the host."""
+    h, w = shape
+    codes = frame_codes(2, h * w * 3, 11)
+    image, mask = (c.reshape(h, w, 3) for c in codes)
+    p, _, params = prepare(spec, {"blur": {"mode": "none"}}, (h, w))
+    region = Region.whole(h, w)
+    backend = make_backend(spec)
+    launched = []
+    launch = backend.backend._launch
+    monkeypatch.setattr(backend.backend, "_launch",
+                        lambda k, name, *a: launched.append(name) or launch(k, name, *a))
+    coded = backend.accumulate(p, params, backend.put(image), backend.put(mask), region)
+    quads = h * w * 3 % 4 == 0
+    assert ("linearize_codes" in launched) == quads
+    assert ("unit_values_codes" in launched) == quads
+    real = np.dtype(spec_dtype(spec))
+    as_values = [(a / np.float64(255.0)).astype(real) for a in (image, mask)]
+    for got in (backend.accumulate(p, params, [image], as_values[1], region),
+                backend.accumulate(p, params, *(backend.put(a) for a in as_values), region)):
+        for a, b in zip(coded, got, strict=True):
+            assert np.array_equal(a, b)
+
+
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 def test_camera_path_of_1000_poses_stays_within_the_stated_bound(spec, coffee_rgb):
     photo = np.ascontiguousarray(coffee_rgb[240:272, 330:362])

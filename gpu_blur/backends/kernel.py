@@ -455,12 +455,12 @@ class KernelBackend:
 
         Exactly in integers (``blur_average_exact``) when these are all the frames (``first``,
         ``mean_of == count``), at most EXACT_FRAMES_MAX 8-bit ones in a float32 build read four
-        codes at a time (:meth:`_exact_quads`); else the compensated sum (``blur_average_add``,
+        codes at a time (:meth:`_quads`); else the compensated sum (``blur_average_add``,
         :func:`average_args`). The same bits either way.
         """
         units = (self._exact_units(config, source)
                  if first and mean_of == count and count <= EXACT_FRAMES_MAX else None)
-        quads = self._exact_quads((stack, linear, sat_mask), n) if units is not None else None
+        quads = self._quads((stack, linear, sat_mask), n) if units is not None else None
         if quads is not None:
             self._launch(k, "blur_average_exact", (1, n // 4), quads[0], Arg("uint", count),
                          *_index(n // 4, 0), units, *quads[1:], *_index(0))
@@ -469,13 +469,12 @@ class KernelBackend:
             stack, count, n, sums, first, mean_of, linear, sat_mask,
             self._code_table(config, source)))
 
-    def _exact_quads(self, buffers, n: int):
-        """The frames, linear image and mask as ``blur_average_exact`` takes them, or None.
+    def _quads(self, buffers, n: int):
+        """Buffers of ``n`` values each as kernels taking four values a work item read them.
 
-        Its work items read four 8-bit codes as one 4-byte word a frame and write four means as
-        one 4-vector, so ``n``, the values of an image, must be a multiple of 4. The buffers
-        themselves here (the OpenCL kernel takes them as ``uchar4`` and ``float4``); word and
-        4-vector views in Warp.
+        8-bit codes as 4-byte words, reals as 4-vectors; None where they cannot: ``n`` must be
+        a multiple of 4. The buffers themselves here (the OpenCL kernels declare
+        ``uchar4`` and ``float4``); word and 4-vector views in Warp.
         """
         return tuple(buffers) if n % 4 == 0 else None
 
@@ -502,10 +501,9 @@ class KernelBackend:
         elif mode == "average":
             self._average(config, frames, region, linear, sat_mask)
         elif mode == "none":
-            indicator = self._empty(n)
             image = self._upload(region.of(frames[0]), source)
             with self._timed():
-                self._launch(k, "linearize", n, image, linear, indicator)
+                self._linearize_unblurred(config, source, image, n, linear)
             del image
             given = np.zeros(shape) if mask is None else region.of(mask)
             return (self._out(linear, shape, Pass.ACCUMULATE, region.origin),
@@ -548,7 +546,7 @@ class KernelBackend:
                                  (linear, sat_mask, spare), True, count, linear, sat_mask)
         elif mode == "none":
             with self._timed(sync=False):
-                self._launch(k, "linearize", n, frames.data, linear, sat_mask)
+                self._linearize_unblurred(config, source, frames.data, n, linear)
             if into is None:
                 return (self._out(linear, shape, Pass.ACCUMULATE, region.origin),
                         self._mask_values(mask, n, shape))
@@ -557,6 +555,37 @@ class KernelBackend:
             self._blur_photo(k, mode, params, frames, source, region, linear, sat_mask)
         return self._linear_out(linear, sat_mask, shape, region)
 
+    def _linearize_unblurred(self, config: PassConfig, source, image, count: int,
+                             linear) -> None:
+        """Blur mode none's linearize: ``count`` values of ``image`` into ``linear``.
+
+        No clip indicator: mode none's given mask replaces it. 8-bit codes where they come in
+        fours go four a work item through the code table (``linearize_codes``, the same bits);
+        else ``linearize``, its indicator into a spare buffer.
+        """
+        k = self._pass_kernels(config, source)
+        quads = self._quads((image, linear), count) if np.dtype(source) == np.uint8 else None
+        if quads is None:
+            self._launch(k, "linearize", count, image, linear, self._empty(count))
+        else:
+            self._launch(k, "linearize_codes", count // 4, quads[0],
+                         self._code_table(config, source), quads[1])
+
+    def _unit_values(self, stored: OnDevice, count: int, into) -> None:
+        """``count`` stored values (a mask in its stored dtype) as reals in [0, 1] into ``into``.
+
+        8-bit codes where they come in fours go four a work item (``unit_values_codes``, the
+        same bits).
+        """
+        source = self._stored_dtype(stored)
+        k = self._input_kernels(None, source)
+        quads = self._quads((stored.data, into), count) if source == np.uint8 else None
+        with self._timed(sync=False):
+            if quads is None:
+                self._launch(k, "unit_values", count, stored.data, into)
+            else:
+                self._launch(k, "unit_values_codes", count // 4, *quads)
+
     def _mask_into(self, mask: OnDevice | None, n: int, into) -> None:
         """Mode none's given mask as compute-type values in the device buffer ``into``."""
         if mask is None:
@@ -564,9 +593,7 @@ class KernelBackend:
         elif self._stored_dtype(mask) == np.dtype(self.np_real):
             self._copy(into, mask.data, n)
         else:
-            with self._timed(sync=False):
-                self._launch(self._input_kernels(None, mask.dtype), "unit_values", n,
-                             mask.data, into)
+            self._unit_values(mask, n, into)
 
     def accumulate_into(self, plan: Plan, params: dict, frames: OnDevice,
                         mask: OnDevice | None, linear: Slots, sat_mask: Slots, b: int) -> None:
@@ -655,9 +682,8 @@ class KernelBackend:
         mask = self.consecutive(given) if given else None
         if given and (len(given) != len(inputs) or mask is None):
             return None
-        # the kernel also writes each pixel's clip indicator, which the masks replace
         if not self._linearized_at_once(plans, samples, [f for f, _ in inputs],
-                                        (linear, sat_mask)):
+                                        (linear, sat_mask), indicator=False):
             return None
         n = linear.stride
         if mask is not None and self._stored_dtype(mask) == np.dtype(self.np_real):
@@ -670,7 +696,7 @@ class KernelBackend:
         """Blur mode average of every sample in one launch, where it can; whether it ran.
 
         It can where :meth:`_at_once` can and the frames sum exactly (``blur_average_exact``:
-        8-bit codes, :meth:`_exact_units`, :meth:`_exact_quads`).
+        8-bit codes, :meth:`_exact_units`, :meth:`_quads`).
         """
         if any(p.variant(S.BLUR) != "average" for p in plans):
             return False
@@ -680,7 +706,7 @@ class KernelBackend:
         whole, config, n = batch
         count = whole.shape[1]
         units = self._exact_units(config, whole.dtype) if count <= EXACT_FRAMES_MAX else None
-        quads = (self._exact_quads((whole.data, linear.buffer, sat_mask.buffer), n)
+        quads = (self._quads((whole.data, linear.buffer, sat_mask.buffer), n)
                  if units is not None else None)
         if quads is None:
             return False
@@ -692,20 +718,25 @@ class KernelBackend:
         return True
 
     def _linearized_at_once(self, plans: Sequence[Plan], samples: Sequence[Drawn],
-                            photos: Sequence[OnDevice], into: tuple[Slots, Slots]) -> bool:
+                            photos: Sequence[OnDevice], into: tuple[Slots, Slots], *,
+                            indicator: bool = True) -> bool:
         """Every sample's photo linearized in one launch, where it can; whether it ran.
 
         Into its slots of ``into`` (linear values, clip indicators), where :meth:`_at_once`
-        can.
+        can; without ``indicator`` (blur mode none) the indicators' slots are left as they are.
         """
         batch = self._at_once(plans, samples, photos, into, frames=False)
         if batch is None:
             return False
         whole, config, n = batch
-        k = self._pass_kernels(config, whole.dtype or np.dtype(self.np_real))
+        source = whole.dtype or np.dtype(self.np_real)
         with self._timed(sync=False):
-            self._launch(k, "linearize", len(samples) * n, whole.data, into[0].buffer,
-                         into[1].buffer)
+            if indicator:
+                self._launch(self._pass_kernels(config, source), "linearize",
+                             len(samples) * n, whole.data, into[0].buffer, into[1].buffer)
+            else:
+                self._linearize_unblurred(config, source, whole.data, len(samples) * n,
+                                          into[0].buffer)
         return True
 
     def _at_once(self, plans: Sequence[Plan], samples: Sequence[Drawn],
@@ -823,9 +854,7 @@ class KernelBackend:
         if source == np.dtype(self.np_real):
             return OnDevice(mask.data, shape, self._fetch)
         values = self._empty(n)
-        k = self._input_kernels(None, source)
-        with self._timed(sync=False):
-            self._launch(k, "unit_values", n, mask.data, values)
+        self._unit_values(mask, n, values)
         return OnDevice(values, shape, self._fetch)
 
     def put(self, image) -> OnDevice:

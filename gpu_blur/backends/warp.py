@@ -45,6 +45,9 @@ wp.config.log_level = wp.LOG_WARNING  # no banner or per-module load lines
 #: (kernel, device) pairs whose module this process has loaded (built or read from Warp's cache).
 _LOADED: set = set()
 
+#: The views of :meth:`WarpBackend._quads`, by a buffer's dtype: four values an element.
+QUAD_VIEWS = {wp.uint8: wp.uint32, wp.float32: wp.vec4f, wp.float64: wp.vec4d}
+
 #: Warp arrays have int32 shapes, and the kernels index with Warp ``int``: one buffer holds at
 #: most this many values (an RGB region ~715 M pixels). OpenCL kernels index with 64 bits.
 MAX_BUFFER_VALUES = 2**31 - 1
@@ -231,8 +234,9 @@ class WarpBackend(KernelBackend):
     def _input_kernels(self, config: PassConfig | None, source):
         """Warp's kernels over stored input images.
 
-        ``inspect``, ``unit_values`` (and ``to_codes`` for 8/16-bit codes) with ``config``
-        None, else ``render_sharp`` built for ``config`` (and ``gather_codes`` for codes).
+        ``inspect``, ``unit_values`` (and ``to_codes`` for 8/16-bit codes,
+        ``unit_values_codes`` for 8-bit ones) with ``config`` None, else ``render_sharp``
+        built for ``config`` (and ``gather_codes`` for codes).
         """
         from gpu_blur.warp_kernels import inputs
 
@@ -242,6 +246,8 @@ class WarpBackend(KernelBackend):
                        "unit_values": inputs.unit_values_kernel(self.real, source)}
             if source in (wp.uint8, wp.uint16):
                 kernels["to_codes"] = inputs.to_codes_kernel(self.real, source)
+            if source == wp.uint8:
+                kernels["unit_values_codes"] = inputs.unit_values_codes_kernel(self.real)
             return kernels
         kernels = {"render_sharp": inputs.render_sharp_kernel(self.real, source, config)}
         if source != self.real:
@@ -311,16 +317,19 @@ class WarpBackend(KernelBackend):
     def _wp_dtype(self, dtype):
         return self.real if dtype is None else wp.dtype_from_numpy(np.dtype(dtype))
 
-    def _exact_quads(self, buffers, n: int) -> tuple | None:
-        """The frames as 32-bit words and the means as 4-vectors: views of the same memory.
+    def _quads(self, buffers, n: int) -> tuple | None:
+        """Views of the same memory: 8-bit codes as 32-bit words, reals as 4-vectors.
 
-        See :meth:`KernelBackend._exact_quads`; None unless each buffer is contiguous on a
-        boundary of its view's size (4 bytes, 16 bytes).
+        See :meth:`KernelBackend._quads`; None unless each buffer is contiguous on a boundary
+        of its view's size.
         """
+        if n % 4:
+            return None
         views = []
-        for buffer, dtype in zip(buffers, (wp.uint32, wp.vec4f, wp.vec4f), strict=True):
+        for buffer in buffers:
+            dtype = QUAD_VIEWS[buffer.dtype]
             size = wp.types.type_size_in_bytes(dtype)
-            if n % 4 or buffer.ptr % size or not buffer.is_contiguous:
+            if buffer.ptr % min(size, 16) or not buffer.is_contiguous:
                 return None
             nbytes = buffer.size * wp.types.type_size_in_bytes(buffer.dtype)
             views.append(wp.array(ptr=buffer.ptr, dtype=dtype, shape=(nbytes // size,),

@@ -133,6 +133,30 @@ def unit_values_kernel(real, source):
 
 
 @functools.cache
+def unit_values_codes_kernel(real):
+    """:func:`unit_values_kernel` for 8-bit codes, four a thread, as gb_unit_values_codes.
+
+    Each thread reads one 32-bit word of the codes (code j in bits 8j .. 8j + 7: every Warp
+    device is little-endian) and writes one 4-vector.
+    """
+    source_value = source_value_func(real, wp.uint8)
+    vec4 = wp.types.vector(length=4, dtype=real)
+
+    @wp.func
+    def value_at(word: wp.uint32, j: int) -> real:
+        return source_value(wp.uint8((word >> wp.uint32(8 * j)) & wp.uint32(255)))
+
+    @wp.kernel(module="unique")
+    def unit_values_codes(words: wp.array(dtype=wp.uint32), values: wp.array(dtype=vec4)):
+        q = wp.tid()
+        word = words[q]
+        values[q] = vec4(value_at(word, 0), value_at(word, 1), value_at(word, 2),
+                         value_at(word, 3))
+
+    return unit_values_codes
+
+
+@functools.cache
 def to_codes_kernel(real, code):
     """Values as their ``code`` (``wp.uint8`` or ``wp.uint16``) output codes, as gb_to_codes.
 

@@ -105,6 +105,26 @@ def accumulate_kernels(real, source=None) -> dict:
         if v >= real(SATURATION_LEVEL):
             indicator[i] = real(1.0)
 
+    vec2 = wp.types.vector(length=2, dtype=real)
+    vec4 = wp.types.vector(length=4, dtype=real)
+
+    @wp.func
+    def code_at(word: wp.uint32, j: int) -> int:
+        # code j of a 32-bit word of 8-bit codes: bits 8j .. 8j + 7 (every Warp device is
+        # little-endian)
+        return int((word >> wp.uint32(8 * j)) & wp.uint32(255))
+
+    @wp.kernel(module="unique")
+    def linearize_codes(words: wp.array(dtype=wp.uint32), table: wp.array(dtype=real),
+                        linear: wp.array(dtype=vec4)):
+        # linearize for blur mode none, 8-bit codes, four a thread (one 32-bit word in, one
+        # 4-vector out): each code's value from ``table`` (frame_linear: the same bits as
+        # linearize); no clip indicator, which mode none's given mask replaces
+        q = wp.tid()
+        word = words[q]
+        linear[q] = vec4(table[code_at(word, 0)], table[code_at(word, 1)],
+                         table[code_at(word, 2)], table[code_at(word, 3)])
+
     @wp.kernel(module="unique")
     def blur_average_add(frames: wp.array(dtype=source), count: int, stride: int,
                          total: wp.array(dtype=real), compensation: wp.array(dtype=real),
@@ -142,9 +162,6 @@ def accumulate_kernels(real, source=None) -> dict:
             compensation[i] = c
             saturated[i] = n
 
-    vec2 = wp.types.vector(length=2, dtype=real)
-    vec4 = wp.types.vector(length=4, dtype=real)
-
     @wp.func
     def exact_means(total: wp.uint64, count: int) -> vec2:
         # an exact sum of ``count`` units entries (blur_average_exact): (linear, mask) means
@@ -161,24 +178,22 @@ def accumulate_kernels(real, source=None) -> dict:
         # from an exact integer sum (gb_blur_average_exact in accumulate.cl says why);
         # ``units[code]``: the code's linear value in units of EXACT_UNIT, plus
         # 1 << EXACT_COUNT_SHIFT where it is saturated. Four values a thread: it reads one
-        # 32-bit word of the frames' bytes a frame (code j in bits 8j .. 8j + 7: every Warp
-        # device is little-endian), keeps four sums in flight and writes one 4-vector of each
-        # mean. Sample b (the first axis) reads its frames sample_stride words after sample
-        # b - 1's (frame k stride words after frame k - 1) and writes its means out_stride
-        # 4-vectors after sample b - 1's
+        # 32-bit word of the frames' codes a frame (code_at), keeps four sums in flight and
+        # writes one 4-vector of each mean. Sample b (the first axis) reads its frames
+        # sample_stride words after sample b - 1's (frame k stride words after frame k - 1)
+        # and writes its means out_stride 4-vectors after sample b - 1's
         b, q = wp.tid()
         first = b * sample_stride + q
-        byte = wp.uint32(255)
         t0 = wp.uint64(0)
         t1 = wp.uint64(0)
         t2 = wp.uint64(0)
         t3 = wp.uint64(0)
         for k in range(count):
             word = words[first + k * stride]
-            t0 = t0 + units[int(word & byte)]
-            t1 = t1 + units[int((word >> wp.uint32(8)) & byte)]
-            t2 = t2 + units[int((word >> wp.uint32(16)) & byte)]
-            t3 = t3 + units[int(word >> wp.uint32(24))]
+            t0 = t0 + units[code_at(word, 0)]
+            t1 = t1 + units[code_at(word, 1)]
+            t2 = t2 + units[code_at(word, 2)]
+            t3 = t3 + units[code_at(word, 3)]
         m0 = exact_means(t0, count)
         m1 = exact_means(t1, count)
         m2 = exact_means(t2, count)
@@ -326,7 +341,8 @@ def accumulate_kernels(real, source=None) -> dict:
             mask[i] = (total_ind[i] + total_ind_comp[i]) / w
 
     return {
-        "linearize": linearize, "blur_average_add": blur_average_add,
+        "linearize": linearize, "linearize_codes": linearize_codes,
+        "blur_average_add": blur_average_add,
         "blur_average_exact": blur_average_exact, "blur_kernel": blur_kernel,
         "blur_trajectory_add": blur_trajectory_add,
         "blur_trajectory_finish": blur_trajectory_finish,

@@ -20,6 +20,20 @@ __kernel void gb_linearize(__global const gb_source *srgb, __global real *linear
     indicator[i] = v >= GB_SATURATION_LEVEL ? GB_REAL(1.0) : GB_REAL(0.0);
 }
 
+#if GB_SOURCE_BITS == 8
+/* linearize for blur mode none, 8-bit codes, four a work item (one uchar4 load, one real4
+ * store): each code's linear value from `table`, which gb_linearize made of codes 0..255 (the
+ * same function, so the same bits, without a pow per value); no clip indicator, which mode
+ * none's given mask replaces. */
+__kernel void gb_linearize_codes(__global const uchar4 *quads, __global const real *table,
+                                 __global real4 *linear)
+{
+    size_t q = get_global_id(0);
+    uchar4 c = quads[q];
+    linear[q] = (real4)(table[c.x], table[c.y], table[c.z], table[c.w]);
+}
+#endif
+
 /* The linear value of a stored frame value at frames[i]. 8-bit codes: a gather from `table`,
  * the value of each code that gb_linearize computed from codes 0..255 (the same function, so
  * the same bits, without a pow per value); other sources: the sRGB EOTF. */

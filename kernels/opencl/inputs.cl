@@ -2,7 +2,8 @@
  * that no value of it is read on the host (gpu_blur.backends.kernel.KernelBackend.inspect and
  * render_sharp):
  *   gb_inspect       counts for the input checks and auto saturation's clip test;
- *   gb_unit_values   stored values as reals in [0, 1] (blur mode none's mask);
+ *   gb_unit_values   stored values as reals in [0, 1] (blur mode none's mask; 8-bit codes four
+ *                    a work item: gb_unit_values_codes);
  *   gb_render_sharp  the sharp reference, toned like the output by finish.cl's functions;
  *   gb_gather_codes  the same for 8/16-bit codes, from a table gb_render_sharp made of every code;
  *   gb_to_codes      output values as the set's 8/16-bit codes (gb_source), for the host to fetch.
@@ -67,6 +68,17 @@ __kernel void gb_unit_values(__global const gb_source *stored, __global real *va
     size_t i = get_global_id(0);
     values[i] = gb_source_value(stored[i]);
 }
+
+#if GB_SOURCE_BITS == 8
+/* gb_unit_values of 8-bit codes four a work item (one uchar4 load, one real4 store). */
+__kernel void gb_unit_values_codes(__global const uchar4 *quads, __global real4 *values)
+{
+    size_t q = get_global_id(0);
+    uchar4 c = quads[q];
+    values[q] = (real4)(gb_source_value(c.x), gb_source_value(c.y), gb_source_value(c.z),
+                        gb_source_value(c.w));
+}
+#endif
 
 /* Values as their output codes (gb_source: uchar for GB_SOURCE_BITS 8, ushort for 16):
  * gb_quantize_code, the code gpu_blur.reference.output.to_integers gives every float value. */

@@ -25,9 +25,11 @@
 
 #ifdef GB_FP64
 typedef double real;
+typedef double4 real4;
 #define GB_REAL(x) (x)
 #else
 typedef float real;
+typedef float4 real4;
 #define GB_REAL(x) (x##f)
 #endif
 
