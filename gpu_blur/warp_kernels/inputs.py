@@ -22,6 +22,7 @@ import warp as wp
 from gpu_blur.kernel_constants import INSPECT_LOADS
 from gpu_blur.warp_kernels import pixel
 from gpu_blur.warp_kernels.passes import (
+    LEAN,
     SOURCE_TOP,
     _fast,
     retone_quantize_func,
@@ -146,7 +147,7 @@ def unit_values_codes_kernel(real):
     def value_at(word: wp.uint32, j: int) -> real:
         return source_value(wp.uint8((word >> wp.uint32(8 * j)) & wp.uint32(255)))
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", **LEAN)
     def unit_values_codes(words: wp.array(dtype=wp.uint32), values: wp.array(dtype=vec4)):
         q = wp.tid()
         word = words[q]

@@ -23,6 +23,14 @@ import warp as wp
 from gpu_blur.kernel_constants import EXACT_COUNT_SHIFT, EXACT_UNIT, SATURATION_LEVEL
 from gpu_blur.warp_kernels import pixel, random
 
+# CUDA build options of the passes' kernels, from per-pass CUDA graph times of the RSBlur-like
+# 9-frame 1920 x 1200 sample on an H200 (bench/gpu_targets.py; none changes a bit, nor the CPU
+# build). Without Warp's grid-stride loop a thread does one element and returns:
+# blur_average_exact 74.8 -> 68.3 us, finish 113.6 -> 102.9 us, but to_raw 165 -> 202 us.
+# Capped at 64 registers (from 70), to_raw 165 -> 155-158 us (56: 165); finish gains nothing.
+LEAN = {"grid_stride": False}
+TO_RAW_REGISTERS = {"cuda_max_registers": 64}
+
 
 @wp.func
 def add_compensated(total: wp.array(dtype=Any), compensation: wp.array(dtype=Any), i: int,
@@ -114,7 +122,7 @@ def accumulate_kernels(real, source=None) -> dict:
         # little-endian)
         return int((word >> wp.uint32(8 * j)) & wp.uint32(255))
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", **LEAN)
     def linearize_codes(words: wp.array(dtype=wp.uint32), table: wp.array(dtype=real),
                         linear: wp.array(dtype=vec4)):
         # linearize for blur mode none, 8-bit codes, four a thread (one 32-bit word in, one
@@ -169,7 +177,7 @@ def accumulate_kernels(real, source=None) -> dict:
         value = real(total - (saturated << wp.uint64(EXACT_COUNT_SHIFT))) * real(EXACT_UNIT)
         return vec2(value / real(count), real(saturated) / real(count))
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", **LEAN)
     def blur_average_exact(words: wp.array(dtype=wp.uint32), count: int, stride: int,
                            sample_stride: int, units: wp.array(dtype=wp.uint64),
                            linear: wp.array(dtype=vec4), mask: wp.array(dtype=vec4),
@@ -376,7 +384,7 @@ def to_raw_kernel(real, config):
     clip_camera, noise = config.clip_camera, config.kept("poisson_gaussian_noise")
     poisson_normal, fast = config.poisson_normal, _fast(real, config.fast_math)
 
-    @wp.kernel(module="unique", module_options={"fast_math": fast})
+    @wp.kernel(module="unique", module_options={"fast_math": fast}, **TO_RAW_REGISTERS)
     def to_raw(linear_slots: wp.array2d(dtype=real), mask_slots: wp.array2d(dtype=real), x0: int,
                y0: int, w: int, sample_reals: wp.array2d(dtype=real),
                sample_words: wp.array2d(dtype=wp.uint32), lin_to_cam: wp.array(dtype=real),
@@ -544,7 +552,7 @@ def finish_kernel(real, config):
                     p = real(1.0)
             out[o + c] = retone_quantize(p, crf_polynomial, crf_table)
 
-    @wp.kernel(module="unique", module_options={"fast_math": fast})
+    @wp.kernel(module="unique", module_options={"fast_math": fast}, **LEAN)
     def finish(raw_slots: wp.array2d(dtype=real), saturated_slots: wp.array2d(dtype=real),
                vx0: int, vy0: int, vw: int, full_w: int, full_h: int, ox0: int, oy0: int,
                ow: int, sample_reals: wp.array2d(dtype=real),
