@@ -1187,8 +1187,9 @@ class KernelBackend:
                                ("result", result, 3 * out.h * out.w)))
         tables = self._tables(samples)
         matrix = self._constant(camera.camera_to_linear)
+        pairs = (out.x0 % 2 + out.w + 1) // 2  # the kernel's column pairs (finish.cl)
         with self._timed():
-            self._launch(k, "finish", (len(samples), out.h, (out.w + 1) // 2), *finish_args(
+            self._launch(k, "finish", (len(samples), out.h, pairs), *finish_args(
                 plan, tables, view, out, (self._slots(raw), self._slots(saturated)), matrix,
                 (self._constant(polynomial), polynomial.size),
                 (self._constant(table), table.size), self._slots(result), seed=seed))

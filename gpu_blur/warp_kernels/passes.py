@@ -490,9 +490,9 @@ def retone_quantize_func(real, retone: str, bits: int):
 def finish_kernel(real, config):
     """Pass 3 built for ``config`` (gpu_blur.backends.kernel.PassConfig), kept stages as flags.
 
-    One launch over (samples, rows, half the columns rounded up: two pixels a thread) runs a
-    batch of one plan, as :func:`to_raw_kernel` (its ``gaussian_std``: column 5 of
-    ``sample_reals``).
+    One launch over (samples, rows, the column pairs the output touches: two pixels a thread,
+    pairs aligned to even global columns) runs a batch of one plan, as :func:`to_raw_kernel`
+    (its ``gaussian_std``: column 5 of ``sample_reals``).
 
     Stages: demosaic ("" when there is no RAW round trip), camera_to_linear, tone,
     gaussian_noise, restore_saturated, retone (the plan's ``retone_curve``: "", "polynomial"
@@ -559,14 +559,16 @@ def finish_kernel(real, config):
                sample_words: wp.array2d(dtype=wp.uint32), cam_to_lin: wp.array(dtype=real),
                key0: wp.uint32, key1: wp.uint32, crf_polynomial: wp.array(dtype=real),
                crf_table: wp.array(dtype=real), out_slots: wp.array2d(dtype=real)):
-        # two pixels a thread, columns 2 t and 2 t + 1 of the output: at each of the two steps
-        # every thread of a row is at a site of one Bayer colour, so the demosaic's branches
-        # do not diverge
+        # two pixels a thread, GLOBAL columns 2 t' and 2 t' + 1 (pairs from the even column at
+        # or left of ox0): at each of the two steps every thread of a row is at a site of one
+        # Bayer colour, so the demosaic's branches do not diverge, and a column is always done
+        # by the same step's code, in a tile as in the whole image (the compiler may contract
+        # the two unrolled steps' products differently: so they give the same bits)
         b, y, t = wp.tid()
         cfa, sample_index, slot = sample_of(sample_words, b)
         for half in range(2):
-            x = 2 * t + half
-            if x < ow:
+            x = 2 * t + half - ox0 % 2
+            if x >= 0 and x < ow:
                 finish_pixel(raw_slots[slot], saturated_slots[slot], vx0, vy0, vw, full_w,
                              full_h, ox0 + x, oy0 + y, out_slots[slot], 3 * (y * ow + x), cfa,
                              sample_index, sample_reals[b, 5], cam_to_lin, key0, key1,

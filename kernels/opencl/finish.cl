@@ -3,7 +3,7 @@
  * (each compiled in only when the plan keeps it). Reads the RAW mosaic and B_sat from a view
  * (first pixel (vx0, vy0), width vw) that holds the output region plus the demosaic halo, and
  * writes the output region (first pixel (ox0, oy0), size ow x oh), 3 reals per pixel, two
- * pixels a work item.
+ * pixels (an even global column and the next) a work item.
  *
  * One launch runs a batch of samples of one plan, as gb_to_raw: the third grid index is the
  * sample, its values row b of sample_reals (gpu_blur.kernel_constants.SAMPLE_REALS) and
@@ -60,9 +60,11 @@ static inline void gb_finish_pixel(__global const real *raw, __global const real
     }
 }
 
-/* Two pixels a work item, output columns 2 t and 2 t + 1 (the grid's first axis is half the
- * width rounded up): at each of the two steps every work item of a row is at a site of one Bayer
- * colour, so the demosaic's branches do not diverge. */
+/* Two pixels a work item, GLOBAL columns 2 t' and 2 t' + 1, pairs from the even column at or
+ * left of ox0 (the grid's first axis counts the pairs the output touches): at each of the two
+ * steps every work item of a row is at a site of one Bayer colour, so the demosaic's branches
+ * do not diverge, and a column is always done by the same step, in a tile as in the whole
+ * image. */
 __kernel void gb_finish(__global const real *raw, long raw_stride,
                         __global const real *saturated, long saturated_stride, long vx0,
                         long vy0, long vw, long full_w, long full_h, long ox0, long oy0, long ow,
@@ -73,14 +75,15 @@ __kernel void gb_finish(__global const real *raw, long raw_stride,
                         __global real *out, long out_stride)
 {
     long t = get_global_id(0), y = get_global_id(1), b = get_global_id(2);
-    if (2 * t >= ow || y >= oh) return;
+    long first = 2 * t - ox0 % 2; /* output column of the pair's even global column */
+    if (first >= ow || y >= oh) return;
     real gaussian_std = sample_reals[GB_SAMPLE_REALS * b + 5];
     gb_sample sample = gb_sample_of(sample_words, b);
     raw += sample.slot * raw_stride;
     saturated += sample.slot * saturated_stride;
     out += sample.slot * out_stride;
     uint2 key = (uint2)(key_lo, key_hi);
-    for (long x = 2 * t; x < 2 * t + 2 && x < ow; ++x)
+    for (long x = max(first, 0L); x < first + 2 && x < ow; ++x)
         gb_finish_pixel(raw, saturated, vx0, vy0, vw, full_w, full_h, ox0 + x, oy0 + y, out,
                         3 * (y * ow + x), sample, gaussian_std, cam_to_lin, key, crf_polynomial,
                         crf_polynomial_n, crf_table, crf_table_n);
