@@ -23,11 +23,12 @@ import warp as wp
 from gpu_blur.kernel_constants import EXACT_COUNT_SHIFT, EXACT_UNIT, SATURATION_LEVEL
 from gpu_blur.warp_kernels import pixel, random
 
-# CUDA build options of the passes' kernels, from per-pass CUDA graph times of the RSBlur-like
-# 9-frame 1920 x 1200 sample on an H200 (bench/gpu_targets.py; none changes a bit, nor the CPU
-# build). Without Warp's grid-stride loop a thread does one element and returns:
-# blur_average_exact 74.8 -> 68.3 us, finish 113.6 -> 102.9 us, but to_raw 165 -> 202 us.
-# Capped at 64 registers (from 70), to_raw 165 -> 155-158 us (56: 165); finish gains nothing.
+# CUDA build options of the passes' kernels, from per-pass CUDA graph times of 1920 x 1200
+# samples on an H200 (bench/gpu_targets.py; none changes a bit, nor the CPU build). Without
+# Warp's grid-stride loop a thread does one element and returns: blur_average_exact 74.8 ->
+# 68.3 us; not for to_raw (165 -> 202 us) nor finish (RSBlur-like 113.6 -> 102.9 us, but
+# RealBlur-J 137 -> 152 us). Capped at 64 registers (from 70), to_raw 165 -> 155-158 us (56:
+# 165); finish gains nothing from a cap.
 LEAN = {"grid_stride": False}
 TO_RAW_REGISTERS = {"cuda_max_registers": 64}
 
@@ -552,7 +553,7 @@ def finish_kernel(real, config):
                     p = real(1.0)
             out[o + c] = retone_quantize(p, crf_polynomial, crf_table)
 
-    @wp.kernel(module="unique", module_options={"fast_math": fast}, **LEAN)
+    @wp.kernel(module="unique", module_options={"fast_math": fast})
     def finish(raw_slots: wp.array2d(dtype=real), saturated_slots: wp.array2d(dtype=real),
                vx0: int, vy0: int, vw: int, full_w: int, full_h: int, ox0: int, oy0: int,
                ow: int, sample_reals: wp.array2d(dtype=real),
