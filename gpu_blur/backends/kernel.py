@@ -495,7 +495,8 @@ class KernelBackend:
         mode = plan.variant(S.BLUR) or "none"
         n = region.h * region.w * 3
         shape = (region.h, region.w, 3)
-        linear, sat_mask = self._empty(n), self._empty(n)
+        linear = self._empty(n)
+        sat_mask = None if mode == "none" else self._empty(n)  # mode none is given its mask
         if mode == "average" and interpolation_factor(plan) > 1:
             self._interpolated_average(plan, config, params, frames, region, linear, sat_mask)
         elif mode == "average":
@@ -537,7 +538,8 @@ class KernelBackend:
         k = self._pass_kernels(config, source)
         n = h * w * 3
         shape = (h, w, 3)
-        linear, sat_mask = into or (self._empty(n), self._empty(n))
+        # mode none is given its mask (into a batch's slot, or as it is: _mask_values)
+        linear, sat_mask = into or (self._empty(n), None if mode == "none" else self._empty(n))
         if mode == "average":  # one launch sums every frame of the stack
             count = frames.shape[0]
             spare = self._empty(1, np.uint32)

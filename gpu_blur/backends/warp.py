@@ -320,14 +320,16 @@ class WarpBackend(KernelBackend):
     def _quads(self, buffers, n: int) -> tuple | None:
         """Views of the same memory: 8-bit codes as 32-bit words, reals as 4-vectors.
 
-        See :meth:`KernelBackend._quads`; None unless each buffer is contiguous on a boundary
-        of its view's size.
+        See :meth:`KernelBackend._quads`; None unless each buffer is of a type in
+        :data:`QUAD_VIEWS`, contiguous, on a boundary of its view's size (at most 16 bytes).
         """
         if n % 4:
             return None
         views = []
         for buffer in buffers:
-            dtype = QUAD_VIEWS[buffer.dtype]
+            dtype = QUAD_VIEWS.get(buffer.dtype)
+            if dtype is None:
+                return None
             size = wp.types.type_size_in_bytes(dtype)
             if buffer.ptr % min(size, 16) or not buffer.is_contiguous:
                 return None
