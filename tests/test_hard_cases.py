@@ -253,6 +253,15 @@ def test_compensated_float32_sum_of_8bit_frames_is_the_exactly_rounded_sum(count
     assert np.count_nonzero(plain != exact) > 100
 
 
+def launch_names(backend, monkeypatch) -> list[str]:
+    """The names of the kernels ``backend`` launches from now on, in order (a list it fills)."""
+    names: list[str] = []
+    launch = backend._launch
+    monkeypatch.setattr(backend, "_launch",
+                        lambda k, name, *a: names.append(name) or launch(k, name, *a))
+    return names
+
+
 @pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
 @pytest.mark.parametrize("count", [3, 9, EXACT_FRAMES_MAX])
 @pytest.mark.parametrize("shape", [(32, 64), (31, 63)], ids=["codes_in_words", "odd_size"])
@@ -268,10 +277,7 @@ def test_frames_on_the_device_average_to_the_bits_of_streamed_frames(spec, count
     p, _, params = prepare(spec, {"blur": {"mode": "average", "frames": count}}, (h, w))
     region = Region.whole(h, w)
     backend = make_backend(spec)
-    launched = []
-    launch = backend.backend._launch
-    monkeypatch.setattr(backend.backend, "_launch",
-                        lambda k, name, *a: launched.append(name) or launch(k, name, *a))
+    launched = launch_names(backend.backend, monkeypatch)
     on_dev = backend.accumulate(p, params, backend.put(np.stack(frames)), None, region)
     exact = spec_dtype(spec) == "float32" and h * w * 3 % 4 == 0
     assert ("blur_average_exact" in launched) == exact
@@ -300,10 +306,7 @@ def test_8bit_image_and_mask_in_mode_none_give_the_bits_of_their_float_values(sp
     p, _, params = prepare(spec, {"blur": {"mode": "none"}}, (h, w))
     region = Region.whole(h, w)
     backend = make_backend(spec)
-    launched = []
-    launch = backend.backend._launch
-    monkeypatch.setattr(backend.backend, "_launch",
-                        lambda k, name, *a: launched.append(name) or launch(k, name, *a))
+    launched = launch_names(backend.backend, monkeypatch)
     coded = backend.accumulate(p, params, backend.put(image), backend.put(mask), region)
     quads = h * w * 3 % 4 == 0
     assert ("linearize_codes" in launched) == quads
