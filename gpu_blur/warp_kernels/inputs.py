@@ -25,6 +25,7 @@ from gpu_blur.warp_kernels.passes import (
     LEAN,
     SOURCE_TOP,
     _fast,
+    code_at,
     retone_quantize_func,
     source_value_func,
 )
@@ -137,15 +138,14 @@ def unit_values_kernel(real, source):
 def unit_values_codes_kernel(real):
     """:func:`unit_values_kernel` for 8-bit codes, four a thread, as gb_unit_values_codes.
 
-    Each thread reads one 32-bit word of the codes (code j in bits 8j .. 8j + 7: every Warp
-    device is little-endian) and writes one 4-vector.
+    Each thread reads one 32-bit word of the codes (passes.code_at) and writes one 4-vector.
     """
     source_value = source_value_func(real, wp.uint8)
     vec4 = wp.types.vector(length=4, dtype=real)
 
     @wp.func
     def value_at(word: wp.uint32, j: int) -> real:
-        return source_value(wp.uint8((word >> wp.uint32(8 * j)) & wp.uint32(255)))
+        return source_value(wp.uint8(code_at(word, j)))
 
     @wp.kernel(module="unique", **LEAN)
     def unit_values_codes(words: wp.array(dtype=wp.uint32), values: wp.array(dtype=vec4)):

@@ -34,6 +34,16 @@ TO_RAW_REGISTERS = {"cuda_max_registers": 64}
 
 
 @wp.func
+def code_at(word: wp.uint32, j: int) -> int:
+    """Code j of a 32-bit word read from a buffer of 8-bit codes: bits 8j .. 8j + 7.
+
+    The kernels that take four codes a thread read them this way (every Warp device is
+    little-endian, so code j is byte j of the buffer).
+    """
+    return int((word >> wp.uint32(8 * j)) & wp.uint32(255))
+
+
+@wp.func
 def add_compensated(total: wp.array(dtype=Any), compensation: wp.array(dtype=Any), i: int,
                     v: Any):
     """total[i] += v, Neumaier's compensated sum, as gb_add_compensated (accumulate.cl).
@@ -116,12 +126,6 @@ def accumulate_kernels(real, source=None) -> dict:
 
     vec2 = wp.types.vector(length=2, dtype=real)
     vec4 = wp.types.vector(length=4, dtype=real)
-
-    @wp.func
-    def code_at(word: wp.uint32, j: int) -> int:
-        # code j of a 32-bit word of 8-bit codes: bits 8j .. 8j + 7 (every Warp device is
-        # little-endian)
-        return int((word >> wp.uint32(8 * j)) & wp.uint32(255))
 
     @wp.kernel(module="unique", **LEAN)
     def linearize_codes(words: wp.array(dtype=wp.uint32), table: wp.array(dtype=real),
