@@ -16,10 +16,11 @@
  * factor f), then takes the mean over the total weight (gb_blur_interpolate_finish). Each
  * gap's factors per region come as a uint table from map0 (rows of cols regions of side
  * pixels on a grid from the image's top-left pixel; side 0: one region); an intermediate at
- * step / factor is added only at pixels whose region's factor f makes step f / factor whole. The frames and flows are views
- * (first pixel (sx0, sy0), width sw) of one region that holds the output region plus the halo of
- * gpu_blur.reference.interpolate.interpolation_halo; the sums cover the output region. Pixels are
- * addressed by global coordinates (gb_common.h), so a tile gives the whole image's values.
+ * step / factor is added only at pixels whose region's factor f makes step f / factor whole.
+ * The frames and flows are views (first pixel (sx0, sy0), width sw) of one region that holds
+ * the output region plus the halo of gpu_blur.reference.interpolate.interpolation_halo; the sums
+ * cover the output region. Pixels are addressed by global coordinates (gb_common.h), so a tile
+ * gives the whole image's values.
  * Positions, flows and the occlusion test are computed in gb_pos (double where the device has
  * it), as the reference's float64, so the test decides as the reference does.
  */
