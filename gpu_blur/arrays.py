@@ -38,6 +38,26 @@ def dtype_name(x) -> str:
     return str(x.dtype).removeprefix("torch.")
 
 
+def check_dense(x, key: str) -> None:
+    """Refuse a torch tensor that is not plain values: nested, sparse (or other layout), meta.
+
+    Raises:
+        ValueError: naming ``key``, the layout or device, and the fix.
+    """
+    if type(x).__module__.split(".")[0] != "torch":  # anything else passes
+        return
+    import torch
+
+    if x.is_nested:
+        raise ValueError(f"{key}: a nested tensor; a batch is one array: stack same-size "
+                         "samples (torch.stack)")
+    if x.layout != torch.strided:
+        raise ValueError(f"{key}: a {x.layout} tensor; pass a dense one (x.to_dense())")
+    if x.device.type == "meta":
+        raise ValueError(f"{key}: a tensor on the meta device holds no values; pass one on "
+                         "the CPU or a CUDA device")
+
+
 def cuda_device(x) -> int | None:
     """The CUDA device ordinal an array lives on, None for host memory."""
     lib = library(x)

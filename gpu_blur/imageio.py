@@ -584,12 +584,30 @@ def read_kernel(path: str | Path) -> np.ndarray:
         kernel = _read_npy(path, where)
     else:
         kernel = _decode(path, where, "", lambda width, height: _kernel_too_wide(height, width))
-    try:
-        kernel = np.asarray(kernel, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}: holds {kernel.dtype} data, not numbers") from None
+    kernel = kernel_weights(kernel, where)
     check_kernel(kernel, where)
     return kernel
+
+
+def kernel_weights(kernel, where: str) -> np.ndarray:
+    """A kernel's weights as float64; integers and floats only (a complex part is not dropped).
+
+    Raises:
+        ValueError: starting with ``where``, naming the dtype and the way out.
+    """
+    try:
+        kernel = np.asarray(kernel)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where}: not an array of numbers; give a 2-D array of "
+                         "floats") from None
+    kind = kernel.dtype.kind
+    if kind == "c":
+        raise ValueError(f"{where}: holds {kernel.dtype} values; kernel weights are real (the "
+                         "imaginary part would be lost): pass np.real(k) or np.abs(k)")
+    if kind not in "iuf":
+        raise ValueError(f"{where}: holds {kernel.dtype} values, not numbers; kernel weights "
+                         "are integers or floats: pass k.astype(np.float64)")
+    return kernel.astype(np.float64)
 
 
 def _read_npy(path: Path, where: str) -> np.ndarray:

@@ -114,6 +114,7 @@ def _load(item, what: str) -> np.ndarray:
     """An input as stored (uint8/uint16 codes, or floats), its layout checked."""
     if isinstance(item, (str, Path)):
         return check_layout(read_image(item), str(item))
+    arrays.check_dense(item, what)
     return check_layout(np.asarray(item), what)
 
 
@@ -474,6 +475,7 @@ class Synthesizer:
             raise ValueError("a batch is one array (B x H x W x 3, or B x F x H x W x 3 for "
                              "frames), every sample of one size: stack same-size samples "
                              "(np.stack, torch.stack), and call once per size for mixed sizes")
+        _refuse_out_on_inputs(out, {"batch": batch, "mask": mask, "sharp": sharp})
         lib = arrays.library(batch)
         with timer("reading"):
             items = self._split(batch, mask, sharp, lib)
@@ -481,12 +483,7 @@ class Synthesizer:
         caller = arrays.producer_stream(batch, lib) if self._reaches(batch, lib) else None
         if caller is not None:
             self.runner.wait_for(caller)
-        count = len(items)
-        if indices is None:
-            indices = range(first_index, first_index + count)
-        elif len(indices) != count:
-            raise ValueError(f"indices: {len(indices)} sample indices for a batch of {count}; "
-                             "give one per sample")
+        indices = _sample_indices(indices, first_index, len(items))
         # codes made on the device, or from the float results here (JPEG stage, host batches)
         device_codes = codes and self.resident and self.scene.output.jpeg_quality is None
         bits = self.scene.output.bits if device_codes else 0
@@ -732,6 +729,15 @@ class Synthesizer:
                        + ("" if array.flags.writeable else ", read-only"))
                 raise ValueError(f"out= {name}: needs a writeable {np.dtype(dtype).name} numpy "
                                  f"array of shape {want}; got {got}")
+            if _self_overlapping(array):
+                raise ValueError(f"out= {name}: its elements overlap (strides {array.strides}); "
+                                 "results would overwrite each other: pass a plain array "
+                                 "(np.empty)")
+            for other, earlier in zip(names, views, strict=False):
+                if _overlap(array, earlier):
+                    raise ValueError(f"out= {name} shares memory with out= {other}; one result "
+                                     "would overwrite the other: pass an array of its own for "
+                                     "each")
             views.append(np.moveaxis(array, 1, -1) if self.channels_first else array)
         return views
 
@@ -771,6 +777,7 @@ class Synthesizer:
             if arrays.library(x) != lib:
                 raise ValueError(f"{key} is a {arrays.library(x)} array but the batch is "
                                  f"{lib}: pass both as the same type")
+            arrays.check_dense(x, key)
             parts[key] = self._normalized(x, key, lib, frames=key == "batch"
                                           and mode == "average")
         if mode == "average":
@@ -1167,6 +1174,10 @@ def _gather(inputs, scene: Scene) -> _Inputs:
         if not isinstance(inputs, Mapping) or "blurred" not in inputs:
             raise ValueError("blur.mode = none takes a mapping {'blurred': image, 'mask': "
                              "optional mask, 'sharp': optional sharp image}")
+        unknown = [k for k in inputs if k not in ("blurred", "mask", "sharp")]
+        if unknown:
+            raise ValueError(f"blur.mode = none: unknown input {unknown[0]!r}; the inputs are "
+                             "'blurred', 'mask' (optional) and 'sharp' (optional)")
         given = [k for k in ("blurred", "mask", "sharp") if inputs.get(k) is not None]
         names = {k: _name(inputs[k], "blurred image" if k == "blurred" else k) for k in given}
         loaded = {k: _load(inputs[k], names[k]) for k in given}
@@ -1188,6 +1199,64 @@ def _gather(inputs, scene: Scene) -> _Inputs:
     if len({f.dtype for f in frames}) > 1:  # one dtype per sample
         frames = [unit_values(check_image(f, n)) for f, n in zip(frames, names, strict=True)]
     return _Inputs(frames, None, None, {"frames": names})
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two numpy arrays share memory (a case too costly to decide counts as shared)."""
+    try:
+        return bool(np.shares_memory(a, b, max_work=1 << 20))
+    except np.exceptions.TooHardError:
+        return True
+
+
+def _self_overlapping(a: np.ndarray) -> bool:
+    """Whether elements of ``a`` may share bytes: an axis steps less than the axes within span."""
+    span = a.itemsize
+    for stride, n in sorted((abs(s), n) for s, n in zip(a.strides, a.shape, strict=True)
+                            if n > 1):
+        if stride < span:
+            return True
+        span += stride * (n - 1)
+    return False
+
+
+def _refuse_out_on_inputs(out, inputs: dict) -> None:
+    """Refuse an ``out=`` array that shares memory with an input (numpy batches)."""
+    if not isinstance(out, (list, tuple)):
+        return  # Synthesizer._given_outputs says what out= takes
+    for name, array in zip(("blurred", "sharp", "mask"), out, strict=False):
+        for key, x in inputs.items():
+            if isinstance(array, np.ndarray) and isinstance(x, np.ndarray) and _overlap(array, x):
+                raise ValueError(f"out= {name} shares memory with the {key} input; results "
+                                 "would overwrite the inputs they are made from: pass an "
+                                 "array of its own")
+
+
+def _whole(x) -> bool:
+    """Whether ``x`` is an int (Python's or numpy's; a bool is not)."""
+    return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
+
+
+def _sample_indices(indices, first_index, count: int) -> list[int]:
+    """A batch's sample indices as Python ints, each checked: a float is refused, not cut."""
+    if indices is None:
+        if not _whole(first_index) or not 0 <= first_index <= 2**32 - count:
+            raise ValueError(f"first_index = {first_index!r}: needs an int, 0 <= first_index "
+                             f"and first_index + {count} (the batch) <= 2**32")
+        return list(range(int(first_index), int(first_index) + count))
+    if hasattr(indices, "tolist"):  # a numpy, torch or CuPy array: its values as Python's
+        indices = indices.tolist()
+    if isinstance(indices, str) or not isinstance(indices, Sequence):
+        raise ValueError(f"indices: one sample index per sample, a list or 1-D array of ints; "
+                         f"got {indices!r}")
+    if len(indices) != count:
+        raise ValueError(f"indices: {len(indices)} sample indices for a batch of {count}; "
+                         "give one per sample")
+    for b, index in enumerate(indices):
+        if not _whole(index) or not 0 <= index < 2**32:
+            raise ValueError(f"indices[{b}] = {index!r}: a sample index is an int in "
+                             "[0, 2**32); pass ints (a float index is not rounded)")
+    return [int(index) for index in indices]
 
 
 def _frame_count(count: int, scene: Scene) -> None:
