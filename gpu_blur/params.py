@@ -7,13 +7,14 @@ worker, tile or backend makes it. Only the parameters of kept stages are drawn a
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
 from gpu_blur import limits
 from gpu_blur.cameras import Camera
-from gpu_blur.imageio import check_kernel, read_kernel
+from gpu_blur.imageio import check_kernel, kernel_weights, read_kernel
 from gpu_blur.plan import Plan
 from gpu_blur.reference import motion_kernel, rng, shake
 from gpu_blur.reference.bayer import BayerPattern
@@ -48,6 +49,61 @@ OVERRIDE_LIMITS = {
     "extent_px": limits.EXTENT,
     "jpeg_quality": limits.JPEG_QUALITY,
 }
+
+
+def check_overrides(overrides) -> None:
+    """Refuse an override of unknown name, type or range, whether or not its stage will run.
+
+    Raises:
+        TypeError: ``overrides`` is not a mapping.
+        ValueError: naming the override, its value and what is allowed.
+    """
+    if overrides is None:
+        return
+    if not isinstance(overrides, Mapping):
+        raise TypeError(f"overrides: a mapping of parameter names to values (e.g. "
+                        f"{{'alpha': 1.0}}); got a {type(overrides).__name__}")
+    known = set(DRAW_INDEX) | set(ARRAY_PARAMS)
+    for name, value in overrides.items():
+        if name not in known:
+            raise ValueError(f"unknown override {name!r}; parameters are {sorted(known)}")
+        problem = OVERRIDE_LIMITS[name].problem(value) if name in OVERRIDE_LIMITS else None
+        if problem:
+            raise ValueError(f"overrides[{name!r}] = {value!r} is invalid; allowed: {problem}")
+        if name == "pattern" and (not isinstance(value, str) or not _is_pattern(value)):
+            raise ValueError(f"overrides['pattern'] = {value!r} is not a Bayer pattern; "
+                             f"allowed: {' | '.join(PATTERNS)} (any case)")
+        if name == "kernel":
+            check_kernel(kernel_weights(value, "overrides['kernel']"), "overrides['kernel']")
+        if name == "homographies":
+            h = _numbers(value)
+            most = limits.STEPS.high
+            if (h is None or h.ndim != 3 or h.shape[1:] != (3, 3) or not 1 <= len(h) <= most
+                    or not np.isfinite(h).all()):
+                raise ValueError(f"overrides['homographies'] must be a finite n x 3 x 3 array "
+                                 f"(1 <= n <= {most:g}, as blur.steps) of camera poses; got "
+                                 f"{_what(h)}")
+
+
+def _numbers(value) -> np.ndarray | None:
+    """``value`` as a float64 array when it holds integers or floats, else None."""
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError):  # ragged nested lists
+        return None
+    return array.astype(np.float64) if array.dtype.kind in "iuf" else None
+
+
+def _what(array: np.ndarray | None) -> str:
+    return "values that are not real numbers" if array is None else f"shape {array.shape}"
+
+
+def _is_pattern(text: str) -> bool:
+    try:
+        BayerPattern.parse(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _uniform_range(u: float, lo: float, hi: float) -> float:
@@ -100,11 +156,8 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
         ValueError: an unknown or unused override, or one outside its range (naming it, the
             value and what is allowed).
     """
+    check_overrides(overrides)
     overrides = dict(overrides or {})
-    known = set(DRAW_INDEX) | set(ARRAY_PARAMS)
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise ValueError(f"unknown override {unknown[0]!r}; parameters are {sorted(known)}")
     streams = image_streams(scene)
     given = uniforms or {}
 

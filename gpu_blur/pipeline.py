@@ -21,7 +21,7 @@ from gpu_blur.backends.numpy import retone
 from gpu_blur.cameras import Camera, check_float32_response, get_camera
 from gpu_blur.imageio import check_image, check_layout, read_image, unit_values
 from gpu_blur.outputs import jpeg_round_trip, raw_metadata
-from gpu_blur.params import batch_uniforms, draw_params
+from gpu_blur.params import batch_uniforms, check_overrides, draw_params
 from gpu_blur.plan import Plan, StageName, plan, raw_round_trip
 from gpu_blur.reference import transfer
 from gpu_blur.reference.interpolate import RegionFactors
@@ -329,6 +329,7 @@ class Synthesizer:
         self.runner = (get_backend(backend, self.scene.output.precision)
                        if isinstance(backend, str) else backend)
         self.camera = scene_camera(self.scene, self.runner.name)
+        check_overrides(overrides)  # each one, whether or not its stage runs
         self.seed, self.overrides = seed, overrides
         self.schedule = schedule or Schedule()
         self.channels_first, self.with_mask, self.with_raw = channels_first, with_mask, with_raw

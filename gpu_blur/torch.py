@@ -16,6 +16,7 @@ from collections.abc import Mapping, Sequence
 
 import torch
 
+from gpu_blur.arrays import check_dense
 from gpu_blur.datasets import (  # noqa: F401  (re-exported: the data side of the transform)
     BlurredImages,
     Photos,
@@ -23,6 +24,7 @@ from gpu_blur.datasets import (  # noqa: F401  (re-exported: the data side of th
     SharpSequences,
     epoch_seed,
 )
+from gpu_blur.params import check_overrides
 from gpu_blur.pipeline import Synthesizer
 
 
@@ -51,6 +53,7 @@ class RealisticBlur(torch.nn.Module):
                  channels_first: bool = True, with_mask: bool = False,
                  overrides: Mapping | None = None):
         super().__init__()
+        check_overrides(overrides)
         self.scene, self.seed, self.backend = scene, seed, backend
         self.channels_first, self.with_mask, self.overrides = (channels_first, with_mask,
                                                                overrides)
@@ -85,6 +88,7 @@ class RealisticBlur(torch.nn.Module):
                 them samples are numbered in call order from 0.
             epoch: the training epoch (>= 0).
         """
+        check_dense(batch, "batch")  # before its device picks a backend
         if indices is None:
             indices = range(self._counted, self._counted + batch.shape[0])
             self._counted += batch.shape[0]
