@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
+import math
 import numbers
 from pathlib import Path
 
@@ -29,8 +29,9 @@ import numpy as np
 
 from gpu_blur import limits
 from gpu_blur.constants import rsblur_data
+from gpu_blur.files import read_settings
 from gpu_blur.reference.color import camera_to_linear_matrix, checked_inverse
-from gpu_blur.scene import FIELDS, toml_loads
+from gpu_blur.scene import FIELDS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -292,8 +293,9 @@ def load_camera(path: str | Path) -> Camera:
     key = given[0]
     rows = color[key]
     if not (isinstance(rows, list) and len(rows) == 3 and all(
-            isinstance(r, list) and len(r) == 3 and all(_is_number(v) for v in r) for r in rows)):
-        fail(f"color.{key}", rows, "a 3 x 3 list of numbers")
+            isinstance(r, list) and len(r) == 3 and all(_is_finite_number(v) for v in r)
+            for r in rows)):
+        fail(f"color.{key}", rows, "a 3 x 3 list of numbers, each finite")
     adapt = color.get("adapt_d50", False)
     if not isinstance(adapt, bool):
         fail("color.adapt_d50", adapt, "true or false")
@@ -346,8 +348,14 @@ def load_camera(path: str | Path) -> Camera:
         raise ValueError(f"camera file {path}: color.{key}: {e}") from None
 
 
-def _is_number(value) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+def _is_finite_number(value) -> bool:
+    """A real number (not a bool) that float64 holds as a finite value."""
+    if not isinstance(value, numbers.Real) or isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:  # an integer beyond float64 (TOML and JSON allow any)
+        return False
 
 
 def _check_camera_keys(spec: dict, path: Path) -> None:
@@ -375,17 +383,10 @@ def read_camera_spec(path: Path) -> dict:
     """A camera file's tables, parsed as TOML, or JSON for a name ending in .json.
 
     Raises:
-        ValueError: naming the file when it cannot be read, is not valid TOML/JSON, or is not
-            a table of keys.
+        ValueError: naming the file when it cannot be read (also: no regular file, not
+            UTF-8), is not valid TOML/JSON, or is not a table of keys.
     """
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise ValueError(f"camera file {path}: cannot read it ({e.strerror})") from None
-    try:
-        spec = json.loads(text) if path.suffix.lower() == ".json" else toml_loads(text)
-    except ValueError as e:
-        raise ValueError(f"camera file {path}: not valid {path.suffix[1:].upper()}: {e}") from None
+    spec = read_settings(path, f"camera file {path}")
     if not isinstance(spec, dict):
         raise ValueError(f"camera file {path}: expected a table of keys ([color], [noise], ...), "
                          f"got {type(spec).__name__}")

@@ -22,6 +22,7 @@ else:  # pragma: no cover
 
 from gpu_blur import limits
 from gpu_blur.constants import GAUSSIAN_SRGB_NOISE_STD
+from gpu_blur.files import parse_settings, read_text
 from gpu_blur.limits import Limit
 from gpu_blur.reference.interpolate import (
     FLOW_METHODS,
@@ -371,15 +372,12 @@ def load_scene(path: str | Path | dict | None = None) -> Scene:
     if isinstance(path, dict):
         return scene_from_dict(path)
     path = scene_path(path)
+    where = f"scene file {path}"
     try:
-        text = path.read_text()
-    except OSError as e:
-        raise SceneError(f"scene file {path}: cannot read it ({e.strerror})") from None
-    try:
-        data = toml_loads(text)
+        data = parse_settings(read_text(path, where), "TOML", where)
     except ValueError as e:
-        raise SceneError(f"scene file {path}: not valid TOML: {e}") from None
-    return scene_from_dict(data, where=f"scene file {path}", path=path)
+        raise SceneError(str(e)) from None
+    return scene_from_dict(data, where=where, path=path)
 
 
 def describe_fields() -> str:

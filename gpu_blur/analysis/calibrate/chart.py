@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from gpu_blur.constants import D50_TO_D65
+from gpu_blur.files import parse_settings, read_text
 
 #: Built-in chart reference (gpu_blur/data).
 COLORCHECKER24 = "colorchecker24.json"
@@ -69,14 +69,8 @@ def load_chart_reference(path: str | Path | None = None) -> ChartReference:
         text = resources.files("gpu_blur").joinpath("data", COLORCHECKER24).read_text()
     else:
         where = str(path)
-        try:
-            text = Path(path).read_text()
-        except OSError as e:
-            raise ValueError(f"chart reference {where}: cannot read it ({e.strerror})") from None
-    try:
-        spec = json.loads(text)
-    except ValueError as e:
-        raise ValueError(f"chart reference {where}: not valid JSON: {e}") from None
+        text = read_text(path, f"chart reference {where}")
+    spec = parse_settings(text, "JSON", f"chart reference {where}")
 
     def fail(key, problem):
         raise ValueError(f"chart reference {where}: {key}: {problem}; see "

@@ -6,11 +6,12 @@ The formats are in :mod:`gpu_blur.analysis.calibrate` (``gpu-blur calibrate --he
 from __future__ import annotations
 
 import csv
-import json
 import math
 from pathlib import Path
 
 import numpy as np
+
+from gpu_blur.files import parse_settings, read_text
 
 #: The suffixes read as images (patch means over ``--boxes``).
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
@@ -22,16 +23,10 @@ def _read_table(path: Path, columns: tuple[str, ...], json_key: str) -> tuple[np
     Returns:
         ``(values, where)``: (N, len(columns)) float64 and N strings like ``"line 4"``.
     """
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise ValueError(f"{path}: cannot read it ({e.strerror})") from None
+    text = read_text(path, str(path))
     want = ", ".join(columns)
     if path.suffix.lower() == ".json":
-        try:
-            data = json.loads(text)
-        except ValueError as e:
-            raise ValueError(f"{path}: not valid JSON: {e}") from None
+        data = parse_settings(text, "JSON", str(path))
         rows = data.get(json_key) if isinstance(data, dict) else data
         if not isinstance(rows, list):
             raise ValueError(f'{path}: expected {{"{json_key}": [[{want}], ...]}} or '
