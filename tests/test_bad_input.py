@@ -4,6 +4,7 @@ Small images and the numpy backend throughout: what is checked is the refusal, n
 """
 
 import json
+import math
 import os
 import struct
 import zlib
@@ -346,6 +347,64 @@ def test_a_bad_kernel_override_is_named():
     scene = make_scene(blur={"mode": "kernel"}, noise={"model": "none"})
     with pytest.raises(ValueError, match=r"overrides\['kernel'\]: holds 9 negative weight"):
         gpu_blur.synthesize([random_rgb()], scene, overrides={"kernel": -np.ones((3, 3))})
+
+
+@pytest.mark.parametrize("kernel, words", [
+    (np.ones((3, 3)) + 1j, "holds complex128 values; kernel weights are real (the imaginary "
+                           "part would be lost): pass np.real(k) or np.abs(k)"),
+    (np.ones((3, 3), bool), "holds bool values, not numbers; kernel weights are integers or "
+                            "floats: pass k.astype(np.float64)"),
+    (np.full((3, 3), "1"), "holds <U1 values, not numbers"),
+])
+def test_a_kernel_of_no_real_numbers_is_refused_not_cast(tmp_path, kernel, words):
+    np.save(tmp_path / "k.npy", kernel)
+    with pytest.raises(ValueError) as e:
+        read_kernel(tmp_path / "k.npy")
+    assert str(e.value).startswith(f"blur.kernel = '{tmp_path / 'k.npy'}': {words}")
+    scene = make_scene(blur={"mode": "kernel"}, noise={"model": "none"})
+    with pytest.raises(ValueError) as e:
+        gpu_blur.Synthesizer(scene, overrides={"kernel": kernel})
+    assert str(e.value).startswith(f"overrides['kernel']: {words}")
+    np.save(tmp_path / "k.npy", np.ones((3, 3), np.int16))  # integers are weights
+    assert read_kernel(tmp_path / "k.npy").dtype == np.float64
+
+
+@pytest.mark.parametrize("name, value, words", [
+    ("alpha", math.nan, "overrides['alpha'] = nan is invalid; allowed: a finite int or float"),
+    ("alpha", 1e308, "overrides['alpha'] = 1e+308 is invalid; allowed: int or float <= 100"),
+    ("alpha", "1", "overrides['alpha'] = '1' is invalid; allowed: int or float >= 0"),
+    ("jpeg_quality", 0.5, "overrides['jpeg_quality'] = 0.5 is invalid; allowed: int >= 1"),
+    ("pattern", 3, "overrides['pattern'] = 3 is not a Bayer pattern; allowed: RGGB"),
+    ("kernel", -np.ones((3, 3)), "overrides['kernel']: holds 9 negative weight(s)"),
+    ("homographies", np.eye(3)[None] * 1j, "overrides['homographies'] must be a finite n x 3 "
+                                           "x 3 array (1 <= n <= 8192, as blur.steps) of "
+                                           "camera poses; got values that are not real"),
+])
+def test_every_override_is_checked_up_front_whether_or_not_its_stage_runs(name, value, words):
+    # auto saturation skips a photo that does not clip, and no stage here uses jpeg_quality,
+    # a pattern, a kernel or poses: each was accepted unchecked
+    scene = make_scene(blur={"mode": "none"}, saturation={"mode": "auto"},
+                       noise={"model": "none"})
+    with pytest.raises(ValueError) as e:
+        gpu_blur.Synthesizer(scene, overrides={name: value})
+    assert str(e.value).startswith(words)
+    with pytest.raises(ValueError) as e:
+        gpu_blur.synthesize({"blurred": np.full((8, 8, 3), 0.5)}, scene, overrides={name: value})
+    assert str(e.value).startswith(words)
+
+
+def test_overrides_that_are_not_a_mapping_are_refused():
+    with pytest.raises(TypeError, match=r"overrides: a mapping of parameter names to values "
+                                        r"\(e.g. \{'alpha': 1.0\}\); got a list"):
+        gpu_blur.Synthesizer(make_scene(), overrides=[("alpha", 1.0)])
+
+
+def test_an_unknown_input_of_blur_mode_none_is_refused_naming_the_known_ones():
+    with pytest.raises(ValueError) as e:
+        gpu_blur.synthesize({"blurred": np.full((8, 8, 3), 0.5), "masks": np.zeros((8, 8, 3))},
+                            make_scene(blur={"mode": "none"}))
+    assert str(e.value) == ("blur.mode = none: unknown input 'masks'; the inputs are 'blurred', "
+                            "'mask' (optional) and 'sharp' (optional)")
 
 
 def test_an_unknown_camera_lists_the_cameras_there_are(tmp_path, capsys):
