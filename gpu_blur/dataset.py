@@ -20,7 +20,7 @@ import numpy as np
 
 from gpu_blur.backends.flows import REGIONS_KEY
 from gpu_blur.imageio import temporary_path, write_image, write_new, write_text, write_whole
-from gpu_blur.locking import take_lock
+from gpu_blur.locking import earlier_pids, forget_earlier, take_lock
 from gpu_blur.outputs import write_dng, write_mask
 from gpu_blur.params import ARRAY_PARAMS
 from gpu_blur.reference.interpolate import INTERPOLATION_AUTO
@@ -43,11 +43,9 @@ PATHS = ("blurred", "sharp", "arrays", "mask", "raw")
 EXTRAS = ("mask", "raw")
 _SAMPLE_FILE = re.compile(r"\d{6,}_.*\.(png|tiff|npz|dng)", re.DOTALL)
 _PROBE = "gpu_blur_write_test"
-#: Temporary files (:func:`gpu_blur.imageio.temporary_path`) a killed run may leave in the set's
-#: folders: ``.<final name>[.<pid>].part[.<suffix>]`` of a sample file, the manifest, run.json
-#: or the write probe (names before the pid was added included). Nothing else is removed.
-_TEMPORARY = re.compile(rf"\.(\d{{6,}}.*|{re.escape(MANIFEST)}|{re.escape(RUN)}|{_PROBE})"
-                        r"(\.\d+)?\.part(\.[a-z]+)?", re.DOTALL)
+#: A temporary file's name (:func:`gpu_blur.imageio.temporary_path`):
+#: ``.<final name>.<pid>.part<final suffix>``.
+_TEMPORARY = re.compile(r"\.(.+)\.(\d+)\.part(\.[^.]*)?", re.DOTALL)
 #: The most bytes (UTF-8) of a sample's name its file names keep (``NNNNNN_<name>``): with
 #: the index, the temporary name's dots, pid and suffixes, a name stays under the 255 bytes a
 #: file name may have; a longer name keeps its first bytes and a hash of the whole.
@@ -599,6 +597,26 @@ def _plain(value):
     return json.loads(json.dumps(value, default=_jsonable))
 
 
+def _json_object(text: bytes) -> dict | None:
+    """A manifest line as the object it holds, or None when it is not one (not UTF-8 JSON)."""
+    try:
+        line = json.loads(text.decode())
+    except ValueError:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+        return None
+    return line if isinstance(line, dict) else None
+
+
+def _text(value) -> bool:
+    """Whether ``value`` is a string that UTF-8 can hold (no lone surrogates)."""
+    if not isinstance(value, str):
+        return False
+    try:
+        value.encode()
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
 def _whole(path: Path, size) -> bool:
     """Whether ``path`` is a regular file (not a link) of ``size`` bytes (None: not empty)."""
     try:
@@ -745,6 +763,7 @@ class DatasetWriter:
         self.retry = 0  # failed samples whose lines were dropped, to be tried again
         self.torn = 0  # manifest lines cut by a kill, or that could not be verified
         self._lock = self._take_lock()
+        self._earlier = earlier_pids(self._lock)  # runs whose temporary files may be left
         try:
             self._open(run, overwrite, resume, specs,
                        len(specs) if total is None and specs is not None else total)
@@ -771,7 +790,7 @@ class DatasetWriter:
         kept = None
         if resume and found:
             self._check_run(run or {})
-            kept = self._read_manifest(total, bool(files))
+            kept = self._read_manifest(total, files)
             self._check_inputs(specs or [])
         # nothing is changed above this line
         self._make_folders()
@@ -786,8 +805,9 @@ class DatasetWriter:
             (out / RUN).unlink(missing_ok=True)
         for folder in (out, *(out / sub for sub in SUBFOLDERS)):
             for entry in folder.iterdir() if folder.is_dir() else ():
-                if _TEMPORARY.fullmatch(entry.name) and not entry.is_dir():
+                if self._ours(entry):
                     entry.unlink()  # left by a killed run (the lock keeps live runs out)
+        forget_earlier(self._lock)
         if kept is None and run is not None:
             write_text(out / RUN, json.dumps(run, indent=1) + "\n")
         self.manifest = open(self.manifest_path, "a")
@@ -813,7 +833,7 @@ class DatasetWriter:
                     others.append(entry)
                 elif _SAMPLE_FILE.fullmatch(entry.name):
                     ours.append(entry)
-                elif not _TEMPORARY.fullmatch(entry.name):
+                elif not self._ours(entry):
                     others.append(entry)
         if others:
             more = f" and {len(others) - 5} more" if len(others) > 5 else ""
@@ -823,6 +843,26 @@ class DatasetWriter:
                 "(gpu-blur replaces and removes those), so move these out, or choose another "
                 "--output")
         return ours
+
+    def _ours(self, entry: Path) -> bool:
+        """Whether ``entry`` is a temporary file an earlier run on this folder made.
+
+        Its name must be :func:`gpu_blur.imageio.temporary_path`'s for a file that run writes
+        there (a sample file in the set's folders; the manifest, run.json or the write probe
+        beside them), with the process id of a run the lock file records
+        (:func:`gpu_blur.locking.earlier_pids`): a file of the same look that someone else
+        made is never taken for one.
+        """
+        match = _TEMPORARY.fullmatch(entry.name)
+        if not match or int(match[2]) not in self._earlier or entry.is_symlink() \
+                or not entry.is_file():
+            return False
+        final, suffix = match[1], match[3] or ""
+        if Path(final).suffix != suffix:
+            return False
+        if entry.parent == self.out:
+            return final in (MANIFEST, RUN, _PROBE)
+        return bool(_SAMPLE_FILE.fullmatch(final)) or final == _PROBE
 
     @property
     def resumed(self) -> bool:
@@ -843,7 +883,7 @@ class DatasetWriter:
         try:
             self.out.mkdir(parents=True, exist_ok=True)
             return take_lock(self.out / LOCK, f"--output {self.out}", "wait for that run to "
-                             "end, or choose another --output")
+                             "end, or choose another --output", keep_earlier=True)
         except OSError as e:  # LockHeld is a ValueError: it passes through
             raise self._unwritable(e) from None
 
@@ -882,62 +922,99 @@ class DatasetWriter:
                     "device, library versions, camera and kernel files), or start a new set "
                     "with --overwrite or another --output")
 
-    def _read_manifest(self, total: int | None, files: bool) -> list[str]:
+    def _read_manifest(self, total: int | None, files: list[Path]) -> list[str]:
         """The manifest lines to keep (finished samples whose files are whole), filling ``done``.
 
         A line is trusted only as far as it is checked: its index an int in ``[0, total)``,
         its name and inputs strings, and its files exactly the names :meth:`write` gives that
         index and name, present as regular files (not links) of the sizes the line records
         (not empty, for lines written before sizes were). Other lines are dropped (their
-        samples made again), so no path in a manifest is ever read or removed.
+        samples made again), so no path in a manifest is ever read or removed. The lines kept
+        are in index order.
 
         Raises:
-            ValueError: with sample files there (``files``), a manifest that is missing or
-                unreadable, or holds a line that is not JSON before its last (a kill cuts
-                only the last): resuming would remove finished samples.
+            ValueError: with sample files there (``files``), a manifest that is missing,
+                unreadable or damaged (empty, NUL bytes, a line that is not a JSON object
+                other than a last line a kill cut short, before its newline), or a finished
+                sample this run could not keep (an index beyond ``total``, a second line for
+                an index with other files): resuming would remove finished samples.
         """
+        path = self.manifest_path
         fix = ("restore it, or start the set again with --overwrite (which removes its "
                "samples), or use another --output")
-        if not self.manifest_path.is_file():
+        if not path.is_file():
             if files:
-                raise ValueError(f"--resume: {self.manifest_path} is missing, so which of the "
+                raise ValueError(f"--resume: {path} is missing, so which of the "
                                  f"sample files in {self.out} are finished is unknown; {fix}")
             return []
         try:
-            texts = self.manifest_path.read_text(errors="replace").splitlines(keepends=True)
+            texts = path.read_bytes().splitlines(keepends=True)
         except OSError as e:
-            raise ValueError(f"--resume: cannot read {self.manifest_path} ({e.strerror or e}); "
+            raise ValueError(f"--resume: cannot read {path} ({e.strerror or e}); "
                              f"{fix}") from None
-        kept = []
+        if files and not texts:
+            raise ValueError(f"--resume: {path} is empty (0 bytes, as a power loss may leave "
+                             f"it) while {len(files)} sample file(s) are in {self.out}, so "
+                             "which are finished is unknown and resuming would remove them; "
+                             f"nothing was changed: {fix}")
+        kept, first = {}, {}  # by index: line, (line number, files)
         for number, text in enumerate(texts, 1):
-            try:
-                line = json.loads(text)
-            except ValueError:
-                if number < len(texts) and files:
-                    raise ValueError(f"--resume: {self.manifest_path}, line {number}, is not "
-                                     "JSON: the manifest is damaged (a kill cuts only its last "
-                                     f"line), and its samples would be made again; {fix}"
-                                     ) from None
-                line = None  # cut by a kill: that sample is made again
-            if not (isinstance(line, dict) and type(line.get("index")) is int
-                    and 0 <= line["index"] < (total if total is not None else math.inf)
-                    and isinstance(line.get("name"), str) and isinstance(line.get("inputs"), list)
+            line = _json_object(text)
+            cut = number == len(texts) and not text.endswith(b"\n")  # a kill cuts only this
+            if files and (b"\0" in text or (line is None and not cut)):
+                what = "holds NUL bytes" if b"\0" in text else "is not JSON"
+                cut_to = (f"cut it to its first {number - 1} line(s) (head -n {number - 1}) "
+                          "and resume (the samples of later lines are made again), or "
+                          if number > 1 else "")
+                raise ValueError(
+                    f"--resume: {path}, line {number}, {what}: the manifest is damaged (a kill "
+                    "cuts only its last line, a power loss may leave NULs), and resuming "
+                    f"would remove finished samples; nothing was changed: {cut_to}{fix}")
+            if not (line is not None and type(line.get("index")) is int and line["index"] >= 0
+                    and _text(line.get("name")) and isinstance(line.get("inputs"), list)
                     and all(isinstance(p, str) for p in line["inputs"])):
+                self.torn += 1
+                continue
+            index, paths = line["index"], self._finished(line)
+            beyond = index >= (total if total is not None else math.inf)
+            if paths and (beyond or first.get(index, (0, paths))[1] != paths):
+                why = (f"the input now gives {total} samples" if beyond else
+                       f"line {first[index][0]} records that index with other files")
+                raise ValueError(
+                    f"--resume: {path}, line {number}, records finished sample {index} "
+                    f"({line['name']!r}) that this run cannot keep ({why}): the input folder "
+                    "or the manifest changed since the set was made, and resuming would "
+                    "remove its files; nothing was changed: restore them, or start a new set "
+                    "with --overwrite or another --output")
+            if beyond:
                 self.torn += 1
                 continue
             if line.get("status") != "ok":
                 self.retry += 1
                 continue
-            paths = self._paths(line["index"], line["name"])
-            keys = [k for k in PATHS if k in line]
-            sizes = line.get("bytes") if isinstance(line.get("bytes"), dict) else {}
-            if line["index"] in self.done or keys[:2] != ["blurred", "sharp"] or any(
-                    line[k] != paths[k] or not _whole(self.out / paths[k], sizes.get(k))
-                    for k in keys):
+            if paths is None or index in self.done:
                 continue  # a repeat, files named otherwise, gone or cut: made again
-            self.done[line["index"]] = line
-            kept.append(text if text.endswith("\n") else text + "\n")
-        return kept
+            first[index] = (number, paths)
+            self.done[index] = line
+            kept[index] = text.decode() if text.endswith(b"\n") else text.decode() + "\n"
+        return [kept[i] for i in sorted(kept)]
+
+    def _finished(self, line: dict) -> list[str] | None:
+        """The files of a finished sample's line, else None.
+
+        Finished: status "ok", its files the names :meth:`write` gives its index and name,
+        regular files of the sizes the line records.
+        """
+        if line.get("status") != "ok":
+            return None
+        paths = self._paths(line["index"], line["name"])
+        keys = [k for k in PATHS if k in line]
+        sizes = line.get("bytes") if isinstance(line.get("bytes"), dict) else {}
+        if keys[:2] != ["blurred", "sharp"] or any(
+                line[k] != paths[k] or not _whole(self.out / paths[k], sizes.get(k))
+                for k in keys):
+            return None
+        return [paths[k] for k in keys]
 
     def _paths(self, index: int, name: str) -> dict[str, str]:
         """The files of sample ``index`` named ``name``, relative to the set's folder.

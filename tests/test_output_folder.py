@@ -88,17 +88,44 @@ def test_a_link_planted_at_a_temporary_name_is_not_written_through(tmp_path, wri
     assert sorted(p.name for p in out.iterdir()) == ["x.png"]
 
 
-def test_resume_removes_only_temporary_files_of_its_own_naming(tmp_path, photos):
+def test_only_temporary_files_of_a_run_the_lock_file_records_are_removed(tmp_path, photos,
+                                                                         capsys):
+    # a temporary name holds the pid of the run that made it, and the lock file records the
+    # runs on the folder: a file that merely looks like one is never removed (issue 35)
     out = tmp_path / "out"
     assert main(args(photos, out, "--limit", "2")) == 0
-    ours = [out / "blur" / ".000002_b_0.png.4242.part.png", out / ".manifest.jsonl.17.part",
-            out / "params" / ".000003_b_1.npz.9.part.npz"]
-    theirs = [out / ".notes.part", out / ".run.json.bak.part", out / "draft.part"]
+    pid = os.getpid()  # main() ran in this process: the lock file names it
+    ours = [out / "blur" / f".000002_b_0.png.{pid}.part.png",
+            out / f".manifest.jsonl.{pid}.part.jsonl",
+            out / "params" / f".000003_b_1.npz.{pid}.part.npz"]
+    theirs = [out / ".notes.part", out / ".run.json.bak.part", out / "draft.part",
+              out / ".123456_backup.part", out / f".123456_backup.{pid}.part",
+              out / ".manifest.jsonl.4242.part.jsonl", out / f".000002_b_0.png.{pid}.part.png"]
     for path in ours + theirs:
         path.write_bytes(b"x")
     assert main(args(photos, out, "--resume", "--limit", "2")) == 0
     assert not any(p.exists() for p in ours)
-    assert all(p.exists() for p in theirs)
+    assert main(args(photos, out, "--overwrite", "--limit", "2")) == 0
+    assert all(p.read_bytes() == b"x" for p in theirs)
+    # in the set's folders such a file is no file of the set: refused, and kept
+    stranger = out / "blur" / ".000002_b_0.png.4242.part.png"
+    stranger.write_bytes(b"x")
+    capsys.readouterr()
+    for again in (["--resume"], ["--overwrite"]):
+        assert main(args(photos, out, "--limit", "2", *again)) == 2
+        assert f"{stranger}: not a file gpu-blur wrote" in capsys.readouterr().err
+    assert stranger.read_bytes() == b"x"
+
+
+def test_a_new_set_in_a_users_folder_removes_none_of_their_files(tmp_path, photos):
+    out = tmp_path / "mine"
+    out.mkdir()
+    theirs = [out / ".123456_backup.part", out / f".manifest.jsonl.{os.getpid()}.part.jsonl",
+              out / "notes.txt"]
+    for path in theirs:
+        path.write_bytes(b"x")
+    assert main(args(photos, out, "--limit", "1")) == 0
+    assert all(p.read_bytes() == b"x" for p in theirs)
 
 
 def test_overwrite_replaces_the_whole_older_set(tmp_path, photos):

@@ -62,12 +62,14 @@ def test_a_killed_run_resumes_to_the_set_an_uninterrupted_run_makes(tmp_path, ph
     assert [x["index"] for x in done] == [0, 1, 2] and done == expected[:3]
     before = stamps(out, done)
 
-    # what a kill at a worse moment leaves: a torn last line, a temporary file, and the next
-    # sample's image written (complete or not) without its manifest line
+    # what a kill at a worse moment leaves: a torn last line, temporary files (named with the
+    # killed run's pid, which the lock file records), and the next sample's image written
+    # (complete or not) without its manifest line
     with (out / "manifest.jsonl").open("a") as f:
         f.write(json.dumps(expected[3])[:60])
-    (out / "blur" / f".{os.path.basename(expected[3]['blurred'])}.part.png").write_bytes(b"x")
-    (out / "params" / ".000003.part.npz").write_bytes(b"x")  # as earlier versions named it
+    for path in (expected[3]["blurred"], expected[3]["arrays"]):
+        name = os.path.basename(path)
+        (out / path).with_name(f".{name}.{run.pid}.part{name[-4:]}").write_bytes(b"x")
     (out / expected[3]["blurred"]).write_bytes(b"\x89PNG half an image")
 
     assert main(args(photos, out, "--resume")) == 0
