@@ -437,6 +437,88 @@ def test_pinned_staging_and_direct_copies_give_the_same_batch(spec, mode):
         assert np.array_equal(pinned, direct)
 
 
+def overlapping_outs(shape):
+    """(out=, the overlap's message) pairs: results that would overwrite each other."""
+    whole = np.zeros((2 * shape[0] + 1, *shape[1:]), np.float32)
+    same = np.zeros(shape, np.float32)
+    return [
+        ([same, same], "out= sharp shares memory with out= blurred; one result would "
+                       "overwrite the other: pass an array of its own for each"),
+        ([whole[:shape[0]], whole[1:shape[0] + 1]], "out= sharp shares memory with out= "
+                                                     "blurred"),  # offset by a sample
+        ([whole[:shape[0]], whole[shape[0]:2 * shape[0]]], None),  # side by side: fine
+        ([np.lib.stride_tricks.as_strided(same, strides=(0, *same.strides[1:])),
+          np.zeros(shape, np.float32)], "out= blurred: its elements overlap"),
+    ]
+
+
+def test_out_arrays_sharing_memory_are_refused_before_any_is_written():
+    scene = scene_for("kernel", precision="float32")
+    photos = batch_for("kernel", 2, np.random.default_rng(4), dtype=np.float32)["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend="numpy")
+    ref = synth(photos)
+    for out, words in overlapping_outs(photos.shape):
+        if words is None:
+            synth(photos, out=out)
+            assert np.array_equal(out[0], ref.blurred) and np.array_equal(out[1], ref.sharp)
+            continue
+        with pytest.raises(ValueError, match=re.escape(words)):
+            synth(photos, out=out)
+        assert not out[0].any() and not out[1].any()
+    # an input written over while it is read
+    with pytest.raises(ValueError, match=re.escape(
+            "out= blurred shares memory with the batch input; results would overwrite the "
+            "inputs they are made from: pass an array of its own")):
+        synth(photos, out=[photos, np.zeros_like(photos)])
+    given = batch_for("none", 2, np.random.default_rng(5), dtype=np.float32)
+    synth = gpu_blur.Synthesizer(scene_for("none"), backend="numpy", with_mask=True)
+    out = [np.zeros(synth(given["batch"]).blurred.shape, np.float32) for _ in range(2)]
+    with pytest.raises(ValueError, match="out= mask shares memory with the mask input"):
+        synth(given["batch"], mask=given["mask"], out=[*out, given["mask"][:, 4:-4, 4:-4]])
+    with pytest.raises(ValueError, match="out= mask shares memory with out= blurred"):
+        synth(given["batch"], mask=given["mask"], out=[*out, out[0]])
+
+
+@pytest.mark.parametrize("indices, words", [
+    ([0.5, 1], "indices[0] = 0.5: a sample index is an int in [0, 2**32); pass ints (a float "
+               "index is not rounded)"),
+    (np.array([1.0, 2.0]), "indices[0] = 1.0: a sample index is an int"),
+    (torch.tensor([3.5, 1.0]), "indices[0] = 3.5: a sample index is an int"),
+    ([1, True], "indices[1] = True: a sample index is an int"),
+    ([1, 2**32], "indices[1] = 4294967296: a sample index is an int in [0, 2**32)"),
+    (7, "indices: one sample index per sample, a list or 1-D array of ints; got 7"),
+])
+def test_sample_indices_that_are_not_ints_are_refused_not_truncated(indices, words):
+    scene = scene_for("kernel", precision="float32")
+    photos = batch_for("kernel", 2, np.random.default_rng(4))["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend="numpy")
+    with pytest.raises(ValueError, match=re.escape(words)):
+        synth(photos, indices=indices)
+    with pytest.raises(ValueError, match=re.escape("first_index = 0.5: needs an int, 0 <= "
+                                                   "first_index and first_index + 2 (the "
+                                                   "batch) <= 2**32")):
+        synth(photos, first_index=0.5)
+    ints = synth(photos, indices=[3, 9])
+    for same in (np.array([3, 9], np.uint32), torch.tensor([3, 9]), (np.int64(3), 9)):
+        again = synth(photos, indices=same)
+        assert np.array_equal(again.blurred, ints.blurred)
+
+
+@pytest.mark.parametrize("make, words", [
+    (lambda x: x.to("meta"), "batch: a tensor on the meta device holds no values; pass one on "
+                             "the CPU or a CUDA device"),
+    (lambda x: x.to_sparse(), "batch: a torch.sparse_coo tensor; pass a dense one "
+                              "(x.to_dense())"),
+])
+def test_meta_and_sparse_tensors_are_refused_by_name(make, words):
+    scene = scene_for("kernel", precision="float32")
+    photos = torch.from_numpy(batch_for("kernel", 2, np.random.default_rng(4))["batch"])
+    with pytest.raises(ValueError, match=re.escape(words)):
+        gpu_blur.Synthesizer(scene, backend="numpy")(make(photos))
+    with pytest.raises(ValueError, match=re.escape(words.replace("batch", "frame 0"))):
+        gpu_blur.synthesize([make(photos[0])], scene)
+
+
 def test_out_is_refused_for_batches_that_are_not_numpy():
     scene = scene_for("kernel", precision="float32")
     photos = torch.from_numpy(batch_for("kernel", 2, np.random.default_rng(4))["batch"])
