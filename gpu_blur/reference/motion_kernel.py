@@ -13,6 +13,7 @@ import math
 import numpy as np
 from scipy.fft import next_fast_len
 
+from gpu_blur.reference import fixedmath
 from gpu_blur.reference.sampling import as_image, as_uniforms
 
 __all__ = [
@@ -210,41 +211,48 @@ def random_motion_kernel(uniforms, size: int) -> np.ndarray:
     extent = KERNEL_EXTENT_MIN + (1.0 - KERNEL_EXTENT_MIN) * u[4]
     steps = u[5:].reshape(n - 1, 4)
 
-    # complex Gaussians by Box-Muller, all at once
-    radius = np.sqrt(-2.0 * np.log(steps[:, 0]))
-    gauss = radius * np.exp(2j * math.pi * steps[:, 1])
-    turn = np.exp(1j * (math.pi + 2.0 * KERNEL_SHAKE_TURN_SPREAD_RAD * (steps[:, 3] - 0.5)))
+    # Gaussian pairs by Box-Muller and the shake turns, all at once, through fixedmath (the
+    # same bits on every CPU)
+    radius = np.sqrt(-2.0 * fixedmath.log(steps[:, 0]))
+    gauss_sin, gauss_cos = fixedmath.sincos(2.0 * math.pi * steps[:, 1])
+    turn_sin, turn_cos = fixedmath.sincos(
+        math.pi + 2.0 * KERNEL_SHAKE_TURN_SPREAD_RAD * (steps[:, 3] - 0.5))
+    start_sin, start_cos = fixedmath.sincos(theta0)
     shake = steps[:, 2] < p_shake
 
-    # the walk on Python floats and complex numbers: the same IEEE operations as numpy's
-    # scalars (products as (ac - bd, ad + bc), abs as C hypot), at a third of their cost
-    gauss, turn, shake = gauss.tolist(), turn.tolist(), shake.tolist()
+    # the walk on Python floats in the complex plane written as (x, y) pairs, each operation
+    # one IEEE rounding (no complex type: its product may be fused into a * b + c elsewhere)
+    gx, gy = (radius * gauss_cos).tolist(), (radius * gauss_sin).tolist()
+    tx, ty, shake = turn_cos.tolist(), turn_sin.tolist(), shake.tolist()
     sigma, kappa = float(sigma), float(kappa)
-    v = step_len * complex(math.cos(theta0), math.sin(theta0))
-    x = 0j
-    walk = [x]
+    vx, vy = step_len * float(start_cos), step_len * float(start_sin)
+    px = py = 0.0
+    walk_x, walk_y = [px], [py]
     for j in range(n - 1):
         if shake[j]:
-            v = v * turn[j]
+            vx, vy = vx * tx[j] - vy * ty[j], vx * ty[j] + vy * tx[j]
         else:
-            candidate = v + abs(v) * (sigma * gauss[j] - kappa * x)
-            mag = abs(candidate)
+            speed = math.sqrt(vx * vx + vy * vy)
+            cx = vx + speed * (sigma * gx[j] - kappa * px)
+            cy = vy + speed * (sigma * gy[j] - kappa * py)
+            mag = math.sqrt(cx * cx + cy * cy)
             if mag > 0.0:
-                v = candidate * (step_len / mag)
-        x = x + v
-        walk.append(x)
-    path = np.array(walk, dtype=np.complex128)
+                vx, vy = cx * (step_len / mag), cy * (step_len / mag)
+        px, py = px + vx, py + vy
+        walk_x.append(px)
+        walk_y.append(py)
+    path_x, path_y = np.array(walk_x), np.array(walk_y)
 
     # upper bound on the final scale, to choose the sampling density
     centre = (size - 1) / 2.0
-    side = max(np.ptp(path.real), np.ptp(path.imag))
+    side = max(np.ptp(path_x), np.ptp(path_y))
     scale_bound = centre / (0.5 * side)
     per_step = max(1, math.ceil(scale_bound * step_len / KERNEL_SAMPLE_SPACING_PX))
     n_samples = (n - 1) * per_step
     t = (np.arange(n_samples) + 0.5) / per_step  # midpoints of equal slices, in walk steps
     knots = np.arange(n, dtype=np.float64)
-    sx = np.interp(t, knots, path.real)
-    sy = np.interp(t, knots, path.imag)
+    sx = np.interp(t, knots, path_x)
+    sy = np.interp(t, knots, path_y)
 
     sx -= sx.mean()
     sy -= sy.mean()

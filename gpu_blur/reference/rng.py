@@ -39,7 +39,10 @@ Normals come from the Box-Muller transform (:func:`box_muller`, :func:`pixel_nor
 counts from inversion below rate 10 and Hörmann's PTRS transformed rejection at 10 and above
 (:func:`poisson`), or, as an accuracy knob, from a rounded normal above a chosen rate
 (:func:`poisson` with ``normal_above``). All are written as plain scalar arithmetic so OpenCL C
-and Warp can repeat them operation for operation.
+and Warp can repeat them operation for operation. Their ``exp``, ``log``, ``sin`` and ``cos``
+are :mod:`gpu_blur.reference.fixedmath`'s (IEEE operations only, within 1 ulp), not numpy's, whose
+SIMD paths differ by CPU: the reference's normals and counts have the same bits on every
+machine; the kernels' libm stays within the tolerance rows of :mod:`gpu_blur.testing`.
 """
 
 from __future__ import annotations
@@ -48,6 +51,8 @@ import enum
 import math
 
 import numpy as np
+
+from gpu_blur.reference import fixedmath
 
 __all__ = [
     "POISSON_INVERSION_MAX_K",
@@ -434,7 +439,8 @@ def box_muller(u1, u2) -> tuple[np.ndarray, np.ndarray]:
 
     ``r = sqrt(-2 * log(u1))``, ``t = (2 * pi) * u2``; returns ``(r * cos(t), r * sin(t))``
     (Box and Muller, "A note on the generation of random normal deviates", Ann. Math. Statist.
-    29, 1958). With ``u1 >= 2**-24`` (:func:`uniform_from_bits`) ``|z| <= 5.77``: the tails
+    29, 1958), ``log``, ``sin`` and ``cos`` from :mod:`~gpu_blur.reference.fixedmath` (one
+    reduction for both). With ``u1 >= 2**-24`` (:func:`uniform_from_bits`) ``|z| <= 5.77``: the tails
     beyond are cut, a probability of about 8e-9.
 
     Args:
@@ -446,9 +452,9 @@ def box_muller(u1, u2) -> tuple[np.ndarray, np.ndarray]:
     """
     u1 = np.asarray(u1, dtype=np.float64)
     u2 = np.asarray(u2, dtype=np.float64)
-    radius = np.sqrt(-2.0 * np.log(u1))
-    angle = _TWO_PI * u2
-    return radius * np.cos(angle), radius * np.sin(angle)
+    radius = np.sqrt(-2.0 * fixedmath.log(u1))
+    sin_t, cos_t = fixedmath.sincos(_TWO_PI * u2)
+    return radius * cos_t, radius * sin_t
 
 
 def pixel_normals(seed: int, sample_index: int, stream: Stream, y, x, count: int) -> np.ndarray:
@@ -541,7 +547,7 @@ def log_factorial(k) -> np.ndarray:
     r = 1.0 / n
     r2 = r * r
     series = r * (1.0 / 12.0 - r2 * (1.0 / 360.0 - r2 * (1.0 / 1260.0 - r2 / 1680.0)))
-    out[~small] = (n + 0.5) * np.log(n) - n + _HALF_LOG_TWO_PI + series
+    out[~small] = (n + 0.5) * fixedmath.log(n) - n + _HALF_LOG_TWO_PI + series
     return out
 
 
@@ -553,7 +559,7 @@ def log_factorial(k) -> np.ndarray:
 def _poisson_inversion(rate: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Sequential-search inversion of the Poisson CDF, one uniform per count (rate < 10)."""
     k = np.zeros_like(rate)
-    p = np.exp(-rate)
+    p = fixedmath.exp(-rate)
     cdf = p.copy()
     active = np.flatnonzero(u > cdf)
     step = 0
@@ -577,7 +583,7 @@ def _ptrs_attempt(u_word, v_word, mu, log_mu, a, b, inv_alpha, v_r):
     test = np.flatnonzero(~accepted & ~rejected)
     if test.size:
         ti = test
-        lhs = np.log(v[ti] * inv_alpha[ti] / (a[ti] / (us[ti] * us[ti]) + b[ti]))
+        lhs = fixedmath.log(v[ti] * inv_alpha[ti] / (a[ti] / (us[ti] * us[ti]) + b[ti]))
         rhs = -mu[ti] + k[ti] * log_mu[ti] - log_factorial(k[ti])
         accepted[ti] = lhs <= rhs
     return k, accepted
@@ -586,7 +592,7 @@ def _ptrs_attempt(u_word, v_word, mu, log_mu, a, b, inv_alpha, v_r):
 def _poisson_ptrs(rate, seed, sample_index, stream, y, x) -> np.ndarray:
     """Hörmann's PTRS for rate >= 10; 1-D arrays of rates and their global coordinates."""
     mu = rate
-    log_mu = np.log(mu)
+    log_mu = fixedmath.log(mu)
     b = PTRS_B0 + PTRS_B1 * np.sqrt(mu)
     a = PTRS_A0 + PTRS_A1 * b
     inv_alpha = PTRS_IA0 + PTRS_IA1 / (b - PTRS_IA2)
