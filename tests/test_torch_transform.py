@@ -55,3 +55,26 @@ def test_epoch_seeds_differ_and_bad_seeds_are_refused():
     assert epoch_seed(1, 0) != epoch_seed(2, 0)
     with pytest.raises(ValueError, match="seed must be in"):
         epoch_seed(-1, 0)
+
+
+def test_float_indices_are_refused_not_truncated():
+    blur = RealisticBlur(SCENE, backend="numpy")
+    with pytest.raises(ValueError, match=r"indices\[0\] = 0.5: a sample index is an int"):
+        blur(photos(2), indices=torch.tensor([0.5, 1.0]))
+    by_tensor, _ = blur(photos(2), indices=torch.tensor([0, 1]))
+    by_list, _ = blur(photos(2), indices=[0, 1])
+    assert torch.equal(by_tensor, by_list)
+
+
+@pytest.mark.parametrize("make, words", [
+    (lambda x: x.to("meta"), "batch: a tensor on the meta device holds no values"),
+    (lambda x: x.to_sparse(), "batch: a torch.sparse_coo tensor; pass a dense one"),
+])
+def test_meta_and_sparse_batches_are_refused_by_name(make, words):
+    with pytest.raises(ValueError, match=words):
+        RealisticBlur(SCENE)(make(photos(2)))
+
+
+def test_overrides_are_checked_when_the_transform_is_made():
+    with pytest.raises(ValueError, match=r"overrides\['alpha'\] = nan is invalid"):
+        RealisticBlur(SCENE, overrides={"alpha": float("nan")})
