@@ -10,6 +10,29 @@ import math
 
 import numpy as np
 
+#: Unit roundoff of float64 (IEEE 754 binary64, round to nearest).
+_U64 = 2.0**-53
+
+
+def _sum_bound(terms: int, magnitude: float) -> float:
+    """Rounding bound of a float64 sum of ``terms`` products, any order, fused or not.
+
+    ``gamma_n * sum |w_i x_i|`` with ``gamma_n = n u / (1 - n u)`` (Higham, "Accuracy and
+    Stability of Numerical Algorithms", 2nd ed., eq. 3.5): what every correct IEEE double
+    compiler meets, whatever it contracts. Doubled: the device and the reference both round.
+    """
+    return 2.0 * terms * _U64 / (1.0 - terms * _U64) * magnitude
+
+
+#: Float64 rows of weighted sums, from their bound instead of one device's measurement (a
+#: compiler may contract ``a * b + c`` or sum in another order; issue 35 saw Intel's runtime
+#: without AVX-512 at 6.7e-16 where AVX-512 gave 4.4e-16). apply_matrix: 3 products, the A7R3
+#: camera_to_linear row sums of |m| up to 2.47, |x| <= 1.2 (tests/test_device_pixel.py).
+F64_APPLY_MATRIX = _sum_bound(3, 2.47 * 1.2)  # 2.0e-15
+#: Malvar-He-Cutler: at most 13 taps whose |weights| add up to at most 2.5 (R or B at a green
+#: or at the other colour, 20/8), linear RAW <= 1.
+F64_MALVAR = _sum_bound(13, 2.5)  # 7.2e-15
+
 #: (stage, backend, dtype) -> (rtol, atol). "independent" rows compare the reference with an
 #: outside implementation of the same maths (colour-demosaicing, OpenCV, a literal transcription).
 TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
@@ -75,13 +98,13 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # A7R3 3 x 3 matrices (float64 ones for the reference) on linear pixels in [-0.1, 1.2]:
     # measured 1.9e-7 (float32, matrix rounding included) and 4.4e-16 (float64) absolute.
     ("apply_matrix", "opencl", "float32"): (0.0, 2.5e-7),
-    ("apply_matrix", "opencl", "float64"): (0.0, 5e-16),
+    ("apply_matrix", "opencl", "float64"): (0.0, F64_APPLY_MATRIX),
     # Demosaicing linear RAW <= 1: Malvar's 13-tap sums measured 2.2e-7 (float32) and 4.4e-16
     # (float64, fused a * b + c) absolute; bilinear measured 7.5e-8 (float32) and 0 in float64,
     # where its weights (1/4, 1/2) make every product exact and the sums run in the reference's
     # order, so any IEEE double device gives the reference bit for bit.
     ("demosaic_malvar2004", "opencl", "float32"): (0.0, 2.5e-7),
-    ("demosaic_malvar2004", "opencl", "float64"): (0.0, 5e-16),
+    ("demosaic_malvar2004", "opencl", "float64"): (0.0, F64_MALVAR),
     ("demosaic_bilinear", "opencl", "float32"): (0.0, 8e-8),
     ("demosaic_bilinear", "opencl", "float64"): (0.0, 0.0),
     # -- Warp pixel stages --
@@ -111,12 +134,12 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # A7R3 3 x 3 matrices (float64 ones for the reference) on linear pixels in [-0.1, 1.2]:
     # absolute 2.5e-7 / 1.9e-7 (float32, matrix rounding included), 4.4e-16 / 4.4e-16 (float64).
     ("apply_matrix", "warp", "float32"): (0.0, 3e-7),
-    ("apply_matrix", "warp", "float64"): (0.0, 5e-16),
+    ("apply_matrix", "warp", "float64"): (0.0, F64_APPLY_MATRIX),
     # Demosaicing linear RAW <= 1: Malvar absolute 2.2e-7 / 2.2e-7 (float32) and 0 / 4.4e-16
     # (float64); bilinear 7.5e-8 / 7.5e-8 (float32) and 0 / 0 in float64, where its weights make
     # every product exact and the sums run in the reference's order.
     ("demosaic_malvar2004", "warp", "float32"): (0.0, 2.5e-7),
-    ("demosaic_malvar2004", "warp", "float64"): (0.0, 5e-16),
+    ("demosaic_malvar2004", "warp", "float64"): (0.0, F64_MALVAR),
     ("demosaic_bilinear", "warp", "float32"): (0.0, 8e-8),
     ("demosaic_bilinear", "warp", "float64"): (0.0, 0.0),
     # -- Bayer and demosaicing --
@@ -193,23 +216,28 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # (random.pixel_normal_fast), against the reference (tests/test_opencl_knobs.py,
     # tests/test_warp_knobs.py). Measured on Intel's CPU OpenCL runtime, Warp's CPU device and
     # an NVIDIA H200 (OpenCL and Warp CUDA give the same numbers there).
-    # sRGB, relative: OpenCL 4.0e-6 / 8.4e-6 (decode / encode, Intel) and 7.7e-7 / 6.8e-7
-    # (H200); Warp 3.6e-7 / 2.0e-7 (CPU) and 7.7e-7 / 6.8e-7 (CUDA), whose denormal results
-    # become 0 (below 1.2e-38).
-    ("srgb_to_linear", "opencl", "float32-fast"): (5e-6, 1e-45),
-    ("linear_to_srgb", "opencl", "float32-fast"): (1e-5, 1e-45),
+    # OpenCL leaves native_ accuracy to the runtime, so its rows are the largest measured:
+    # Intel's runtime told to build for AVX2 (CL_CONFIG_CPU_TARGET_ARCH=core-avx2, as on a CPU
+    # without AVX-512) takes far coarser approximations than with AVX-512.
+    # sRGB, relative: OpenCL 4.0e-6 / 8.4e-6 (decode / encode, Intel, AVX-512), 1.5e-4 / 2.1e-4
+    # (Intel, AVX2), 7.7e-7 / 6.8e-7 (H200); Warp 3.6e-7 / 2.0e-7 (CPU) and 7.7e-7 / 6.8e-7
+    # (CUDA), whose denormal results become 0 (below 1.2e-38).
+    ("srgb_to_linear", "opencl", "float32-fast"): (2e-4, 1e-45),
+    ("linear_to_srgb", "opencl", "float32-fast"): (3e-4, 1e-45),
     ("srgb_to_linear", "warp", "float32-fast"): (1e-6, 1.2e-38),
     ("linear_to_srgb", "warp", "float32-fast"): (1e-6, 1.2e-38),
-    # Normals, absolute: 8.0e-7 (Intel), 7.8e-7 (Warp CPU), 1.6e-5 (H200, both backends) over
-    # 6e5 normals. A fast log's absolute error near 1 reaches r = sqrt(-2 log u1) divided by
-    # 2 r, so it grows where u1 nears 1 and r is smallest: the H200's worst is at z = -0.0026.
-    ("normal", "opencl", "float32-fast"): (0.0, 2e-5),
+    # Normals, absolute: 8.0e-7 (Intel, AVX-512), 4.5e-5 (Intel, AVX2), 7.8e-7 (Warp CPU),
+    # 1.6e-5 (H200, both backends) over 6e5 normals. A fast log's absolute error near 1 reaches
+    # r = sqrt(-2 log u1) divided by 2 r, so it grows where u1 nears 1 and r is smallest: the
+    # H200's worst is at z = -0.0026.
+    ("normal", "opencl", "float32-fast"): (0.0, 6e-5),
     ("normal", "warp", "float32-fast"): (0.0, 2e-5),
     # The whole pipeline with output.fast_math (tests/test_knobs_backends.py: trajectory blur,
     # saturation, RAW round trip, noise none or sRGB Gaussian, float output) against the
-    # float64 reference: OpenCL 4.9e-6 / 1.2e-5 (Intel, noise none / Gaussian), 5.5e-7 (H200);
-    # Warp 7.5e-7 (CPU), 8.2e-7 (CUDA).
-    ("pipeline_fast_math", "opencl", "float32"): (0.0, 2e-5),
+    # float64 reference: OpenCL 4.9e-6 / 1.2e-5 (Intel with AVX-512, noise none / Gaussian),
+    # 1.19e-4 / 1.19e-4 (Intel, AVX2), 6.6e-7 (PoCL), 5.5e-7 (H200); Warp 7.5e-7 (CPU), 8.2e-7
+    # (CUDA).
+    ("pipeline_fast_math", "opencl", "float32"): (0.0, 2e-4),
     ("pipeline_fast_math", "warp", "float32"): (0.0, 2e-6),
     # -- backends against the reference (tests/test_backends.py) --
     # numpy is the reference: it must agree with itself exactly, tiled or not.
@@ -264,14 +292,16 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # re-toning, 8 and 16 bits, sRGB Gaussian noise, trajectory, kernel blur): accumulate
     # 3.3e-6 (the 8-bit table is made with the fast EOTF), finish 1.5e-5, finish with the A7R3
     # polynomial 2.8e-5, to_raw 1.0e-7, saturate 4.3e-8. Warp's CPU compiler ignores fast
-    # maths; CUDA's fast sRGB functions are within 7.7e-7 relative (rows above), Intel's 8.4e-6.
+    # maths; CUDA's fast sRGB functions are within 7.7e-7 relative (rows above), Intel's 8.4e-6
+    # with AVX-512. OpenCL's accumulate and finish rows cover Intel's runtime built for AVX2,
+    # whose sRGB curves err up to 2.1e-4 relative (rows above): 8.4e-5 measured in accumulate.
     **{(stage, backend, "float32-fast"): tol for backend in ("opencl", "warp")
        for stage, tol in {
-        "accumulate": (0.0, 1e-5),
+        "accumulate": (0.0, 2e-4 if backend == "opencl" else 1e-5),
         "saturate": (0.0, 1e-7),
         "to_raw": (0.0, 5e-7),
-        "finish": (0.0, 3e-5),
-        "finish_crf_polynomial": (0.0, 5e-5),
+        "finish": (0.0, 3e-4 if backend == "opencl" else 3e-5),
+        "finish_crf_polynomial": (0.0, 3.5e-4 if backend == "opencl" else 5e-5),
         "quantize_code_changes": (0.0, 2e-3),
         "to_raw_noisy_outliers": (0.0, 1e-4),
     }.items()},
