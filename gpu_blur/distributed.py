@@ -18,11 +18,13 @@ inputs (and gpu_blur, in the same version) must be at the same paths on every no
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 import time
 import traceback
@@ -31,7 +33,7 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from multiprocessing.connection import wait
 
-from gpu_blur import testhooks
+from gpu_blur import caches, testhooks
 from gpu_blur.backends import usable_devices
 from gpu_blur.dataset import SampleSpec
 from gpu_blur.generate import Job, decode, default_io_threads, for_driver, make_sample, run_serial
@@ -128,7 +130,41 @@ def uses_cuda(backend) -> bool:
 
 # -- one worker process per device of this host ---------------------------------------------
 
-def _device_worker(job: Job, driver: int, conn, threads: int = 1) -> None:
+@contextlib.contextmanager
+def _children_skip_cwd():
+    """While it holds, the Pythons multiprocessing starts do not import from the current folder.
+
+    ``spawn`` starts a worker (and multiprocessing's resource tracker) as ``python -c ...``,
+    which puts the current folder first on ``sys.path`` before it imports ``multiprocessing``:
+    a ``multiprocessing`` package (or any module imported that early) in the folder gpu-blur
+    runs from would run in every worker. Python 3.11+: ``PYTHONSAFEPATH=1`` in the environment
+    they inherit. Otherwise (3.10, or ``-E``, which the children repeat) they start in
+    gpu_blur's private cache folder, and each worker goes back to the driver's folder
+    (:func:`_device_worker`'s ``cwd``).
+    """
+    if getattr(sys.flags, "safe_path", False) or sys.flags.isolated:
+        yield  # -P or -I: the children get the same flag
+    elif sys.version_info >= (3, 11) and not sys.flags.ignore_environment:
+        saved = os.environ.get("PYTHONSAFEPATH")
+        os.environ["PYTHONSAFEPATH"] = "1"
+        try:
+            yield
+        finally:
+            if saved is None:
+                del os.environ["PYTHONSAFEPATH"]
+            else:
+                os.environ["PYTHONSAFEPATH"] = saved
+    else:
+        here = os.getcwd()
+        os.chdir(caches.root())
+        try:
+            yield
+        finally:
+            os.chdir(here)
+
+
+def _device_worker(job: Job, driver: int, conn, threads: int = 1,
+                   cwd: str | None = None) -> None:
     """A device worker process: open the device, then make each sample the driver sends.
 
     With ``threads`` > 1, that many threads decode the input files of the samples waiting in
@@ -138,8 +174,11 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1) -> None:
     Messages to the driver: ``("open", device description)`` or ``("error", why)`` first,
     then per sample ``("sample", make_sample's tuple)`` or ``("error", traceback)`` for an
     exception that is no fault of the sample (a bug: the driver stops the run with it). The
-    driver closing its end of the pipe ends the worker.
+    driver closing its end of the pipe ends the worker. ``cwd``: the driver's folder, where
+    relative paths lead (a worker may start elsewhere: :func:`_children_skip_cwd`).
     """
+    if cwd is not None and os.getcwd() != cwd:
+        os.chdir(cwd)
     # Ctrl-C and a closed terminal reach the whole process group: the driver handles them
     # and stops the workers (SIGTERM, which they obey)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -211,11 +250,13 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
     threads = max(1, default_io_threads() // len(devices))  # each worker's decoding threads
     depth = DEVICE_DEPTH + (2 * threads if threads > 1 else 0)
     try:
+        cwd = os.getcwd()
         for device in devices:
             conn, child = context.Pipe()
             worker = context.Process(target=_device_worker, daemon=True, args=(
-                dataclasses.replace(job, backend=device), os.getpid(), child, threads))
-            worker.start()
+                dataclasses.replace(job, backend=device), os.getpid(), child, threads, cwd))
+            with _children_skip_cwd():
+                worker.start()
             child.close()  # the worker's end is the worker's: its death closes the pipe
             workers.append(worker)
             conns.append(conn)

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur import notices
+from gpu_blur import caches, notices
 from gpu_blur.backends import OnDevice, copy_values, fill_stack
 from gpu_blur.backends.kernel import Arg, KernelBackend, PassConfig, pass_config, source_dtype
 from gpu_blur.kernel_constants import opencl_header
@@ -115,8 +115,39 @@ def register_cpu_runtimes() -> None:
     os.environ["OCL_ICD_VENDORS"] = os.environ[ICD_FOLDER_ENV] = str(folder)
 
 
+def _private_invoker_cache() -> None:
+    """Keep pyopencl's store of generated argument-setting code in a private folder.
+
+    ``pyopencl.invoker`` keeps that code (pickles, run when read back) in pytools' folder from
+    platformdirs, which follows a relative ``XDG_CACHE_HOME`` or ``HOME`` into the current
+    folder. It is imported with ``XDG_CACHE_HOME`` at gpu_blur's cache folder (its store is
+    then ``<cache>/pytools``), and the store is made again there if it was imported before.
+    """
+    folder = caches.folder("pytools")
+    if "pyopencl.invoker" not in sys.modules:
+        saved = os.environ.get("XDG_CACHE_HOME")
+        os.environ["XDG_CACHE_HOME"] = str(folder.parent)
+        try:
+            import pyopencl.invoker  # noqa: F401
+        finally:
+            if saved is None:
+                del os.environ["XDG_CACHE_HOME"]
+            else:
+                os.environ["XDG_CACHE_HOME"] = saved
+    from pyopencl import invoker
+
+    store = getattr(invoker, "invoker_cache", None)  # None under PYOPENCL_NO_CACHE
+    if store is not None and Path(store.container_dir) != folder:
+        invoker.invoker_cache = type(store)(store.identifier, key_builder=store.key_builder,
+                                            container_dir=str(folder), in_mem_cache_size=0,
+                                            safe_sync=False)
+
+
 register_cpu_runtimes()
+caches.set_opencl_caches()  # before pyopencl loads the runtimes: PoCL reads POCL_CACHE_DIR then
 import pyopencl as cl  # noqa: E402  (after the vendor folder is set)
+
+_private_invoker_cache()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -149,7 +180,8 @@ def _build_problem(platform_index: int, device_index: int) -> str:
         ctx = cl.Context([device])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", cl.CompilerWarning)
-            cl.Program(ctx, "__kernel void gb_probe(__global float *a) { a[0] = 1.0f; }").build()
+            cl.Program(ctx, "__kernel void gb_probe(__global float *a) { a[0] = 1.0f; }").build(
+                cache_dir=caches.pyopencl_cache(cl.VERSION_TEXT))
     except (cl.Error, RuntimeError) as e:
         lines = [x for x in str(e).splitlines() if "error" in x.lower()] or [str(e)]
         return lines[0].strip()
@@ -341,7 +373,8 @@ class OpenCLBackend(KernelBackend):
         try:
             with warnings.catch_warnings(), notices.building(name, self.info.spec):
                 warnings.simplefilter("ignore", cl.CompilerWarning)  # a banner or warnings
-                return cl.Program(self.ctx, text).build(options=options)
+                return cl.Program(self.ctx, text).build(
+                    options=options, cache_dir=caches.pyopencl_cache(cl.VERSION_TEXT))
         except cl.RuntimeError as e:
             raise OpenCLError(f"building {name} for {self.device} failed.\n"
                               f"defines: {' '.join(flags) or '(none)'}\ncompiler log:\n{e}"

@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import warp as wp
 
-from gpu_blur import notices
+from gpu_blur import caches, notices
 from gpu_blur.arrays import view_at
 from gpu_blur.backends import OnDevice, copy_values, fill_stack
 from gpu_blur.backends.kernel import (
@@ -41,6 +41,7 @@ from gpu_blur.timings import timer
 S = StageName
 
 wp.config.log_level = wp.LOG_WARNING  # no banner or per-module load lines
+caches.set_warp_cache()  # a private kernel cache, before anything calls wp.init()
 
 #: (kernel, device) pairs whose module this process has loaded (built or read from Warp's cache).
 _LOADED: set = set()
@@ -120,6 +121,7 @@ def _init() -> None:
     output and error are closed to that one call (C's buffers flushed before they are opened
     again). Errors still raise (RuntimeError).
     """
+    caches.set_warp_cache()  # checks the folder again: the caller may have set one since
     for stream in (sys.stdout, sys.stderr):
         stream.flush()
     saved = [os.dup(fd) for fd in (1, 2)]

@@ -6,7 +6,10 @@ only when a Warp device is validated). The OpenCL twin is ``checks.UNIFORM_PROBE
 
 import warp as wp
 
+from gpu_blur import caches
 from gpu_blur.warp_kernels import random
+
+caches.set_warp_cache()  # a private kernel cache (Warp is normally started by then: checked)
 
 
 @wp.kernel
