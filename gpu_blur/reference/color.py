@@ -11,7 +11,9 @@ supplementary material:
   adaptation before T and D50 -> D65 after it.
 
 Matrices are composed and inverted once, in float64, by :func:`camera_to_linear_matrix` and
-:func:`checked_inverse`; the pipeline then applies one 3 x 3 per direction.
+:func:`checked_inverse`; the pipeline then applies one 3 x 3 per direction. Products and
+inverses are :mod:`gpu_blur.reference.fixedmath`'s fixed-order sums (no BLAS or LAPACK, whose
+kernels and FMA use depend on the CPU), so matrices and pixels have the same bits anywhere.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from gpu_blur.constants import D50_TO_D65, D65_TO_D50, SRGB_TO_XYZ, XYZ_TO_SRGB
+from gpu_blur.reference import fixedmath
 
 #: Matrices worse conditioned than this are refused: their inverse would amplify float32
 #: rounding in the kernels by more than a millionfold.
@@ -26,7 +29,7 @@ MAX_CONDITION_NUMBER = 1e6
 
 
 def apply_matrix(image, matrix) -> np.ndarray:
-    """Per-pixel ``out = M @ in``.
+    """Per-pixel ``out = M @ in``: ``out_i = (m_i0 in_0 + m_i1 in_1) + m_i2 in_2``.
 
     Args:
         image: (..., 3) float array.
@@ -42,11 +45,13 @@ def apply_matrix(image, matrix) -> np.ndarray:
             f"apply_matrix needs an (..., 3) image and a 3 x 3 matrix, got {image.shape} and "
             f"{matrix.shape}"
         )
-    return image @ matrix.T
+    return fixedmath.matvec3(matrix, image)
 
 
 def checked_inverse(matrix, what: str = "matrix") -> np.ndarray:
-    """Invert a 3 x 3 matrix in float64, refusing singular or badly conditioned ones.
+    """Invert a 3 x 3 matrix in float64 (adjugate over determinant, fixed order), refusing
+    singular or badly conditioned ones (the 2-norm condition number, from LAPACK's SVD, only
+    decides the refusal).
 
     Raises:
         ValueError: naming ``what`` and the condition number when it exceeds
@@ -61,7 +66,7 @@ def checked_inverse(matrix, what: str = "matrix") -> np.ndarray:
             f"{what} is near singular (condition number {cond:.3g} > {MAX_CONDITION_NUMBER:g}); "
             "check its values and their convention (column: out = M @ in)"
         )
-    return np.linalg.inv(m)
+    return fixedmath.inverse3(m)
 
 
 def linear_to_xyz(linear) -> np.ndarray:
@@ -125,9 +130,9 @@ def camera_to_linear_matrix(
     if (xyz_to_cam is None) == (ccm is None):
         raise ValueError("give exactly one of xyz_to_cam or ccm")
     if xyz_to_cam is not None:
-        return XYZ_TO_SRGB @ checked_inverse(xyz_to_cam, "xyz_to_camera")
+        return fixedmath.matmul3(XYZ_TO_SRGB, checked_inverse(xyz_to_cam, "xyz_to_camera"))
     t = np.asarray(ccm, dtype=np.float64)
     checked_inverse(t, "colour correction matrix")
     if adapt_d50:
-        t = D50_TO_D65 @ t @ D65_TO_D50
-    return XYZ_TO_SRGB @ t @ SRGB_TO_XYZ
+        t = fixedmath.matmul3(fixedmath.matmul3(D50_TO_D65, t), D65_TO_D50)
+    return fixedmath.matmul3(fixedmath.matmul3(XYZ_TO_SRGB, t), SRGB_TO_XYZ)

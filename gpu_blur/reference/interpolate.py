@@ -96,6 +96,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from gpu_blur.reference import fixedmath
 from gpu_blur.reference.average import SATURATION_LEVEL, FrameAccumulator
 from gpu_blur.reference.sampling import bilinear_sample
 from gpu_blur.reference.transfer import srgb_to_linear
@@ -327,7 +328,7 @@ def _region_motion(g0: np.ndarray, g1: np.ndarray, side: int, method: str) -> np
         g0 = cv2.resize(g0, size, interpolation=cv2.INTER_AREA)
         g1 = cv2.resize(g1, size, interpolation=cv2.INTER_AREA)
     flow = _flow_gray(g0, g1, method).astype(np.float64)
-    magnitude = np.hypot(flow[:, :, 0], flow[:, :, 1])
+    magnitude = fixedmath.hypot(flow[:, :, 0], flow[:, :, 1])
     step = side // scale if side else max(magnitude.shape)
     motion = _block_percentiles(magnitude, step, MOTION_PERCENTILE) * scale
     # regions past the shrunk frame (its size rounded down) take their neighbour's

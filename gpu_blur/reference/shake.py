@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from gpu_blur.reference import fixedmath
 from gpu_blur.reference.average import saturation_indicator
 from gpu_blur.reference.sampling import as_image, as_uniforms, bilinear_sample
 
@@ -47,10 +48,11 @@ def _intrinsics(height: int, width: int) -> tuple[float, float, float]:
 
 
 def _rotations(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
-    """``R = R_z(roll) R_x(pitch) R_y(yaw)`` for arrays of angles (radians), ``(n, 3, 3)``."""
-    cy_, sy_ = np.cos(yaw), np.sin(yaw)
-    cp, sp = np.cos(pitch), np.sin(pitch)
-    cr, sr = np.cos(roll), np.sin(roll)
+    """``R = R_z(roll) R_x(pitch) R_y(yaw)`` for arrays of angles (radians), ``(n, 3, 3)``
+    (fixedmath's sines and fixed-order products: the same bits on every CPU)."""
+    sy_, cy_ = fixedmath.sincos(yaw)
+    sp, cp = fixedmath.sincos(pitch)
+    sr, cr = fixedmath.sincos(roll)
     one, zero = np.ones_like(yaw), np.zeros_like(yaw)
     r_yaw = np.stack(
         [
@@ -76,22 +78,22 @@ def _rotations(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarr
         ],
         -2,
     )
-    return r_roll @ r_pitch @ r_yaw
+    return fixedmath.matmul3(fixedmath.matmul3(r_roll, r_pitch), r_yaw)
 
 
 def _homographies(rot: np.ndarray, f: float, cx: float, cy: float) -> np.ndarray:
     """``H = K R K^-1``, computed as ``I + K (R - I) K^-1`` so that ``R = I`` gives exactly I."""
     k = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
     k_inv = np.array([[1.0 / f, 0.0, -cx / f], [0.0, 1.0 / f, -cy / f], [0.0, 0.0, 1.0]])
-    return np.eye(3) + k @ (rot - np.eye(3)) @ k_inv
+    return np.eye(3) + fixedmath.matmul3(fixedmath.matmul3(k, rot - np.eye(3)), k_inv)
 
 
 def _centre_extent(homographies: np.ndarray, cx: float, cy: float) -> float:
     """Bounding-box diagonal (pixels) of the image centre's positions under the homographies."""
-    p = homographies @ np.array([cx, cy, 1.0])
+    p = fixedmath.matvec3(homographies, np.array([cx, cy, 1.0]))
     x = p[:, 0] / p[:, 2]
     y = p[:, 1] / p[:, 2]
-    return float(math.hypot(np.ptp(x), np.ptp(y)))
+    return float(fixedmath.hypot(np.ptp(x), np.ptp(y)))
 
 
 def camera_shake_homographies(
@@ -162,8 +164,15 @@ def camera_shake_homographies(
     amp = (2.0 * u[:-1] - 1.0).reshape(3, 2, SHAKE_HARMONICS)  # axis, (cos, sin), harmonic
 
     def series(axis: int, times: np.ndarray) -> np.ndarray:
-        phase = math.pi * np.outer(times, k)
-        return (np.cos(phase) @ (amp[axis, 0] / k)) + (np.sin(phase) @ (amp[axis, 1] / k))
+        # harmonic by harmonic in a fixed order (no BLAS), fixedmath's sines
+        sin_p, cos_p = fixedmath.sincos(math.pi * np.outer(times, k))
+        a, b = amp[axis, 0] / k, amp[axis, 1] / k
+        out = cos_p[:, 0] * a[0]
+        for j in range(1, SHAKE_HARMONICS):
+            out = out + cos_p[:, j] * a[j]
+        for j in range(SHAKE_HARMONICS):
+            out = out + sin_p[:, j] * b[j]
+        return out
 
     zero = np.zeros(1)
     shapes = [series(axis, t) - series(axis, zero)[0] for axis in range(3)]
@@ -244,8 +253,9 @@ def _check_in_front(homographies: np.ndarray, height: int, width: int) -> None:
     corners = np.array(
         [[0.0, width - 1.0, 0.0, width - 1.0], [0.0, 0.0, height - 1.0, height - 1.0], [1.0] * 4]
     )
-    for m in homographies:
-        if not (np.linalg.inv(m)[2] @ corners > 0.0).all():
+    for m in fixedmath.inverse3(homographies):
+        w = (m[2, 0] * corners[0] + m[2, 1] * corners[1]) + m[2, 2] * corners[2]
+        if not (w > 0.0).all():
             raise ValueError(
                 f"the camera rotation turns part of the {height} x {width} image behind the "
                 "camera; lower extent_px or roll_deg"
@@ -263,7 +273,7 @@ def _positions(homography: np.ndarray, height: int, width: int,
 
     ``rows``: only those output rows (default all ``height``).
     """
-    inv = np.linalg.inv(homography)
+    inv = fixedmath.inverse3(homography)
     rows = range(height) if rows is None else rows
     xs = np.arange(width, dtype=np.float64)[None, :]
     ys = np.arange(rows.start, rows.stop, dtype=np.float64)[:, None]
@@ -339,7 +349,7 @@ def _as_homography(homography) -> np.ndarray:
         raise ValueError(f"homography must be 3 x 3; got {m.shape}")
     if not np.isfinite(m).all():
         raise ValueError("homography must be finite")
-    if abs(np.linalg.det(m)) < 1e-300:
+    if not abs(fixedmath.det3(m)) >= 1e-300:
         raise ValueError("homography must be invertible")
     return m
 
@@ -462,7 +472,7 @@ def shake_halo(homographies, height: int, width: int) -> int:
     pts = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)])
     reach = 0.0
     for m in hom:
-        q = np.linalg.inv(_as_homography(m)) @ pts
+        q = fixedmath.matvec3(fixedmath.inverse3(_as_homography(m)), pts.T).T
         dx = np.abs(q[0] / q[2] - pts[0]).max()
         dy = np.abs(q[1] / q[2] - pts[1]).max()
         reach = max(reach, dx, dy)
@@ -488,10 +498,11 @@ def auto_shake_steps(uniforms, height: int, width: int, extent_px: float,
                                     roll_deg)
     points = np.array([[(width - 1) / 2, (height - 1) / 2, 1.0], [0, 0, 1.0],
                        [width - 1, 0, 1.0], [0, height - 1, 1.0], [width - 1, height - 1, 1.0]])
-    p = np.einsum("sij,nj->sni", hom, points)
+    p = fixedmath.matvec3(hom[:, None], points[None])  # (steps, points, 3)
     xy = p[..., :2] / p[..., 2:]
     # peak speed in pixels per exposure: the largest probe step times the number of steps
-    speed = float(np.linalg.norm(np.diff(xy, axis=0), axis=-1).max()) * SHAKE_PROBE_STEPS
+    d = np.diff(xy, axis=0)
+    speed = float(fixedmath.hypot(d[..., 0], d[..., 1]).max()) * SHAKE_PROBE_STEPS
     n = math.ceil(speed) + 1
     n += 1 - n % 2
     lo, hi = SHAKE_AUTO_STEPS_RANGE

@@ -7,6 +7,9 @@ sRGB constants are those of IEC 61966-2-1 as the RSBlur code uses them (MATLAB `
 clipping inside. The A7R3 camera response (a degree-7 polynomial and its 2,551-entry table) is
 camera data and lives in :mod:`gpu_blur.constants`; a calibrated camera's fitted response is in
 its camera file (:mod:`gpu_blur.cameras`); these functions take them as arguments.
+
+Powers are :func:`gpu_blur.reference.fixedmath.power` (IEEE operations only, within 1 ulp),
+not numpy's ``**``, whose SIMD paths give other last bits on other CPUs.
 """
 
 from __future__ import annotations
@@ -14,6 +17,8 @@ from __future__ import annotations
 import functools
 
 import numpy as np
+
+from gpu_blur.reference import fixedmath
 
 #: sRGB EOTF knee on the encoded value (IEC 61966-2-1).
 SRGB_DECODE_KNEE = 0.04045
@@ -40,7 +45,7 @@ def srgb_to_linear(encoded) -> np.ndarray:
     y = np.where(
         a < SRGB_DECODE_KNEE,
         a / SRGB_SLOPE,
-        ((curve + SRGB_OFFSET) / SRGB_SCALE) ** SRGB_GAMMA,
+        fixedmath.power((curve + SRGB_OFFSET) / SRGB_SCALE, SRGB_GAMMA),
     )
     return np.copysign(y, x)
 
@@ -94,7 +99,7 @@ def linear_to_srgb(linear) -> np.ndarray:
     y = np.where(
         a < SRGB_ENCODE_KNEE,
         SRGB_SLOPE * a,
-        SRGB_SCALE * curve ** (1.0 / SRGB_GAMMA) - SRGB_OFFSET,
+        SRGB_SCALE * fixedmath.power(curve, 1.0 / SRGB_GAMMA) - SRGB_OFFSET,
     )
     return np.copysign(y, x)
 
@@ -102,13 +107,13 @@ def linear_to_srgb(linear) -> np.ndarray:
 def gamma_to_linear(encoded, gamma: float = 2.2) -> np.ndarray:
     """Pure power-law decode ``sign(x) |x|^gamma`` (no linear toe)."""
     x = np.asarray(encoded, dtype=np.float64)
-    return np.copysign(np.abs(x) ** gamma, x)
+    return np.copysign(fixedmath.power(np.abs(x), gamma), x)
 
 
 def linear_to_gamma(linear, gamma: float = 2.2) -> np.ndarray:
     """Pure power-law encode ``sign(x) |x|^(1/gamma)`` (no linear toe)."""
     x = np.asarray(linear, dtype=np.float64)
-    return np.copysign(np.abs(x) ** (1.0 / gamma), x)
+    return np.copysign(fixedmath.power(np.abs(x), 1.0 / gamma), x)
 
 
 def polynomial_crf(linear, coefficients) -> np.ndarray:
