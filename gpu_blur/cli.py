@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import hashlib
 import os
+import re
 import signal
 import sys
 import threading
@@ -359,6 +360,28 @@ def _calibrate(args) -> int:
           + ('; add [output] crf = "camera" to re-tone with its fitted response'
              if result.response is not None else ""))
     return 0
+
+
+def _cost_size(text: str) -> tuple[int, int]:
+    """``plan --size WxH`` as (height, width), within the pixel budget of an input image.
+
+    Raises:
+        ValueError: naming the option and its value, for text that is not WxH or a size above
+            :func:`gpu_blur.limits.max_pixels` (the timed images are made in memory).
+    """
+    from gpu_blur import limits
+
+    match = re.fullmatch(r"(\d{1,9})x(\d{1,9})", text.lower(), re.ASCII)
+    if not match:
+        raise ValueError(f"--size {text!r} is invalid; allowed: WxH in pixels, e.g. 480x320")
+    width, height = int(match[1]), int(match[2])
+    most = limits.max_pixels()
+    if width * height > most:
+        raise ValueError(f"--size {text!r} is invalid; allowed: at most {most:,} pixels (the "
+                         f"pixel budget of an input image; {width * height:,} would be made in "
+                         f"memory): give a smaller size, or raise the budget with the "
+                         f"environment variable {limits.MAX_PIXELS_VARIABLE}")
+    return height, width
 
 
 def _check_setup(args, scene) -> None:
@@ -885,10 +908,29 @@ def _generate_until_stopped(args) -> int:
     return 128 + received[0] if received else status
 
 
+def _open_standard_streams() -> None:
+    """Make closed standard streams (``gpu-blur ... >&- 2>&-``) ``/dev/null``.
+
+    A closed descriptor 0, 1 or 2 would be taken by the next file opened (a sample, the
+    manifest), which messages and worker processes would then write into; and Python sets
+    ``sys.stdout`` or ``sys.stderr`` to None, on which the progress bar fails.
+    """
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:  # closed: the lowest free descriptor, this one, becomes /dev/null
+            os.open(os.devnull, os.O_RDWR)
+    if sys.stdout is None:
+        sys.stdout = open(os.devnull, "w")  # for the process's life
+    if sys.stderr is None:
+        sys.stderr = open(os.devnull, "w")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``gpu-blur``; returns the exit status."""
     from gpu_blur import notices
 
+    _open_standard_streams()
     args = _parser().parse_args(argv)
     try:
         if args.command == "generate":
@@ -914,11 +956,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.cost:
                 from gpu_blur.analysis.stage_cost import format_costs, stage_costs
 
-                width, _, height = args.size.lower().partition("x")
-                if not (width.isdigit() and height.isdigit()):
-                    raise ValueError(f"--size {args.size!r} is invalid; allowed: WxH in "
-                                     "pixels, e.g. 480x320")
-                costs = stage_costs(scene, args.backend, (int(height), int(width)))
+                costs = stage_costs(scene, args.backend, _cost_size(args.size))
                 print(format_costs(costs, plan(scene)))
         elif args.command == "devices":
             _devices()

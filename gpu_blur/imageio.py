@@ -9,6 +9,7 @@ import re
 import struct
 from collections.abc import Callable
 from pathlib import Path
+from tokenize import TokenError
 
 import cv2
 import numpy as np
@@ -28,13 +29,14 @@ _JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 _JPEG_SOF_DCT = frozenset({0xC0, 0xC1, 0xC2, 0xC9, 0xCA})
 
 
-def _damage(data: bytes) -> str | None:
+def _damage(data: bytes, decode: bool = True) -> str | None:
     """Why a PNG or JPEG file's bytes are truncated or corrupt, or None when they look whole.
 
     libpng refuses a damaged PNG by itself (each chunk's CRC and the zlib checksum) but not
     every truncated one, and libjpeg decodes a truncated or damaged JPEG with a warning at
     most (grey or garbled blocks), so both are checked here from their structure: a PNG must
-    reach its IEND chunk, a JPEG must pass :func:`_jpeg_damage`.
+    reach its IEND chunk, a JPEG must pass :func:`_jpeg_damage`, and then, with ``decode``,
+    :func:`_jpeg_decode_damage`.
     """
     if data.startswith(_PNG_SIGNATURE):
         pos = len(_PNG_SIGNATURE)
@@ -47,7 +49,7 @@ def _damage(data: bytes) -> str | None:
                 return None
         return "truncated PNG (the file ends before its IEND chunk)"
     if data.startswith(b"\xff\xd8"):
-        return _jpeg_damage(data) or _jpeg_decode_damage(data)
+        return _jpeg_damage(data) or (_jpeg_decode_damage(data) if decode else None)
     return None
 
 
@@ -221,12 +223,17 @@ def _jpeg_scan(data: bytes, pos: int, interval: int, mcus: int | None,
     return ff, None
 
 
-def _header_size(data: bytes) -> tuple[int, int] | None:
-    """(width, height) from a PNG, JPEG, TIFF or BMP file's header, without decoding it.
+#: The formats whose width and height :func:`_header_size` reads, the only ones decoded.
+READ_FORMATS = "PNG, JPEG, TIFF, BMP, GIF, WebP and PNM/PAM/PFM"
 
-    None for another format (WebP, PNM, JPEG 2000, OpenEXR, ...: OpenCV reads them, and only
-    the decoded image is checked) or a header too damaged to read (:func:`_damage` or OpenCV
-    says why).
+
+def _header_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from the header of a file of :data:`READ_FORMATS`, without decoding it.
+
+    None for another format (JPEG 2000, AVIF, Radiance HDR, Sun raster, ...: OpenCV would
+    read them, but their size is not known before decoding, so they are refused) or a header
+    too damaged to read. A GIF's size is its logical screen's (OpenCV refuses a frame that
+    leaves it), an animated WebP's its canvas'.
     """
     if data.startswith(_PNG_SIGNATURE):  # IHDR is the first chunk (PNG spec, 11.2.2)
         if data[12:16] != b"IHDR" or len(data) < 24:
@@ -248,7 +255,63 @@ def _header_size(data: bytes) -> tuple[int, int] | None:
             return struct.unpack("<HH", data[18:22])
         width, height = struct.unpack("<ii", data[18:26])  # height < 0: stored top-down
         return abs(width), abs(height)
+    if data[:6] in (b"GIF87a", b"GIF89a") and len(data) >= 10:
+        return struct.unpack("<HH", data[6:10])
+    if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+        return _webp_size(data)
+    if len(data) >= 3 and data[:1] == b"P" and data[1] in b"1234567Ff":
+        return _pnm_size(data)
     return None
+
+
+def _webp_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) of a WebP file from its first chunk (VP8X's canvas, VP8L, VP8), or None.
+
+    The layouts are those of libwebp's WebPGetInfo (RFC 9649, sections 2.5 to 2.7).
+    """
+    chunk = data[12:16]
+    if chunk == b"VP8X" and len(data) >= 30:  # 24-bit canvas width - 1 and height - 1
+        return (int.from_bytes(data[24:27], "little") + 1,
+                int.from_bytes(data[27:30], "little") + 1)
+    if chunk == b"VP8L" and len(data) >= 25 and data[20] == 0x2F:
+        bits = int.from_bytes(data[21:25], "little")  # 14 bits each: width - 1, height - 1
+        return (bits & 0x3FFF) + 1, ((bits >> 14) & 0x3FFF) + 1
+    if chunk == b"VP8 " and len(data) >= 30 and data[23:26] == b"\x9d\x01\x2a":
+        width, height = struct.unpack("<HH", data[26:30])  # 14 bits each, then a scale
+        return width & 0x3FFF, height & 0x3FFF
+    return None
+
+
+#: How far into a PNM file its text header is looked for (comments may make it long).
+_PNM_HEADER_BYTES = 65536
+
+
+def _pnm_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) of a PNM (P1 to P6), PAM (P7) or PFM (PF, Pf) file's header, or None.
+
+    P1 to P6 and PFM give the width and the height as the first two numbers after the magic
+    number, with ``#`` comments to the end of a line anywhere between; PAM names them in
+    ``WIDTH`` and ``HEIGHT`` lines before ``ENDHDR``.
+    """
+    head = data[2:_PNM_HEADER_BYTES]
+    if data[1:2] == b"7":
+        if b"ENDHDR" not in head:
+            return None
+        lines = [line.split() for line in head.split(b"ENDHDR", 1)[0].splitlines()]
+        sides = [[n[1] for n in lines if len(n) == 2 and n[0] == key and n[1].isdigit()]
+                 for key in (b"WIDTH", b"HEIGHT")]  # a repeated line: the largest counts
+        return (_header_number(max(sides[0], key=_header_number)),
+                _header_number(max(sides[1], key=_header_number))) if all(sides) else None
+    numbers = re.sub(rb"#[^\r\n]*", b" ", head).split(None, 2)[:2]
+    if len(numbers) == 2 and all(n.isdigit() for n in numbers):
+        return _header_number(numbers[0]), _header_number(numbers[1])
+    return None
+
+
+def _header_number(digits: bytes) -> int:
+    """A header's decimal number; one of more than 18 digits as 10^18 (refused as too large)."""
+    digits = digits.lstrip(b"0") or b"0"
+    return int(digits) if len(digits) <= 18 else 10**18
 
 
 def _jpeg_size(data: bytes) -> tuple[int, int] | None:
@@ -276,7 +339,7 @@ def _jpeg_size(data: bytes) -> tuple[int, int] | None:
     return None
 
 
-def _too_many_pixels(width: int, height: int) -> str | None:
+def too_many_pixels(width: int, height: int) -> str | None:
     """Why an image of ``width`` x ``height`` is refused (:func:`gpu_blur.limits.max_pixels`)."""
     most, pixels = limits.max_pixels(), width * height
     if pixels <= most:
@@ -288,31 +351,34 @@ def _too_many_pixels(width: int, height: int) -> str | None:
 
 
 def _decode(path: Path, where: str, fix: str,
-            refuse: Callable[[int, int], str | None] = _too_many_pixels) -> np.ndarray:
+            refuse: Callable[[int, int], str | None] = too_many_pixels) -> np.ndarray:
     """An image file decoded by OpenCV as stored (IMREAD_UNCHANGED), after :func:`_damage`.
 
-    Its width and height are checked with ``refuse`` first, from the header where
-    :func:`_header_size` reads it (before anything is decoded, so a small file that claims a
-    huge image costs no memory), else on the decoded image.
+    Its width and height are checked with ``refuse`` first, from the header
+    (:func:`_header_size`), before anything is decoded, so a small file that claims a huge
+    image costs no memory; a file whose header gives no size (another format, or damaged)
+    is refused, and the decoded image is checked again.
 
     Raises:
-        ValueError: ``where``, what is wrong (unreadable, empty, too large, damaged, not an
-            image), then ``fix`` (a size has its own: what ``refuse`` says).
+        ValueError: ``where``, what is wrong (unreadable, no regular file, empty, too large,
+            damaged, not an image of :data:`READ_FORMATS`), then ``fix`` (a size has its own:
+            what ``refuse`` says).
     """
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise ValueError(f"{where}: cannot read it ({e.strerror}); check its permissions"
-                         f"{fix}") from None
+    from gpu_blur.files import read_bytes
+
+    data = read_bytes(path, where)
     if not data:
         raise ValueError(f"{where}: the file is empty (0 bytes){fix}")
     size = _header_size(data)
     problem = refuse(*size) if size else None
     if problem:
         raise ValueError(f"{where}: {problem}")
-    problem = _damage(data)
+    problem = _damage(data, decode=size is not None)
     if problem:
         raise ValueError(f"{where}: {problem}{fix}")
+    if size is None:
+        raise ValueError(f"{where}: not a readable image (no width and height in its header: "
+                         f"gpu_blur reads {READ_FORMATS}); convert it to PNG{fix}")
     try:
         image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error:
@@ -320,7 +386,7 @@ def _decode(path: Path, where: str, fix: str,
     if image is None:
         raise ValueError(f"{where}: not a readable image (corrupt, truncated or a format OpenCV "
                          f"does not read){fix}")
-    problem = None if size else refuse(image.shape[1], image.shape[0])
+    problem = refuse(image.shape[1], image.shape[0])  # as the header said, or refused now
     if problem:
         raise ValueError(f"{where}: {problem}")
     return image
@@ -339,8 +405,8 @@ def read_image(path: str | Path) -> np.ndarray:
       guess a background. Flatten such images onto a background first.
 
     Images above :func:`gpu_blur.limits.max_pixels` (2^28 pixels unless
-    ``GPU_BLUR_MAX_PIXELS`` says otherwise) are refused, for PNG, JPEG, TIFF and BMP from the
-    header before decoding.
+    ``GPU_BLUR_MAX_PIXELS`` says otherwise) are refused from the header before decoding;
+    formats other than :data:`READ_FORMATS` are refused (their size is not known before).
 
     Raises:
         ValueError: naming the file and the way out when it is missing, empty, too large,
@@ -629,6 +695,9 @@ def _read_npy(path: Path, where: str) -> np.ndarray:
                 else npy.read_array_header_2_0
             shape, _, dtype = read_header(f)
             start = f.tell()
+    except (SyntaxError, TokenError, RecursionError):  # numpy parses the header as Python
+        raise ValueError(f"{where}: not a numpy array file (its header is no valid Python "
+                         f"literal); {way_out}") from None
     except (ValueError, OSError, EOFError) as e:
         raise ValueError(f"{where}: not a numpy array file ({e}); {way_out}") from None
     if dtype.hasobject:
@@ -647,7 +716,10 @@ def _read_npy(path: Path, where: str) -> np.ndarray:
 
 
 def _kernel_too_wide(rows: int, cols: int) -> str | None:
-    """Why a kernel of ``rows`` x ``cols`` is too large (limits.KERNEL_SIDE), or None."""
+    """Why a kernel of ``rows`` x ``cols`` is too large or empty (limits.KERNEL_SIDE), or None."""
+    if min(rows, cols) < 1:
+        return (f"is {rows} x {cols}; a kernel needs at least one row and column of weights: "
+                "check what wrote it")
     problem = limits.KERNEL_SIDE.problem(max(rows, cols))
     if problem is None:
         return None

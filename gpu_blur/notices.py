@@ -56,8 +56,12 @@ def verbosity_set(level: int):
 
 
 def say(line: str) -> None:
-    """Print ``gpu-blur: <line>`` on standard error, clear of any progress bar."""
-    tqdm.write(f"gpu-blur: {line}", file=sys.stderr)
+    """Print ``gpu-blur: <line>`` on standard error, clear of any progress bar.
+
+    Nothing when there is no standard error (``sys.stderr`` is None: it was closed).
+    """
+    if sys.stderr is not None:
+        tqdm.write(f"gpu-blur: {line}", file=sys.stderr)
 
 
 def _announce(device: str) -> None:

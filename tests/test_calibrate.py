@@ -450,3 +450,21 @@ def test_cli_errors_name_the_file_and_exit_2(tmp_path, capsys, chart):
                  "--output", str(tmp_path / "c.yaml")]) == 2
     assert "must end in .toml or .json" in capsys.readouterr().err
     assert list(tmp_path.glob(".*part*")) == []
+
+
+@pytest.mark.parametrize("suffix", [".toml", ".json"])
+def test_cli_names_beyond_ascii_load_back_and_non_utf8_ones_are_refused(tmp_path, capsys, chart,
+                                                                        suffix):
+    # an emoji is beyond U+FFFF: JSON-style escapes write it as a surrogate pair TOML refuses
+    patches = write_csv(tmp_path / "raw.csv", chart[1])
+    out = tmp_path / f"cam{suffix}"
+    name = 'cam 😀 "é" \\ \x7f'
+    assert main(["calibrate", "--chart", str(patches), "--output", str(out),
+                 "--name", name]) == 0
+    assert load_camera(out).name == name
+    # bytes that are not UTF-8 reach Python as lone surrogates, which no file can hold
+    capsys.readouterr()
+    assert main(["calibrate", "--chart", str(patches), "--output", str(out), "--overwrite",
+                 "--name", "cam \udcff"]) == 2
+    assert f"{out}: name = 'cam \\udcff' is invalid; expected text" in capsys.readouterr().err
+    assert load_camera(out).name == name and list(tmp_path.glob(".*part*")) == []

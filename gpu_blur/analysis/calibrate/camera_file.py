@@ -8,22 +8,57 @@ from pathlib import Path
 from gpu_blur.imageio import write_text
 
 
+def _toml_string(text: str) -> str:
+    """``text`` as a TOML basic string, its characters as they are but quotes and controls.
+
+    The quotation mark, the backslash and the control characters TOML forbids are escaped
+    (``json.dumps`` would split a character beyond U+FFFF, an emoji, into a surrogate pair
+    of escapes, which TOML refuses).
+    """
+    out = []
+    for c in text:
+        if c in '"\\':
+            out.append("\\" + c)
+        elif c < " " or c == "\x7f":
+            out.append(f"\\u{ord(c):04x}")
+        else:
+            out.append(c)
+    return '"' + "".join(out) + '"'
+
+
 def _toml_value(value) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, (int, float)):
         return repr(value) if isinstance(value, int) else repr(float(value))
     if isinstance(value, str):
-        return json.dumps(value)  # a JSON string is a valid TOML basic string
+        return _toml_string(value)
     if isinstance(value, list):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     raise TypeError(f"cannot write {type(value).__name__} to TOML")
 
 
+def _check_text(camera: dict, path: Path, key: str = "") -> None:
+    """Refuse a string of ``camera`` that UTF-8 cannot hold (a lone surrogate).
+
+    Python gives bytes of a command-line argument that are not UTF-8 as lone surrogates.
+
+    Raises:
+        ValueError: naming the file, the key and the value.
+    """
+    for k, value in camera.items():
+        where = f"{key}.{k}" if key else k
+        if isinstance(value, dict):
+            _check_text(value, path, where)
+        elif isinstance(value, str) and any("\ud800" <= c <= "\udfff" for c in value):
+            raise ValueError(f"{path}: {where} = {value!r} is invalid; expected text (it holds "
+                             "bytes that are not UTF-8): give it in UTF-8")
+
+
 def camera_file_text(camera: dict, suffix: str = ".toml") -> str:
     """A camera dict (top-level scalars, then tables of values) as TOML or JSON text."""
     if suffix.lower() == ".json":
-        return json.dumps(camera, indent=2) + "\n"
+        return json.dumps(camera, indent=2, ensure_ascii=False) + "\n"
     lines = [f"{k} = {_toml_value(v)}" for k, v in camera.items() if not isinstance(v, dict)]
     for table, values in camera.items():
         if isinstance(values, dict):
@@ -48,6 +83,7 @@ def write_camera_file(path: str | Path, camera: dict) -> None:
     path = Path(path)
     if path.suffix.lower() not in (".toml", ".json"):
         raise ValueError(f"{path}: a camera file's name must end in .toml or .json")
+    _check_text(camera, path)
 
     def check(tmp: Path) -> None:
         try:
