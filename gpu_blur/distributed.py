@@ -180,17 +180,20 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1,
     if cwd is not None and os.getcwd() != cwd:
         os.chdir(cwd)
     # Ctrl-C and a closed terminal reach the whole process group: the driver handles them
-    # and stops the workers (SIGTERM, which they obey)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if hasattr(signal, "SIGHUP"):
-        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    # and stops the workers (SIGTERM, which they obey); blocked since the start
+    # (_driver_signals_blocked), so that none came while importing
+    for s in DRIVER_SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, DRIVER_SIGNALS)
     threading.Thread(target=_exit_without, args=(driver,), daemon=True).start()
     from gpu_blur.backends import get_backend
 
     try:
-        conn.send(("open", get_backend(job.backend, job.scene.output.precision).device))
+        opened = ("open", get_backend(job.backend, job.scene.output.precision).device)
     except Exception as e:  # any reason the device cannot be opened
-        conn.send(("error", str(e)))
+        opened = ("error", str(e))
+    if not _send(conn, opened) or opened[0] == "error":
         return
     pool = ThreadPoolExecutor(threads, "gpu-blur-decode") if threads > 1 else None
     waiting: deque = deque()  # (spec, its decoding or None), in the order they came
@@ -208,7 +211,40 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1,
             message = ("sample", (spec, for_driver(job, result), error))
         except Exception:
             message = ("error", traceback.format_exc())
+        if not _send(conn, message):
+            return
+
+
+#: Signals a device worker ignores: Ctrl-C and a closed terminal, which the driver handles.
+DRIVER_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGHUP")
+                       if hasattr(signal, name))
+
+
+def _send(conn, message) -> bool:
+    """Send ``message`` to the driver; False when the driver is gone (its end is closed)."""
+    try:
         conn.send(message)
+    except OSError:  # BrokenPipeError: the driver was killed or stopped the run
+        return False
+    return True
+
+
+@contextlib.contextmanager
+def _driver_signals_blocked():
+    """Block :data:`DRIVER_SIGNALS` in this thread while a worker process starts.
+
+    The worker inherits the blocked set, so a Ctrl-C while it still imports (before it
+    ignores the signals, :func:`_device_worker`) prints no KeyboardInterrupt traceback; one
+    sent meanwhile reaches the driver once the block ends.
+    """
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, DRIVER_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
 def _exit_without(driver: int) -> None:
@@ -255,7 +291,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
             conn, child = context.Pipe()
             worker = context.Process(target=_device_worker, daemon=True, args=(
                 dataclasses.replace(job, backend=device), os.getpid(), child, threads, cwd))
-            with _children_skip_cwd():
+            with _children_skip_cwd(), _driver_signals_blocked():
                 worker.start()
             child.close()  # the worker's end is the worker's: its death closes the pipe
             workers.append(worker)

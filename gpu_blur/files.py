@@ -15,6 +15,7 @@ import os
 import stat
 import sys
 from pathlib import Path
+from typing import BinaryIO
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -27,8 +28,8 @@ _KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe (FIFO)"),
           (stat.S_ISSOCK, "a socket"))
 
 
-def read_bytes(path: str | Path, what: str) -> bytes:
-    """The contents of the regular file ``path``.
+def open_regular(path: str | Path, what: str) -> BinaryIO:
+    """``path`` opened for reading, binary, once it is known to be a regular file.
 
     The file is opened without blocking and its type checked on the open descriptor, so a
     FIFO, a device or a folder is refused before anything is read from it (a FIFO without a
@@ -47,12 +48,23 @@ def read_bytes(path: str | Path, what: str) -> bytes:
     except OSError as e:
         raise ValueError(f"{what}: cannot read it ({e.strerror}); check the path and its "
                          "permissions") from None
-    with os.fdopen(fd, "rb") as f:
-        mode = os.fstat(fd).st_mode
-        if not stat.S_ISREG(mode):
-            kind = next((name for test, name in _KINDS if test(mode)), "no regular file")
-            raise ValueError(f"{what}: is {kind}, not a regular file; give the path of a file")
-        os.set_blocking(fd, True)
+    f = os.fdopen(fd, "rb")
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        f.close()
+        kind = next((name for test, name in _KINDS if test(mode)), "no regular file")
+        raise ValueError(f"{what}: is {kind}, not a regular file; give the path of a file")
+    os.set_blocking(fd, True)
+    return f
+
+
+def read_bytes(path: str | Path, what: str) -> bytes:
+    """The contents of the regular file ``path`` (:func:`open_regular`).
+
+    Raises:
+        ValueError: ``what``, then why it cannot be read and the fix.
+    """
+    with open_regular(path, what) as f:
         try:
             return f.read()
         except OSError as e:

@@ -413,7 +413,7 @@ def read_image(path: str | Path) -> np.ndarray:
             truncated, corrupt, not an image, or has transparent pixels.
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():  # anything else there is refused by its kind (files.open_regular)
         raise ValueError(f"{path}: no such file")
     image = _decode(path, str(path), f"; {_WAY_OUT}")
     if image.ndim == 2:
@@ -643,7 +643,7 @@ def read_kernel(path: str | Path) -> np.ndarray:
     """
     path = Path(path)
     where = f"blur.kernel = {str(path)!r}"
-    if not path.is_file():
+    if not path.exists():  # anything else there is refused by its kind (files.open_regular)
         raise ValueError(f"{where}: no such file (a relative path is taken from the scene "
                          "file's folder)")
     if path.suffix.lower() == ".npy":
@@ -685,9 +685,11 @@ def _read_npy(path: Path, where: str) -> np.ndarray:
     """
     from numpy.lib import format as npy
 
+    from gpu_blur.files import open_regular
+
     way_out = "save the kernel with np.save"
-    try:
-        with path.open("rb") as f:
+    with open_regular(path, where) as f:
+        try:
             version = npy.read_magic(f)
             if version not in ((1, 0), (2, 0)):
                 raise ValueError(f"format version {version[0]}.{version[1]}, not 1.0 or 2.0")
@@ -695,24 +697,25 @@ def _read_npy(path: Path, where: str) -> np.ndarray:
                 else npy.read_array_header_2_0
             shape, _, dtype = read_header(f)
             start = f.tell()
-    except (SyntaxError, TokenError, RecursionError):  # numpy parses the header as Python
-        raise ValueError(f"{where}: not a numpy array file (its header is no valid Python "
-                         f"literal); {way_out}") from None
-    except (ValueError, OSError, EOFError) as e:
-        raise ValueError(f"{where}: not a numpy array file ({e}); {way_out}") from None
-    if dtype.hasobject:
-        raise ValueError(f"{where}: holds Python objects ({dtype}), which are not loaded; "
-                         f"{way_out} from a float array")
-    _check_kernel_shape(shape, where)
-    need, have = math.prod(shape) * dtype.itemsize, path.stat().st_size - start
-    if need > have:
-        raise ValueError(f"{where}: its header gives a {shape[0]} x {shape[1]} array of {dtype} "
-                         f"({need:,} bytes) but {have:,} bytes follow it: the file is "
-                         f"truncated or its header damaged; {way_out} again")
-    try:
-        return np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as e:
-        raise ValueError(f"{where}: not a numpy array file ({e}); {way_out}") from None
+        except (SyntaxError, TokenError, RecursionError):  # numpy parses the header as Python
+            raise ValueError(f"{where}: not a numpy array file (its header is no valid Python "
+                             f"literal); {way_out}") from None
+        except (ValueError, OSError, EOFError) as e:
+            raise ValueError(f"{where}: not a numpy array file ({e}); {way_out}") from None
+        if dtype.hasobject:
+            raise ValueError(f"{where}: holds Python objects ({dtype}), which are not loaded; "
+                             f"{way_out} from a float array")
+        _check_kernel_shape(shape, where)
+        need, have = math.prod(shape) * dtype.itemsize, os.fstat(f.fileno()).st_size - start
+        if need > have:
+            raise ValueError(f"{where}: its header gives a {shape[0]} x {shape[1]} array of "
+                             f"{dtype} ({need:,} bytes) but {have:,} bytes follow it: the file "
+                             f"is truncated or its header damaged; {way_out} again")
+        try:
+            f.seek(0)
+            return np.load(f, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as e:
+            raise ValueError(f"{where}: not a numpy array file ({e}); {way_out}") from None
 
 
 def _kernel_too_wide(rows: int, cols: int) -> str | None:
