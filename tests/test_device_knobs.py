@@ -147,6 +147,7 @@ def run_normals(program, count=6):
     return z.astype(np.float64), expected
 
 
+@pytest.mark.bits
 def test_fast_srgb_curves_stay_within_their_fast_rows(fast, record_property):
     x = srgb_inputs().astype(np.float64)
     linear, encoded = run_srgb(fast)
@@ -160,6 +161,7 @@ def test_fast_srgb_curves_stay_within_their_fast_rows(fast, record_property):
         assert np.array_equal(np.signbit(got), np.signbit(expected))
 
 
+@pytest.mark.bits
 def test_fast_normals_stay_within_their_fast_row(fast, record_property):
     z, expected = run_normals(fast)
     report(record_property, f"normal_fast_max_abs_error[{fast}]",
@@ -179,6 +181,7 @@ def test_opencl_fast_maths_changes_float_builds_and_leaves_double_builds_bit_for
 
 
 @pytest.mark.parametrize("fast", OPENCL_FAST, ids=str, indirect=True)
+@pytest.mark.bits
 def test_opencl_fast_maths_leaves_poisson_counts_exact(fast):
     precise = fast.at("float32")
     rates, ys, xs = knob_grid(fast.real)

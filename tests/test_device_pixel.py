@@ -214,6 +214,7 @@ def test_crf_lookup(built):
 
 
 @pytest.mark.parametrize("which", ["camera_to_linear", "linear_to_camera"])
+@pytest.mark.bits
 def test_apply_matrix(built, which, coffee_rgb):
     matrix = getattr(get_camera("a7r3"), which)
     rng = np.random.default_rng(5)
@@ -299,6 +300,7 @@ def coffee_linear(coffee_rgb) -> np.ndarray:
 @pytest.mark.parametrize("method", list(METHODS))
 @pytest.mark.parametrize("border", list(BORDERS))
 @pytest.mark.parametrize("pattern", PATTERNS, ids=[p.value for p in PATTERNS])
+@pytest.mark.bits
 def test_demosaic_photo(built, coffee_linear, pattern, border, method):
     raw = built.rounded(mosaic(coffee_linear, pattern))
     got = demosaic_whole(built, raw, pattern, border, method)

@@ -20,6 +20,7 @@ RUNS += list(TILED.items()) if HEAVY else []
 
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 @pytest.mark.parametrize("case,tile", RUNS)
+@pytest.mark.bits
 def test_outputs_match_the_recorded_digests(spec, case, tile):
     got = run_case(case, spec, tile)
     if got is None:

@@ -77,6 +77,7 @@ def fast_math_scene(noise: str, fast: bool):
 
 @pytest.mark.parametrize("spec", FLOAT32_KERNEL_SPECS)
 @pytest.mark.parametrize("noise", ["none", "gaussian"])
+@pytest.mark.bits
 def test_fast_math_pipeline_stays_within_its_row(spec, noise, coffee_rgb, record_property):
     photo = coffee_rgb[150:310, 250:450]
     backend = spec.split("/")[0]

@@ -185,6 +185,7 @@ def test_spot_checks_pass_clean_runs(spec, case, small):
 
 
 @pytest.mark.parametrize("spec", [s for s in KERNEL_BACKEND_SPECS if s.endswith("float32")])
+@pytest.mark.bits
 def test_spot_checks_of_fast_maths_use_its_wider_rows(spec, small):
     # fast sRGB curves move the linear image by up to 3.3e-6 (Intel's OpenCL), over the float32
     # accumulate row (1e-6): a clean fast-maths run must still pass its checks
