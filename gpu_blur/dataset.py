@@ -124,8 +124,21 @@ def default_photo() -> Path:
 
 
 def input_label(path: Path) -> str:
-    """How the manifest records an input: its path as found, the built-in photo by name."""
-    return BUILT_IN_INPUT if path == default_photo() else str(path)
+    """How the manifest records an input: its path as found (:func:`shown`), the built-in photo
+    by name."""
+    return BUILT_IN_INPUT if path == default_photo() else shown(str(path))
+
+
+def shown(text: str) -> str:
+    """``text`` as UTF-8 text holds it: each byte of a path that is not UTF-8 as ``\\xNN``.
+
+    Python gives such a byte of a file name as a lone surrogate (``surrogateescape``), which
+    UTF-8, and so the manifest's JSON, cannot hold; other text is returned as it is.
+    """
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:  # a lone surrogate no file name gives
+        return text.encode("utf-8", "backslashreplace").decode()
 
 
 def _natural(name: str) -> tuple:
@@ -152,15 +165,19 @@ def _walk(folder: Path, skip: tuple[int, int] | None) -> Iterator[tuple[Path, bo
     The folder whose :func:`_identity` is ``skip`` is left out with all it holds, and so is
     every folder holding a set ``gpu-blur generate`` wrote (its :data:`MANIFEST` and
     :data:`RUN`): a set made inside the input is never read back as input. Linked folders are
-    listed but not entered, and unreadable ones skipped, as ``Path.rglob`` does.
+    listed but not entered, and unreadable ones skipped, as ``Path.rglob`` does; a link that
+    leads nowhere or into a loop of links is no folder.
     """
     try:
         with os.scandir(folder) as it:
             entries = sorted(it, key=lambda e: _natural(e.name))
-    except PermissionError:
+    except OSError:  # unreadable, or gone since it was listed
         return
     for entry in entries:
-        is_dir = entry.is_dir()
+        try:
+            is_dir = entry.is_dir()
+        except OSError:  # a loop of links (ELOOP): no folder, and an image fails when read
+            is_dir = False
         if is_dir and ((skip is not None and _identity(Path(entry.path)) == skip)
                        or _holds_a_set(Path(entry.path))):
             continue
@@ -175,9 +192,12 @@ def _holds_a_set(folder: Path) -> bool:
 
 
 def _images(folder: Path) -> list[Path]:
-    """The images directly in ``folder``, in natural order."""
-    return sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
-                  key=lambda p: _natural(p.name))
+    """The images directly in ``folder``, in natural order (none when it cannot be read)."""
+    try:
+        paths = [p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+    except OSError:
+        return []
+    return sorted(paths, key=lambda p: _natural(p.name))
 
 
 def _sequence_name(folder: Path, root: Path) -> str:
@@ -450,6 +470,24 @@ def _blurred_samples(found: list[BlurredSample], per_photo: int) -> Iterator[Sam
                              tuple(files[r] for r in roles), sample.problem, roles)
 
 
+def _in_utf8(specs: Iterator[SampleSpec]) -> Iterator[SampleSpec]:
+    """``specs``, each whose name or an input's path is not UTF-8 failed with its reason.
+
+    Its name (and any problem) is then :func:`shown`, so its manifest line holds UTF-8 text.
+    """
+    for spec in specs:
+        odd = [text for text in (*map(str, spec.inputs), spec.name) if not _text(text)]
+        if odd:
+            spec = dataclasses.replace(spec, name=shown(spec.name), problem=(
+                f"{shown(odd[0])}: the path is not UTF-8 (\\xNN here is a byte that is not), "
+                "and a set records its samples' names and inputs as UTF-8 text; rename it to "
+                "UTF-8 (convmv -r -f <its encoding> -t utf-8 <folder>), then run the same "
+                "command with --resume"))
+        elif not _text(spec.problem or ""):
+            spec = dataclasses.replace(spec, problem=shown(spec.problem))
+        yield spec
+
+
 def _photo_samples(photos, per_photo: int) -> Iterator[SampleSpec]:
     for i, (name, path) in enumerate(photos):
         for k in range(per_photo):
@@ -549,13 +587,14 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int,
                     "trajectory or kernel")
             total = sum(1 if len(frames) < size else samples_per_sequence or len(frames) // size
                         for _, frames in seqs)
-            return Samples(total, lambda: sequence_samples(seqs, size, samples_per_sequence))
+            return Samples(total, lambda: _in_utf8(sequence_samples(seqs, size,
+                                                                    samples_per_sequence)))
         if mode == "none":
             found = find_blurred(root, masks, exclude)
             if not found:
                 raise ValueError(f"--input {root}: blur.mode = none found no {BLURRED_EXPECTED}")
             return Samples(len(found) * samples_per_photo,
-                           lambda: _blurred_samples(found, samples_per_photo))
+                           lambda: _in_utf8(_blurred_samples(found, samples_per_photo)))
         photos = [(p.relative_to(root).with_suffix("").as_posix(), p)
                   for p, is_dir in _walk(root, _identity(exclude))
                   if not is_dir and p.suffix.lower() in IMAGE_SUFFIXES]
@@ -563,7 +602,7 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int,
             raise ValueError(f"--input {root}: no images ({', '.join(IMAGE_SUFFIXES)}) found "
                              "in it or its subfolders")
     return Samples(len(photos) * samples_per_photo,
-                   lambda: _photo_samples(photos, samples_per_photo))
+                   lambda: _in_utf8(_photo_samples(photos, samples_per_photo)))
 
 
 def discover(root: Path | None, mode: str, frames_per_sample: int,
@@ -707,13 +746,14 @@ class DatasetWriter:
       sample's line is appended and flushed only after its files, so the manifest lists
       only finished samples whatever moment a run is killed.
     * The manifest in sample order: lines are written in the order of ``specs`` however the
-      samples finish (see :meth:`_append`), so any executor writes a serial run's bytes.
+      samples finish (see :meth:`_append`), so any executor writes a serial run's bytes; a
+      resume that makes earlier samples again puts them in place at :meth:`close`.
     * The set's folders are the set's: ``blur/``, ``sharp/``, ``params/`` (and ``mask/``,
       ``raw/``) hold only
       sample files named as :meth:`write` names them (``NNNNNN_<name>.png``); anything else
       there is refused, named, before any change, and is never removed. Opening a folder
-      removes the sample files no kept manifest line lists and the temporary files of a
-      killed run (their naming only).
+      removes the sample files no kept manifest line lists and the temporary files a killed
+      run left (only those named with the pid of a run its lock file records, :meth:`_ours`).
 
     Three ways to open a folder: a new set (refused if the folder holds a manifest, run.json
     or sample files), ``overwrite`` (remove the old set's sample files, then its manifest and
@@ -725,9 +765,11 @@ class DatasetWriter:
     same inputs, keeps the finished samples (``done``; their files are not touched), and drops
     the other lines: failed samples (to be tried again), a line torn by a kill, and any line
     it cannot verify (an index that is not an int in ``[0, total)``, files not named as this
-    writer names them, missing, or not of the sizes the line records). A missing or
-    unreadable manifest, or one damaged before its last line, is refused while sample files
-    are there: resuming would remove finished samples.
+    writer names them, missing, or not of the sizes the line records). A missing, unreadable
+    or damaged manifest (empty, NUL bytes, a line that is not JSON but a last one cut before
+    its newline), and a finished sample it cannot keep (an index the input no longer gives),
+    are refused while sample files are there, changing nothing: resuming would remove
+    finished samples.
 
     Args:
         out: the set's folder (created if needed).
@@ -813,6 +855,8 @@ class DatasetWriter:
         self.manifest = open(self.manifest_path, "a")
         self._specs, self._next = specs, 0  # lines go out in this order (see _append)
         self._waiting: dict[int, str] = {}
+        self._last = max(self.done, default=-1)  # the highest index listed so far
+        self._sorted = True  # whether the manifest's lines are in index order
 
     def _sample_files(self) -> list[Path]:
         """The sample files in the set's folders (:data:`SUBFOLDERS`, named as :meth:`write` does).
@@ -1059,7 +1103,7 @@ class DatasetWriter:
         """
         text = json.dumps(line) + "\n"
         if self._specs is None:
-            self.manifest.write(text)
+            self._write_line(line["index"], text)
         else:
             self._waiting[line["index"]] = text
             while self._next < len(self._specs):
@@ -1067,9 +1111,15 @@ class DatasetWriter:
                 if index not in self.done:
                     if index not in self._waiting:
                         break
-                    self.manifest.write(self._waiting.pop(index))
+                    self._write_line(index, self._waiting.pop(index))
                 self._next += 1
         self.manifest.flush()
+
+    def _write_line(self, index: int, text: str) -> None:
+        """Append a line, noting whether the manifest is still in index order."""
+        self.manifest.write(text)
+        self._sorted = self._sorted and index > self._last
+        self._last = max(self._last, index)
 
     def write(self, spec: SampleSpec, result, record: dict) -> dict:
         """Write one sample, then its manifest line (``status`` "ok"); returns the line."""
@@ -1137,6 +1187,16 @@ class DatasetWriter:
         self._append(line)
         return line
 
+    def _sort_manifest(self) -> None:
+        """Rewrite the manifest with its lines in index order (it appears whole or not at all).
+
+        Only lines this writer kept or wrote are there, one per index.
+        """
+        lines = self.manifest_path.read_text().splitlines(keepends=True)
+        lines.sort(key=lambda text: json.loads(text)["index"])
+        write_text(self.manifest_path, "".join(lines))
+        self._sorted = True
+
     def close(self) -> None:
         """Close the manifest and release the output folder's lock.
 
@@ -1145,6 +1205,8 @@ class DatasetWriter:
         """
         try:
             self.manifest.close()
+            if not self._sorted:  # a resume made an earlier sample again
+                self._sort_manifest()
         except OSError as e:
             raise OSError(f"{self.manifest_path}: cannot write its last lines ({e.strerror or e}); "
                           "the samples it lists are kept: free space or fix the folder, then "

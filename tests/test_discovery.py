@@ -1,6 +1,7 @@
 """Which samples an input folder gives, in which order, and how many (issue 13)."""
 
 import json
+import os
 
 import cv2
 import numpy as np
@@ -71,3 +72,71 @@ def test_a_sample_count_beyond_reason_is_refused_at_once_unless_limited(tmp_path
     assert "the input gives 300,000,000 samples, more than the 10,000,000 one run makes" in err
     assert "pass --limit" in err and not (tmp_path / "out").exists()
     assert main([*command, "--limit", "2"]) == 0
+
+
+def generate(folder, out, scene, *extra):
+    return main(["generate", "--input", str(folder), "--output", str(out), "--scene", str(scene),
+                 "--backend", "numpy", "--quiet", *extra])
+
+
+def lines_of(out):
+    """The manifest's lines, read as UTF-8 (strictly) and JSON: (name, status, error)."""
+    text = (out / "manifest.jsonl").read_bytes().decode()
+    return [(x["name"], x["status"], x.get("error", "")) for x in map(json.loads,
+                                                                      text.splitlines())]
+
+
+@pytest.mark.parametrize("mode", ["trajectory", "average"])
+def test_a_path_that_is_not_utf8_fails_only_its_samples(tmp_path, mode):
+    # a frame or a sequence folder named in Latin-1 stopped the whole run, every resume too
+    # (issue 35); its samples fail, named with \xNN for the byte, and the run goes on
+    folder = tmp_path / "in"
+    odd = os.fsencode(folder) + (b"/caf\xe9.png" if mode == "trajectory" else b"/caf\xe9/sharp")
+    if mode == "trajectory":
+        write_frames(folder, ["a.png", "b.png"])
+        png = (folder / "a.png").read_bytes()
+    else:
+        for seq in ("A", "B"):
+            write_frames(folder / seq / "sharp", ["0.png", "1.png"])
+        png = (folder / "A" / "sharp" / "0.png").read_bytes()
+        os.makedirs(odd)
+        odd += b"/0.png"
+        with open(odd[:-5] + b"1.png", "wb") as f:
+            f.write(png)
+    with open(odd, "wb") as f:
+        f.write(png)
+    scene = tmp_path / "s.toml"
+    scene.write_text('[blur]\nsteps = 3\n' if mode == "trajectory"
+                     else '[blur]\nmode = "average"\nframes = 2\n')
+    out = tmp_path / "out"
+    assert generate(folder, out, scene) == 1
+    lines = lines_of(out)
+    name = "caf\\xe9" if mode == "trajectory" else "caf\\xe9/0"
+    made = ["a", "b"] if mode == "trajectory" else ["A/0", "B/0"]
+    assert [x[:2] for x in lines] == [(n, "ok") for n in made] + [(name, "failed")]
+    assert "caf\\xe9" in lines[2][2] and ": the path is not UTF-8" in lines[2][2]
+    assert generate(folder, out, scene, "--resume") == 1
+    assert lines_of(out) == lines
+
+
+def test_a_loop_of_links_fails_only_its_sample(tmp_path):
+    folder = tmp_path / "in"
+    write_frames(folder, ["a.png", "b.png"])
+    (folder / "sub").mkdir()
+    (folder / "sub" / "loop").symlink_to("loop")
+    (folder / "x.png").symlink_to("x.png")
+    for seq in ("A", "B"):  # and in a sequence: a frame and a folder that loop
+        write_frames(folder / "seqs" / seq / "sharp", ["0.png", "1.png", "2.png", "3.png"])
+    (folder / "seqs" / "A" / "sharp" / "2.png").unlink()
+    (folder / "seqs" / "A" / "sharp" / "2.png").symlink_to("2.png")
+    (folder / "seqs" / "C").symlink_to("C")
+    scene = tmp_path / "s.toml"
+    scene.write_text("[blur]\nsteps = 3\n")
+    out = tmp_path / "out"
+    assert generate(folder, out, scene) == 1
+    failed = [x[0] for x in lines_of(out) if x[1] == "failed"]
+    assert failed == ["seqs/A/sharp/2", "x"] and len(lines_of(out)) == 11
+    scene.write_text('[blur]\nmode = "average"\nframes = 2\n')
+    assert generate(folder / "seqs", tmp_path / "seqs", scene) == 1
+    assert [x[:2] for x in lines_of(tmp_path / "seqs")] == [
+        ("A/0", "ok"), ("A/2", "failed"), ("B/0", "ok"), ("B/2", "ok")]

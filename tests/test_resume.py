@@ -330,3 +330,60 @@ def test_an_auto_interpolation_set_made_before_regions_resumes_only_without_them
     without = {"blur": {"mode": "average", "interpolation": "auto", "interpolation_region": 0}}
     assert _set_keys(old) != _set_keys(with_regions)  # the old set had one factor per gap
     assert _set_keys(old) == _set_keys(without)
+
+
+def backend_args(photos, out, *extra):
+    return args(photos, out, "--backend", "numpy", *extra)
+
+
+@pytest.mark.parametrize("damage", ["empty", "all NUL", "NUL tail", "bad line", "bad last line"])
+def test_resume_refuses_a_damaged_manifest_and_removes_nothing(tmp_path, photos, capsys,
+                                                               damage):
+    # after a power loss the manifest may be empty or NULs while every sample is there; the
+    # input changed too (a.png renamed): a resume once removed all 8 samples (issue 35)
+    out = tmp_path / "out"
+    assert main(backend_args(photos, out)) == 0
+    manifest = out / "manifest.jsonl"
+    text = manifest.read_bytes()
+    lines = text.splitlines(keepends=True)
+    manifest.write_bytes({"empty": b"", "all NUL": b"\0" * len(text),
+                          "NUL tail": b"".join(lines[:3]) + b"\0" * 700,
+                          "bad line": b"".join([*lines[:2], b"{}}\n", *lines[3:]]),
+                          "bad last line": b"".join(lines[:-1]) + b"{}}\n"}[damage])
+    folder, _ = photos
+    (folder / "a.png").rename(folder / "c.png")
+    before, damaged = files(out), manifest.read_bytes()
+    capsys.readouterr()
+    assert main(backend_args(photos, out, "--resume")) == 2
+    (error,) = [x for x in capsys.readouterr().err.splitlines() if "error" in x]
+    assert f"gpu-blur: error: --resume: {manifest}" in error and "--overwrite" in error
+    assert "nothing was changed" in error
+    assert files(out) == before and manifest.read_bytes() == damaged
+
+
+def test_resume_refuses_to_drop_finished_samples_the_input_no_longer_gives(tmp_path, photos,
+                                                                           capsys):
+    out = tmp_path / "out"
+    assert main(backend_args(photos, out)) == 0
+    folder, _ = photos
+    (folder / "b.png").unlink()  # the input now gives samples 0 to 3 only
+    before, text = files(out), (out / "manifest.jsonl").read_text()
+    capsys.readouterr()
+    assert main(backend_args(photos, out, "--resume")) == 2
+    assert "line 5, records finished sample 4 ('b_0') that this run cannot keep (the input " \
+           "now gives 4 samples)" in capsys.readouterr().err
+    assert files(out) == before and (out / "manifest.jsonl").read_text() == text
+
+
+def test_a_resume_that_remakes_earlier_samples_leaves_the_manifest_in_sample_order(tmp_path,
+                                                                                   photos):
+    folder, _ = photos
+    good = (folder / "a.png").read_bytes()
+    (folder / "a.png").write_bytes(good[:50])  # samples 0 to 3 fail, 4 to 7 are made
+    out = tmp_path / "out"
+    assert main(backend_args(photos, out)) == 1
+    (folder / "a.png").write_bytes(good)
+    assert main(backend_args(photos, out, "--resume")) == 0
+    reference = tmp_path / "reference"
+    assert main(backend_args(photos, reference)) == 0
+    assert (out / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
