@@ -43,7 +43,7 @@ from gpu_blur.conformance import (
 from gpu_blur.params import draw_params
 from gpu_blur.plan import plan
 from gpu_blur.reference import bayer, rng, transfer
-from gpu_blur.scene import builtin_scenes
+from gpu_blur.scene import SceneError, builtin_scenes
 from gpu_blur.tiling import Region
 
 REFERENCE = NumpyBackend()
@@ -742,6 +742,25 @@ for _scene in builtin_scenes():
             f"pipeline: scene {_scene}" + (", as shipped" if _noisy else ", noise off"),
             functools.partial(_scene_check, scene=_scene, noisy=_noisy),
             quick=_scene == "minimal" and not _noisy))
+
+
+@check("pipeline: output.fast_math within its row", kernels_only=True)
+def _fast_math(t: Target) -> list[Outcome]:
+    """The fast sRGB curves and normals: their accuracy is the runtime's (OpenCL native_)."""
+    settings = {"blur": {"mode": "trajectory"}, "saturation": {"mode": "on"},
+                "noise": {"model": "gaussian"}, "isp": {"round_trip": "always"},
+                "output": {"bits": 0, "fast_math": True}}
+    if t.precision != "float32":
+        try:
+            scene_for(t.precision, settings)
+        except SceneError:
+            return [holds(True, "refused: fast functions exist for float only")]
+        return [holds(False, "refused: fast functions exist for float only")]
+    photo = [_photo()]
+    got = _synthesize(t, t.backend, photo, settings).blurred
+    settings["output"]["fast_math"] = False
+    ref = _synthesize(t, REFERENCE, photo, settings).blurred
+    return [within("pipeline_fast_math", t, got, ref)]
 
 
 @check("pipeline: all-white frames give exactly white")
