@@ -48,14 +48,13 @@ def open_regular(path: str | Path, what: str) -> BinaryIO:
     except OSError as e:
         raise ValueError(f"{what}: cannot read it ({e.strerror}); check the path and its "
                          "permissions") from None
-    f = os.fdopen(fd, "rb")
     mode = os.fstat(fd).st_mode
     if not stat.S_ISREG(mode):
-        f.close()
+        os.close(fd)
         kind = next((name for test, name in _KINDS if test(mode)), "no regular file")
         raise ValueError(f"{what}: is {kind}, not a regular file; give the path of a file")
     os.set_blocking(fd, True)
-    return f
+    return os.fdopen(fd, "rb")
 
 
 def read_bytes(path: str | Path, what: str) -> bytes:

@@ -532,3 +532,211 @@ def test_only_too_short_sequences_stop_the_command(tmp_path, capsys):
                  str(tmp_path / "out"), "--scene", str(scene), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "no <seq>/sharp/ folder with at least 3 images (blur.frames); A has 2" in err
+
+
+# ---- hostile files: sizes before decoding, regular files only, parse errors named -----------
+
+def encoded(fmt):
+    """A 32 x 24 image in ``fmt`` as OpenCV writes it (VP8X: a WebP with transparency)."""
+    image, ext, params = random_rgb(), f".{fmt.split('-')[0]}", []
+    if fmt.startswith("webp"):
+        params = [cv2.IMWRITE_WEBP_QUALITY, 101 if fmt == "webp-lossless" else 80]
+        if fmt == "webp-extended":
+            image = np.dstack([image, np.full((24, 32), 200, np.uint8)])
+    if fmt in ("pgm", "pbm"):
+        image = image[:, :, 0]
+    if fmt == "pfm":
+        image = image.astype(np.float32) / 255
+    ok, data = cv2.imencode(ext, image, params)
+    assert ok
+    return data.tobytes()
+
+
+def claim_more(data, fmt, width, height):
+    """A small file of ``fmt`` (:func:`encoded`), its header doctored to ``width`` x ``height``."""
+    data = bytearray(data)
+    if fmt == "gif":  # the logical screen
+        struct.pack_into("<HH", data, 6, width, height)
+    elif fmt == "webp-lossless":  # VP8L: 14 bits each of width - 1 and height - 1
+        rest = struct.unpack_from("<I", data, 21)[0] & ~0x0FFFFFFF
+        struct.pack_into("<I", data, 21, rest | (width - 1) | (height - 1) << 14)
+    elif fmt == "webp-lossy":  # VP8's frame header: 14 bits each (and a scale)
+        struct.pack_into("<HH", data, 26, width, height)
+    elif fmt == "webp-extended":  # VP8X's canvas: 24 bits each of width - 1 and height - 1
+        data[24:30] = (width - 1).to_bytes(3, "little") + (height - 1).to_bytes(3, "little")
+    elif fmt == "pam":
+        data = data.replace(b"WIDTH 32", b"WIDTH %d" % width).replace(b"HEIGHT 24",
+                                                                      b"HEIGHT %d" % height)
+    else:  # PNM and PFM: the first two numbers after the magic number (a comment between)
+        data = data[:3] + b"# made by a test\n" + data[3:].replace(b"32 24", b"%d %d" % (
+            width, height), 1)
+    return bytes(data)
+
+
+def not_decoded(*args, **kwargs):
+    raise AssertionError("decoded before its size was checked")
+
+
+HEADER_FORMATS = ["gif", "webp-lossless", "webp-lossy", "webp-extended", "ppm", "pgm", "pbm",
+                  "pam", "pfm"]
+
+
+@pytest.mark.parametrize("fmt", HEADER_FORMATS)
+def test_gif_webp_and_pnm_files_are_refused_from_their_header_before_decoding(
+        tmp_path, monkeypatch, fmt):
+    from gpu_blur.imageio import _header_size
+
+    data = encoded(fmt)
+    assert _header_size(data) == (32, 24)  # as OpenCV decodes it
+    assert cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED).shape[:2] == (24, 32)
+    path = tmp_path / "bomb.png"  # OpenCV goes by the bytes, not the name
+    path.write_bytes(claim_more(data, fmt, 4000, 3000))
+    monkeypatch.setattr(cv2, "imdecode", not_decoded)
+    monkeypatch.setenv("GPU_BLUR_MAX_PIXELS", "1000000")
+    with pytest.raises(ValueError) as e:
+        read_image(path)
+    assert str(e.value).startswith(f"{path}: is 4000 x 3000 pixels (12,000,000), more than the "
+                                   "1,000,000 an image may hold; scale it down or crop it")
+
+
+def test_a_35_byte_gif_claiming_8192_x_8192_costs_no_memory(tmp_path, monkeypatch):
+    gif = (b"GIF89a" + struct.pack("<HHBBB", 8192, 8192, 0x80, 0, 0) + bytes(6) + b","
+           + struct.pack("<HHHHB", 0, 0, 1, 1, 0) + b"\x02\x02\x4c\x01\x00;")
+    path = tmp_path / "bomb.png"
+    path.write_bytes(gif)
+    assert len(gif) == 35
+    monkeypatch.setattr(cv2, "imdecode", not_decoded)
+    monkeypatch.setenv("GPU_BLUR_MAX_PIXELS", str(8192 * 8192 - 1))
+    with pytest.raises(ValueError, match=r"bomb\.png: is 8192 x 8192 pixels \(67,108,864\)"):
+        read_image(path)
+    monkeypatch.setenv("GPU_BLUR_MAX_PIXELS", str(8192 * 8192))
+    with pytest.raises(AssertionError, match="decoded"):  # within the budget: decoded
+        read_image(path)
+
+
+@pytest.mark.parametrize("ext, data", [
+    (".hdr", None), (".ras", None),
+    (".jp2", b"\0\0\0\x0cjP  \r\n\x87\n" + bytes(64)),  # a JPEG 2000 file's signature box
+    (".png", b"\x89PNG\r\n\x1a\n" + bytes(4) + b"IEND" + bytes(4)),  # a PNG without IHDR
+])
+def test_files_whose_header_gives_no_size_are_refused_before_decoding(tmp_path, monkeypatch,
+                                                                       ext, data):
+    path = tmp_path / f"other{ext}"
+    if data is None:  # OpenCV reads and writes these, but their size is not read here
+        image = random_rgb()
+        assert cv2.imwrite(str(path), image.astype(np.float32) / 255 if ext == ".hdr" else image)
+    else:
+        path.write_bytes(data)
+    monkeypatch.setattr(cv2, "imdecode", not_decoded)
+    with pytest.raises(ValueError) as e:
+        read_image(path)
+    assert str(e.value).startswith(f"{path}: not a readable image (no width and height in its "
+                                   "header: gpu_blur reads PNG, JPEG, TIFF, BMP, GIF, WebP and "
+                                   "PNM/PAM/PFM); convert it to PNG")
+
+
+def in_a_thread(load, *args):
+    """What ``load(*args)`` raises (None if nothing) within 20 s: a FIFO's reader would wait on."""
+    import threading
+
+    raised = []
+
+    def run():
+        try:
+            load(*args)
+        except Exception as e:
+            raised.append(e)
+        else:
+            raised.append(None)
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(20)
+    assert raised, f"{load.__name__} is still waiting on the FIFO"
+    return raised[0]
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+def test_a_fifo_or_a_folder_is_refused_wherever_a_file_is_read(tmp_path, capsys):
+    from gpu_blur.cameras import load_camera
+
+    for name in ("f.toml", "cam.toml", "cam.json", "k.npy", "k.png", "p.png"):
+        os.mkfifo(tmp_path / name)
+    for load, name, where in [(load_scene, "f.toml", "scene file "),
+                              (load_camera, "cam.toml", "camera file "),
+                              (load_camera, "cam.json", "camera file "),
+                              (read_kernel, "k.npy", "blur.kernel = '"),
+                              (read_kernel, "k.png", "blur.kernel = '"), (read_image, "p.png", "")]:
+        path = tmp_path / name
+        error = in_a_thread(load, path)
+        quote = "'" if where.endswith("'") else ""
+        assert str(error) == (f"{where}{path}{quote}: is a named pipe (FIFO), not a regular file; "
+                              "give the path of a file")
+    (tmp_path / "folder.toml").mkdir()
+    assert "is a folder, not a regular file" in str(in_a_thread(load_scene, tmp_path /
+                                                                 "folder.toml"))
+    # a scene naming a camera file that is a FIFO stops the command (exit 2)
+    scene = tmp_path / "s.toml"
+    scene.write_text('[camera]\nname = "cam.toml"\n')
+    assert in_a_thread(lambda: main(["plan", str(scene)]) == 2 or pytest.fail("status")) is None
+    assert (f"camera file {tmp_path / 'cam.toml'}: is a named pipe (FIFO), not a regular file"
+            in capsys.readouterr().err)
+
+
+def deep(depth, opening="[", closing="]"):
+    return opening * depth + closing * depth
+
+
+@pytest.mark.parametrize("name, text, message", [
+    ("deep.json", '{"color": ' + deep(100_000) + "}",
+     "not valid JSON: arrays or objects are nested too deeply (more than about"),
+    ("deep.toml", "x = " + deep(5000), "not valid TOML: arrays or tables are nested too deeply"),
+    ("latin1.toml", b'name = "Kamera f\xfcr Test"\n', "not UTF-8 text (byte 0xFC on line 1 cannot "
+                                                      "be decoded); save the file as UTF-8"),
+    ("huge.toml", "[color]\ncamera_to_linear = [[1" + "0" * 400 + ", 0, 0], [0, 1, 0], [0, 0, 1]]",
+     "color.camera_to_linear = [[1000"),
+    ("huge.json", '{"color": {"xyz_to_camera": [[1, 0, 0], [0, -1' + "0" * 400 + ", 0], "
+     "[0, 0, 1]]}}", "color.xyz_to_camera = [[1, 0, 0], [0, -1000"),
+    ("nan.toml", "[color]\nccm_xyz = [[1, 0, 0], [0, nan, 0], [0, 0, 1]]",
+     "color.ccm_xyz = [[1, 0, 0], [0, nan, 0], [0, 0, 1]] is invalid; expected a 3 x 3 list of "
+     "numbers, each finite"),
+])
+def test_camera_files_that_do_not_parse_or_overflow_are_named(tmp_path, capsys, name, text,
+                                                              message):
+    from gpu_blur.cameras import load_camera
+
+    path = tmp_path / name
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    with pytest.raises(ValueError) as e:
+        load_camera(path)
+    assert str(e.value).startswith(f"camera file {path}: ") and message in str(e.value)
+    if name.startswith("huge"):
+        assert str(e.value).endswith("is invalid; expected a 3 x 3 list of numbers, each finite")
+    scene = tmp_path / "s.toml"
+    scene.write_text(f'[camera]\nname = "{name}"\n')
+    assert main(["plan", str(scene)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"gpu-blur: error: scene file {scene}: camera.name = '{name}': camera "
+                          f"file {path}: ") and message in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("header", [
+    "{'descr': '<f8', 'fortran_order': False, 'shape': (3, 3), ",  # a bracket left open
+    "{'descr': '<f8', 'fortran_order': False, 'shape': ((3, 3)}",
+    "{'descr': '<f8', 'fortran_order': False, 'shape': (0, 3)}",
+    "{'descr': '<f8', 'fortran_order': False, 'shape': (-3, 3)}",
+])
+def test_a_broken_npy_header_is_named(tmp_path, header):
+    text = header.encode()
+    text += b" " * (63 - (10 + len(text)) % 64) + b"\n"
+    path = tmp_path / "k.npy"
+    path.write_bytes(b"\x93NUMPY\x01\x00" + struct.pack("<H", len(text)) + text + bytes(72))
+    with pytest.raises(ValueError) as e:
+        read_kernel(path)
+    message = str(e.value)
+    assert message.startswith(f"blur.kernel = '{path}': ")
+    if "(3" in header:
+        assert message.endswith("not a numpy array file (its header is no valid Python "
+                                "literal); save the kernel with np.save")
+    else:
+        assert "a kernel needs at least one row and column of weights" in message

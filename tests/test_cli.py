@@ -142,3 +142,99 @@ def test_scene_and_cameras_commands_list_what_is_available(capsys):
     assert main(["cameras"]) == 0
     out = capsys.readouterr().out
     assert "a7r3" in out and "rsblur-0019" in out and "srgb" in out
+
+
+@pytest.mark.parametrize("size, message", [
+    ("100000x100000", "--size '100000x100000' is invalid; allowed: at most 268,435,456 pixels "
+                      "(the pixel budget of an input image; 10,000,000,000 would be made in "
+                      "memory)"),
+    ("1" + "0" * 5000 + "x2", "is invalid; allowed: WxH in pixels, e.g. 480x320"),
+    ("４８x32", "--size '４８x32' is invalid; allowed: WxH in pixels"),  # digits, not ASCII
+])
+def test_plan_cost_holds_size_to_the_pixel_budget(capsys, monkeypatch, size, message):
+    from gpu_blur.analysis import stage_cost
+
+    monkeypatch.delenv("GPU_BLUR_MAX_PIXELS", raising=False)
+    monkeypatch.setattr(stage_cost, "stage_costs", lambda *a: pytest.fail("allocated"))
+    assert main(["plan", "minimal", "--cost", "--size", size]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("gpu-blur: error: --size ") and message in err
+    assert len(err.splitlines()) == 1
+
+
+def run_closed(*command):
+    """``gpu-blur *command`` run with its stdout and stderr closed (``>&- 2>&-``)."""
+    import subprocess
+    import sys
+
+    return subprocess.run(["bash", "-c", 'exec "$@" >&- 2>&-', "-", sys.executable, "-m",
+                           "gpu_blur.cli", *command], timeout=300).returncode
+
+
+def test_generate_with_stdout_and_stderr_closed_makes_its_samples(tmp_path):
+    out = tmp_path / "set"
+    assert run_closed("generate", "--output", str(out), "--limit", "1", "--scene",
+                      "minimal") == 0
+    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    assert [x["status"] for x in lines] == ["ok"]
+    assert cv2.imread(str(out / lines[0]["blurred"])).shape == (400, 600, 3)
+    assert run_closed("plan", str(tmp_path / "none.toml")) == 2  # errors: the status says it
+
+
+def device_worker(tmp_path, photos=2):
+    """A device worker process on numpy started as generate's driver starts it, and its pipe."""
+    import multiprocessing
+    import os
+
+    from gpu_blur import distributed
+    from gpu_blur.dataset import discover
+    from gpu_blur.generate import Job
+    from gpu_blur.scene import scene_from_dict
+
+    rng = np.random.default_rng(0)
+    (tmp_path / "in").mkdir()
+    for i in range(photos):
+        cv2.imwrite(str(tmp_path / "in" / f"p{i}.png"), rng.integers(0, 256, (24, 32, 3),
+                                                                       np.uint8))
+    specs = discover(tmp_path / "in", "trajectory", 1, 1)
+    context = multiprocessing.get_context("spawn")
+    conn, child = context.Pipe()
+    job = Job(scene_from_dict({"blur": {"steps": 3}}), 0, "numpy")
+    worker = context.Process(target=distributed._device_worker, daemon=True,
+                             args=(job, os.getpid(), child, 1, os.getcwd()))
+    with distributed._driver_signals_blocked():
+        worker.start()
+    child.close()
+    return worker, conn, specs
+
+
+def test_a_device_worker_whose_driver_is_gone_ends_quietly(tmp_path, capfd):
+    worker, conn, specs = device_worker(tmp_path)
+    assert conn.recv()[0] == "open"
+    for spec in specs:  # both reach the worker before it makes the first
+        conn.send(spec)
+    assert conn.recv()[0] == "sample"
+    conn.close()  # the driver is gone while the worker makes the second sample
+    worker.join(60)
+    assert worker.exitcode == 0
+    assert "Error" not in capfd.readouterr().err
+
+
+def test_ctrl_c_while_a_device_worker_starts_prints_no_traceback(tmp_path, capfd):
+    import os
+    import signal
+    import time
+
+    worker, conn, specs = device_worker(tmp_path, photos=1)
+    end = time.monotonic() + 3  # Ctrl-C reaches the process group: here the worker alone
+    while time.monotonic() < end and not conn.poll(0.01):
+        os.kill(worker.pid, signal.SIGINT)
+    assert conn.recv()[0] == "open"
+    os.kill(worker.pid, signal.SIGINT)  # ignored once it runs
+    conn.send(specs[0])
+    assert conn.recv()[0] == "sample"
+    conn.close()
+    worker.join(60)
+    assert worker.exitcode == 0
+    err = capfd.readouterr().err
+    assert "KeyboardInterrupt" not in err and "Traceback" not in err

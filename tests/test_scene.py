@@ -48,6 +48,28 @@ def test_scene_file_errors_name_the_file(tmp_path):
         load_scene(tmp_path / "none.toml")
 
 
+@pytest.mark.parametrize("text, message", [
+    ("[blur]\nsteps = " + "[" * 5000 + "]" * 5000, "not valid TOML: arrays or tables are nested "
+                                                    "too deeply (more than about"),
+    ("a = " + "{b = " * 3000 + "1" + "}" * 3000, "not valid TOML: arrays or tables are nested too"),
+    (b'[camera]\nname = "a7r3"\n# r\xe9glages\n', "not UTF-8 text (byte 0xE9 on line 3 cannot be "
+                                                   "decoded); save the file as UTF-8"),
+    ("[blur]\nsteps = 1" + "0" * 5000, "not valid TOML: Exceeds the limit (4300 digits)"),
+], ids=["deep-arrays", "deep-tables", "latin-1", "5000-digits"])
+def test_scene_files_that_do_not_parse_are_named_by_the_command(tmp_path, capsys, text, message):
+    from gpu_blur.cli import main
+
+    path = tmp_path / "s.toml"
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    with pytest.raises(SceneError) as e:
+        load_scene(path)
+    assert str(e.value).startswith(f"scene file {path}: {message}")
+    assert main(["plan", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"gpu-blur: error: scene file {path}: {message}")
+    assert len(err.splitlines()) == 1
+
+
 def test_plan_without_noise_skips_the_raw_round_trip_unless_asked():
     scene = scene_from_dict({"noise": {"model": "none"}})
     p = plan(scene)
