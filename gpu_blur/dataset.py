@@ -124,8 +124,7 @@ def default_photo() -> Path:
 
 
 def input_label(path: Path) -> str:
-    """How the manifest records an input: its path as found (:func:`shown`), the built-in photo
-    by name."""
+    """How the manifest records an input: its path (:func:`shown`), the built-in photo by name."""
     return BUILT_IN_INPUT if path == default_photo() else shown(str(path))
 
 

@@ -76,8 +76,8 @@ def take_lock(path: Path, what: str, fix: str, keep_earlier: bool = False) -> in
 
 
 def _read(fd: int) -> str:
-    """The whole lock file ``fd`` as text, each line ending with a newline."""
-    text = os.pread(fd, max(os.fstat(fd).st_size, 1), 0).decode(errors="replace")
+    """The lock file ``fd`` as text (its first 64 KiB), each line ending with a newline."""
+    text = os.pread(fd, 1 << 16, 0).decode(errors="replace")
     return "".join(line + "\n" for line in text.splitlines())
 
 
@@ -89,4 +89,5 @@ def earlier_pids(fd: int) -> set[int]:
 
 def forget_earlier(fd: int) -> None:
     """Keep only this holder's line (the earlier holders' temporary files are gone)."""
-    os.ftruncate(fd, len(_read(fd).splitlines(keepends=True)[0].encode()))
+    data = os.pread(fd, 1 << 16, 0)
+    os.ftruncate(fd, data.find(b"\n") + 1 if b"\n" in data else len(data))

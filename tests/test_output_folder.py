@@ -117,6 +117,23 @@ def test_only_temporary_files_of_a_run_the_lock_file_records_are_removed(tmp_pat
     assert stranger.read_bytes() == b"x"
 
 
+def test_the_lock_file_keeps_a_killed_runs_pid_until_its_temporaries_are_removed(tmp_path,
+                                                                                 photos):
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--limit", "1")) == 0
+    (out / dataset.LOCK).write_text("pid 4242 on elsewhere, started 2020-01-01\n")  # killed
+    left = out / "blur" / ".000001_a_1.png.4242.part.png"
+    left.write_bytes(b"x")
+    (out / "blur" / "notes.txt").write_text("mine")
+    assert main(args(photos, out, "--resume", "--limit", "2")) == 2  # refused: nothing done
+    assert left.exists()
+    (out / "blur" / "notes.txt").unlink()
+    assert main(args(photos, out, "--resume", "--limit", "2")) == 0  # the record was kept
+    assert not left.exists()
+    assert (out / dataset.LOCK).read_text().startswith(f"pid {os.getpid()} on ")
+    assert len((out / dataset.LOCK).read_text().splitlines()) == 1
+
+
 def test_a_new_set_in_a_users_folder_removes_none_of_their_files(tmp_path, photos):
     out = tmp_path / "mine"
     out.mkdir()
