@@ -174,7 +174,8 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
             runtime, else PoCL), ``"opencl:<platform>:<device>"``, ``"warp"`` (CUDA if
             present, else the CPU), ``"warp:cpu"`` or ``"warp:cuda:<n>"`` (see ``gpu-blur
             devices``), or a backend object from :func:`gpu_blur.backends.get_backend`.
-        overrides: drawn parameters to fix instead (e.g. ``{"alpha": 1.0, "pattern": "RGGB"}``).
+        overrides: drawn parameters to fix instead (e.g. ``{"alpha": 1.0, "pattern": "RGGB"}``),
+            each checked before any pass, whether or not its stage runs.
         tile: run the image in tiles of at most (rows, columns) pixels, each with its halo;
             the result does not depend on it. Wins over ``max_device_memory``. A
             :class:`~gpu_blur.scheduler.Schedule` gives tile, budget and ``verify`` at once
@@ -301,7 +302,8 @@ class Synthesizer:
             None (defaults).
         backend: as :func:`synthesize` takes it.
         seed: dataset seed (0 <= seed < 2**64).
-        overrides: drawn parameters to fix for every sample.
+        overrides: drawn parameters to fix for every sample (each checked here, whether or
+            not its stage runs).
         schedule: tiles, memory budget and spot checks (:class:`~gpu_blur.scheduler.Schedule`).
         channels_first: batches come and go as B x 3 x H x W (torch's layout).
         with_mask: also return the blurred saturation masks.
@@ -450,13 +452,14 @@ class Synthesizer:
             mask: mode none: the saturation masks, as ``batch`` (optional).
             sharp: mode none: the sharp images, as ``batch`` (optional: the blurred images).
             first_index: the first sample's index (0 <= index, index + B <= 2**32).
-            indices: each sample's index instead (B of them, any order: a shuffled
-                DataLoader's), for ``first_index``.
+            indices: each sample's index instead (B ints, any order: a shuffled
+                DataLoader's; a list, or a numpy or torch integer array), for ``first_index``.
             out: numpy batches: arrays to write the results into, (blurred, sharp) or
                 (blurred, sharp, mask) as ``with_mask`` asks, float32 (blurred and sharp in
                 the codes' dtype with ``codes``), each of the result's shape (B x H' x W' x 3,
-                or B x 3 x H' x W' with ``channels_first``). Reusing them spares allocating
-                (and page-faulting) fresh outputs for every batch.
+                or B x 3 x H' x W' with ``channels_first``), sharing no memory with each
+                other or an input. Reusing them spares allocating (and page-faulting) fresh
+                outputs for every batch.
             codes: blurred and sharp as the output's integer codes, uint8 (``output.bits``
                 8) or uint16 (16), ``to_integers`` of the float results; on a kernel backend
                 made on the device (a quarter or half of the float32 bytes to fetch), after
@@ -1235,7 +1238,7 @@ def _refuse_out_on_inputs(out, inputs: dict) -> None:
 
 def _whole(x) -> bool:
     """Whether ``x`` is an int (Python's or numpy's; a bool is not)."""
-    return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
+    return isinstance(x, (int, np.integer)) and not isinstance(x, bool)
 
 
 def _sample_indices(indices, first_index, count: int) -> list[int]:

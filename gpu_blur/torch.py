@@ -39,7 +39,7 @@ class RealisticBlur(torch.nn.Module):
             (``warp:cuda:<n>`` for CUDA tensors, ``warp:cpu`` otherwise).
         channels_first: tensors come and go as B x 3 x H x W (B x F x 3 x H x W for frames).
         with_mask: also return the blurred saturation masks.
-        overrides: drawn parameters to fix for every sample.
+        overrides: drawn parameters to fix for every sample (checked here).
 
     Example::
 
@@ -84,8 +84,8 @@ class RealisticBlur(torch.nn.Module):
                 float in [0, 1], RGB.
             mask: blur mode none: the saturation masks (optional).
             sharp: blur mode none: the sharp images (optional: the blurred ones).
-            indices: each sample's index in the data set (a tensor or a sequence); without
-                them samples are numbered in call order from 0.
+            indices: each sample's index in the data set (an integer tensor or a sequence of
+                ints); without them samples are numbered in call order from 0.
             epoch: the training epoch (>= 0).
         """
         check_dense(batch, "batch")  # before its device picks a backend
