@@ -49,9 +49,10 @@ def apply_matrix(image, matrix) -> np.ndarray:
 
 
 def checked_inverse(matrix, what: str = "matrix") -> np.ndarray:
-    """Invert a 3 x 3 matrix in float64 (adjugate over determinant, fixed order), refusing
-    singular or badly conditioned ones (the 2-norm condition number, from LAPACK's SVD, only
-    decides the refusal).
+    """Invert a 3 x 3 matrix in float64, refusing singular or badly conditioned ones.
+
+    The inverse is fixedmath's adjugate over determinant (fixed order); the 2-norm condition
+    number (LAPACK's SVD) only decides the refusal.
 
     Raises:
         ValueError: naming ``what`` and the condition number when it exceeds

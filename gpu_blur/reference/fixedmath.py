@@ -169,8 +169,10 @@ def _pow2(k: np.ndarray) -> np.ndarray:
 
 
 def _scale(m: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """``m * 2**k`` rounded once, for ``m`` in ``[0.5, 2)`` and integer ``k`` in
-    ``[-1080, 1030]``: two exact power-of-two products, the last one the only rounding."""
+    """``m * 2**k`` rounded once, for ``m`` in ``[0.5, 2)`` and integer ``k`` in ``[-1080, 1030]``.
+
+    Two power-of-two products; only the last one can round.
+    """
     k1 = np.clip(k, -1000, 1000)
     return (m * _pow2(k1)) * _pow2(k - k1)
 
@@ -181,9 +183,11 @@ CHUNK = 1 << 13
 
 
 def _chunked(fn, *arrays):
-    """``fn`` over broadcast float64 arrays, ``CHUNK`` elements at a time (elementwise
-    functions only: each result element depends on its own inputs alone); a tuple of
-    outputs of the broadcast shape."""
+    """``fn`` over broadcast float64 arrays, ``CHUNK`` elements at a time.
+
+    For elementwise functions only (each result element depends on its own inputs alone);
+    returns a tuple of outputs of the broadcast shape.
+    """
     arrays = np.broadcast_arrays(*arrays)
     shape = arrays[0].shape
     flat = [np.ascontiguousarray(a).reshape(-1) for a in arrays]
@@ -207,8 +211,7 @@ def _result(out: np.ndarray, scalar: bool):
 
 
 def _exp_dd(zh: np.ndarray, zl: np.ndarray) -> np.ndarray:
-    """``exp(zh + zl)`` for finite ``zh`` in ``[EXP_UNDERFLOW, EXP_OVERFLOW]``, ``|zl|``
-    below ``ulp(zh)``.
+    """``exp(zh + zl)`` for ``zh`` in ``[EXP_UNDERFLOW, EXP_OVERFLOW]``, ``|zl| < ulp(zh)``.
 
     ``k = rint(zh / ln2)``; ``r = (zh - k LN2_HI) + (zl - k LN2_LO)`` (the first difference is
     exact: Sterbenz), kept as ``rh + rl``; ``exp(r) = 1 + rh + (s + rl (1 + rh))`` with
@@ -250,8 +253,10 @@ def _exp(x):
 
 
 def _log_dd(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``log x`` as a double-double ``(hi, lo)`` for finite ``x > 0`` (about 2**-100
-    absolute plus 2**-62 of ``log m`` in ``|log m| <= 0.35``)."""
+    """``log x`` as a double-double ``(hi, lo)`` for finite ``x > 0``.
+
+    Error about 2**-100 absolute plus 2**-62 of ``log m`` (``|log m| <= 0.35``).
+    """
     sub = x < 2.0**-1022
     xs = x * np.where(sub, _TWO54, 1.0)  # subnormals become normal, exactly
     bits = xs.view(np.int64)
@@ -303,8 +308,9 @@ def _log(x):
 
 
 def power(x, y):
-    """``x**y`` for ``x >= 0`` as ``exp(y log x)``, with ``log x`` and the product carried in
-    double-double, float64, elementwise (broadcast).
+    """``x**y`` for ``x >= 0`` as ``exp(y log x)``, float64, elementwise (broadcast).
+
+    ``log x`` and the product are carried in double-double.
 
     Args:
         x: float array (or scalar), the base; values below 0 give NaN.
@@ -359,8 +365,10 @@ def _sin_poly(rh, rl):
 
 
 def _cos_poly(rh, rl):
-    """cos(rh + rl), ``|rh| <= pi/4``: ``1 - w/2 + w^2 Q(w)`` with ``w = rh^2 + 2 rh rl`` as
-    a double-double and ``1 - w/2`` error-free."""
+    """cos(rh + rl), ``|rh| <= pi/4``: ``1 - w/2 + w^2 Q(w)``.
+
+    ``w = rh^2 + 2 rh rl`` is a double-double and ``1 - w/2`` error-free.
+    """
     wh, wl = _two_prod(rh, rh)
     wl = wl + 2.0 * rh * rl
     half = 0.5 * wh
@@ -422,8 +430,10 @@ def cos(x):
 
 
 def hypot(x, y):
-    """``sqrt(x*x + y*y)``, elementwise, in that order (no scaling: for ``|x|, |y|`` between
-    ``2**-511`` and ``2**511``; within 1.5 ulp)."""
+    """``sqrt(x*x + y*y)``, elementwise, in that order.
+
+    No scaling: for ``|x|, |y|`` between ``2**-511`` and ``2**511``; within 1.5 ulp.
+    """
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     return np.sqrt(x * x + y * y)
@@ -433,8 +443,10 @@ def hypot(x, y):
 
 
 def matmul3(a, b) -> np.ndarray:
-    """``a @ b`` for ``(..., 3, 3)`` stacks (broadcast), each entry
-    ``(a[i,0] b[0,j] + a[i,1] b[1,j]) + a[i,2] b[2,j]``."""
+    """``a @ b`` for ``(..., 3, 3)`` stacks (broadcast), in a fixed order.
+
+    Each entry is ``(a[i,0] b[0,j] + a[i,1] b[1,j]) + a[i,2] b[2,j]``.
+    """
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     shape = np.broadcast_shapes(a.shape, b.shape)
@@ -447,9 +459,11 @@ def matmul3(a, b) -> np.ndarray:
 
 
 def matvec3(m, v) -> np.ndarray:
-    """``m @ v`` per vector: ``m`` ``(..., 3, 3)``, ``v`` ``(..., 3)`` (broadcast), each
-    component ``(m[i,0] v0 + m[i,1] v1) + m[i,2] v2``; e.g. a colour matrix on an image's
-    pixels (``m`` 3 x 3, ``v`` H x W x 3)."""
+    """``m @ v`` per vector: ``m`` ``(..., 3, 3)``, ``v`` ``(..., 3)`` (broadcast).
+
+    Each component is ``(m[i,0] v0 + m[i,1] v1) + m[i,2] v2``; e.g. a colour matrix on an
+    image's pixels (``m`` 3 x 3, ``v`` H x W x 3).
+    """
     m = np.asarray(m, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
     v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
@@ -467,10 +481,13 @@ def det3(m) -> np.ndarray:
 
 
 def inverse3(m) -> np.ndarray:
-    """Inverse of ``(..., 3, 3)`` matrices: the adjugate divided by the determinant (first-row
-    expansion), each cofactor ``a d - b c`` in a fixed order. For the well-conditioned colour
-    matrices and homographies it serves (condition numbers well under 1e6) as accurate as
-    LU; a singular matrix gives inf or NaN entries (callers check the determinant)."""
+    """Inverse of ``(..., 3, 3)`` matrices: the adjugate over the determinant, fixed order.
+
+    The determinant is the first row's expansion, each cofactor ``a d - b c``. For the
+    well-conditioned colour matrices and homographies it serves (condition numbers well under
+    1e6) as accurate as LU; a singular matrix gives inf or NaN entries (callers check the
+    determinant).
+    """
     m = np.asarray(m, dtype=np.float64)
     adj = np.empty(m.shape)
     for i in range(3):

@@ -115,9 +115,10 @@ def convolve_kernel(image, kernel) -> np.ndarray:
     :func:`saturation_indicator` of the sharp image.
 
     Computed as a product of real FFTs (``numpy.fft.rfft2``; the product in real operations) of
-    the mirror-padded image and the kernel, padded to 5-smooth lengths of at least ``H + 2 r_y`` by ``W + 2 r_x``, which avoids
-    wrap-around. The absolute error is a few ``1e-16`` times ``max |image|`` (well inside
-    ``1e-12`` relative for kernels up to 65 x 65 on 2-megapixel images).
+    the mirror-padded image and the kernel, padded to 5-smooth lengths of at least
+    ``H + 2 r_y`` by ``W + 2 r_x``, which avoids wrap-around. The absolute error is a few
+    ``1e-16`` times ``max |image|`` (well inside ``1e-12`` relative for kernels up to 65 x 65
+    on 2-megapixel images).
 
     Args:
         image: ``H x W``, or ``H x W x C`` (any ``C``), finite values.

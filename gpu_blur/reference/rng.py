@@ -440,8 +440,8 @@ def box_muller(u1, u2) -> tuple[np.ndarray, np.ndarray]:
     ``r = sqrt(-2 * log(u1))``, ``t = (2 * pi) * u2``; returns ``(r * cos(t), r * sin(t))``
     (Box and Muller, "A note on the generation of random normal deviates", Ann. Math. Statist.
     29, 1958), ``log``, ``sin`` and ``cos`` from :mod:`~gpu_blur.reference.fixedmath` (one
-    reduction for both). With ``u1 >= 2**-24`` (:func:`uniform_from_bits`) ``|z| <= 5.77``: the tails
-    beyond are cut, a probability of about 8e-9.
+    reduction for both). With ``u1 >= 2**-24`` (:func:`uniform_from_bits`) ``|z| <= 5.77``:
+    the tails beyond are cut, a probability of about 8e-9.
 
     Args:
         u1: uniforms in (0, 1], any shape.

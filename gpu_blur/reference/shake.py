@@ -48,8 +48,10 @@ def _intrinsics(height: int, width: int) -> tuple[float, float, float]:
 
 
 def _rotations(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
-    """``R = R_z(roll) R_x(pitch) R_y(yaw)`` for arrays of angles (radians), ``(n, 3, 3)``
-    (fixedmath's sines and fixed-order products: the same bits on every CPU)."""
+    """``R = R_z(roll) R_x(pitch) R_y(yaw)`` for arrays of angles (radians), ``(n, 3, 3)``.
+
+    fixedmath's sines and fixed-order products: the same bits on every CPU.
+    """
     sy_, cy_ = fixedmath.sincos(yaw)
     sp, cp = fixedmath.sincos(pitch)
     sr, cr = fixedmath.sincos(roll)
