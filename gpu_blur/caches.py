@@ -85,7 +85,8 @@ def check(path: Path, what: str, fix: str = FIX) -> Path:
         problem = f"is writable by others (mode {stat.S_IMODE(st.st_mode):o})"
     if problem:
         raise CacheError(f"refusing {what} {path}: it {problem}, so another user could put "
-                         f"compiled code there that gpu_blur would run; {fix}")
+                         f"compiled code there that gpu_blur would run; remove it (gpu_blur "
+                         f"then makes it again, private), or {fix}")
     return path
 
 

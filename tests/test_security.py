@@ -122,8 +122,13 @@ def test_warp_refuses_a_kernel_cache_others_can_write(tmp_path):
     assert f"refusing WARP_CACHE_PATH {shared}: it is writable by others" in done.stderr
 
 
-def test_device_workers_do_not_import_a_package_planted_in_the_current_folder(tmp_path):
-    """A ``multiprocessing`` package in the run's folder is not what workers import."""
+@pytest.mark.parametrize("flags", [[], ["-E"]], ids=["safe-path", "start-elsewhere"])
+def test_device_workers_do_not_import_a_package_planted_in_the_current_folder(tmp_path, flags):
+    """A ``multiprocessing`` package in the run's folder is not what workers import.
+
+    ``-E`` (which the workers repeat, so ``PYTHONSAFEPATH`` cannot reach them) takes the way
+    Python 3.10 takes: the workers start in the cache folder and go back to the driver's.
+    """
     work, marker = tmp_path / "work", tmp_path / "imported"
     (work / "multiprocessing").mkdir(parents=True)
     (work / "multiprocessing" / "__init__.py").write_text(
@@ -144,8 +149,8 @@ def test_device_workers_do_not_import_a_package_planted_in_the_current_folder(tm
             made = list(run_devices(job, specs, ["numpy"]))
             print(json.dumps({"made": len(made), "errors": [str(e) for _, _, e in made if e]}))
     """))
-    done = subprocess.run([PYTHON, str(driver)], cwd=work, capture_output=True, text=True,
-                          env=_bare_env(HOME=str(tmp_path)), timeout=120)
+    done = subprocess.run([PYTHON, *flags, str(driver)], cwd=work, capture_output=True,
+                          text=True, env=_bare_env(HOME=str(tmp_path)), timeout=120)
     assert not marker.exists(), done.stderr
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout.strip().splitlines()[-1]) == {"made": 1, "errors": []}
