@@ -751,8 +751,9 @@ class DatasetWriter:
       ``raw/``) hold only
       sample files named as :meth:`write` names them (``NNNNNN_<name>.png``); anything else
       there is refused, named, before any change, and is never removed. Opening a folder
-      removes the sample files no kept manifest line lists and the temporary files a killed
-      run left (only those named with the pid of a run its lock file records, :meth:`_ours`).
+      removes the sample files no kept manifest line lists (on resume, only those of samples
+      it makes again: :meth:`_check_unlisted`) and the temporary files a killed run left
+      (only those named with the pid of a run its lock file records, :meth:`_ours`).
 
     Three ways to open a folder: a new set (refused if the folder holds a manifest, run.json
     or sample files), ``overwrite`` (remove the old set's sample files, then its manifest and
@@ -765,10 +766,10 @@ class DatasetWriter:
     the other lines: failed samples (to be tried again), a line torn by a kill, and any line
     it cannot verify (an index that is not an int in ``[0, total)``, files not named as this
     writer names them, missing, or not of the sizes the line records). A missing, unreadable
-    or damaged manifest (empty, NUL bytes, a line that is not JSON but a last one cut before
-    its newline), and a finished sample it cannot keep (an index the input no longer gives),
-    are refused while sample files are there, changing nothing: resuming would remove
-    finished samples.
+    or damaged manifest (NUL bytes, a line that is not JSON but a last one cut before its
+    newline), and sample files no kept line lists that this run would not make again (an
+    emptied manifest, an input that changed), are refused while sample files are there,
+    changing nothing: resuming would remove finished samples.
 
     Args:
         out: the set's folder (created if needed).
@@ -833,14 +834,16 @@ class DatasetWriter:
             self._check_run(run or {})
             kept = self._read_manifest(total, files)
             self._check_inputs(specs or [])
+        listed = {out / line[k] for line in self.done.values() for k in PATHS if k in line}
+        if kept is not None:
+            self._check_unlisted([p for p in files if p not in listed], specs or [])
         # nothing is changed above this line
         self._make_folders()
         if kept is not None:
             write_text(self.manifest_path, "".join(kept))
-        listed = {out / line[k] for line in self.done.values() for k in PATHS if k in line}
         for path in files:
             if path not in listed:
-                path.unlink()  # of the set replaced, or of a sample not finished
+                path.unlink()  # of the set replaced, or of a sample this run makes again
         if kept is None:  # a new set: its files are gone, now the state that listed them
             self.manifest_path.unlink(missing_ok=True)
             (out / RUN).unlink(missing_ok=True)
@@ -856,6 +859,30 @@ class DatasetWriter:
         self._waiting: dict[int, str] = {}
         self._last = max(self.done, default=-1)  # the highest index listed so far
         self._sorted = True  # whether the manifest's lines are in index order
+
+    def _check_unlisted(self, unlisted: list[Path], specs: list[SampleSpec]) -> None:
+        """Refuse to resume over sample files no kept line lists that this run does not remake.
+
+        Such a file is one of a sample a stopped run was writing, which this run makes again
+        (and so removes first), or a finished sample whose line is gone (an emptied manifest)
+        or that another input or ``--limit`` gave: that is not removed.
+        """
+        again = {self.out / path for spec in specs if spec.index not in self.done
+                 and not spec.problem and _text(spec.name)
+                 for path in self._paths(spec.index, spec.name).values()}
+        strays = [str(p.relative_to(self.out)) for p in unlisted if p not in again]
+        if not strays:
+            return
+        empty = "is empty (0 bytes, as a power loss may leave it) and " if (
+            self.manifest_path.is_file() and self.manifest_path.stat().st_size == 0) else ""
+        more = f" and {len(strays) - 3} more" if len(strays) > 3 else ""
+        raise ValueError(
+            f"--resume: {self.manifest_path} {empty}lists none of {len(strays)} sample file(s) "
+            f"in {self.out} that this run would not make again ({', '.join(strays[:3])}{more}): "
+            "finished samples, if the input folder, --limit or the manifest changed since, and "
+            "resuming would remove them; nothing was changed: resume with the input and "
+            "--limit that made them, restore the manifest, start the set again with "
+            "--overwrite (which removes them), or use another --output")
 
     def _sample_files(self) -> list[Path]:
         """The sample files in the set's folders (:data:`SUBFOLDERS`, named as :meth:`write` does).
@@ -977,10 +1004,9 @@ class DatasetWriter:
 
         Raises:
             ValueError: with sample files there (``files``), a manifest that is missing,
-                unreadable or damaged (empty, NUL bytes, a line that is not a JSON object
-                other than a last line a kill cut short, before its newline), or a finished
-                sample this run could not keep (an index beyond ``total``, a second line for
-                an index with other files): resuming would remove finished samples.
+                unreadable or damaged (NUL bytes, a line that is not a JSON object other than
+                a last line a kill cut short, before its newline): resuming would remove
+                finished samples.
         """
         path = self.manifest_path
         fix = ("restore it, or start the set again with --overwrite (which removes its "
@@ -995,12 +1021,7 @@ class DatasetWriter:
         except OSError as e:
             raise ValueError(f"--resume: cannot read {path} ({e.strerror or e}); "
                              f"{fix}") from None
-        if files and not texts:
-            raise ValueError(f"--resume: {path} is empty (0 bytes, as a power loss may leave "
-                             f"it) while {len(files)} sample file(s) are in {self.out}, so "
-                             "which are finished is unknown and resuming would remove them; "
-                             f"nothing was changed: {fix}")
-        kept, first = {}, {}  # by index: line, (line number, files)
+        kept = {}  # by index
         for number, text in enumerate(texts, 1):
             line = _json_object(text)
             cut = number == len(texts) and not text.endswith(b"\n")  # a kill cuts only this
@@ -1018,46 +1039,26 @@ class DatasetWriter:
                     and all(isinstance(p, str) for p in line["inputs"])):
                 self.torn += 1
                 continue
-            index, paths = line["index"], self._finished(line)
-            beyond = index >= (total if total is not None else math.inf)
-            if paths and (beyond or first.get(index, (0, paths))[1] != paths):
-                why = (f"the input now gives {total} samples" if beyond else
-                       f"line {first[index][0]} records that index with other files")
-                raise ValueError(
-                    f"--resume: {path}, line {number}, records finished sample {index} "
-                    f"({line['name']!r}) that this run cannot keep ({why}): the input folder "
-                    "or the manifest changed since the set was made, and resuming would "
-                    "remove its files; nothing was changed: restore them, or start a new set "
-                    "with --overwrite or another --output")
-            if beyond:
+            index = line["index"]
+            if index >= (total if total is not None else math.inf):
                 self.torn += 1
                 continue
             if line.get("status") != "ok":
                 self.retry += 1
                 continue
-            if paths is None or index in self.done:
+            if index in self.done or not self._finished(line):
                 continue  # a repeat, files named otherwise, gone or cut: made again
-            first[index] = (number, paths)
             self.done[index] = line
             kept[index] = text.decode() if text.endswith(b"\n") else text.decode() + "\n"
         return [kept[i] for i in sorted(kept)]
 
-    def _finished(self, line: dict) -> list[str] | None:
-        """The files of a finished sample's line, else None.
-
-        Finished: status "ok", its files the names :meth:`write` gives its index and name,
-        regular files of the sizes the line records.
-        """
-        if line.get("status") != "ok":
-            return None
+    def _finished(self, line: dict) -> bool:
+        """Whether an "ok" line's files are those :meth:`write` names, of the sizes it records."""
         paths = self._paths(line["index"], line["name"])
         keys = [k for k in PATHS if k in line]
         sizes = line.get("bytes") if isinstance(line.get("bytes"), dict) else {}
-        if keys[:2] != ["blurred", "sharp"] or any(
-                line[k] != paths[k] or not _whole(self.out / paths[k], sizes.get(k))
-                for k in keys):
-            return None
-        return [paths[k] for k in keys]
+        return keys[:2] == ["blurred", "sharp"] and all(
+            line[k] == paths[k] and _whole(self.out / paths[k], sizes.get(k)) for k in keys)
 
     def _paths(self, index: int, name: str) -> dict[str, str]:
         """The files of sample ``index`` named ``name``, relative to the set's folder.

@@ -156,14 +156,21 @@ def test_overwrite_replaces_the_whole_older_set(tmp_path, photos):
     assert (out / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
 
 
-def test_resume_removes_sample_files_no_manifest_line_lists(tmp_path, photos):
+def test_resume_replaces_sample_files_no_manifest_line_lists_and_keeps_others(tmp_path, photos,
+                                                                               capsys):
+    # files no line lists are those of samples a stopped run was writing, made again, or
+    # finished samples whose lines are gone: those this run would not make are kept (issue 35)
     out = tmp_path / "out"
     assert main(args(photos, out)) == 0
     lines = (out / "manifest.jsonl").read_text().splitlines(keepends=True)
-    (out / "manifest.jsonl").write_text("".join(lines[:2]))  # as if killed after sample 1
-    assert main(args(photos, out, "--resume", "--limit", "2")) == 0
+    (out / "manifest.jsonl").write_text("".join(lines[:2]))  # as if lines 2 to 3 were lost
+    before = files(out)
+    assert main(args(photos, out, "--resume", "--limit", "2")) == 2
+    assert "lists none of 6 sample file(s) in" in capsys.readouterr().err
+    assert files(out) == before
+    assert main(args(photos, out, "--resume")) == 0  # all made: the files are replaced
     reference = tmp_path / "reference"
-    assert main(args(photos, reference, "--limit", "2")) == 0
+    assert main(args(photos, reference)) == 0
     assert files(out) == files(reference)
 
 

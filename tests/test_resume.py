@@ -370,8 +370,8 @@ def test_resume_refuses_to_drop_finished_samples_the_input_no_longer_gives(tmp_p
     before, text = files(out), (out / "manifest.jsonl").read_text()
     capsys.readouterr()
     assert main(backend_args(photos, out, "--resume")) == 2
-    assert "line 5, records finished sample 4 ('b_0') that this run cannot keep (the input " \
-           "now gives 4 samples)" in capsys.readouterr().err
+    assert f"manifest.jsonl lists none of 12 sample file(s) in {out} that this run would not " \
+           "make again (blur/000004_b_0.png, " in capsys.readouterr().err
     assert files(out) == before and (out / "manifest.jsonl").read_text() == text
 
 
@@ -386,4 +386,17 @@ def test_a_resume_that_remakes_earlier_samples_leaves_the_manifest_in_sample_ord
     assert main(backend_args(photos, out, "--resume")) == 0
     reference = tmp_path / "reference"
     assert main(backend_args(photos, reference)) == 0
+    assert (out / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
+
+
+def test_an_emptied_manifest_over_the_same_input_makes_every_sample_again(tmp_path, photos):
+    # a manifest emptied before its first line (a run stopped early) or by a power loss: every
+    # file there is one this run makes again, so it is replaced, never just removed
+    out = tmp_path / "out"
+    assert main(backend_args(photos, out)) == 0
+    (out / "manifest.jsonl").write_bytes(b"")
+    assert main(backend_args(photos, out, "--resume")) == 0
+    reference = tmp_path / "reference"
+    assert main(backend_args(photos, reference)) == 0
+    assert files(out) == files(reference)
     assert (out / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
