@@ -14,7 +14,11 @@ recorded. The record holds the CPU devices of the development machine (recorded 
 Debian's PoCL 3.1 at 430b3ee) and an NVIDIA H100 (OpenCL and Warp CUDA, recorded at 430b3ee,
 whose outputs on those CPU devices are 40370a5's), all before the kernel backends were
 written once (issue 14); and the CPU devices of an Intel Xeon (Skylake) development machine,
-PoCL and Intel's runtime, recorded by a9a79b6's code (before to_raw and finish ran batched).
+PoCL and Intel's runtime, recorded by a9a79b6's code (before to_raw and finish ran batched). When the
+draws and the reference moved to :mod:`gpu_blur.reference.fixedmath` (issue 35: the same bits
+on every CPU), the cases whose draws changed (minimal, default, kernel_lut16, gaussian_noise,
+isp_variants, fast_math, default@40x56) were re-recorded for numpy and Warp's CPU device only;
+the other devices' entries for them still hold the old draws until re-recorded there.
 """
 
 from __future__ import annotations
