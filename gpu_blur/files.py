@@ -42,9 +42,10 @@ def open_regular(path: str | Path, what: str) -> BinaryIO:
     Raises:
         ValueError: ``what``, then why it cannot be read and the fix.
     """
-    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+    nonblock = getattr(os, "O_NONBLOCK", 0)  # POSIX; Windows has no FIFOs to open
     try:
-        fd = os.open(path, flags)
+        fd = os.open(path, os.O_RDONLY | nonblock | getattr(os, "O_CLOEXEC", 0)
+                     | getattr(os, "O_BINARY", 0))
     except OSError as e:
         raise ValueError(f"{what}: cannot read it ({e.strerror}); check the path and its "
                          "permissions") from None
@@ -53,7 +54,8 @@ def open_regular(path: str | Path, what: str) -> BinaryIO:
         os.close(fd)
         kind = next((name for test, name in _KINDS if test(mode)), "no regular file")
         raise ValueError(f"{what}: is {kind}, not a regular file; give the path of a file")
-    os.set_blocking(fd, True)
+    if nonblock:
+        os.set_blocking(fd, True)
     return os.fdopen(fd, "rb")
 
 
