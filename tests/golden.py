@@ -2,23 +2,25 @@
 
 Each case is a scene (the example scenes, and variants that switch on every stage variant the
 kernels compile) run on small inputs through :func:`gpu_blur.synthesize`; its digest is the
-SHA-256 of the blurred image, the sharp reference, the mask and the drawn parameters. Digests
-are recorded per device as the backend names it (``Synthesis.device``; float32 kernels of two
-devices may differ in a last bit), in ``tests/data/golden_outputs.json``:
+SHA-256 of the blurred image, the sharp reference, the mask and the drawn parameters. A digest
+is recorded under what its bits depend on (:func:`record_key`), in
+``tests/data/golden_outputs.json``:
+
+- numpy: nothing else. Its arithmetic is IEEE operations in a fixed order
+  (:mod:`gpu_blur.reference.fixedmath`), the same bits on every CPU.
+- a kernel device: its model, its runtime's version and (CPU runtimes) the instruction set the
+  runtime compiles for; a compiler may contract ``a * b + c`` or call another ``pow``, so a
+  digest recorded for one runtime is never asserted against another.
+- interpolated cases, on every backend, also OpenCV's version and the SIMD paths it dispatches
+  to: its optical flows (DIS) give other last bits on another instruction set.
 
     python tests/golden.py --write tests/data/golden_outputs.json   # record (this machine)
     python tests/golden.py --check tests/data/golden_outputs.json   # compare, list changes
 
-``tests/test_golden_outputs.py`` runs the check for every backend present whose device was
-recorded. The record holds the CPU devices of the development machine (recorded at 40370a5;
-Debian's PoCL 3.1 at 430b3ee) and an NVIDIA H100 (OpenCL and Warp CUDA, recorded at 430b3ee,
-whose outputs on those CPU devices are 40370a5's), all before the kernel backends were
-written once (issue 14); and the CPU devices of an Intel Xeon (Skylake) development machine,
-PoCL and Intel's runtime, recorded by a9a79b6's code (before to_raw and finish ran batched). When the
-draws and the reference moved to :mod:`gpu_blur.reference.fixedmath` (issue 35: the same bits
-on every CPU), the cases whose draws changed (minimal, default, kernel_lut16, gaussian_noise,
-isp_variants, fast_math, default@40x56) were re-recorded for numpy and Warp's CPU device only;
-the other devices' entries for them still hold the old draws until re-recorded there.
+``tests/test_golden_outputs.py`` runs the check for every backend present whose key was
+recorded. The record holds this project's development machine (an Intel Xeon with AVX-512:
+numpy, PoCL 3.1, Intel's CPU runtime, Warp's CPU device) and its GPU machine, recorded when the
+draws moved to fixedmath (issue 35).
 """
 
 from __future__ import annotations
@@ -88,16 +90,67 @@ def scene_for(case: str, precision: str):
 
 
 def device_key(device: str) -> str:
-    """A device as ``Backend.model`` names it, without its number on the host (an OpenCL
-    platform number shifts when another runtime is installed: Debian's PoCL put itself before
-    Intel's runtime). Records made before ``Synthesis.device`` named the model hold
-    ``opencl:0:0 ...`` and ``warp:cuda:0 ...``: both map to the model."""
+    """A device as ``Synthesis.device`` names it, without its number on the host (an OpenCL
+    platform number shifts when another runtime is installed)."""
     return re.sub(r"^(opencl|warp):\S+ ", r"\1 ", device)
 
 
-def by_device(record: dict) -> dict:
-    """A record's entries keyed by :func:`device_key`."""
-    return {device_key(device): cases for device, cases in record.items()}
+def host_isa() -> str:
+    """The widest x86-64 vector extension this CPU has (what CPU compilers target), or the
+    machine's name elsewhere."""
+    import platform
+
+    try:
+        flags = set(open("/proc/cpuinfo").read().split())
+    except OSError:
+        flags = set()
+    for flag, name in (("avx512f", "AVX-512"), ("avx2", "AVX2")):
+        if flag in flags:
+            return f"x86-64 {name}"
+    return platform.machine()
+
+
+def runtime_key(spec: str) -> str:
+    """What a kernel backend's bits depend on beyond its model: runtime version, target."""
+    import os
+
+    backend = spec.partition("/")[0]
+    if backend.startswith("opencl"):
+        from gpu_blur.backends.opencl import cl  # after gpu_blur registers its runtimes
+
+        p, d = (int(i) for i in backend.split(":")[1:3])
+        platform = cl.get_platforms()[p]
+        device = platform.get_devices()[d]
+        key = f"{platform.version.strip()}; driver {device.driver_version.strip()}"
+        if "Intel" in platform.name and device.type & cl.device_type.CPU:  # can be told a
+            key += f"; {os.environ.get('CL_CONFIG_CPU_TARGET_ARCH') or host_isa()}"  # target
+        elif device.type & cl.device_type.CPU:  # PoCL names its target in the device's name
+            key += f"; {host_isa()}"
+        return key
+    if backend.startswith("warp"):
+        import warp as wp
+
+        if "cuda" in backend:
+            return f"warp {wp.__version__}; CUDA driver {wp.get_cuda_driver_version()}"
+        return f"warp {wp.__version__}; {host_isa()}"
+    return ""
+
+
+def flows_key() -> str:
+    """OpenCV's version and the SIMD paths it dispatches to (``OPENCV_CPU_DISABLE`` honoured)."""
+    import cv2
+
+    paths = [f.lstrip("*") for f in cv2.getCPUFeaturesLine().split()
+             if f.startswith("*") and not f.endswith("?")]
+    return f"OpenCV {cv2.__version__} {'+'.join(paths) or 'baseline'}"
+
+
+def record_key(spec: str, device: str, case: str) -> str:
+    """The record's key for ``case`` run on ``spec`` (whose ``Synthesis.device`` is ``device``)."""
+    parts = [device_key(device), runtime_key(spec)]
+    if CASES[case.partition("@")[0]][1].get("blur", {}).get("interpolation"):
+        parts.append(flows_key())
+    return " | ".join(p for p in parts if p)
 
 
 def digest(result) -> str:
@@ -112,7 +165,8 @@ def digest(result) -> str:
 
 
 def run_case(case: str, spec: str, tile=None):
-    """(digest, device) of one case on one backend spec, or None where the case does not exist."""
+    """(digest, record key) of one case on one backend spec, or None where the case does not
+    exist."""
     from gpu_blur import synthesize
 
     backend, _, precision = spec.partition("/")
@@ -121,18 +175,19 @@ def run_case(case: str, spec: str, tile=None):
         return None
     r = synthesize(_inputs(CASES[case][2]), scene, seed=7, sample_index=3, backend=backend,
                    tile=tile)
-    return digest(r), r.device
+    return digest(r), record_key(spec, r.device, case)
 
 
-def run_cases(spec: str) -> tuple[str, dict[str, str]]:
-    """(device, ``{case[@tile]: digest}``) for one backend spec (e.g. ``numpy``)."""
-    out, device = {}, ""
+def run_cases(spec: str) -> dict[str, dict[str, str]]:
+    """``{record key: {case[@tile]: digest}}`` for one backend spec (e.g. ``numpy``)."""
+    out: dict[str, dict[str, str]] = {}
     runs = [(c, None) for c in CASES] + list(TILED.items())
     for case, tile in runs:
         got = run_case(case, spec, tile)
         if got is not None:
-            out[case if tile is None else f"{case}@{tile[0]}x{tile[1]}"], device = got
-    return device, out
+            out.setdefault(got[1], {})[case if tile is None else f"{case}@{tile[0]}x{tile[1]}"] \
+                = got[0]
+    return out
 
 
 def main(argv=None) -> int:
@@ -142,27 +197,28 @@ def main(argv=None) -> int:
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--write", type=Path, help="record this machine's digests into this file "
-                   "(other devices' records in it are kept)")
+                   "(entries under other keys are kept)")
     p.add_argument("--check", type=Path, help="compare with this record")
     args = p.parse_args(argv)
-    found = dict(run_cases(spec) for spec in BACKEND_SPECS)
+    found: dict[str, dict[str, str]] = {}
+    for spec in BACKEND_SPECS:
+        for key, cases in run_cases(spec).items():
+            found.setdefault(key, {}).update(cases)
     if args.write:
         record = json.loads(args.write.read_text()) if args.write.is_file() else {}
-        rerun = {device_key(device) for device in found}  # under its platform number now
-        record = {device: cases for device, cases in record.items()
-                  if device_key(device) not in rerun}
-        record.update(found)
+        for key, cases in found.items():
+            record.setdefault(key, {}).update(cases)
         args.write.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
         print(f"wrote {args.write}: {', '.join(found)}")
     if args.check:
-        recorded = by_device(json.loads(args.check.read_text()))
-        changed = [f"{device}: {case}" for device, got in found.items()
-                   for case, value in recorded.get(device_key(device), {}).items()
-                   if got.get(case) != value]
-        unrecorded = [device for device in found if device_key(device) not in recorded]
+        recorded = json.loads(args.check.read_text())
+        changed = [f"{key}: {case}" for key, got in found.items()
+                   for case, value in got.items()
+                   if case in recorded.get(key, {}) and recorded[key][case] != value]
+        unrecorded = [key for key in found if key not in recorded]
         print("\n".join(changed) or "every recorded digest is unchanged")
         if unrecorded:
-            print(f"not recorded, not compared: {', '.join(unrecorded)}")
+            print("not recorded, not compared: " + "; ".join(unrecorded))
         return 1 if changed else 0
     return 0
 
