@@ -44,7 +44,7 @@ from gpu_blur.kernel_constants import (
     SATURATION_LEVEL,
 )
 from gpu_blur.plan import Pass, Plan, StageName
-from gpu_blur.reference import blur
+from gpu_blur.reference import blur, fixedmath
 from gpu_blur.reference.interpolate import (
     CONSISTENCY_ABSOLUTE_PX2,
     CONSISTENCY_RELATIVE,
@@ -1038,8 +1038,8 @@ class KernelBackend:
         sums = ([self._zeros(3 * pixels) for _ in range(4)]
                 + [self._zeros(pixels) for _ in range(2)])
         hom = params["homographies"]
-        inverses = [self._rows(np.ravel(np.linalg.inv(h)).astype(self.position_dtype))
-                    for h in hom]
+        inverses = [self._rows(np.ravel(h).astype(self.position_dtype))  # as the reference:
+                    for h in fixedmath.inverse3(hom)]  # the same bits on every host CPU
         with self._timed():
             for hinv in inverses:  # one pose at a time
                 self._launch(k, "blur_trajectory_add", grid, src, indicator,
