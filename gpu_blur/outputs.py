@@ -113,10 +113,11 @@ def write_dng(path, raw: np.ndarray, info: dict) -> None:
 
     from gpu_blur.constants import XYZ_TO_SRGB
     from gpu_blur.imageio import write_whole
+    from gpu_blur.reference.fixedmath import inverse3, matmul3
 
     gains = np.asarray(info["wb_gains"], np.float64)
-    lin2cam = np.linalg.inv(np.asarray(info["camera_to_linear"], np.float64))
-    xyz_to_camera = np.diag(1.0 / gains) @ lin2cam @ XYZ_TO_SRGB
+    lin2cam = inverse3(np.asarray(info["camera_to_linear"], np.float64))  # fixed order: the
+    xyz_to_camera = matmul3(matmul3(np.diag(1.0 / gains), lin2cam), XYZ_TO_SRGB)  # same bits
     neutral = 1.0 / gains
     tags = [
         (50706, "B", 4, (1, 4, 0, 0), True),  # DNGVersion
