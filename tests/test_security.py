@@ -137,7 +137,9 @@ def test_device_workers_do_not_import_a_package_planted_in_the_current_folder(tm
     driver = tmp_path / "driver.py"  # a script elsewhere, as the gpu-blur entry point is
     driver.write_text(textwrap.dedent("""
         import json
+        import sys
         from pathlib import Path
+        sys.path.insert(0, ROOT)  # gpu_blur from this tree: -E drops PYTHONPATH
         from gpu_blur.dataset import discover
         from gpu_blur.distributed import run_devices
         from gpu_blur.generate import Job
@@ -148,7 +150,7 @@ def test_device_workers_do_not_import_a_package_planted_in_the_current_folder(tm
             specs = discover(Path("."), "trajectory", 1, 1)
             made = list(run_devices(job, specs, ["numpy"]))
             print(json.dumps({"made": len(made), "errors": [str(e) for _, _, e in made if e]}))
-    """))
+    """).replace("ROOT", repr(str(Path(__file__).resolve().parents[1]))))
     done = subprocess.run([PYTHON, *flags, str(driver)], cwd=work, capture_output=True,
                           text=True, env=_bare_env(HOME=str(tmp_path)), timeout=120)
     assert not marker.exists(), done.stderr
