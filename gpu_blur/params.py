@@ -170,14 +170,8 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
     draw = {name: float(u[i]) for name, i in DRAW_INDEX.items()}
     p: dict = {}
 
-    def put(name, value):
-        if name not in overrides:
-            p[name] = value
-            return
-        p[name] = overrides.pop(name)
-        problem = OVERRIDE_LIMITS[name].problem(p[name]) if name in OVERRIDE_LIMITS else None
-        if problem:
-            raise ValueError(f"overrides[{name!r}] = {p[name]!r} is invalid; allowed: {problem}")
+    def put(name, value):  # an override instead of the drawn value (check_overrides: valid)
+        p[name] = overrides.pop(name) if name in overrides else value
 
     b = scene.blur
     if plan.kept("blur") and b.mode == "kernel" and b.kernel:
@@ -203,11 +197,7 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
         fixed = scene.isp.pattern
         put("pattern", fixed if fixed != "random"
             else PATTERNS[min(int(draw["pattern"] * 4), 3)])
-        try:
-            p["pattern"] = BayerPattern.parse(str(p["pattern"])).value
-        except ValueError:
-            raise ValueError(f"overrides['pattern'] = {p['pattern']!r} is not a Bayer pattern; "
-                             f"allowed: {' | '.join(PATTERNS)} (any case)") from None
+        p["pattern"] = BayerPattern.parse(str(p["pattern"])).value
         red, blue = camera.white_balance.draw(draw["red_gain"], draw["blue_gain"])
         put("red_gain", red)
         put("blue_gain", blue)
@@ -234,18 +224,5 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
             p[name] = int(p[name]) if limit.integer else float(p[name])
     for name in ARRAY_PARAMS:
         if name in p:
-            try:
-                p[name] = np.asarray(p[name], dtype=np.float64)
-            except (TypeError, ValueError):
-                raise ValueError(f"parameter {name} must be an array of numbers") from None
-    if "kernel" in p:  # drawn kernels and blur.kernel files are checked already
-        check_kernel(p["kernel"], "overrides['kernel']")
-    if "homographies" in p:
-        h = p["homographies"]
-        most = limits.STEPS.high
-        if (h.ndim != 3 or h.shape[1:] != (3, 3) or not 1 <= len(h) <= most
-                or not np.isfinite(h).all()):
-            raise ValueError(f"overrides['homographies'] must be a finite n x 3 x 3 array "
-                             f"(1 <= n <= {most:g}, as blur.steps) of camera poses; got shape "
-                             f"{h.shape}")
+            p[name] = np.asarray(p[name], dtype=np.float64)
     return p
