@@ -32,7 +32,7 @@ class CacheError(RuntimeError):
 
 
 def _home() -> str:
-    """This user's home folder from the password database ('' when there is none)."""
+    """The current user's home folder from the password database ('' when there is none)."""
     try:
         import pwd
 

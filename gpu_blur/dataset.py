@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gpu_blur import files
 from gpu_blur.backends.flows import REGIONS_KEY
 from gpu_blur.imageio import temporary_path, write_image, write_new, write_text, write_whole
 from gpu_blur.locking import earlier_pids, forget_earlier, take_lock
@@ -129,7 +130,7 @@ def input_label(path: Path) -> str:
 
 
 def shown(text: str) -> str:
-    """``text`` as UTF-8 text holds it: each byte of a path that is not UTF-8 as ``\\xNN``.
+    r"""``text`` as UTF-8 text holds it: each byte of a path that is not UTF-8 as ``\xNN``.
 
     Python gives such a byte of a file name as a lone surrogate (``surrogateescape``), which
     UTF-8, and so the manifest's JSON, cannot hold; other text is returned as it is.
@@ -407,7 +408,7 @@ def read_datalist(path: Path, root: Path) -> list[BlurredSample]:
     """
     inside = root.resolve()
     pairs = []
-    for number, line in enumerate(Path(path).read_text().splitlines(), 1):
+    for number, line in enumerate(files.read_text(path, f"datalist {path}").splitlines(), 1):
         fields = line.split()
         if not fields:
             continue
@@ -969,7 +970,9 @@ class DatasetWriter:
     def _check_run(self, run: dict) -> None:
         path = self.out / RUN
         try:
-            old = json.loads(path.read_text())
+            if not os.path.lexists(path):
+                raise FileNotFoundError(path)
+            old = json.loads(files.read_text(path, str(path)))  # a regular file: no FIFO wait
         except FileNotFoundError:
             raise ValueError(f"--resume: {path} is missing, so the settings the set in "
                              f"{self.out} was made with are unknown; start it again with "

@@ -1,5 +1,6 @@
 """gpu_blur.datasets: the published layouts as training data sets, crops and flips (issue 16)."""
 
+import os
 import subprocess
 import sys
 
@@ -161,6 +162,14 @@ def test_datalist_paths_outside_the_data_folder_are_refused_naming_the_line(tree
         "the folder that holds the files as the data folder")
     datalist.write_text("scene001/../scene001/gt/gt_10.png scene001/blur/blur_10.png\n")
     assert len(RealBlurPairs(root, datalist)) == 1  # a '..' that stays inside is read
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="named pipes are POSIX")
+def test_a_datalist_that_is_a_named_pipe_is_refused_not_waited_on(trees):
+    fifo = trees / "list.txt"
+    os.mkfifo(fifo)  # reading one without a writer blocks forever
+    with pytest.raises(ValueError, match=r"datalist .*list.txt: is a named pipe"):
+        RealBlurPairs(trees / "RealBlur_J", fifo)
 
 
 def test_the_module_needs_no_torch():
