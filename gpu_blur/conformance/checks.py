@@ -16,10 +16,9 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-import tomllib
 
 import gpu_blur
-from gpu_blur import testing
+from gpu_blur import files, testing
 from gpu_blur.backends import to_host
 from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.cameras import get_camera
@@ -691,8 +690,8 @@ def _seams(t: Target) -> list[Outcome]:
 # -- whole pipeline ------------------------------------------------------------------------------
 
 def _scene_settings(name: str) -> dict:
-    with open(builtin_scenes()[name], "rb") as f:
-        return tomllib.load(f)
+    path = builtin_scenes()[name]
+    return files.read_settings(path, f"scene file {path}")
 
 
 def _scene_inputs(settings: dict):
