@@ -33,6 +33,20 @@ F64_APPLY_MATRIX = _sum_bound(3, 2.47 * 1.2)  # 2.0e-15
 #: or at the other colour, 20/8), linear RAW <= 1.
 F64_MALVAR = _sum_bound(13, 2.5)  # 7.2e-15
 
+#: A7R3 polynomial by Horner, degree 7: 14 roundings over sum |c_i| = 1178 (x in [0, 1];
+#: Higham eq. 5.3). Measured 4.1e-14; the bound is what a compiler that fuses elsewhere meets.
+F64_CRF_POLYNOMIAL = _sum_bound(14, 1178.1)  # 3.7e-12
+#: Table lookup ``a + t (b - a)`` on values <= 1: three roundings.
+F64_LERP = _sum_bound(3, 1.0)  # 6.7e-16
+#: sRGB curves, relative: the device's pow (OpenCL C allows 16 ulps in double, CUDA documents
+#: 2 for Warp's; glibc's is within 1) and the curve's roundings around it (about 4 ulps, the
+#: exponent 2.4 scaling the input's), each side. One ulp of [1, 2) is 2**-52.
+F64_SRGB_OPENCL = 20 * 2.0**-52  # 4.4e-15
+F64_SRGB_WARP = 6 * 2.0**-52  # 1.3e-15
+#: log(k!) by Stirling from k = 16, relative: the device's log (OpenCL: 3 ulps; CUDA 1) times
+#: the sum's condition (at most 1.6, at k = 16), and the series' roundings.
+F64_LOG_FACTORIAL = 8 * 2.0**-52  # 1.8e-15
+
 #: (stage, backend, dtype) -> (rtol, atol). "independent" rows compare the reference with an
 #: outside implementation of the same maths (colour-demosaicing, OpenCV, a literal transcription).
 TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
@@ -79,22 +93,22 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("srgb_to_linear", "opencl", "float32"): (6e-7, 1e-45),
     ("linear_to_srgb", "opencl", "float32"): (6e-7, 1e-45),
     # float64: the device's pow (measured 2.2e-16 and 5.7e-16 relative).
-    ("srgb_to_linear", "opencl", "float64"): (3e-16, 0.0),
-    ("linear_to_srgb", "opencl", "float64"): (7e-16, 0.0),
+    ("srgb_to_linear", "opencl", "float64"): (F64_SRGB_OPENCL, 0.0),
+    ("linear_to_srgb", "opencl", "float64"): (F64_SRGB_OPENCL, 0.0),
     # A7R3 polynomial: degree 7, coefficients up to 368 that cancel to a value <= 1, so Horner's
     # error is absolute. float32: 8.1e-6 from rounding the coefficients plus 1.4e-5 from float
     # arithmetic (measured 2.2e-5 in all, ~1.4 codes of 16-bit output); float64 measured 4.1e-14.
     ("crf_polynomial", "opencl", "float32"): (0.0, 2.5e-5),
-    ("crf_polynomial", "opencl", "float64"): (0.0, 5e-14),
+    ("crf_polynomial", "opencl", "float64"): (0.0, F64_CRF_POLYNOMIAL),
     # A7R3 lookup table (2,551 nodes): measured 7.4e-8 (float32) and 1.1e-16 (float64, one ulp
     # where a * b + c is fused) absolute.
     ("crf_lookup", "opencl", "float32"): (0.0, 8e-8),
-    ("crf_lookup", "opencl", "float64"): (0.0, 1.2e-16),
+    ("crf_lookup", "opencl", "float64"): (0.0, F64_LERP),
     # The same function on the tables resampled to 256, 1,024 and 4,096 nodes
     # (output.crf_table_size, tests/test_opencl_knobs.py): measured 8.5e-8 (float32, 256 nodes;
     # 7.2e-8 on the authors' table in the same test) and 1.1e-16 (float64).
     ("crf_lookup_resampled", "opencl", "float32"): (0.0, 1e-7),
-    ("crf_lookup_resampled", "opencl", "float64"): (0.0, 1.2e-16),
+    ("crf_lookup_resampled", "opencl", "float64"): (0.0, F64_LERP),
     # A7R3 3 x 3 matrices (float64 ones for the reference) on linear pixels in [-0.1, 1.2]:
     # measured 1.9e-7 (float32, matrix rounding included) and 4.4e-16 (float64) absolute.
     ("apply_matrix", "opencl", "float32"): (0.0, 2.5e-7),
@@ -118,19 +132,19 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("srgb_to_linear", "warp", "float32"): (4e-7, 1e-45),
     ("linear_to_srgb", "warp", "float32"): (2.5e-7, 1e-45),
     # sRGB float64: libm / CUDA pow, relative 2.2e-16 / 2.2e-16 and 5.4e-16 / 5.8e-16.
-    ("srgb_to_linear", "warp", "float64"): (3e-16, 0.0),
-    ("linear_to_srgb", "warp", "float64"): (7e-16, 0.0),
+    ("srgb_to_linear", "warp", "float64"): (F64_SRGB_WARP, 0.0),
+    ("linear_to_srgb", "warp", "float64"): (F64_SRGB_WARP, 0.0),
     # A7R3 polynomial (degree 7, coefficients up to 368 that cancel): absolute 2.4e-5 / 2.2e-5
     # in float32 (8.1e-6 of it from rounding the coefficients), 0 / 4.1e-14 in float64.
     ("crf_polynomial", "warp", "float32"): (0.0, 2.5e-5),
-    ("crf_polynomial", "warp", "float64"): (0.0, 5e-14),
+    ("crf_polynomial", "warp", "float64"): (0.0, F64_CRF_POLYNOMIAL),
     # A7R3 lookup table (2,551 nodes): absolute 7.4e-8 / 7.4e-8 (float32), 0 / 1.1e-16 (float64).
     ("crf_lookup", "warp", "float32"): (0.0, 8e-8),
-    ("crf_lookup", "warp", "float64"): (0.0, 1.2e-16),
+    ("crf_lookup", "warp", "float64"): (0.0, F64_LERP),
     # Tables resampled to 256, 1,024 and 4,096 nodes (tests/test_warp_knobs.py): measured
     # 8.5e-8 (float32) and 0 (float64) on the CPU.
     ("crf_lookup_resampled", "warp", "float32"): (0.0, 1e-7),
-    ("crf_lookup_resampled", "warp", "float64"): (0.0, 1.2e-16),
+    ("crf_lookup_resampled", "warp", "float64"): (0.0, F64_LERP),
     # A7R3 3 x 3 matrices (float64 ones for the reference) on linear pixels in [-0.1, 1.2]:
     # absolute 2.5e-7 / 1.9e-7 (float32, matrix rounding included), 4.4e-16 / 4.4e-16 (float64).
     ("apply_matrix", "warp", "float32"): (0.0, 3e-7),
@@ -173,7 +187,7 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # log(k!), k = 0 .. 1e12: the table exactly, Stirling through the device's log (measured
     # 0.0 in double; 1.8e-7 relative in float).
     ("log_factorial", "opencl", "float32"): (1e-15, 0.0),
-    ("log_factorial", "opencl", "float64"): (1e-15, 0.0),
+    ("log_factorial", "opencl", "float64"): (F64_LOG_FACTORIAL, 0.0),
     ("log_factorial", "opencl", "float32-nofp64"): (1e-6, 0.0),
     # Poisson counts: the FRACTION OF PIXELS whose count differs from rng.poisson, as atol
     # against 0 (issue: identical on >= 99.999 %). Measured 0 of 1.2e6 + 8.2e5 pixels.
@@ -200,7 +214,7 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("normal", "warp", "float64"): (0.0, 1e-12),
     # log(k!), k = 0 .. 1e12: the table exactly, Stirling through Warp's log (measured 0.0 on
     # both; 1.5e-16 relative on the H200 with fuse_fp=True).
-    ("log_factorial", "warp", "float64"): (1e-15, 0.0),
+    ("log_factorial", "warp", "float64"): (F64_LOG_FACTORIAL, 0.0),
     # Poisson counts: the FRACTION OF PIXELS whose count differs from rng.poisson, as atol
     # against 0 (issue: identical on >= 99.999 %). Measured 0 of 1.2e6 + 8.2e5 pixels on both
     # devices, with fuse_fp=False and (H200) fuse_fp=True.
@@ -279,7 +293,7 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
         ("saturate", "float64"): (0.0, 1e-15),  # 0
         ("to_raw", "float64"): (0.0, 1e-14),  # 2.2e-16
         ("finish", "float64"): (0.0, 1e-14),  # 6.7e-16
-        ("finish_crf_polynomial", "float64"): (0.0, 1e-12),  # 4.4e-14
+        ("finish_crf_polynomial", "float64"): (0.0, F64_CRF_POLYNOMIAL),  # 4.4e-14
         ("quantize_code_changes", "float64"): (0.0, 0.0),
         ("pipeline", "float64"): (0.0, 1e-12),  # 0 (after the float32 result cast)
         ("to_raw_noisy_outliers", "float64"): (0.0, 1e-5),
@@ -312,7 +326,7 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # each within the "finish_crf_polynomial" row, so within twice it (measured 2.7e-5, PoCL
     # against Warp's CPU device, float32; 0 in float64).
     ("cross_backend_crf_polynomial", "kernels", "float32"): (0.0, 6e-5),
-    ("cross_backend_crf_polynomial", "kernels", "float64"): (0.0, 2e-12),
+    ("cross_backend_crf_polynomial", "kernels", "float64"): (0.0, F64_CRF_POLYNOMIAL),
     # -- hard cases --
     # tests/test_hard_cases.py: crafted inputs through the passes on every backend, measured on
     # Intel's CPU OpenCL runtime and Warp's CPU device (the larger value); numpy is the
