@@ -100,3 +100,22 @@ def test_the_reference_ignores_fast_math(coffee_rgb):
     fast, precise = (gpu_blur.synthesize([photo], fast_math_scene("gaussian", f), seed=SEED,
                                          sample_index=SAMPLE).blurred for f in (True, False))
     assert np.array_equal(fast, precise)
+
+
+OPENCL_FLOAT32 = [s for s in FLOAT32_KERNEL_SPECS if s.startswith("opencl")]
+
+
+@pytest.mark.skipif(not OPENCL_FLOAT32, reason="no OpenCL device")
+def test_opencl_refuses_fast_math_on_a_runtime_whose_accuracy_was_never_measured(coffee_rgb):
+    import dataclasses
+
+    from gpu_blur.backends.opencl import OpenCLBackend, OpenCLError
+
+    backend = OpenCLBackend(OPENCL_FLOAT32[0].split("/")[0])
+    backend.info = dataclasses.replace(backend.info, platform="Some Vendor's OpenCL")
+    photo = coffee_rgb[150:182, 250:298]
+    with pytest.raises(OpenCLError, match="output.fast_math on .*Some Vendor's OpenCL.*never "
+                                          "measured.*output.fast_math = false"):
+        gpu_blur.synthesize([photo], fast_math_scene("none", True), backend=backend)
+    precise = gpu_blur.synthesize([photo], fast_math_scene("none", False), backend=backend)
+    assert precise.blurred.shape == (32, 48, 3)  # the same device runs without fast maths

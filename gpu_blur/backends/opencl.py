@@ -50,6 +50,12 @@ class OpenCLError(RuntimeError):
     """An OpenCL device that cannot be used, or a kernel that does not build."""
 
 
+#: The OpenCL runtimes whose ``native_`` functions the fast-math rows of gpu_blur.testing were
+#: measured on. OpenCL leaves their accuracy to the runtime, so ``output.fast_math`` is refused
+#: on any other, where no row can be stated.
+FAST_MATH_RUNTIMES = ("Intel(R) OpenCL", "Portable Computing Language", "NVIDIA CUDA")
+
+
 def kernel_dir() -> Path:
     """Folder of the OpenCL sources.
 
@@ -385,6 +391,13 @@ class OpenCLBackend(KernelBackend):
         return _Kernels(self.program(source, defines), self._kernel_cache)
 
     def _pass_kernels(self, config: PassConfig, source=None, interpolate: bool = False):
+        if (config.fast_math and self.precision == "float32"
+                and self.info.platform not in FAST_MATH_RUNTIMES):
+            raise OpenCLError(
+                f"output.fast_math on {self.info.spec} ({self.info.platform}): OpenCL leaves "
+                "the accuracy of its native_ functions to the runtime, and this one's was "
+                f"never measured (measured: {', '.join(FAST_MATH_RUNTIMES)}); set "
+                "output.fast_math = false, or use --backend warp")
         defines = config_defines(config)
         if config.pass_ == Pass.ACCUMULATE:
             defines["GB_SOURCE_BITS"] = str(SOURCE_BITS.get(np.dtype(source), 0))
