@@ -9,7 +9,7 @@ kernel's sides (:data:`KERNEL_SIDE`), both read from the file's header before it
 
 Every number must be finite. The ranges are physical, with a margin (a white-balance gain of
 1e30 is no camera), and chosen so that float32 kernels stay within the tolerance table of the
-numpy reference (:mod:`gpu_blur.testing`). Measured on Intel's CPU OpenCL runtime
+numpy reference (:mod:`gpu_blur.tolerances`). Measured on Intel's CPU OpenCL runtime
 ``opencl:0:0`` and Warp ``cpu``, float32, the values given as overrides (blur mode none, RAW
 round trip, A7R3 camera unless said):
 

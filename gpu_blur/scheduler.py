@@ -13,7 +13,7 @@ inputs); this module decides *how*:
   summed while the next uploads), so device memory does not grow with ``blur.frames``.
 * **spot checks** (``verify``): a fraction of the tiles, chosen from (seed, sample index),
   is recomputed pass by pass with the numpy float64 reference and compared under the
-  tolerance table of :mod:`gpu_blur.testing`; a disagreement raises :class:`SpotCheckError`.
+  tolerance table of :mod:`gpu_blur.tolerances`; a disagreement raises :class:`SpotCheckError`.
 
 Memory budget
 -------------
@@ -101,9 +101,9 @@ from gpu_blur.plan import Plan, StageName
 from gpu_blur.reference import blur, rng
 from gpu_blur.reference.demosaic import halo as demosaic_halo
 from gpu_blur.reference.output import quantize
-from gpu_blur.testing import mismatch, tolerance
 from gpu_blur.tiling import Region, tiles
 from gpu_blur.timings import timer
+from gpu_blur.tolerances import mismatch, tolerance
 
 S = StageName
 
@@ -519,7 +519,7 @@ class _SpotCheck:
         self.reference = NumpyBackend()
         self.backend, self.dtype = runner.name, runner.precision
         if sample_plan.fast_math and self.dtype == "float32":
-            self.dtype = "float32-fast"  # the rows of fast maths (gpu_blur.testing)
+            self.dtype = "float32-fast"  # the rows of fast maths (gpu_blur.tolerances)
         self._accumulated = accumulated
 
     def _whole_accumulate(self):

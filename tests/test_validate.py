@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import BACKEND_SPECS, make_backend, spec_backend, spec_dtype
 
-from gpu_blur import backends, testing
+from gpu_blur import backends, tolerances
 from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.cli import main
 from gpu_blur.conformance import checks
@@ -30,10 +30,10 @@ def test_conformance_check_passes(spec, name):
     assert any(o.passed for o in outcomes) or not target.kernels and item.kernels_only
 
 
-def test_every_tolerance_row_has_its_line_in_testing_py():
+def test_every_tolerance_row_has_its_line_in_tolerances_py():
     sources = checks.row_sources()
-    assert set(sources) == set(testing.TOLERANCES)
-    lines = open(testing.__file__).read().splitlines()
+    assert set(sources) == set(tolerances.TOLERANCES)
+    lines = open(tolerances.__file__).read().splitlines()
     for (stage, _, _), (line, _) in sources.items():
         assert f'"{stage}"' in lines[line - 1], (stage, line)
     line, claim = sources[("accumulate", "opencl", "float32")]
@@ -45,7 +45,7 @@ def test_validate_quick_on_numpy_exits_0_with_a_table_and_json(tmp_path, capsys)
     assert main(["validate", "--backend", "numpy", "--quick", "--json", str(out)]) == 0
     printed = capsys.readouterr()
     assert "== numpy: float64 (host CPU)" in printed.out
-    assert "testing.py:" in printed.out and "every check passed" in printed.out
+    assert "tolerances.py:" in printed.out and "every check passed" in printed.out
     assert "[1/" in printed.err  # progress, one line per check
     report = json.loads(out.read_text())
     assert report["passed"] and report["quick"] and report["failed"] == 0

@@ -50,8 +50,8 @@ class OpenCLError(RuntimeError):
     """An OpenCL device that cannot be used, or a kernel that does not build."""
 
 
-#: The OpenCL runtimes whose ``native_`` functions the fast-math rows of gpu_blur.testing were
-#: measured on. OpenCL leaves their accuracy to the runtime, so ``output.fast_math`` is refused
+#: The OpenCL runtimes whose ``native_`` functions the fast-math rows of gpu_blur.tolerances
+#: were measured on. OpenCL leaves their accuracy to the runtime, so ``output.fast_math`` is refused
 #: on any other, where no row can be stated.
 FAST_MATH_RUNTIMES = ("Intel(R) OpenCL", "Portable Computing Language", "NVIDIA CUDA")
 

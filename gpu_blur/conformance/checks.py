@@ -2,7 +2,7 @@
 
 A check runs one conformance case (:mod:`gpu_blur.conformance`) on a device at a precision and
 gives one :class:`Outcome` per comparison: the measured error against the tolerance table's
-row (:data:`gpu_blur.testing.TOLERANCES`, the rows the test suite uses) or bit for bit where
+row (:data:`gpu_blur.tolerances.TOLERANCES`, the rows the test suite uses) or bit for bit where
 the claim is exact. :func:`validate` runs a list of checks and collects them.
 """
 
@@ -18,7 +18,7 @@ from collections.abc import Callable
 import numpy as np
 
 import gpu_blur
-from gpu_blur import files, testing
+from gpu_blur import files, tolerances
 from gpu_blur.backends import to_host
 from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.cameras import get_camera
@@ -62,7 +62,7 @@ class Outcome:
             of tolerance; None when the check did not run.
         tolerance: the claim in words (``rtol 0, atol 1e-06``, ``bit for bit``).
         row: the tolerance row ``"stage/backend/dtype"``, or None for an exact claim.
-        source: where the row is (``gpu_blur/testing.py:231``) or why the claim is exact.
+        source: where the row is (``gpu_blur/tolerances.py:231``) or why the claim is exact.
         passed: True, False, or None when skipped (``detail`` says why).
         detail: the first mismatch, or why the check was skipped.
     """
@@ -93,13 +93,13 @@ class Target:
 
 @functools.cache
 def row_sources() -> dict[tuple[str, str, str], tuple[int, str]]:
-    """Each tolerance row's (line in gpu_blur/testing.py, comment stating its claim).
+    """Each tolerance row's (line in gpu_blur/tolerances.py, comment stating its claim).
 
     Rows written one by one carry their own line; rows made by a comprehension carry the line
     of their stage in it. The claim is the row's end-of-line comment, else the comment block
     above it.
     """
-    text = inspect.getsource(testing)
+    text = inspect.getsource(tolerances)
     lines = text.splitlines()
     tree = ast.parse(text)
     table = next(n.value for n in tree.body if isinstance(n, ast.AnnAssign)
@@ -109,8 +109,8 @@ def row_sources() -> dict[tuple[str, str, str], tuple[int, str]]:
         if key is not None:  # ("stage", "backend", "dtype"): (rtol, atol)
             found[ast.literal_eval(key)] = key.lineno
             continue
-        namespace = vars(testing)
-        for row in eval(compile(ast.Expression(value), "testing", "eval"), namespace):
+        namespace = vars(tolerances)
+        for row in eval(compile(ast.Expression(value), "tolerances", "eval"), namespace):
             found[row] = _line_in(value, row)
     return {row: (line, _claim(lines, line)) for row, line in found.items()}
 
@@ -147,13 +147,13 @@ def _row(stage: str, target: Target, dtype: str | None = None) -> tuple[str, str
 
 
 def _tolerance_text(key) -> str:
-    rtol, atol = testing.tolerance(*key)
+    rtol, atol = tolerances.tolerance(*key)
     return f"rtol {rtol:g}, atol {atol:g}"
 
 
 def _source(key) -> str:
     line, _ = row_sources().get(key, (0, ""))
-    return f"gpu_blur/testing.py:{line}"
+    return f"gpu_blur/tolerances.py:{line}"
 
 
 def within(stage: str, target: Target, actual, expected, *, outliers: str = "",
@@ -174,7 +174,7 @@ def within(stage: str, target: Target, actual, expected, *, outliers: str = "",
     key = _row(stage, target, dtype)
     actual = np.asarray(to_host(actual), dtype=np.float64)
     expected = np.asarray(expected, dtype=np.float64)
-    rtol, atol = testing.tolerance(*key)
+    rtol, atol = tolerances.tolerance(*key)
     tolerance = _tolerance_text(key)
     source = _source(key)
     if actual.shape != expected.shape:
@@ -185,8 +185,8 @@ def within(stage: str, target: Target, actual, expected, *, outliers: str = "",
     bad = ~(err <= atol + rtol * np.abs(expected))
     if accept is not None:
         bad &= ~accept
-    allowed = testing.tolerance(*_row(outliers, target, dtype))[1] if outliers else 0.0
-    problem = testing.mismatch(actual, expected, *key, allowed_fraction=allowed, accept=accept)
+    allowed = tolerances.tolerance(*_row(outliers, target, dtype))[1] if outliers else 0.0
+    problem = tolerances.mismatch(actual, expected, *key, allowed_fraction=allowed, accept=accept)
     if not finite.all():
         problem = f"{int((~finite).sum())} values are not finite"
     if outliers:

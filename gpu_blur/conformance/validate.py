@@ -175,10 +175,10 @@ def _cell(rows: list[dict]) -> str:
 
 
 def _sources(rows: list[dict]) -> str:
-    """Where the rows' claims come from: lines of gpu_blur/testing.py, or why exact."""
+    """Where the rows' claims come from: lines of gpu_blur/tolerances.py, or why exact."""
     lines = [r["source"].partition(":")[2] for r in rows if r["row"]]
     if lines:
-        return "testing.py:" + " / ".join(dict.fromkeys(lines))
+        return "tolerances.py:" + " / ".join(dict.fromkeys(lines))
     texts = [r["source"] or r["detail"] for r in rows]
     return texts[0] if texts else ""
 
@@ -188,7 +188,7 @@ def render(report: dict) -> str:
 
     A table row is a check's stage; per precision, the largest error of its comparisons (or
     the fraction of values out of tolerance, for rows that allow some), the tolerance and the
-    verdict; last, the row's line in gpu_blur/testing.py or why the claim is exact.
+    verdict; last, the row's line in gpu_blur/tolerances.py or why the claim is exact.
     """
     out = []
     for d in report["devices"]:

@@ -42,7 +42,7 @@ counts from inversion below rate 10 and Hörmann's PTRS transformed rejection at
 and Warp can repeat them operation for operation. Their ``exp``, ``log``, ``sin`` and ``cos``
 are :mod:`gpu_blur.reference.fixedmath`'s (IEEE operations only, within 1 ulp), not numpy's, whose
 SIMD paths differ by CPU: the reference's normals and counts have the same bits on every
-machine; the kernels' libm stays within the tolerance rows of :mod:`gpu_blur.testing`.
+machine; the kernels' libm stays within the tolerance rows of :mod:`gpu_blur.tolerances`.
 """
 
 from __future__ import annotations

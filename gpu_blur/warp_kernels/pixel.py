@@ -43,7 +43,7 @@ Floating-point contraction: Warp builds with ``fuse_fp=True`` unless a module sa
 CUDA then fuses ``a * b + c`` into one rounding, Warp's CPU build (clang) fuses nothing across
 the statements it generates. Nothing here relies on either: quantize_code calls fma explicitly
 and is exact both ways, bilinear's products are exact; the other stages differ by an ulp or so
-(measured on both, gpu_blur/testing.py, section "Warp pixel stages").
+(measured on both, gpu_blur/tolerances.py, section "Warp pixel stages").
 
 Written against warp-lang 1.19 (``wp.where``, ``wp.func_native`` overloads, ``type(x)(...)``).
 """

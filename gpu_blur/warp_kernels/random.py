@@ -42,7 +42,7 @@ give the reference's Poisson counts pixel for pixel should be built with ``fuse_
 (``wp.set_module_options({"fuse_fp": False})``). With Warp's default ``fuse_fp=True`` the
 compiler may fuse ``a * b + c``, which can move a ``floor()`` or a CDF comparison across its
 boundary on a rare pixel; the tests' 2e6 pixels still gave identical counts that way on an
-H200 (the measured agreement is in gpu_blur/testing.py, section "Warp random").
+H200 (the measured agreement is in gpu_blur/tolerances.py, section "Warp random").
 """
 
 from __future__ import annotations

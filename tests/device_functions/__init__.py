@@ -10,7 +10,7 @@ pairs, flat on the device and returned as numpy arrays of that shape.
 Targets: the OpenCL device ``backend="opencl"`` picks (one, as the suite's time allows) and every
 Warp device; with GPU_BLUR_BACKENDS set (e.g. ``opencl:1:0,warp:cpu``; ``opencl`` or ``warp``
 alone for all of that language), the devices it names. A build name is the
-tolerance table's dtype column (gpu_blur/testing.py), so a test names its rows with
+tolerance table's dtype column (gpu_blur/tolerances.py), so a test names its rows with
 ``target.lang`` and ``target.build``.
 """
 
