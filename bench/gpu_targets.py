@@ -15,7 +15,7 @@ Poisson-Gaussian noise, RAW round trip, Malvar, A7R3 CRF, 8-bit output), float32
   (numpy frames, result left on the device), with overlapped copies (pinned staging buffers, a
   copy stream or queue) and with serial copies, on Warp and OpenCL; and through the backend's
   passes from a pinned ``wp.array`` stack (one sample at a time, and pipelined: the next
-  sample's frames copy while this sample's passes run, ``WarpBackend.prefetch``; with the host
+  sample's frames copy while this sample's passes run, :class:`Prefetcher`; with the host
   waiting for each pass, and without, as a training loop that reads results on the device's
   stream runs it), against the
   bound set by pinned host-to-device bandwidth (one sample's frames per sample);
@@ -154,6 +154,43 @@ def warp_on_device(wp, frames: np.ndarray, device: str, band: dict) -> dict:
     return out
 
 
+class Prefetcher:
+    """Pinned frame stacks copied to the device on a stream of their own, ahead of their use.
+
+    Two device stacks take turns: :meth:`start` copies into the next one once the accumulate
+    pass that read it last is done (:meth:`read`), beside whatever the device is computing;
+    :meth:`ready` makes the compute stream wait for the copy and gives the stack, which the
+    backend takes as it is (a ``wp.array`` on its device).
+    """
+
+    def __init__(self, wp, device: str, shape: tuple, dtype):
+        self.wp = wp
+        self.device = device
+        self.copier = wp.Stream(device)
+        self.stacks = [wp.empty(shape, dtype=dtype, device=device) for _ in range(2)]
+        wp.synchronize_device(device)  # allocated before the copy stream uses them
+        self.done = [None, None]  # per stack: the event of the accumulate that read it
+        self.turn = 0
+
+    def start(self, frames) -> tuple[int, object]:
+        """Start copying ``frames`` (pinned host memory); (its stack, the copy's event)."""
+        slot, self.turn = self.turn, self.turn ^ 1
+        if self.done[slot] is not None:
+            self.copier.wait_event(self.done[slot])
+        self.wp.copy(self.stacks[slot], frames, stream=self.copier)
+        return slot, self.copier.record_event()
+
+    def ready(self, started: tuple[int, object]):
+        """The stack of :meth:`start`, the compute stream waiting for its copy."""
+        slot, copied = started
+        self.wp.get_stream(self.device).wait_event(copied)
+        return self.stacks[slot]
+
+    def read(self, started: tuple[int, object]) -> None:
+        """The compute stream's work so far has read the stack: the next copy may fill it."""
+        self.done[started[0]] = self.wp.get_stream(self.device).record_event()
+
+
 def warp_from_pinned(wp, frames: np.ndarray, device: str, band: dict, samples: int) -> dict:
     from gpu_blur.backends.warp import WarpBackend
 
@@ -176,12 +213,15 @@ def warp_from_pinned(wp, frames: np.ndarray, device: str, band: dict, samples: i
     # pipelined: sample i + 1's frames copy on the copy stream while sample i's passes run
     second = wp.array(frames[::-1].copy(), dtype=wp.uint8, device="cpu", pinned=True)
     sources = (pinned, second)
+    prefetcher = Prefetcher(wp, device, pinned.shape, pinned.dtype)
 
     def pipelined(count):
-        coming = backend.prefetch(sources[0])
+        coming = prefetcher.start(sources[0])
         for i in range(count):
-            current, coming = coming, backend.prefetch(sources[(i + 1) % 2])
-            linear, mask = backend.accumulate(p, params, current, None, region)
+            current, coming = coming, prefetcher.start(sources[(i + 1) % 2])
+            stack = prefetcher.ready(current)
+            linear, mask = backend.accumulate(p, params, stack, None, region)
+            prefetcher.read(current)
             image, saturated = backend.to_raw(p, params, camera, linear, mask, (0, 0), **kw)
             backend.finish(p, params, camera, image, saturated, region, region, **kw)
         wp.synchronize_device(device)

@@ -1,8 +1,7 @@
 """The Warp backend: the plan's three passes as NVIDIA Warp kernels (gpu_blur/warp_kernels/).
 
 The passes' host logic is :mod:`gpu_blur.backends.kernel`'s; this module holds the device,
-buffers, streams, launching, prefetched frame stacks, and the choice of Warp kernels for a
-pass configuration.
+buffers, streams, launching, and the choice of Warp kernels for a pass configuration.
 
 Devices: ``warp`` (the first CUDA device if there is one, else the CPU), ``warp:cpu``,
 ``warp:cuda:N``. Only the stages a plan keeps are generated (``wp.static`` flags); float32 by
@@ -16,7 +15,6 @@ copy stream that overlaps the summing of the previous frames.
 from __future__ import annotations
 
 import ctypes
-import dataclasses
 import functools
 import os
 import sys
@@ -162,21 +160,6 @@ def _device(spec: str) -> str:
     return alias
 
 
-@dataclasses.dataclass(frozen=True)
-class Prefetched:
-    """Frames on their way to the device (:meth:`WarpBackend.prefetch`).
-
-    Attributes:
-        frames: the ``n x H x W x 3`` device stack.
-        ready: the copy stream's event that marks the copy done (None: already done).
-        slot: which of the backend's two prefetch stacks it is (None: its own).
-    """
-
-    frames: wp.array
-    ready: object
-    slot: int | None = None
-
-
 class WarpBackend(KernelBackend):
     """Runs a plan as Warp kernels on one device (see :mod:`gpu_blur.backends.kernel`).
 
@@ -207,12 +190,9 @@ class WarpBackend(KernelBackend):
         self._copier = wp.Stream(self.wp_device) if self.overlap else None
         self._staging: dict = {}  # slot -> pinned host buffer (kept across samples)
         self._staged: dict = {}  # slot -> event: the last copy out of that staging buffer
-        self._prefetch_turn = 0
         self._row_ring = None  # pinned host bytes: ROW_TABLES turns of ROW_TABLE_BYTES
         self._rows_turn = 0  # the turn that carries the next small table
         self._row_copies: dict = {}  # turn -> event: the copy out of its bytes
-        self._prefetch_stacks: dict = {}  # slot -> device stack of prefetched frames
-        self._prefetch_read: dict = {}  # slot -> event: the accumulate that read it
         self._launches = Launches(self.wp_device)
 
     @property
@@ -300,7 +280,7 @@ class WarpBackend(KernelBackend):
         stream.wait_stream(wp.get_stream(self.wp_device))
 
     def _synchronize(self) -> None:
-        if self.overlap:  # the compute stream only: a prefetch may still be copying
+        if self.overlap:  # the compute stream only: an upload may still be copying
             wp.synchronize_stream(wp.get_stream(self.wp_device))
         else:
             wp.synchronize_device(self.wp_device)
@@ -455,39 +435,12 @@ class WarpBackend(KernelBackend):
             self._staging[slot] = buffer
         return buffer
 
-    def prefetch(self, frames: wp.array) -> Prefetched:
-        """Start copying an ``n x H x W x 3`` stack of frames in pinned host memory to the device.
-
-        The copy runs on the copy stream, beside whatever the device is computing (the
-        previous sample's passes); :meth:`accumulate` takes the returned stack and waits for
-        its copy first. Two device stacks take turns: a stack is reused (overwritten) by the
-        prefetch after next, once the accumulate pass that read it is done. Without
-        ``overlap`` the copy is synchronous into a new stack.
-        """
-        if not self.overlap:
-            out = wp.empty(frames.shape, dtype=frames.dtype, device=self.wp_device)
-            with timer("copies"):
-                wp.copy(out, frames)
-            return Prefetched(out, None)
-        slot = self._prefetch_turn
-        self._prefetch_turn ^= 1
-        stack = self._prefetch_stacks.get(slot)
-        if stack is None or stack.shape != frames.shape or stack.dtype != frames.dtype:
-            stack = wp.empty(frames.shape, dtype=frames.dtype, device=self.wp_device)
-            wp.synchronize_device(self.wp_device)  # allocated before the copy stream uses it
-            self._prefetch_stacks[slot] = stack
-        with timer("copies"):
-            if slot in self._prefetch_read:
-                self._copier.wait_event(self._prefetch_read.pop(slot))
-            wp.copy(stack, frames, stream=self._copier)
-            return Prefetched(stack, self._copier.record_event(), slot)
-
     @staticmethod
     def device_array(values: OnDevice) -> wp.array:
         """An output as an ``h x w x 3`` ``wp.array`` on the device (``torch.from_dlpack``)."""
         return values.data.reshape(values.shape)
 
-    # -- inputs Warp reaches: wp.arrays (this device, pinned host memory), prefetches ---------
+    # -- inputs Warp reaches: wp.arrays (this device, pinned host memory) ----------------------
     def put(self, image) -> OnDevice:
         """:meth:`KernelBackend.put`; a ``wp.array`` on this device is taken as it is (no copy).
 
@@ -589,20 +542,11 @@ class WarpBackend(KernelBackend):
         """Linearize and blur on the device; (linear, mask) over ``region``, on the device.
 
         Besides host frames and inputs put on the device (:meth:`KernelBackend.accumulate`),
-        takes a ``wp.array`` (an ``n x H x W x 3`` stack for mode average) or a
-        :class:`Prefetched` stack.
+        takes a ``wp.array`` (an ``n x H x W x 3`` stack for mode average).
         """
-        prefetched = frames if isinstance(frames, Prefetched) else None
-        if prefetched is not None:
-            if prefetched.ready is not None:
-                wp.get_stream(self.wp_device).wait_event(prefetched.ready)
-            frames = prefetched.frames
         if isinstance(frames, wp.array):
             frames = self.put(frames)
-        result = super().accumulate(plan, params, frames, mask, region)
-        if prefetched is not None and prefetched.slot is not None:  # the stack is free
-            self._prefetch_read[prefetched.slot] = wp.get_stream(self.wp_device).record_event()
-        return result
+        return super().accumulate(plan, params, frames, mask, region)
 
     slot_views = True
 
