@@ -935,11 +935,6 @@ class DatasetWriter:
             return final in (MANIFEST, RUN, _PROBE)
         return bool(_SAMPLE_FILE.fullmatch(final)) or final == _PROBE
 
-    @property
-    def resumed(self) -> bool:
-        """Whether finished samples were found (and are kept)."""
-        return bool(self.done)
-
     def _unwritable(self, e: OSError) -> OSError:
         reason = e.strerror or str(e)
         return OSError(f"--output {self.out}: cannot create or write the folder ({reason}"

@@ -10,6 +10,7 @@ import pytest
 from conftest import KERNEL_BACKEND_SPECS
 
 opencl = pytest.importorskip("gpu_blur.backends.opencl")
+from gpu_blur.backends.kernel import pass_config  # noqa: E402
 from gpu_blur.cli import main  # noqa: E402
 from gpu_blur.plan import plan  # noqa: E402
 from gpu_blur.scene import scene_from_dict  # noqa: E402
@@ -49,14 +50,14 @@ def test_unknown_device_names_the_ones_present():
 
 def test_only_the_stages_a_plan_keeps_are_compiled_in():
     noiseless = plan(scene_from_dict({"noise": {"model": "none"}}), saturated=False)
-    assert opencl.pass_defines(noiseless, "to_raw") == {}
+    assert opencl.config_defines(pass_config(noiseless, "to_raw")) == {}
     full = plan(scene_from_dict({"isp": {"demosaic": "bilinear", "border": "zero"},
                                  "output": {"crf": "a7r3-lut", "bits": 16}}), saturated=True)
-    assert opencl.pass_defines(full, "to_raw") == {
+    assert opencl.config_defines(pass_config(full, "to_raw")) == {
         f"GB_STAGE_{name}": "1" for name in (
             "SATURATE", "LINEAR_TO_CAMERA", "MOSAIC", "INVERSE_WHITE_BALANCE",
             "POISSON_GAUSSIAN_NOISE", "WHITE_BALANCE")}
-    finish = opencl.pass_defines(full, "finish")
+    finish = opencl.config_defines(pass_config(full, "finish"))
     assert finish["GB_DEMOSAIC_BILINEAR"] == "1" and finish["GB_ZERO_BORDER"] == "1"
     assert finish["GB_RETONE_LOOKUP"] == "1" and finish["GB_QUANTIZE_BITS"] == "16"
     assert "GB_STAGE_GAUSSIAN_NOISE" not in finish
@@ -65,7 +66,7 @@ def test_only_the_stages_a_plan_keeps_are_compiled_in():
 def test_crop_is_no_define_of_the_finish_pass():
     cropped = plan(scene_from_dict({"output": {"crop": 4}}))
     assert cropped.kept("crop")
-    assert "GB_STAGE_CROP" not in opencl.pass_defines(cropped, "finish")
+    assert "GB_STAGE_CROP" not in opencl.config_defines(pass_config(cropped, "finish"))
 
 
 def test_devices_command_lists_numpy_and_every_opencl_device(capsys):

@@ -31,9 +31,9 @@ import numpy as np
 
 from gpu_blur import caches, notices
 from gpu_blur.backends import OnDevice, copy_values, fill_stack
-from gpu_blur.backends.kernel import Arg, KernelBackend, PassConfig, pass_config, source_dtype
+from gpu_blur.backends.kernel import Arg, KernelBackend, PassConfig, source_dtype
 from gpu_blur.kernel_constants import opencl_header
-from gpu_blur.plan import Pass, Plan
+from gpu_blur.plan import Pass
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
 
@@ -288,11 +288,6 @@ def config_defines(config: PassConfig) -> dict[str, str]:
     if config.bits:
         defines["GB_QUANTIZE_BITS"] = str(config.bits)
     return defines
-
-
-def pass_defines(plan: Plan, pass_: str) -> dict[str, str]:
-    """The build-time defines of one pass of ``plan``."""
-    return config_defines(pass_config(plan, pass_))
 
 
 #: The OpenCL source of each pass's kernels.
