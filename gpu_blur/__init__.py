@@ -9,10 +9,11 @@ One sample, module by module:
     scene.py        the scene: validated settings (limits.py: every number's range)
     plan.py         scene -> the ordered stages it calls for, each kept or skipped
     params.py       the sample's random draws (rng: reference/rng.py), or given values
-    pipeline.py     Synthesizer (synthesize(): a batch of one): the three passes on a
-                    backend; scheduler.py runs them in tiles (tiling.py) within a memory
-                    budget, with spot checks; arrays.py: the array types batches come in;
-                    torch.py: RealisticBlur, the batch API as a training transform
+    synthesis/      Synthesizer (synthesize(): a batch of one): the three passes on a
+                    backend, resident on its device or from the host, where scheduler.py runs
+                    them in tiles (tiling.py) within a memory budget, with spot checks;
+                    arrays.py: the array types batches come in; torch.py: RealisticBlur, the
+                    batch API as a training transform
     backends/       numpy (reference/), OpenCL (kernels/opencl/), Warp (warp_kernels/)
     dataset.py      outputs: blurred and sharp images, parameters, the manifest
                     (generate.py and distributed.py make a set's samples)
@@ -24,9 +25,9 @@ the tests' tolerances: :mod:`gpu_blur.testing`.
 
 __version__ = "0.1.0"
 
-from gpu_blur.pipeline import Batch, Synthesis, Synthesizer, synthesize  # noqa: E402
 from gpu_blur.plan import Plan, Stage, plan  # noqa: E402
 from gpu_blur.scene import Scene, SceneError, load_scene  # noqa: E402
+from gpu_blur.synthesis import Batch, Synthesis, Synthesizer, synthesize  # noqa: E402
 
 __all__ = ["Batch", "Plan", "Scene", "SceneError", "Stage", "Synthesis", "Synthesizer",
            "load_scene", "plan", "synthesize", "__version__"]

@@ -31,7 +31,7 @@ from gpu_blur import limits
 from gpu_blur.constants import rsblur_data
 from gpu_blur.files import read_settings
 from gpu_blur.reference.color import camera_to_linear_matrix, checked_inverse
-from gpu_blur.scene import FIELDS
+from gpu_blur.scene import FIELDS, Scene
 
 
 @dataclasses.dataclass(frozen=True)
@@ -202,6 +202,35 @@ def get_camera(name_or_path: str | Path, base_dir: Path | None = None) -> Camera
         f"unknown camera {name!r}: use one of {', '.join(preset_names())} "
         "or the path of a .toml/.json camera file"
     )
+
+
+def scene_camera(scene: Scene, backend: str = "numpy") -> Camera:
+    """The scene's camera (a preset or a camera file next to the scene).
+
+    Args:
+        scene: the scene.
+        backend: the backend's name (``numpy``, ``opencl``, ``warp``): float32 kernels refuse a
+            fitted response they cannot evaluate within tolerance
+            (:func:`check_float32_response`).
+
+    Raises:
+        ValueError: naming the scene's ``camera.name`` and the cameras there are; or, for
+            ``output.crf = "camera"``, naming the camera when it has no fitted response or
+            one too large for float32 kernels.
+    """
+    where = f"scene file {scene.path}" if scene.path else "scene"
+    try:
+        camera = get_camera(scene.camera.name, scene.base_dir)
+    except ValueError as e:
+        raise ValueError(f"{where}: camera.name = {scene.camera.name!r}: {e}") from None
+    if scene.output.crf == "camera":
+        try:
+            camera.fitted_response()
+            if backend != "numpy" and scene.output.precision == "float32":
+                check_float32_response(camera)
+        except ValueError as e:
+            raise ValueError(f"{where}: camera.name = {scene.camera.name!r}: {e}") from None
+    return camera
 
 
 @functools.cache

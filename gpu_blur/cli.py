@@ -386,8 +386,8 @@ def _cost_size(text: str) -> tuple[int, int]:
 
 def _check_setup(args, scene) -> None:
     """Fail before any sample for what every sample would fail on (exit status 2)."""
+    from gpu_blur.cameras import scene_camera
     from gpu_blur.imageio import read_kernel
-    from gpu_blur.pipeline import scene_camera
     from gpu_blur.plan import raw_round_trip
     from gpu_blur.scheduler import check_tile
 
@@ -946,7 +946,7 @@ def main(argv: list[str] | None = None) -> int:
             with notices.verbosity_set(_verbosity(args)):
                 return run_from_args(args, progress=not args.quiet)
         if args.command == "plan":
-            from gpu_blur.pipeline import scene_camera
+            from gpu_blur.cameras import scene_camera
             from gpu_blur.plan import plan
             from gpu_blur.scene import load_scene
 

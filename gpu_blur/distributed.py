@@ -9,7 +9,7 @@ models, or a GPU and a CPU, may differ in a float32 last bit).
 
 What crosses a process boundary: the job (a few hundred bytes, once per worker), each
 :class:`~gpu_blur.dataset.SampleSpec` (index, name, input paths) and each result (the
-:class:`~gpu_blur.pipeline.Synthesis` with only what the set writes,
+:class:`~gpu_blur.synthesis.Synthesis` with only what the set writes,
 :func:`~gpu_blur.generate.for_driver`: blurred and sharp as the set's integer codes, the mask
 if saved, the drawn parameters and the plan; 1.4 MB for the 600 x 400 built-in photo at 8
 bits). Workers read the inputs themselves from the spec's paths, so on a Ray cluster the

@@ -27,10 +27,10 @@ import numpy as np
 
 from gpu_blur.dataset import SampleSpec
 from gpu_blur.imageio import check_image, opencv_reason, read_image
-from gpu_blur.pipeline import Synthesis, synthesize
 from gpu_blur.reference.output import to_integers
 from gpu_blur.scene import Scene
 from gpu_blur.scheduler import Schedule
+from gpu_blur.synthesis import Synthesis, synthesize
 from gpu_blur.timings import PoolTimes
 
 #: Samples per I/O thread that may wait on each side of synthesis: decoded (or being decoded)

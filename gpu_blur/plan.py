@@ -42,7 +42,7 @@ class Pass(enum.StrEnum):
 
 
 #: The kernel passes, in order (every backend runs these; :data:`Pass.HOST` stages run in
-#: gpu_blur.pipeline on the passes' result).
+#: gpu_blur.synthesis on the passes' result).
 PASSES = (Pass.ACCUMULATE, Pass.TO_RAW, Pass.FINISH)
 
 

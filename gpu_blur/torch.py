@@ -25,7 +25,7 @@ from gpu_blur.datasets import (  # noqa: F401  (re-exported: the data side of th
     epoch_seed,
 )
 from gpu_blur.params import check_overrides
-from gpu_blur.pipeline import Synthesizer
+from gpu_blur.synthesis import Synthesizer
 
 
 class RealisticBlur(torch.nn.Module):

@@ -1,7 +1,7 @@
 """Input images on the device: the checks' counts and the sharp reference, on every kernel backend.
 
 ``KernelBackend.inspect`` against numpy's counts of the same stored values, and
-``KernelBackend.render_sharp`` against the host's float64 render (gpu_blur.pipeline), under
+``KernelBackend.render_sharp`` against the host's float64 render (gpu_blur.synthesis.host), under
 the tolerance table.
 """
 
@@ -13,13 +13,14 @@ from conftest import KERNEL_BACKEND_SPECS, spec_backend, spec_dtype
 
 from gpu_blur.backends import OnDevice, get_backend
 from gpu_blur.backends.kernel import INSPECT_COLUMNS, INSPECT_ITEMS, Arg
+from gpu_blur.cameras import scene_camera
 from gpu_blur.imageio import unit_values
 from gpu_blur.kernel_constants import INSPECT_LOADS
-from gpu_blur.pipeline import _render_values, render_sharp, scene_camera
 from gpu_blur.plan import StageName as S
 from gpu_blur.plan import plan
 from gpu_blur.reference.output import quantize
 from gpu_blur.scene import load_scene, scene_from_dict
+from gpu_blur.synthesis.host import _render_values, render_sharp
 from gpu_blur.testing import assert_close, tolerance
 from gpu_blur.tiling import Region
 
@@ -165,7 +166,7 @@ OUTPUTS = {
 
 
 def host_render(sample_plan, camera, image: np.ndarray) -> np.ndarray:
-    """The host's float64 sharp reference (pipeline.render_sharp before its float32 cast)."""
+    """The host's float64 sharp reference (synthesis.host.render_sharp before its float32 cast)."""
     values = _render_values(sample_plan, camera, unit_values(image))
     if sample_plan.kept(S.QUANTIZE):
         values = quantize(values, sample_plan[S.QUANTIZE].options["bits"])

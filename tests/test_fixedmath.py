@@ -231,8 +231,8 @@ def sample_digests() -> dict[str, str]:
     from golden import _inputs, digest
 
     from gpu_blur import synthesize
+    from gpu_blur.cameras import scene_camera
     from gpu_blur.params import draw_params
-    from gpu_blur.pipeline import scene_camera
     from gpu_blur.plan import plan
     from gpu_blur.scene import scene_from_dict
 

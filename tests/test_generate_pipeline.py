@@ -20,7 +20,7 @@ from conftest import KERNEL_BACKEND_SPECS, files, manifest_lines
 import gpu_blur.dataset
 import gpu_blur.generate
 import gpu_blur.imageio
-import gpu_blur.pipeline
+import gpu_blur.synthesis.inputs
 import gpu_blur.testhooks
 from gpu_blur.cli import main
 from gpu_blur.dataset import LOCK
@@ -192,7 +192,7 @@ def test_ctrl_c_writes_the_samples_made_and_resume_finishes_the_set(tmp_path, ph
 def test_the_summary_says_which_stage_bounded_the_run(tmp_path, photos, monkeypatch, capsys,
                                                       slow, threads, bound):
     folder, scene = photos
-    users = {"read_image": [gpu_blur.generate, gpu_blur.pipeline],  # pipelined, serial
+    users = {"read_image": [gpu_blur.generate, gpu_blur.synthesis.inputs],  # pipelined, serial
              "write_image": [gpu_blur.dataset]}.get(slow, [])
     for module in users:
         work = getattr(module, slow)

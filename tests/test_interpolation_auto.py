@@ -15,7 +15,6 @@ from conftest import KERNEL_BACKEND_SPECS
 
 from gpu_blur.dataset import default_photo
 from gpu_blur.imageio import read_image, unit_values
-from gpu_blur.pipeline import Synthesizer
 from gpu_blur.plan import plan
 from gpu_blur.reference import interpolate
 from gpu_blur.reference.interpolate import (
@@ -27,6 +26,7 @@ from gpu_blur.reference.interpolate import (
 )
 from gpu_blur.reference.transfer import srgb_to_linear
 from gpu_blur.scene import SceneError, scene_from_dict
+from gpu_blur.synthesis import Synthesizer
 
 #: Frames cut from the built-in photo: 96 x 160 pixels.
 H, W = 96, 160

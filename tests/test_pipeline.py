@@ -185,10 +185,10 @@ def test_auto_saturation_is_skipped_when_no_pixel_reaches_the_clip_level():
 
 
 def test_the_sample_plan_is_built_once_and_a_skipped_saturation_takes_no_alpha(monkeypatch):
-    from gpu_blur import pipeline
+    from gpu_blur.synthesis import draws
 
     calls = []
-    monkeypatch.setattr(pipeline, "plan", lambda *a, **k: calls.append(k) or plan(*a, **k))
+    monkeypatch.setattr(draws, "plan", lambda *a, **k: calls.append(k) or plan(*a, **k))
     dim = np.full((16, 16, 3), 0.5)
     result = gpu_blur.synthesize([dim], scene_with(blur={"steps": 2}),
                                  overrides={"alpha": 1.0})
@@ -298,9 +298,10 @@ def test_8_bit_frames_give_the_sharp_reference_of_their_float_values(retone, cof
 @pytest.mark.parametrize("bits", [0, 8, 16])
 def test_sharp_reference_from_codes_is_the_curve_of_every_pixel_bitwise(crf, dtype, bits):
     """render_sharp evaluates the curve once per code and gathers: the same values."""
+    from gpu_blur.cameras import scene_camera
     from gpu_blur.imageio import unit_values
-    from gpu_blur.pipeline import _render_values, render_sharp, scene_camera
     from gpu_blur.reference.output import quantize
+    from gpu_blur.synthesis.host import _render_values, render_sharp
 
     scene = scene_from_dict({"output": {"crf": crf, "bits": bits}})
     top = np.iinfo(dtype).max

@@ -11,9 +11,9 @@ from conftest import BACKEND_SPECS, KERNEL_BACKEND_SPECS, make_backend, spec_bac
 import gpu_blur
 from gpu_blur.backends import FRAMES_PER_LAUNCH
 from gpu_blur.backends.numpy import NumpyBackend
+from gpu_blur.cameras import scene_camera
 from gpu_blur.cli import main
 from gpu_blur.dataset import discover
-from gpu_blur.pipeline import scene_camera
 from gpu_blur.scene import scene_from_dict
 from gpu_blur.scheduler import (
     MIN_TILE,

@@ -98,10 +98,10 @@ def six_stacks(spec: str, streamed: bool, monkeypatch, data_seed: int, options: 
 
     ``streamed``: any pinned batch of codes goes in parts (STREAMED_BYTES 0).
     """
-    import gpu_blur.pipeline
+    import gpu_blur.synthesis.resident
 
     if streamed:
-        monkeypatch.setattr(gpu_blur.pipeline, "STREAMED_BYTES", 0)
+        monkeypatch.setattr(gpu_blur.synthesis.resident, "STREAMED_BYTES", 0)
     name, precision = spec_parts(spec)
     scene = scene_for("average", precision=precision, **output)
     frames = batch_for("average", 6, np.random.default_rng(data_seed))["batch"]
@@ -150,7 +150,7 @@ def test_codes_go_into_out_arrays_in_pinned_memory_without_staging(spec, streame
     assert np.array_equal(out[0], plain.blurred) and np.array_equal(out[1], plain.sharp)
     if spied == "_host_view":
         copied = {x.ctypes.data for x in seen}
-        step = gpu_blur.pipeline.STREAMED_SAMPLES if streamed else 6  # each part's start
+        step = gpu_blur.synthesis.resident.STREAMED_SAMPLES if streamed else 6  # each part's start
         assert all(o[b].ctypes.data in copied for o in out for b in range(0, 6, step))
     else:
         assert seen == []

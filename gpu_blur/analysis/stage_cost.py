@@ -156,9 +156,10 @@ def stage_costs(scene, backend: str = "numpy", size: tuple[int, int] = (320, 480
     """
     from gpu_blur.backends import get_backend
     from gpu_blur.backends.flows import with_flows
+    from gpu_blur.cameras import scene_camera
     from gpu_blur.params import draw_params
-    from gpu_blur.pipeline import _reaches_clip_level, scene_camera
     from gpu_blur.scene import load_scene
+    from gpu_blur.synthesis.inputs import reaches_clip_level
     from gpu_blur.tiling import Region
 
     if not hasattr(scene, "blur"):
@@ -170,7 +171,7 @@ def stage_costs(scene, backend: str = "numpy", size: tuple[int, int] = (320, 480
     runner = get_backend(backend, scene.output.precision)
     camera = scene_camera(scene, runner.name)
     frames, mask = bench_inputs(scene, w, h)
-    p = plan(scene, saturated=_reaches_clip_level(frames, mask), size=(h, w))
+    p = plan(scene, saturated=reaches_clip_level(frames, mask), size=(h, w))
     region = Region.whole(h, w)
     # every switch's values are drawn, so a plan with any of them on finds its parameters
     params = draw_params(scene, every_stage_on(p), camera, seed=0, sample_index=0,

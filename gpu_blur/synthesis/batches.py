@@ -1,0 +1,235 @@
+"""Batch input and output: array types, layouts, ``out=`` arrays, codes, the JPEG stage.
+
+:class:`BatchIO` splits a batch (numpy, torch, CuPy or Warp arrays) into per-sample
+:class:`~gpu_blur.synthesis.inputs.Inputs` and gives the results back as the batch's type,
+layout and device, or in the caller's ``out=`` arrays.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from gpu_blur import arrays
+from gpu_blur.outputs import jpeg_round_trip
+from gpu_blur.plan import Plan, StageName
+from gpu_blur.reference.output import code_dtype, to_integers
+from gpu_blur.scene import Scene
+from gpu_blur.synthesis.inputs import Inputs, frame_count, kept_size
+from gpu_blur.tiling import Region
+
+
+class BatchIO:
+    """A Synthesizer's batches in and out: its scene, backend and array layout.
+
+    Args:
+        scene: the scene.
+        runner: the backend.
+        resident: whether batches run on the kernel backend's device
+            (:class:`~gpu_blur.synthesis.resident.ResidentPath`).
+        channels_first: batches come and go as B x 3 x H x W.
+        with_mask: the saturation masks are returned too.
+    """
+
+    def __init__(self, scene: Scene, runner, resident: bool, channels_first: bool,
+                 with_mask: bool):
+        self.scene, self.runner, self.resident = scene, runner, resident
+        self.channels_first, self.with_mask = channels_first, with_mask
+
+    def split(self, batch, mask, sharp, lib: str) -> list[Inputs]:
+        """The batch as per-sample inputs: views of device arrays, else host arrays."""
+        mode = self.scene.blur.mode
+        given = {"batch": batch, "mask": mask, "sharp": sharp}
+        if mode != "none":
+            for key in ("mask", "sharp"):
+                if given[key] is not None:
+                    raise ValueError(f"{key}= is for blur.mode = none; this scene blurs "
+                                     f"(blur.mode = {mode})")
+        parts = {}
+        for key, x in given.items():
+            if x is None:
+                continue
+            if arrays.library(x) != lib:
+                raise ValueError(f"{key} is a {arrays.library(x)} array but the batch is "
+                                 f"{lib}: pass both as the same type")
+            arrays.check_dense(x, key)
+            parts[key] = self._normalized(x, key, lib, frames=key == "batch"
+                                          and mode == "average")
+        if mode == "average":
+            frame_count(parts["batch"].shape[1], self.scene)
+        count = parts["batch"].shape[0]
+        for key, x in parts.items():
+            if tuple(x.shape) != tuple(parts["batch"].shape):
+                raise ValueError(f"{key} has shape {tuple(x.shape)} but the batch "
+                                 f"{tuple(parts['batch'].shape)}: give one of each per sample")
+        reached = self.reaches(parts["batch"], lib)
+        samples = {key: (reached and arrays.warp_samples(x, lib))
+                   or [self._taken(x[b], lib, reached) for b in range(count)]
+                   for key, x in parts.items()}
+        items = []
+        for b in range(count):
+            label = f"sample {b} of {count}: "
+            x = samples["batch"][b]
+            if mode == "average":
+                names = {"frames": [f"frame {i}" for i in range(x.shape[0])]}
+                items.append(Inputs(x, None, None, names, label))
+                continue
+            m = samples["mask"][b] if "mask" in parts else None
+            s = samples["sharp"][b] if "sharp" in parts else None
+            name = "blurred" if mode == "none" else "photo"
+            items.append(Inputs([x], m, s, {"frames": [name], "mask": "mask",
+                                          "sharp": "sharp"}, label))
+        return items
+
+    def _normalized(self, x, key: str, lib: str, *, frames: bool):
+        """One batch input checked for layout, channels-last, a kernel dtype, even size."""
+        if self.channels_first:
+            if x.ndim < 4 or x.shape[-3] != 3:
+                raise ValueError(f"{key}: channels_first takes B x 3 x H x W (B x F x 3 x H x "
+                                 f"W for frames); got shape {tuple(x.shape)}")
+            x = arrays.channels_last(x, lib)
+        want = 5 if frames else 4
+        layout = "B x F x H x W x 3" if frames else "B x H x W x 3"
+        if x.ndim != want or x.shape[-1] != 3 or 0 in tuple(x.shape):
+            raise ValueError(f"{key}: blur.mode = {self.scene.blur.mode} takes {layout} "
+                             f"batches; got shape {tuple(x.shape)}")
+        dtype = arrays.dtype_name(x)
+        if dtype not in arrays.DTYPES:
+            raise ValueError(f"{key}: unsupported dtype {dtype}; use one of "
+                             f"{', '.join(arrays.DTYPES)} (floats in [0, 1])")
+        if dtype.startswith("float") and dtype != self.runner.precision and self.resident:
+            x = arrays.as_real(x, lib, self.runner.precision)  # on the array's own device
+        h, w = kept_size(self.scene, x.shape)
+        if (h, w) != tuple(x.shape[-3:-1]):
+            x = x[..., :h, :w, :]
+            x = x.contiguous() if lib == "torch" else x
+        return x
+
+    def _taken(self, x, lib: str, reached: bool):
+        """One sample's input as the backend takes it: a ``wp.array`` view, or host memory."""
+        if reached:
+            return arrays.as_warp(x, lib)
+        host = arrays.to_numpy(x, lib)
+        return host if self.resident else np.ascontiguousarray(host)
+
+    def reaches(self, batch, lib: str) -> bool:
+        """Whether the backend takes ``batch`` where it is (Warp, on its device): no copy."""
+        return (self.resident and self.runner.device_arrays
+                and arrays.on_warp_device(batch, lib, self.runner.wp_device))
+
+    def outputs(self, count: int, region: Region, batch, lib: str, dtypes: list,
+                given: Sequence | None = None) -> list:
+        """The batch's output arrays, one per dtype: ``out=``'s (channels-last views), else new.
+
+        On the device (Warp) in the compute type, where the batch lies there.
+        """
+        shape = (count, region.h, region.w, 3)
+        if given is not None:
+            return self.given_outputs(given, shape, lib, dtypes)
+        if self.reaches(batch, lib):  # new batch buffers as (count, h, w, 3) device arrays
+            runner, values = self.runner, region.h * region.w * 3
+            return [runner.device_array(runner.stacked(runner.slots(count, values), shape[1:]))
+                    for _ in dtypes]
+        return [np.empty(shape, dtype) for dtype in dtypes]
+
+    def given_outputs(self, given: Sequence, shape: tuple, lib: str, dtypes: list) -> list:
+        """``out=``'s arrays checked against the results they take, as channels-last views."""
+        n = len(dtypes)
+        names = ("blurred", "sharp", "mask")[:n]
+        if lib != "numpy":
+            raise ValueError(f"out= is for numpy batches (the results are {lib} arrays made "
+                             "where the batch lives); leave it out for this batch")
+        if not isinstance(given, (list, tuple)) or len(given) != n:
+            raise ValueError(f"out= takes {n} arrays, ({', '.join(names)})"
+                             + ("" if self.with_mask else "; with_mask=True adds the mask"))
+        want = (shape[0], 3, *shape[1:3]) if self.channels_first else shape
+        views = []
+        for name, array, dtype in zip(names, given, dtypes, strict=True):
+            if (not isinstance(array, np.ndarray) or array.dtype != dtype
+                    or array.shape != want or not array.flags.writeable):
+                got = (f"a {type(array).__name__}" if not isinstance(array, np.ndarray) else
+                       f"{array.dtype} {array.shape}"
+                       + ("" if array.flags.writeable else ", read-only"))
+                raise ValueError(f"out= {name}: needs a writeable {np.dtype(dtype).name} numpy "
+                                 f"array of shape {want}; got {got}")
+            if _self_overlapping(array):
+                raise ValueError(f"out= {name}: its elements overlap (strides {array.strides}); "
+                                 "results would overwrite each other: pass a plain array "
+                                 "(np.empty)")
+            for other, earlier in zip(names, views, strict=False):
+                if _overlap(array, earlier):
+                    raise ValueError(f"out= {name} shares memory with out= {other}; one result "
+                                     "would overwrite the other: pass an array of its own for "
+                                     "each")
+            views.append(np.moveaxis(array, 1, -1) if self.channels_first else array)
+        return views
+
+    def returned(self, out, lib: str, like):
+        """An output array as the batch's type and layout."""
+        if isinstance(out, np.ndarray):
+            result = arrays.from_numpy(out, lib, like)
+        else:
+            result = arrays.from_warp(out, lib, like)
+        return arrays.channels_first(result, lib) if self.channels_first else result
+
+    def codes_here(self, out: list, lib: str, given) -> list:
+        """A batch's float blurred and sharp as their codes, made on the host.
+
+        After the JPEG stage, and for batches run from host memory; into ``out=``'s arrays
+        (checked here), else new ones. The mask as it is.
+        """
+        bits = self.scene.output.bits
+        host = [x if isinstance(x, np.ndarray) else x.numpy() for x in out]
+        made = [to_integers(x, bits) for x in host[:2]] + host[2:]
+        if given is None:
+            return made
+        code = code_dtype(bits)
+        views = self.given_outputs(given, made[0].shape, lib,
+                                   [code, code, np.float32][:len(made)])
+        for view, x in zip(views, made, strict=True):
+            np.copyto(view, x)
+        return views
+
+
+def jpeg_stage(blurred, plans: list[Plan], params: list[dict]) -> None:
+    """The JPEG stage, on the host, in place: a batch's blurred images (host or Warp array)."""
+    chosen = [b for b, p in enumerate(plans) if p.kept(StageName.JPEG)]
+    if not chosen:
+        return
+    host = blurred if isinstance(blurred, np.ndarray) else blurred.numpy()
+    for b in chosen:
+        host[b] = jpeg_round_trip(host[b], params[b]["jpeg_quality"])
+    if host is not blurred:
+        blurred.assign(host)
+
+
+def refuse_out_on_inputs(out, inputs: dict) -> None:
+    """Refuse an ``out=`` array that shares memory with an input (numpy batches)."""
+    if not isinstance(out, (list, tuple)):
+        return  # BatchIO.given_outputs says what out= takes
+    for name, array in zip(("blurred", "sharp", "mask"), out, strict=False):
+        for key, x in inputs.items():
+            if isinstance(array, np.ndarray) and isinstance(x, np.ndarray) and _overlap(array, x):
+                raise ValueError(f"out= {name} shares memory with the {key} input; results "
+                                 "would overwrite the inputs they are made from: pass an "
+                                 "array of its own")
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two numpy arrays share memory (a case too costly to decide counts as shared)."""
+    try:
+        return bool(np.shares_memory(a, b, max_work=1 << 20))
+    except np.exceptions.TooHardError:
+        return True
+
+
+def _self_overlapping(a: np.ndarray) -> bool:
+    """Whether elements of ``a`` may share bytes: an axis steps less than the axes within span."""
+    span = a.itemsize
+    for stride, n in sorted((abs(s), n) for s, n in zip(a.strides, a.shape, strict=True)
+                            if n > 1):
+        if stride < span:
+            return True
+        span += stride * (n - 1)
+    return False
