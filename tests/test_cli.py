@@ -187,7 +187,7 @@ def device_worker(tmp_path, photos=1, size=(24, 32)):
     import os
 
     from gpu_blur import distributed
-    from gpu_blur.dataset import discover
+    from gpu_blur.dataset import find_samples
     from gpu_blur.generate import Job
     from gpu_blur.scene import scene_from_dict
 
@@ -196,7 +196,7 @@ def device_worker(tmp_path, photos=1, size=(24, 32)):
     for i in range(photos):
         cv2.imwrite(str(tmp_path / "in" / f"p{i}.png"), rng.integers(0, 256, (*size, 3),
                                                                        np.uint8))
-    specs = discover(tmp_path / "in", "trajectory", 1, 1)
+    specs = find_samples(tmp_path / "in", "trajectory", 1, 1).take()
     context = multiprocessing.get_context("spawn")
     conn, child = context.Pipe()
     job = Job(scene_from_dict({"blur": {"steps": 3}}), 0, "numpy")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gpu_blur.cli import main
-from gpu_blur.dataset import discover, find_sequences
+from gpu_blur.dataset import find_samples, find_sequences
 
 
 def write_frames(folder, names):
@@ -39,20 +39,20 @@ def test_sequences_and_photos_are_in_natural_order(tmp_path):
         ("s1", ["9.png", "10.png"]), ("s2", ["9.png", "10.png"]), ("s10", ["9.png", "10.png"])]
     write_frames(tmp_path / "photos", ["img10.png", "img9.png", "img01.png", "img1.png"])
     write_frames(tmp_path / "photos" / "img2", ["a.png"])
-    assert [s.name for s in discover(tmp_path / "photos", "trajectory", 1)] == [
+    assert [s.name for s in find_samples(tmp_path / "photos", "trajectory", 1).take()] == [
         "img01", "img1", "img2/a", "img9", "img10"]
 
 
 def test_a_limit_makes_only_the_samples_it_takes(tmp_path):
     write_frames(tmp_path / "in" / "A" / "sharp", [f"{i:06d}.png" for i in range(9)])
-    specs = discover(tmp_path / "in", "average", 3, samples_per_sequence=300_000_000, limit=3)
+    specs = find_samples(tmp_path / "in", "average", 3, samples_per_sequence=300_000_000).take(3)
     assert [(s.index, s.name) for s in specs] == [(0, "A/000000"), (1, "A/000000_1"),
                                                   (2, "A/000000_2")]
-    assert discover(tmp_path / "in", "average", 3, samples_per_sequence=7, limit=5) == (
-        discover(tmp_path / "in", "average", 3, samples_per_sequence=7)[:5])
+    assert find_samples(tmp_path / "in", "average", 3, samples_per_sequence=7).take(5) == (
+        find_samples(tmp_path / "in", "average", 3, samples_per_sequence=7).take()[:5])
     write_frames(tmp_path / "photos", ["a.png", "b.png"])
-    specs = discover(tmp_path / "photos", "trajectory", 1, samples_per_photo=300_000_000,
-                     limit=2)
+    specs = find_samples(tmp_path / "photos", "trajectory", 1,
+                         samples_per_photo=300_000_000).take(2)
     assert [(s.index, s.name) for s in specs] == [(0, "a_0"), (1, "a_1")]
 
 

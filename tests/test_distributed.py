@@ -18,7 +18,7 @@ from conftest import files, manifest_lines
 
 from gpu_blur import distributed
 from gpu_blur.cli import main
-from gpu_blur.dataset import discover
+from gpu_blur.dataset import find_samples
 from gpu_blur.distributed import parse_devices, run_devices, run_ray
 from gpu_blur.generate import Job, for_driver, run_serial
 from gpu_blur.imageio import write_image
@@ -143,7 +143,7 @@ def test_a_device_worker_decoding_ahead_in_threads_writes_the_serial_run_s_set(
 
 def test_a_worker_sends_the_codes_the_writer_writes_and_no_unsaved_mask(tmp_path, photos):
     folder, scene_path = photos
-    spec = discover(folder, "trajectory", 1, 2)[0]
+    spec = find_samples(folder, "trajectory", 1, 2).take()[0]
     full = run_serial(Job(load_scene(scene_path), 3, "numpy"), [spec])
     _, made, _ = next(full)
     job = Job(load_scene(scene_path), 3, "numpy", bits=8, with_mask=False)
@@ -203,7 +203,7 @@ def test_run_ray_in_batches_yields_the_serial_results_with_the_callers_specs(
         ray_local, photos):
     folder, scene_path = photos
     scene = load_scene(scene_path)
-    specs = discover(folder, "trajectory", 1, 2)
+    specs = find_samples(folder, "trajectory", 1, 2).take()
     job = Job(scene, 3, "numpy")
     serial = {s.index: (s, r, e) for s, r, e in run_serial(job, specs)}
     got = list(run_ray(job, specs, batch=4))
@@ -271,7 +271,7 @@ def test_devices_all_is_every_usable_device_of_the_backend():
 def test_a_device_that_cannot_open_stops_the_run_before_any_sample(photos):
     folder, scene_path = photos
     job = Job(load_scene(scene_path), 0, "numpy")
-    specs = discover(folder, "trajectory", 1, 1)
+    specs = find_samples(folder, "trajectory", 1, 1).take()
     with pytest.raises(RuntimeError, match="--devices nosuch: unknown backend 'nosuch'"):
         next(run_devices(job, specs, ["numpy", "nosuch"]))
 
@@ -287,7 +287,7 @@ def test_a_device_workers_own_error_stops_the_run_naming_the_sample_with_its_tra
     # a bug: a scene that is no Scene (the worker opens its backend, then load_scene fails)
     not_a_scene = types.SimpleNamespace(output=types.SimpleNamespace(precision="float32"))
     job = Job(not_a_scene, 0, "numpy")
-    specs = discover(folder, "trajectory", 1, 1)
+    specs = find_samples(folder, "trajectory", 1, 1).take()
     with pytest.raises(RuntimeError) as e:
         list(run_devices(job, specs, ["numpy"]))
     assert str(e.value).startswith("the worker on numpy failed on sample 0 (a), not for a "

@@ -7,7 +7,7 @@ from conftest import KERNEL_BACKEND_SPECS, manifest_lines
 
 import gpu_blur
 from gpu_blur.cli import main
-from gpu_blur.dataset import discover, find_blurred
+from gpu_blur.dataset import find_blurred, find_samples
 from gpu_blur.imageio import read_image
 
 SCENE = '[blur]\nmode = "none"\n[saturation]\nmode = "on"\n'
@@ -67,7 +67,7 @@ def test_each_published_layout_gives_its_blurred_image_mask_and_sharp_reference(
          gopro_u / f"target_img/{u_name}_gt.png", None),
         ("RSBlur/0001/000001/avg_blur", rsblur / "avg65_img/avg_blur.png",
          rsblur / "avg65_mask_100/avg_blur.png", rsblur / "gt/gt_sharp.png", None)]
-    specs = discover(layouts, "none", 1)
+    specs = find_samples(layouts, "none", 1).take()
     assert [s.roles for s in specs] == [("blurred", "mask", "sharp")] * 4
     assert [s.inputs for s in specs] == [(s.blurred, s.mask, s.sharp) for s in found]
 
@@ -117,7 +117,7 @@ def test_generate_mode_none_makes_each_sample_from_its_blurred_image_mask_and_sh
                  str(scene), "--backend", backend, "--seed", "3", "--quiet"]) == 0
     lines = manifest_lines(out)
     assert [x["input_roles"] for x in lines] == [["blurred", "mask", "sharp"]] * 4
-    for line, spec in zip(lines, discover(layouts, "none", 1), strict=True):
+    for line, spec in zip(lines, find_samples(layouts, "none", 1).take(), strict=True):
         assert line["inputs"] == [str(p) for p in spec.inputs]
         blurred, mask, sharp = (rgb(p) for p in spec.inputs)
         want = gpu_blur.synthesize({"blurred": blurred, "mask": mask, "sharp": sharp}, scene,

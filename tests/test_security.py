@@ -140,14 +140,14 @@ def test_device_workers_do_not_import_a_package_planted_in_the_current_folder(tm
         import sys
         from pathlib import Path
         sys.path.insert(0, ROOT)  # gpu_blur from this tree: -E drops PYTHONPATH
-        from gpu_blur.dataset import discover
+        from gpu_blur.dataset import find_samples
         from gpu_blur.distributed import run_devices
         from gpu_blur.generate import Job
         from gpu_blur.scene import load_scene
 
         if __name__ == "__main__":
             job = Job(load_scene({"blur": {"steps": 2}}), 0, "numpy")
-            specs = discover(Path("."), "trajectory", 1, 1)
+            specs = find_samples(Path("."), "trajectory", 1, 1).take()
             made = list(run_devices(job, specs, ["numpy"]))
             print(json.dumps({"made": len(made), "errors": [str(e) for _, _, e in made if e]}))
     """).replace("ROOT", repr(str(Path(__file__).resolve().parents[1]))))
