@@ -1,8 +1,9 @@
 """gpu_blur: realistic motion-blur synthesis (RSBlur, Rim et al. ECCV 2022) on CPUs and GPUs.
 
 Start with :func:`synthesize` (one sample), :class:`Synthesizer` (batches: numpy, torch, CuPy
-or Warp arrays in and out), :func:`load_scene` (settings) and :func:`plan` (which stages a
-scene runs); the float64 reference of every stage is :mod:`gpu_blur.reference`.
+or Warp arrays in and out), :func:`generate_set` (a whole data set, as ``gpu-blur generate``),
+:func:`load_scene` (settings) and :func:`plan` (which stages a scene runs); the float64
+reference of every stage is :mod:`gpu_blur.reference`.
 
 One sample, module by module:
 
@@ -16,7 +17,8 @@ One sample, module by module:
                     batch API as a training transform
     backends/       numpy (reference/), OpenCL (kernels/opencl/), Warp (warp_kernels/)
     dataset.py      outputs: blurred and sharp images, parameters, the manifest
-                    (generate.py and distributed.py make a set's samples)
+                    (generation.py: generate_set, a whole set; generate.py and
+                    distributed.py make its samples)
 
 Apart from synthesis: :mod:`gpu_blur.analysis` (calibration, alignment, metrics, the
 benchmark), which measures and never synthesizes. Test hooks: :mod:`gpu_blur.testhooks`;
@@ -25,9 +27,10 @@ the tests' tolerances: :mod:`gpu_blur.testing`.
 
 __version__ = "0.1.0"
 
+from gpu_blur.generation import SetReport, generate_set  # noqa: E402
 from gpu_blur.plan import Plan, Stage, plan  # noqa: E402
 from gpu_blur.scene import Scene, SceneError, load_scene  # noqa: E402
 from gpu_blur.synthesis import Batch, Synthesis, Synthesizer, synthesize  # noqa: E402
 
-__all__ = ["Batch", "Plan", "Scene", "SceneError", "Stage", "Synthesis", "Synthesizer",
-           "load_scene", "plan", "synthesize", "__version__"]
+__all__ = ["Batch", "Plan", "Scene", "SceneError", "SetReport", "Stage", "Synthesis",
+           "Synthesizer", "generate_set", "load_scene", "plan", "synthesize", "__version__"]

@@ -1,0 +1,456 @@
+"""A whole data set from Python: :func:`generate_set`, the driver ``gpu-blur generate`` runs.
+
+It checks the options and the scene before any sample, opens the output folder
+(:class:`~gpu_blur.dataset.DatasetWriter`: new, ``overwrite`` or ``resume``), has an executor
+make the samples (this thread with I/O threads, ``devices`` or ``ray``; see
+:mod:`gpu_blur.generate` and :mod:`gpu_blur.distributed`), writes them in order and returns a
+:class:`SetReport`. Nothing is printed unless asked (``progress=True``: the progress bar);
+what stops the run is raised: ValueError, OSError or RuntimeError for what no sample could
+get past (bad options, scene, input or output folder, a full disk), :class:`StrictStop` for a
+spot-check mismatch under ``strict``, :class:`SetInterrupted` for Ctrl-C (the samples made
+so far are written first). Options and messages are the command's: a keyword is the option's
+name with ``_`` for ``-`` (``max_device_memory="2G"`` is ``--max-device-memory 2G``).
+
+Example::
+
+    report = gpu_blur.generate_set("out", limit=8, seed=1)
+    print(report.made, report.manifest)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import os
+import time
+import types
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from gpu_blur import testhooks
+
+#: ``progress``: True (a progress bar on standard error), or ``progress(done, total)`` called
+#: as each sample comes back (made or failed); False or None: nothing.
+Progress = bool | Callable[[int, int], None] | None
+
+
+@dataclasses.dataclass(frozen=True)
+class ResumeState:
+    """What a ``resume`` found in the output folder, before any sample is made.
+
+    Attributes:
+        done: samples an earlier run finished (kept untouched).
+        samples: samples of the set (after ``limit``).
+        to_make: samples this run makes (the missing and the failed ones).
+        failed_before: of those, the ones that failed before (tried again).
+        torn: manifest lines ignored (torn by a kill, or not valid).
+    """
+
+    done: int
+    samples: int
+    to_make: int
+    failed_before: int
+    torn: int
+
+
+@dataclasses.dataclass(frozen=True)
+class SetReport:
+    """What a finished :func:`generate_set` made, and where its time went.
+
+    Attributes:
+        output: the set's folder.
+        manifest: its ``manifest.jsonl``.
+        device: the device the samples ran on (as ``gpu-blur generate`` names it).
+        made: samples made and written by this run.
+        failed: the manifest lines of the samples that failed (``index``, ``name``,
+            ``error``, ...); fix their inputs and run again with ``resume=True``.
+        skipped: samples an earlier run had finished (``resume``), left untouched.
+        to_make: samples this run set out to make (``made + len(failed)`` when it finished).
+        seconds: the wall time of making and writing them.
+        timings: seconds per category summed over the run (:data:`gpu_blur.timings.CATEGORIES`).
+        bound: which stage bounded a one-device run, as a line (None with ``devices``/``ray``).
+        summary: the lines ``gpu-blur generate`` prints at the end (samples, samples/s, where
+            the time went, the I/O threads, the bound).
+    """
+
+    output: Path
+    manifest: Path
+    device: str
+    made: int
+    failed: tuple[dict, ...]
+    skipped: int
+    to_make: int
+    seconds: float
+    timings: dict[str, float]
+    bound: str | None
+    summary: tuple[str, ...]
+
+
+class StrictStop(RuntimeError):
+    """``strict``: a spot check failed, and the run stopped there (samples made are kept)."""
+
+    def __init__(self, index: int, name: str, error: str):
+        super().__init__(f"--strict: sample {index} ({name}): {error}; the run stopped "
+                         "(samples made so far are kept; --resume goes on)")
+        self.index, self.name, self.error = index, name, error
+
+
+class SetInterrupted(KeyboardInterrupt):
+    """Ctrl-C (or a stop signal) ended the run; the samples made so far were written first.
+
+    Attributes:
+        made: new samples written by this run.
+        cause: the KeyboardInterrupt that stopped it (``gpu_blur.cli``'s ``Terminated`` for
+            SIGTERM and SIGHUP).
+    """
+
+    def __init__(self, made: int, cause: KeyboardInterrupt):
+        super().__init__(made)
+        self.made, self.cause = made, cause
+
+
+def extras(save: str | Iterable[str]) -> tuple[str, ...]:
+    """``save``'s outputs (a comma list or names), checked, in ``dataset.EXTRAS`` order."""
+    from gpu_blur.dataset import EXTRAS
+
+    text = save if isinstance(save, str) else ",".join(save)
+    given = [name.strip() for name in text.split(",") if name.strip()]
+    unknown = [name for name in given if name not in EXTRAS]
+    if unknown:
+        raise ValueError(f"--save {text}: {unknown[0]!r} is not an output; allowed: a comma "
+                         f"list of {', '.join(EXTRAS)}")
+    return tuple(name for name in EXTRAS if name in given)
+
+
+def scene_files(scene) -> dict[str, Path]:
+    """The files a scene reads, by scene key.
+
+    A camera file (``camera.name`` ending in .toml or .json) and ``blur.kernel`` (mode
+    "kernel"); a relative path is taken from the scene file's folder.
+    """
+    named = {}
+    if Path(scene.camera.name).suffix.lower() in (".toml", ".json"):
+        named["camera.name"] = Path(scene.camera.name)
+    if scene.blur.mode == "kernel" and scene.blur.kernel:
+        named["blur.kernel"] = Path(scene.blur.kernel)
+    return {key: path if path.is_absolute() or scene.base_dir is None else scene.base_dir / path
+            for key, path in named.items()}
+
+
+def check_setup(o, scene) -> None:
+    """Fail before any sample for what every sample would fail on (``o``: the options)."""
+    from gpu_blur.cameras import scene_camera
+    from gpu_blur.imageio import read_kernel
+    from gpu_blur.plan import raw_round_trip
+    from gpu_blur.scheduler import check_tile
+
+    if not 0 <= o.seed < 2**64:
+        raise ValueError(f"--seed {o.seed}: must lie in [0, 2**64)")
+    if o.tile:
+        check_tile(o.tile, "--tile")
+    if (o.samples_per_photo is not None and o.samples_per_photo < 1) or (
+            o.limit is not None and o.limit < 1):
+        raise ValueError("--samples-per-photo and --limit must be >= 1")
+    if o.samples_per_sequence is not None and o.samples_per_sequence < 1:
+        raise ValueError(f"--samples-per-sequence {o.samples_per_sequence}: must be >= 1")
+    if o.input is not None and o.input.resolve().is_relative_to(o.output.resolve()):
+        raise ValueError(f"--input {o.input} is --output {o.output} or lies inside it, "
+                         "where generate writes and removes the set's files; give an --output "
+                         "outside the input (one inside it is fine: it is left out of the "
+                         "input)")
+    if o.io_threads is not None and o.io_threads < 1:
+        raise ValueError(f"--io-threads {o.io_threads}: must be >= 1 (1: no I/O threads)")
+    if not 0.0 <= o.verify <= 1.0:
+        raise ValueError(f"--verify {o.verify}: the fraction of tiles to check, 0 to 1")
+    if "raw" in extras(o.save) and not raw_round_trip(scene):
+        where = f"scene file {scene.path}" if scene.path else "the scene"
+        raise ValueError(f"--save raw: {where} has no RAW round trip (noise.model = "
+                         f"{scene.noise.model!r}, isp.round_trip = {scene.isp.round_trip!r}); "
+                         "set noise.model = 'poisson-gaussian' or isp.round_trip = 'always', "
+                         "or leave raw out of --save")
+    if o.strict and not o.verify:
+        raise ValueError("--strict stops the run at the first spot-check mismatch; give "
+                         "--verify FRACTION too")
+    if o.max_device_memory is not None:
+        from gpu_blur.plan import plan
+        from gpu_blur.scheduler import check_budget
+
+        numpy = o.backend.split(":")[0] == "numpy"
+        check_budget(o.max_device_memory, plan(scene),
+                     "float64" if numpy else scene.output.precision)
+    # an unknown camera name, a bad camera file, a response float32 kernels cannot evaluate
+    scene_camera(scene, o.backend.split(":")[0])
+    kernel = scene_files(scene).get("blur.kernel")
+    if kernel is not None:
+        try:
+            read_kernel(kernel)
+        except ValueError as e:
+            raise ValueError(f"scene file {scene.path}: {e}" if scene.path else str(e)) from None
+
+
+def _cannot_write(output: Path, spec, error: OSError) -> OSError:
+    """The error that stops a run which cannot write a sample: the sample and the way out."""
+    return OSError(f"--output {output}: cannot write sample {spec.index} ({spec.name}): "
+                   f"{error}; the samples finished so far are kept: free space or fix the "
+                   "folder, then run the same command with --resume")
+
+
+def generate_set(
+    output: str | os.PathLike, *, input: str | os.PathLike | None = None,
+    scene: str | os.PathLike | dict | None = None, seed: int = 0, backend: str = "numpy",
+    devices: str | None = None, ray: str | None = None, gpus_per_task: float | None = None,
+    retries: int | None = None, ray_batch: int | None = None, io_threads: int | None = None,
+    tile: Sequence[int] | None = None, max_device_memory: str | int | None = None,
+    verify: float = 0.0, strict: bool = False, samples_per_photo: int | None = None,
+    samples_per_sequence: int | None = None, limit: int | None = None,
+    save: str | Iterable[str] = "", overwrite: bool = False, resume: bool = False,
+    progress: Progress = False, on_device: Callable[[str], None] | None = None,
+    on_resume: Callable[[ResumeState], None] | None = None,
+) -> SetReport:
+    """Make a data set of blurred/sharp pairs and its manifest, as ``gpu-blur generate`` does.
+
+    Every keyword but the last three is the command's option of that name (``gpu-blur
+    generate --help`` says more); the files are the command's, byte for byte.
+
+    Args:
+        output: the set's folder (blur/, sharp/, params/, manifest.jsonl, run.json).
+        input: a folder of sequences, photos or blurred images; None: the built-in photo.
+        scene: a scene TOML, a built-in scene's name or a dict of sections; None: default.
+        seed: the set's seed, in [0, 2**64).
+        backend: numpy, opencl, opencl:P:D, warp, warp:cpu, warp:cuda:N.
+        devices: one worker process per device of this host ("all" or a comma list).
+        ray: a Ray cluster's address ("auto"); with gpus_per_task, retries, ray_batch.
+        gpus_per_task: GPUs each Ray task asks for.
+        retries: times a failed Ray task runs again (default 3).
+        ray_batch: samples per Ray task.
+        io_threads: threads that decode and write beside synthesis (1: none).
+        tile: (rows, cols): run each image in tiles of at most that size.
+        max_device_memory: device memory one tile's passes may hold ("2G", bytes).
+        verify: fraction of tiles recomputed by the numpy reference and compared.
+        strict: stop at the first spot-check mismatch (raises :class:`StrictStop`).
+        samples_per_photo: samples drawn from each photo (default 1; 4 for the built-in one).
+        samples_per_sequence: blur.mode average: windows per sequence.
+        limit: make at most this many samples.
+        save: further outputs, ``"mask,raw"`` or ``["mask", "raw"]``.
+        overwrite: replace an existing set in ``output``.
+        resume: finish the set in ``output`` that a run with the same settings started.
+        progress: True: a progress bar on standard error; a callable: ``progress(done,
+            total)`` as each sample comes back; default: nothing.
+        on_device: called with the device's description once the backend is open, before
+            the options are checked.
+        on_resume: with ``resume``, called with a :class:`ResumeState` before the first sample.
+
+    Returns:
+        a :class:`SetReport`; samples that failed are in ``report.failed`` (and the manifest).
+
+    Raises:
+        ValueError, OSError, RuntimeError: nothing could start (options, scene, input or
+            output folder), or the run could not go on (a sample's files cannot be written).
+        StrictStop: ``strict`` and a spot check failed.
+        SetInterrupted: KeyboardInterrupt while samples were made (those made are written).
+    """
+    if devices is not None and ray is not None:
+        raise ValueError("--devices and --ray exclude each other: give one")
+    if overwrite and resume:
+        raise ValueError("--overwrite and --resume exclude each other: give one")
+    o = types.SimpleNamespace(
+        output=Path(output), input=None if input is None else Path(input), scene=scene,
+        seed=seed, backend=backend, devices=devices, ray=ray, gpus_per_task=gpus_per_task,
+        retries=retries, ray_batch=ray_batch, io_threads=io_threads,
+        tile=None if tile is None else list(tile), max_device_memory=max_device_memory,
+        verify=verify, strict=strict, samples_per_photo=samples_per_photo,
+        samples_per_sequence=samples_per_sequence, limit=limit, save=save,
+        overwrite=overwrite, resume=resume)
+    return _Run(o, progress, on_device, on_resume).run()
+
+
+class _Run:
+    """One :func:`generate_set` call: set up, make the samples, sum up."""
+
+    def __init__(self, o, progress: Progress, on_device, on_resume):
+        from gpu_blur.backends import get_backend
+        from gpu_blur.dataset import BUILT_IN_INPUT, DatasetWriter, find_samples, library_versions
+        from gpu_blur.distributed import pick_executor
+        from gpu_blur.scene import load_scene
+        from gpu_blur.scheduler import Schedule
+
+        self.o, self.progress = o, progress
+        scene = self.scene = load_scene(o.scene)
+        self.backend = get_backend(o.backend, scene.output.precision)  # fails before any work
+        if on_device is not None:
+            on_device(self.backend.device)
+        check_setup(o, scene)
+        self.executor = pick_executor(o, scene.output.precision)  # serial, devices or ray
+        per_photo = o.samples_per_photo or (1 if o.input else 4)
+        found = find_samples(o.input, scene.blur.mode, scene.blur.frames, per_photo,
+                             o.samples_per_sequence, exclude=o.output,
+                             masks=scene.saturation.mode != "off")
+        specs = found.take(o.limit)
+        # the Schedule rides in Job.tile (tile, memory budget, spot checks; see pipeline)
+        self.schedule = Schedule(tuple(o.tile) if o.tile else None, o.max_device_memory,
+                                 o.verify)
+        # how samples run, never what they give: recorded, not checked by resume
+        how = {"tile": list(self.schedule.tile) if self.schedule.tile else None,
+               "max_device_memory": self.schedule.max_device_memory,
+               "verify": self.schedule.verify}
+        scene_file = (str(o.scene) if o.scene is not None and not isinstance(o.scene, dict)
+                      else None)
+        run = {"seed": o.seed, "backend": o.backend, "device": self.backend.device,
+               "input": str(o.input) if o.input else BUILT_IN_INPUT, **how,
+               "samples_per_photo": per_photo, "samples_per_sequence": o.samples_per_sequence,
+               "scene_file": scene_file, "scene": scene.to_dict(),
+               "files": {key: hashlib.sha256(path.read_bytes()).hexdigest()
+                         for key, path in scene_files(scene).items()},
+               "libraries": library_versions(o.backend)}
+        self.extras = extras(o.save)
+        if self.extras:  # absent without save, as sets made before it record it
+            run["save"] = list(self.extras)
+        self.writer = DatasetWriter(o.output, scene.output.bits, run, overwrite=o.overwrite,
+                                    resume=o.resume, specs=specs, total=found.total,
+                                    extras=self.extras)
+        self.todo = [s for s in specs if s.index not in self.writer.done]
+        self.done = len(specs) - len(self.todo)
+        if o.resume and on_resume is not None:
+            on_resume(ResumeState(self.done, len(specs), len(self.todo), self.writer.retry,
+                                  self.writer.torn))
+        self.record = {"seed": o.seed, "backend": o.backend, "device": self.backend.device,
+                       **how}
+        self.failed: list[dict] = []
+        self.made = 0
+
+    def save(self, spec, result) -> dict:
+        """A made sample's files (in an I/O thread if there are), its manifest line back."""
+        try:  # the model of device that made it
+            return self.writer.save(spec, result, {**self.record,
+                                                   "device": result.device
+                                                   or self.record["device"]})
+        except OSError as e:
+            raise _cannot_write(self.o.output, spec, e) from None
+
+    def finish(self, spec, error, line) -> None:
+        """Each sample once written, in order: into the manifest, made or failed."""
+        from gpu_blur.scheduler import SPOT_CHECK_FAILED
+
+        try:
+            if error is not None:  # this sample's input: record it, go on
+                checked = {"spot_check": "failed"} if error.startswith(
+                    SPOT_CHECK_FAILED) else {}
+                self.failed.append(self.writer.fail(spec, error, self.record | checked))
+            else:
+                self.writer.add(line)
+                self.made += 1
+        except OSError as e:  # a full disk, a folder gone
+            raise _cannot_write(self.o.output, spec, e) from None
+        testhooks.sleep_after(spec.index)
+
+    def _watched(self, samples):
+        """The executor's samples, through the progress bar or callback if asked."""
+        if self.progress is True:
+            from tqdm import tqdm
+
+            yield from tqdm(samples, total=len(self.todo), desc="samples", unit="sample")
+            return
+        for count, sample in enumerate(samples, 1):
+            yield sample
+            if callable(self.progress):
+                self.progress(count, len(self.todo))
+
+    def run(self) -> SetReport:
+        """Make the samples to do, write them, and sum up."""
+        from gpu_blur.generate import (
+            QUEUE_PER_THREAD,
+            Job,
+            WriteBehind,
+            default_io_threads,
+            run_pipelined,
+            run_serial,
+        )
+        from gpu_blur.scheduler import SPOT_CHECK_FAILED
+        from gpu_blur.timings import PoolTimes, RunTotals, current, timer
+
+        o, scene, writer = self.o, self.scene, self.writer
+        totals, writing = RunTotals(), current().seconds["writing"]
+        threads = o.io_threads or default_io_threads()
+        io = PoolTimes(threads) if threads > 1 else None  # else one thread does every step
+        pool = ThreadPoolExecutor(threads, thread_name_prefix="gpu-blur-io") if io else None
+        behind = WriteBehind(self.save, pool, QUEUE_PER_THREAD * threads, io)
+        stop: StrictStop | SetInterrupted | None = None
+        watched, ended = None, False
+        start = time.perf_counter()
+        try:
+            job = Job(scene, o.seed, o.backend, self.schedule, "raw" in self.extras,
+                      bits=scene.output.bits, with_mask="mask" in self.extras)
+            # one device: the pool also decodes ahead; devices and ray workers decode their
+            # own inputs, and the pool encodes and writes what they make
+            samples = (run_pipelined(job, self.todo, pool, io, QUEUE_PER_THREAD * threads)
+                       if io and self.executor is run_serial else self.executor(job, self.todo))
+            # kept in a name: after a strict stop the progress bar closes once the stop is
+            # dropped (its message is then on the screen above it)
+            watched = self._watched(samples)
+            for spec, result, error in watched:
+                if error is None:
+                    totals.add(result.timings)
+                with timer("writing"):
+                    for written in behind.put(spec, result, error):
+                        self.finish(*written)
+                if o.strict and error is not None and error.startswith(SPOT_CHECK_FAILED):
+                    with timer("writing"):
+                        for written in behind.drain():
+                            self.finish(*written)
+                    stop = StrictStop(spec.index, spec.name, error)
+                    break
+            else:
+                with timer("writing"):
+                    for written in behind.drain():
+                        self.finish(*written)
+            ended = True
+        except KeyboardInterrupt as e:
+            if watched is not None:  # the progress bar ends before the samples are written
+                watched.close()
+            # the samples made so far are written first; a second Ctrl-C or a failing write
+            # stops that (resume makes them again)
+            with contextlib.suppress(KeyboardInterrupt, OSError):
+                for written in behind.drain():
+                    self.finish(*written)
+            stop, ended = SetInterrupted(self.made, e), True
+        finally:
+            if pool is not None:  # no thread may write once the folder's lock is released
+                pool.shutdown(cancel_futures=True)
+            if not ended:  # the error that stopped the run is the one to report, not a flush
+                with contextlib.suppress(OSError):
+                    writer.close()
+        self._close(stop)
+        if stop is not None:
+            raise stop from getattr(stop, "cause", None)
+        took = time.perf_counter() - start
+        totals.add({"writing": current().seconds["writing"] - writing,
+                    "reading": io.waited_for_inputs if io else 0.0})
+        return self._report(took, totals, io, run_serial)
+
+    def _close(self, stop) -> None:
+        """Close the writer; a failing close after a stop names the stop as its cause."""
+        try:
+            self.writer.close()
+        except OSError as e:
+            if stop is None:
+                raise
+            raise e from stop
+
+    def _report(self, took: float, totals, io, run_serial) -> SetReport:
+        o, writer = self.o, self.writer
+        before = f", {self.done} were done before" if self.done else ""
+        lines = [f"wrote {self.made} samples ({len(self.failed)} failed) to {o.output} in "
+                 f"{took:.1f} s ({self.made / max(took, 1e-9):.2f} samples/s){before}; "
+                 f"manifest: {writer.manifest_path}"]
+        lines += totals.summary(took, on_host=self.backend.name == "numpy")
+        if io is not None:
+            lines.append(io.summary(took))
+        bound = totals.bound(took, io) if self.executor is run_serial else None
+        if bound is not None:  # the device's time is this thread's
+            lines.append(bound)
+        return SetReport(output=o.output, manifest=Path(writer.manifest_path),
+                         device=self.backend.device, made=self.made, failed=tuple(self.failed),
+                         skipped=self.done, to_make=len(self.todo), seconds=took,
+                         timings=dict(totals.seconds), bound=bound, summary=tuple(lines))

@@ -1,0 +1,63 @@
+import json
+
+import pytest
+
+import gpu_blur
+from gpu_blur.backends import get_backend
+from gpu_blur.cli import main
+from gpu_blur.timings import CATEGORIES
+
+
+def files(folder):
+    """Every file of a set by its path in the folder, but the lock (it names the process)."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name != ".gpu_blur.lock"}
+
+
+def test_generate_set_reports_and_writes_the_clis_set(tmp_path, capsys):
+    out, seen = tmp_path / "api", []
+    report = gpu_blur.generate_set(out, limit=2, seed=3, backend="numpy", io_threads=1,
+                                   progress=lambda done, total: seen.append((done, total)))
+    assert capsys.readouterr() == ("", "")  # nothing printed: the report says it
+    assert (report.made, report.failed, report.skipped, report.to_make) == (2, (), 0, 2)
+    assert seen == [(1, 2), (2, 2)]
+    assert report.output == out and report.manifest == out / "manifest.jsonl"
+    assert report.device == get_backend("numpy").device
+    assert report.seconds > 0 and set(report.timings) == set(CATEGORIES)
+    assert report.bound.startswith("bound by: ") and report.summary[-1] == report.bound
+    assert report.summary[0].startswith(f"wrote 2 samples (0 failed) to {out} in ")
+    lines = [json.loads(x) for x in report.manifest.read_text().splitlines()]
+    assert [(x["index"], x["status"]) for x in lines] == [(0, "ok"), (1, "ok")]
+    for line in lines:
+        assert (out / line["blurred"]).is_file() and (out / line["sharp"]).is_file()
+    assert json.loads((out / "run.json").read_text())["seed"] == 3
+
+    cli = tmp_path / "cli"
+    assert main(["generate", "--output", str(cli), "--limit", "2", "--seed", "3", "--backend",
+                 "numpy", "--io-threads", "1", "--quiet"]) == 0
+    assert capsys.readouterr().out.splitlines()[0].startswith("wrote 2 samples (0 failed)")
+    assert files(out) == files(cli)  # byte for byte, run.json and manifest included
+    assert len(files(out)) > 4
+
+    # resume finds the set done; a new run is refused as the command refuses it
+    states = []
+    again = gpu_blur.generate_set(out, limit=2, seed=3, resume=True, on_resume=states.append)
+    assert (again.made, again.skipped, again.to_make) == (0, 2, 0)
+    assert [(s.done, s.samples, s.to_make) for s in states] == [(2, 2, 0)]
+    assert files(out) == files(cli)
+    with pytest.raises(ValueError, match="--overwrite"):
+        gpu_blur.generate_set(out, limit=2, seed=3)
+
+
+def test_generate_set_raises_what_the_command_prints(tmp_path, capsys):
+    devices = []
+    with pytest.raises(ValueError, match=r"--seed -1: must lie in \[0, 2\*\*64\)"):
+        gpu_blur.generate_set(tmp_path / "set", seed=-1, on_device=devices.append)
+    assert devices == [get_backend("numpy").device]
+    with pytest.raises(ValueError, match="--save shiny: 'shiny' is not an output"):
+        gpu_blur.generate_set(tmp_path / "set", save=["shiny"])
+    with pytest.raises(ValueError, match="exclude each other"):
+        gpu_blur.generate_set(tmp_path / "set", overwrite=True, resume=True)
+    assert main(["generate", "--output", str(tmp_path / "set"), "--seed", "-1"]) == 2
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        "gpu-blur: error: --seed -1: must lie in [0, 2**64)")
