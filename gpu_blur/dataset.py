@@ -605,15 +605,6 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int,
                    lambda: _in_utf8(_photo_samples(photos, samples_per_photo)))
 
 
-def discover(root: Path | None, mode: str, frames_per_sample: int,
-             samples_per_photo: int = 1, samples_per_sequence: int | None = None,
-             limit: int | None = None, exclude: Path | None = None,
-             masks: bool = True) -> list[SampleSpec]:
-    """The first ``limit`` (default: all) samples of :func:`find_samples`, as a list."""
-    return find_samples(root, mode, frames_per_sample, samples_per_photo, samples_per_sequence,
-                        exclude, masks).take(limit)
-
-
 def _inputs(spec: SampleSpec) -> dict:
     """A manifest line's ``inputs`` (:func:`input_label`), and in mode none ``input_roles``.
 

@@ -13,7 +13,7 @@ from gpu_blur.backends import FRAMES_PER_LAUNCH
 from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.cameras import scene_camera
 from gpu_blur.cli import main
-from gpu_blur.dataset import discover
+from gpu_blur.dataset import find_samples
 from gpu_blur.scene import scene_from_dict
 from gpu_blur.scheduler import (
     MIN_TILE,
@@ -302,7 +302,7 @@ def test_rsblur_style_sample_folders_are_sequences(tmp_path):
                  [f"{i:06d}.png" for i in range(9)])
     write_frames(tmp_path / "GoPro" / "GOPR0372_07_00" / "blur", ["000000.png"])
     write_frames(tmp_path / "notes" / "misc", ["a.png"])  # not a <session>/<id> folder
-    specs = discover(tmp_path, "average", 9)
+    specs = find_samples(tmp_path, "average", 9).take()
     assert [s.name for s in specs] == ["GoPro/GOPR0372_07_00/000000",
                                        "RSBlur_sharps/0001/000001/0",
                                        "RSBlur_sharps/0001/000002/0",
@@ -311,10 +311,10 @@ def test_rsblur_style_sample_folders_are_sequences(tmp_path):
         assert [p.name for p in spec.inputs] == [f"{i}.png" for i in range(9)]
         assert all(p.parent.parent.parent.name == "RSBlur_sharps" for p in spec.inputs)
     # a session folder, or one sample folder, as --input
-    assert [s.name for s in discover(tmp_path / "RSBlur_sharps" / "0001", "average", 9)] == [
-        "000001/0", "000002/0"]
-    assert [s.name for s in discover(tmp_path / "RSBlur_sharps" / "0003" / "000007", "average",
-                                     9)] == ["000007/0"]
+    session = find_samples(tmp_path / "RSBlur_sharps" / "0001", "average", 9).take()
+    assert [s.name for s in session] == ["000001/0", "000002/0"]
+    sample = find_samples(tmp_path / "RSBlur_sharps" / "0003" / "000007", "average", 9).take()
+    assert [s.name for s in sample] == ["000007/0"]
 
 
 def test_generate_reads_an_rsblur_tree(tmp_path):
@@ -337,7 +337,7 @@ def test_generate_reads_an_rsblur_tree(tmp_path):
 ])
 def test_samples_per_sequence_spreads_windows_evenly(tmp_path, per_sequence, starts):
     write_frames(tmp_path / "seq" / "sharp", [f"{i:06d}.png" for i in range(7)])
-    specs = discover(tmp_path, "average", 3, samples_per_sequence=per_sequence)
+    specs = find_samples(tmp_path, "average", 3, samples_per_sequence=per_sequence).take()
     assert [int(s.inputs[0].stem) for s in specs] == starts
     assert all(len(s.inputs) == 3 for s in specs)
     assert len({s.name for s in specs}) == len(specs)  # repeats are named apart
