@@ -22,7 +22,7 @@ One sample, module by module:
 
 Apart from synthesis: :mod:`gpu_blur.analysis` (calibration, alignment, metrics, the
 benchmark), which measures and never synthesizes. Test hooks: :mod:`gpu_blur.testhooks`;
-the tests' tolerances: :mod:`gpu_blur.testing`.
+the tolerance table: :mod:`gpu_blur.tolerances` (the tests' helpers: :mod:`gpu_blur.testing`).
 """
 
 __version__ = "0.1.0"
