@@ -5,8 +5,8 @@ Layers (ARCHITECTURE.md, "Layers"), lowest first:
 - ``gpu_blur.reference``: the float64 maths; imports nothing of ours but ``gpu_blur.constants``
   (and itself);
 - ``gpu_blur.backends``: devices and passes; never the synthesis layer;
-- the synthesis layer (``gpu_blur.pipeline`` / ``gpu_blur.synthesis``, ``gpu_blur.generate``,
-  ``gpu_blur.generation``, ``gpu_blur.dataset``): samples and data sets from the backends;
+- the synthesis layer (``gpu_blur.synthesis``, ``gpu_blur.generate``, ``gpu_blur.generation``,
+  ``gpu_blur.dataset``): samples and data sets from the backends;
 - ``gpu_blur.cli``: the command, which nothing else imports.
 
 ``gpu_blur.testing`` is the tests' helpers: no module of the package imports it (the tolerance
@@ -37,8 +37,8 @@ REFERENCE = ("gpu_blur.reference",)
 REFERENCE_MAY_IMPORT = ("gpu_blur.constants",)
 KNOWN_REFERENCE_EXCEPTIONS: tuple[str, ...] = ()
 BACKENDS = ("gpu_blur.backends",)
-SYNTHESIS = ("gpu_blur.pipeline", "gpu_blur.synthesis", "gpu_blur.generate",
-             "gpu_blur.generation", "gpu_blur.dataset")
+SYNTHESIS = ("gpu_blur.synthesis", "gpu_blur.generate", "gpu_blur.generation",
+             "gpu_blur.dataset")
 CLI = ("gpu_blur.cli",)
 TESTING = ("gpu_blur.testing",)
 

@@ -85,8 +85,9 @@ class Inputs:
         Returns:
             int64 array ``len(images) x 6``, one row per image, the columns of
             :data:`INSPECT_COLUMNS`: NaN, infinite, below 0, above 1, at the clip level (>= 1.0
-            for values, the top code 2^bits - 1 for codes: ``gpu_blur.pipeline``'s
-            ``_reaches_clip_level``), above 0 (a mask's "anything to saturate").
+            for values, the top code 2^bits - 1 for codes:
+            ``gpu_blur.synthesis.inputs.reaches_clip_level``), above 0 (a mask's "anything to
+            saturate").
         """
         return self.inspect_queued(images)()
 
@@ -181,7 +182,7 @@ class Inputs:
                      into: tuple[Slots, int] | None = None) -> OnDevice:
         """The sharp reference as the output holds it, rendered on the device.
 
-        As ``gpu_blur.pipeline.render_sharp`` on the host: sRGB values re-toned by the finish
+        As ``synthesis.host.render_sharp`` on the host: sRGB values re-toned by the finish
         pass's device functions when the plan re-tones, linear and clipped without the tone
         stage, quantized when the plan quantizes.
 
@@ -269,7 +270,7 @@ class Inputs:
                              *_out_geometry(out), *curves, result, *_index(out_stride))
                 return
             # codes: the curve of every code (one pixel per 3 codes; once per build and
-            # curve), then a gather, as the host renders them (pipeline.render_sharp)
+            # curve), then a gather, as the host renders them (synthesis.host.render_sharp)
             key = (derived["sharp"], polynomial.tobytes(), table.size, source.str)
             if key not in self._sharp_tables:
                 top = np.iinfo(source).max
