@@ -72,7 +72,7 @@ EXACT_FRAMES_MAX = 128
 
 # -- input checks (gb_inspect, gpu_blur.backends.kernel.KernelBackend.inspect) -------------
 #: Values each work item of an inspect launch loads before counting them: the pass is bound by
-#: the loads in flight, not by bandwidth (one at a time read 0.5 TB/s on an H200).
+#: the loads in flight, not by bandwidth (docs/performance.md#input-checks).
 INSPECT_LOADS = 4
 
 # -- demosaicing taps (reference.demosaic), as the kernels hold them ------------------------

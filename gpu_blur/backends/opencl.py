@@ -212,9 +212,8 @@ def opencl_devices() -> list[DeviceInfo]:
 
 
 #: CPU runtimes by speed, fastest first (platform name fragments; others come after them).
-#: Per sample on a 2-core AMD EPYC (Zen 5), float32, PoCL 3.1 (Debian) takes 1.8 times Intel's
-#: time on the built-in photo, 4.5 times on 9 8-bit frames of 1920 x 1200 and 15 times on
-#: float frames: its pow costs about 180 ns a value against Intel's 1 ns.
+#: PoCL takes several times Intel's time per sample, most on float frames (its pow):
+#: docs/performance.md#opencl-cpu-runtimes.
 CPU_RUNTIME_ORDER = ("Intel(R) OpenCL", "Portable Computing Language")
 
 

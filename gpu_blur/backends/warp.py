@@ -52,10 +52,8 @@ QUAD_VIEWS = {wp.uint8: wp.uint32, wp.float32: wp.vec4f, wp.float64: wp.vec4d}
 MAX_BUFFER_VALUES = 2**31 - 1
 
 #: Values per piece of a download through pinned staging (:meth:`WarpBackend._download`):
-#: 64 MB of float32. One H200 host (16 cores, 16 copy threads), a batch of 16 RSBlur samples
-#: from numpy, ms a sample with fresh outputs (with out= arrays), single runs: 64 MB pieces
-#: 6.4 (5.4); the whole result at once 6.4 (5.6); 16 MB pieces 9.2 (8.4), their thread
-#: hand-offs costing more than the overlap gains.
+#: 64 MB of float32: no slower than the whole result at once, and smaller pieces' thread
+#: hand-offs cost more than the overlap gains (docs/performance.md#downloads).
 DOWNLOAD_CHUNK = 1 << 24
 
 #: Turns of the pinned ring that carries small tables (sample tables, kernel taps, a camera
@@ -70,13 +68,12 @@ RECORDED_LAUNCHES = 64
 class Launches:
     """Launches recorded once per (kernel, grid) and replayed with only the changed arguments.
 
-    ``wp.launch`` packs every argument on every call (about 30 us for the passes' 20-odd
-    arguments on this project's 2-core CPU, more on slower hosts); a sample's launches differ
-    from the previous sample's in a few values (its draws, its buffers), so replaying a
-    ``wp.Launch`` and re-packing those alone costs a third of it. The same kernels run on the
-    same arguments, so the same bits. Arrays are compared by what Warp packs of them (data
-    pointer, shape, strides, dtype), reals by their bits, and no array is kept alive by a
-    recorded launch.
+    ``wp.launch`` packs every argument on every call (the passes have 20-odd); a sample's
+    launches differ from the previous sample's in a few values (its draws, its buffers), so
+    replaying a ``wp.Launch`` and re-packing those alone costs a fraction of it
+    (docs/performance.md#launches). The same kernels run on the same arguments, so the same
+    bits. Arrays are compared by what Warp packs of them (data pointer, shape, strides, dtype),
+    reals by their bits, and no array is kept alive by a recorded launch.
     """
 
     def __init__(self, device: str):

@@ -23,12 +23,10 @@ import warp as wp
 from gpu_blur.kernel_constants import EXACT_COUNT_SHIFT, EXACT_UNIT, SATURATION_LEVEL
 from gpu_blur.warp_kernels import pixel, random
 
-# CUDA build options of the passes' kernels, from per-pass CUDA graph times of 1920 x 1200
-# samples on an H200 (bench/gpu_targets.py; none changes a bit, nor the CPU build). Without
-# Warp's grid-stride loop a thread does one element and returns: blur_average_exact 74.8 ->
-# 68.3 us; not for to_raw (165 -> 202 us) nor finish (RSBlur-like 113.6 -> 102.9 us, but
-# RealBlur-J 137 -> 152 us). Capped at 64 registers (from 70), to_raw 165 -> 155-158 us (56:
-# 165); finish gains nothing from a cap.
+# CUDA build options of the passes' kernels, each kept where it was faster on an H200
+# (bench/gpu_targets.py; none changes a bit, nor the CPU build). LEAN: no grid-stride loop, a
+# thread does one element and returns (to_raw and finish keep the loop); to_raw capped at 64
+# registers. See docs/performance.md#warp-build-options.
 LEAN = {"grid_stride": False}
 TO_RAW_REGISTERS = {"cuda_max_registers": 64}
 

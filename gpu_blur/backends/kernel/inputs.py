@@ -35,10 +35,9 @@ def inspect_items(n: int, images: int = 1) -> int:
     """Work items per image for inspecting ``images`` images of ``n`` values in one launch.
 
     :data:`INSPECT_ITEMS` shared by the images (each item adds its counts to its image's row
-    with atomics, so more items per row cost more than they gain: on one H200 16 RealBlur-J
-    images took 0.128 ms a sample with 65,536 items each; sharing them, the batch's device
-    time is within 0.005 ms a sample of counting the whole batch as one image, 0.039), fewer
-    for small images, and enough that no item counts 2^32 values (its counts are 32-bit).
+    with atomics, so more items per row cost more than they gain: see
+    docs/performance.md#input-checks), fewer for small images, and enough that no item counts
+    2^32 values (its counts are 32-bit).
     """
     return max(min(n, INSPECT_ITEMS // images), -(-n // (2**32 - 1)), 1)
 
@@ -155,8 +154,8 @@ class Inputs:
         """A kept device buffer for ``count`` codes of ``bits`` bits (:meth:`to_codes`).
 
         For codes fetched before the next call asks for it (queue order): a new device
-        buffer for every batch costs more than its codes' download (on an H200 a batch of
-        16 RSBlur samples from pinned memory took 1.91 ms a sample so, 1.50 with a kept one).
+        buffer for every batch costs more than its codes' download
+        (docs/performance.md#codes-buffer).
         """
         key = (count, bits)
         if key not in self._kept_codes:
