@@ -52,10 +52,8 @@ finish     ``(10 V + 3 r c) s + 2,568 s`` (the accumulate pass's linear image an
 
 Pass outputs stay on the device for the next pass (nothing returns to the host between
 passes). The formula assumes a buffer a pass drops is only released when its kernels finish
-(as OpenCL may do). Before frames were uploaded as stored and outputs kept on the device, Warp
-on an H100 (CUDA memory pool, stream-ordered frees) peaked at 79 to 89 % of the formula of
-the time, under every budget from 8 MiB to 512 MiB, for 1920 x 1200 images in all three blur
-modes and both precisions (bench/scheduler_gpu_check.py, bench/results/).
+(as OpenCL may do). Warp's peaks on an H100 stayed under it when last checked
+(bench/scheduler_gpu_check.py; docs/performance.md#scheduler-memory-formula).
 
 The budget gives the largest square tile whose peak fits, then widens it (columns, then
 rows) as far as the budget allows; the whole image when it fits. The smallest tile is
@@ -108,10 +106,10 @@ from gpu_blur.tolerances import mismatch, tolerance
 S = StageName
 
 #: The smallest tile side, given (``tile``, ``--tile``) or from a memory budget (smaller images
-#: use their own side). Each tile costs a fixed overhead (measured per tile on a 64 x 64 image:
-#: ~2 ms on Intel's CPU OpenCL runtime, ~6 ms on numpy; 1 x 1 tiles of a 1920 x 1200 image
-#: would take over an hour), and its view grows by the demosaic halo and the Bayer alignment,
-#: 2 + 2 px per side with Malvar: at 16 x 16 the view is under twice the tile.
+#: use their own side). Each tile costs a fixed overhead of milliseconds
+#: (docs/performance.md#scheduler-smallest-tile), and its view grows by the demosaic halo and
+#: the Bayer alignment, 2 + 2 px per side with Malvar: at 16 x 16 the view is under twice the
+#: tile.
 MIN_TILE = 16
 #: How a spot-check failure's message begins (``gpu-blur generate --strict`` looks for it).
 SPOT_CHECK_FAILED = "spot check failed"

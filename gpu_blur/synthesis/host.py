@@ -147,9 +147,9 @@ def render_sharp(sample_plan: Plan, camera: Camera, sharp: np.ndarray) -> np.nda
 
     Every step is pointwise, so 8- and 16-bit codes are rendered through a table: the float64
     curve (and quantization) evaluated once per code (256 or 65,536 values instead of one per
-    pixel) and gathered, the same values bit for bit (1920 x 1200 re-toned with the A7R3
-    polynomial on a 2-core CPU: about 0.2 s directly, 13 ms by table). 8-bit sRGB in and out
-    gives the codes themselves, ``c / 255``.
+    pixel) and gathered, the same values bit for bit and an order of magnitude faster
+    (docs/performance.md#sharp-reference-by-table). 8-bit sRGB in and out gives the codes
+    themselves, ``c / 255``.
 
     Args:
         sample_plan: the sample's plan.

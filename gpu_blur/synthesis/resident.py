@@ -40,8 +40,7 @@ from gpu_blur.timings import timer
 STREAMED_SAMPLES = 4
 
 #: Input bytes a sample needs for its batch to go in parts: below them the copies are short
-#: and the parts' extra launches cost more (random-kernel 256 x 256 batches of 16 on one H200:
-#: 1.37 ms a sample in parts, 1.16 in one).
+#: and the parts' extra launches cost more (docs/performance.md#batches-in-parts).
 STREAMED_BYTES = 1 << 22
 
 
