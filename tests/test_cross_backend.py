@@ -5,7 +5,7 @@ import pytest
 from conftest import BACKEND_SPECS, make_backend, spec_dtype
 
 import gpu_blur
-from gpu_blur.conformance import checks
+from gpu_blur.conformance import random_checks
 from gpu_blur.scene import scene_from_dict
 from gpu_blur.testing import assert_close
 
@@ -14,12 +14,12 @@ WARP = [s for s in BACKEND_SPECS if s.startswith("warp")]
 pytestmark = pytest.mark.skipif(not (OPENCL and WARP), reason="needs an OpenCL and a Warp device")
 
 def test_warp_and_opencl_draw_bit_identical_uniforms():
-    """The conformance probe's words and uniforms (gpu_blur.conformance.checks), device to
-    device: seeds beyond 32 bits, the largest sample index."""
+    """The conformance probe's words and uniforms (gpu_blur.conformance.random_checks),
+    device to device: seeds beyond 32 bits, the largest sample index."""
     opencl = make_backend(OPENCL[0].split("/")[0] + "/float64")
     warp = make_backend(WARP[0].split("/")[0] + "/float64")
-    opencl_words, from_opencl = checks.device_uniforms(opencl)
-    warp_words, from_warp = checks.device_uniforms(warp)
+    opencl_words, from_opencl = random_checks.device_uniforms(opencl)
+    warp_words, from_warp = random_checks.device_uniforms(warp)
     assert np.array_equal(warp_words, opencl_words)
     assert np.array_equal(from_warp, from_opencl)
 

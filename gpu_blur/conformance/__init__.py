@@ -1,8 +1,9 @@
 """The conformance cases: crafted inputs and real photos that every backend must get right.
 
-One source for ``gpu-blur validate`` (:mod:`gpu_blur.conformance.checks`) and the test suite
-(tests/test_hard_cases.py imports these inputs and helpers), so that a green CI and a green
-``validate`` mean the same thing.
+One source for ``gpu-blur validate`` (:mod:`gpu_blur.conformance.checks` and the checks'
+topic modules, imported at the end of this one) and the test suite (tests/test_hard_cases.py
+imports these inputs and helpers), so that a green CI and a green ``validate`` mean the same
+thing.
 
 The helpers take any backend (``gpu_blur.backends.get_backend``); pass outputs come back to the
 host as float64 arrays. Kernel backends round their inputs to their compute type; where a check
@@ -52,6 +53,11 @@ def coffee() -> np.ndarray:
     rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB).astype(np.float64) / 255.0
     rgb.setflags(write=False)
     return rgb
+
+
+def coffee_crop(rows=slice(220, 316), cols=slice(300, 428)) -> np.ndarray:
+    """A crop of the coffee photograph (default: the spoon's clipped highlights)."""
+    return np.ascontiguousarray(coffee()[rows, cols])
 
 
 # -- running one pass on a backend ---------------------------------------------------------------
@@ -260,3 +266,17 @@ def tall_thin_linear(height: int) -> np.ndarray:
     """A height x 2 x 3 float32 linear image: a 997-row pattern repeated (no float64 copy)."""
     period = (np.arange(997 * 6, dtype=np.float32).reshape(997, 2, 3) % 251) / 251
     return np.resize(period, (height, 2, 3))
+
+
+# -- the checks ----------------------------------------------------------------------------------
+
+# Each topic module registers its checks in gpu_blur.conformance.checks.CHECKS as it is
+# imported: this order is the order ``gpu-blur validate`` runs and lists them. They import the
+# cases above, so they come last.
+# isort: off
+from gpu_blur.conformance import transfer_checks  # noqa: E402, F401
+from gpu_blur.conformance import accumulate_checks  # noqa: E402, F401
+from gpu_blur.conformance import raw_checks  # noqa: E402, F401
+from gpu_blur.conformance import random_checks  # noqa: E402, F401
+from gpu_blur.conformance import pipeline_checks  # noqa: E402, F401
+# isort: on

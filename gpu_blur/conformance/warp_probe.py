@@ -1,7 +1,7 @@
 """A Warp kernel that exposes the noise stages' random words and uniforms, for ``validate``.
 
 Warp reads kernel source from files, so the probe lives in its own importable module (imported
-only when a Warp device is validated). The OpenCL twin is ``checks.UNIFORM_PROBE_CL``.
+only when a Warp device is validated). The OpenCL twin is ``random_checks.UNIFORM_PROBE_CL``.
 """
 
 import warp as wp
