@@ -23,7 +23,7 @@
  * (measured 1.5e-6 with cos((2 pi)_f u2); ulp(4) is already 4.8e-7). Without fp64 the same
  * code runs in float (type gb_wide) and agrees with the reference less closely: Poisson counts
  * are then right in distribution, not pixel for pixel, at rates >= 10. The measured agreement
- * is in gpu_blur/testing.py (section "OpenCL random").
+ * is in gpu_blur/tolerances.py (section "OpenCL random").
  *
  * Fast maths (GB_FAST_MATH in a float build, gb_math.h): the normals of gb_box_muller run in float
  * with native_ functions; the Poisson samplers are unchanged.
