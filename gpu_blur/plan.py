@@ -21,7 +21,6 @@ message compares equal).
 from __future__ import annotations
 
 import dataclasses
-import enum
 from pathlib import Path
 
 import numpy as np
@@ -30,46 +29,9 @@ from gpu_blur.constants import A7R3_CRF_TABLE_X255
 from gpu_blur.reference.interpolate import INTERPOLATION_AUTO, MOTION_SCALE
 from gpu_blur.reference.transfer import RETONE_CURVES, retone_polynomial
 from gpu_blur.scene import Scene, load_scene
+from gpu_blur.stages import PASSES, STAGES, Pass, StageName, stage_values
 
-
-class Pass(enum.StrEnum):
-    """Where a stage runs: one of the three kernel passes, or the host after them."""
-
-    ACCUMULATE = "accumulate"
-    TO_RAW = "to_raw"
-    FINISH = "finish"
-    HOST = "host"
-
-
-#: The kernel passes, in order (every backend runs these; :data:`Pass.HOST` stages run in
-#: gpu_blur.synthesis on the passes' result).
-PASSES = (Pass.ACCUMULATE, Pass.TO_RAW, Pass.FINISH)
-
-
-class StageName(enum.StrEnum):
-    """The stages, in data-flow order.
-
-    The one spelling the reference, every backend and the scheduler use.
-    """
-
-    LINEARIZE = "linearize"
-    BLUR = "blur"
-    SATURATE = "saturate"
-    VIGNETTING = "vignetting"
-    LINEAR_TO_CAMERA = "linear_to_camera"
-    MOSAIC = "mosaic"
-    INVERSE_WHITE_BALANCE = "inverse_white_balance"
-    POISSON_GAUSSIAN_NOISE = "poisson_gaussian_noise"
-    WHITE_BALANCE = "white_balance"
-    DEMOSAIC = "demosaic"
-    CAMERA_TO_LINEAR = "camera_to_linear"
-    TONE = "tone"
-    GAUSSIAN_NOISE = "gaussian_noise"
-    RESTORE_SATURATED = "restore_saturated"
-    RETONE = "retone"
-    QUANTIZE = "quantize"
-    CROP = "crop"
-    JPEG = "jpeg"
+__all__ = ["PASSES", "Pass", "Plan", "Stage", "StageName", "plan", "raw_round_trip"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -223,15 +185,30 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
     """
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
-    b, n, isp, out = scene.blur, scene.noise, scene.isp, scene.output
-    stages = []
-    S, P = StageName, Pass
+    decided = {d[0]: d[1:] for d in (
+        _decide(StageName.LINEARIZE, True, "sRGB input decoded with the sRGB EOTF"),
+        _blur(scene.blur, interpolation_factors),
+        *_saturation(scene.saturation.mode, saturated),
+        _vignetting(float(scene.optics.vignetting)),
+        *_raw_round_trip(scene),
+        *_noise(scene.noise),
+        *_output(scene),
+    )}
+    return Plan(tuple(Stage(spec.name, spec.pass_, *decided[spec.name],
+                            values=stage_values(spec, scene, size)) for spec in STAGES),
+                fast_math=scene.output.fast_math)
 
-    def add(name, pass_, kept, reason, variant="", values=(), **options):
-        stages.append(Stage(name, pass_, bool(kept), reason, variant, options, values))
 
-    # accumulate
-    add(S.LINEARIZE, P.ACCUMULATE, True, "sRGB input decoded with the sRGB EOTF")
+def _decide(name: str, kept, reason: str, variant: str = "", **options) -> tuple:
+    """A stage's row of the plan as the scene decides it: (name, kept, reason, variant, options).
+
+    Its pass, place and values come from its row of :data:`gpu_blur.stages.STAGES`.
+    """
+    return name, bool(kept), reason, variant, options
+
+
+def _blur(b, interpolation_factors: tuple[int, ...] | None) -> tuple:
+    """The blur stage for the scene's ``blur`` section."""
     blurring = b.mode != "none"
     if b.interpolation == INTERPOLATION_AUTO:
         average = (f"mean of {b.frames} linear frames and their saturation masks, each gap "
@@ -257,7 +234,8 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
             options["factors"] = tuple(int(f) for f in interpolation_factors)
             average += (f"; this sample's factors per gap: "
                         f"{', '.join(str(f) for f in options['factors'])}")
-    add(S.BLUR, P.ACCUMULATE, blurring,
+    return _decide(
+        StageName.BLUR, blurring,
         {"average": average,
          "kernel": "one photo convolved with "
                    + (f"the kernel {b.kernel}" if b.kernel else "a random motion kernel"),
@@ -266,78 +244,104 @@ def plan(scene: Scene | str | Path | dict, *, saturated: bool | None = None,
          "none": "blur.mode = none: the input is already blurred"}[b.mode],
         b.mode if blurring else "", **options)
 
-    # to_raw
-    sat = scene.saturation.mode == "on" or (scene.saturation.mode == "auto" and saturated
-                                            is not False)
-    if scene.saturation.mode == "off":
-        add(S.SATURATE, P.TO_RAW, False, "saturation.mode = off")
-    elif scene.saturation.mode == "on":
-        add(S.SATURATE, P.TO_RAW, True, "saturation.mode = on")
-    elif saturated is None:
-        add(S.SATURATE, P.TO_RAW, True,
-            "saturation.mode = auto: runs for samples with pixels at the clip level")
-    elif saturated:
-        add(S.SATURATE, P.TO_RAW, True, "saturation.mode = auto: input reaches the clip level")
-    else:
-        add(S.SATURATE, P.TO_RAW, False,
-            "saturation.mode = auto: no input pixel reaches the clip level")
-    strength = float(scene.optics.vignetting)
-    full = tuple(float(n) for n in size) if size else (None, None)  # None: not known yet
-    add(S.VIGNETTING, P.TO_RAW, strength > 0,
-        f"linear image times 1 - {strength:g} (r / r_corner)^2 about the image centre"
-        if strength > 0 else "optics.vignetting = 0",
-        values=(strength, *full))
-    raw = raw_round_trip(scene)
-    why_raw = ("Poisson-Gaussian noise acts on the RAW mosaic" if n.model == "poisson-gaussian"
-               else "isp.round_trip = always: demosaic artefacts asked for")
-    why_not = f"noise.model = {n.model}: no RAW round trip"
-    add(S.LINEAR_TO_CAMERA, P.TO_RAW, raw, why_raw if raw else why_not,
-        "clip" if raw and isp.clip_camera else "", clip=isp.clip_camera)
-    add(S.MOSAIC, P.TO_RAW, raw, why_raw if raw else why_not, isp.pattern if raw else "")
-    add(S.INVERSE_WHITE_BALANCE, P.TO_RAW, raw, why_raw if raw else why_not)
-    pg = n.model == "poisson-gaussian"
-    normal = n.poisson == "normal"
-    add(S.POISSON_GAUSSIAN_NOISE, P.TO_RAW, pg,
-        ("K * Poisson(x / K) + sigma_r * N(0, 1) on the mosaic"
-         + (f"; rates above {n.normal_above:g} drawn as a rounded normal" if normal else ""))
-        if pg else f"noise.model = {n.model}",
-        f"normal above {n.normal_above:g}" if pg and normal else "",
-        sampler=n.poisson, normal_above=float(n.normal_above))
-    add(S.WHITE_BALANCE, P.TO_RAW, raw, why_raw if raw else why_not)
 
-    # finish
-    add(S.DEMOSAIC, P.FINISH, raw, why_raw if raw else why_not,
-        (isp.demosaic + (", clip" if isp.clip_demosaic else "")) if raw else "",
-        method=isp.demosaic, border=isp.border, clip=isp.clip_demosaic)
-    add(S.CAMERA_TO_LINEAR, P.FINISH, raw, why_raw if raw else why_not)
-    add(S.TONE, P.FINISH, out.crf != "none",
-        "sRGB OETF, then clip to [0, 1]" if out.crf != "none"
-        else "output.crf = none: output stays linear (clipped to [0, 1])")
-    add(S.GAUSSIAN_NOISE, P.FINISH, n.model == "gaussian",
-        "sRGB Gaussian noise, then clip" if n.model == "gaussian" else f"noise.model = {n.model}")
-    add(S.RESTORE_SATURATED, P.FINISH, sat,
-        "channels saturated after synthesis set to exactly 1" if sat else "no saturation stage")
+def _saturation(mode: str, saturated: bool | None) -> tuple[tuple, tuple]:
+    """The saturate and restore_saturated stages for ``saturation.mode``.
+
+    ``saturated`` is ``plan()``'s: the restore runs unless the input is known (``False``)
+    not to reach the clip level.
+    """
+    if mode == "off":
+        kept, reason = False, "saturation.mode = off"
+    elif mode == "on":
+        kept, reason = True, "saturation.mode = on"
+    elif saturated is None:
+        kept, reason = True, ("saturation.mode = auto: runs for samples with pixels at the clip "
+                              "level")
+    elif saturated:
+        kept, reason = True, "saturation.mode = auto: input reaches the clip level"
+    else:
+        kept, reason = False, "saturation.mode = auto: no input pixel reaches the clip level"
+    restore = mode == "on" or (mode == "auto" and saturated is not False)
+    return (_decide(StageName.SATURATE, kept, reason),
+            _decide(StageName.RESTORE_SATURATED, restore,
+                    "channels saturated after synthesis set to exactly 1" if restore
+                    else "no saturation stage"))
+
+
+def _vignetting(strength: float) -> tuple:
+    """The vignetting stage for ``optics.vignetting``."""
+    return _decide(StageName.VIGNETTING, strength > 0,
+                   f"linear image times 1 - {strength:g} (r / r_corner)^2 about the image centre"
+                   if strength > 0 else "optics.vignetting = 0")
+
+
+def _raw_round_trip(scene: Scene) -> tuple[tuple, ...]:
+    """The RAW round trip's six stages (they run together), with the ``isp`` settings."""
+    S, isp = StageName, scene.isp
+    raw = raw_round_trip(scene)
+    why = (("Poisson-Gaussian noise acts on the RAW mosaic"
+            if scene.noise.model == "poisson-gaussian"
+            else "isp.round_trip = always: demosaic artefacts asked for") if raw
+           else f"noise.model = {scene.noise.model}: no RAW round trip")
+    return (
+        _decide(S.LINEAR_TO_CAMERA, raw, why, "clip" if raw and isp.clip_camera else "",
+                clip=isp.clip_camera),
+        _decide(S.MOSAIC, raw, why, isp.pattern if raw else ""),
+        _decide(S.INVERSE_WHITE_BALANCE, raw, why),
+        _decide(S.WHITE_BALANCE, raw, why),
+        _decide(S.DEMOSAIC, raw, why,
+                (isp.demosaic + (", clip" if isp.clip_demosaic else "")) if raw else "",
+                method=isp.demosaic, border=isp.border, clip=isp.clip_demosaic),
+        _decide(S.CAMERA_TO_LINEAR, raw, why),
+    )
+
+
+def _noise(n) -> tuple[tuple, tuple]:
+    """The Poisson-Gaussian (RAW) and Gaussian (sRGB) noise stages for the ``noise`` section."""
+    pg, normal = n.model == "poisson-gaussian", n.poisson == "normal"
+    return (
+        _decide(StageName.POISSON_GAUSSIAN_NOISE, pg,
+                ("K * Poisson(x / K) + sigma_r * N(0, 1) on the mosaic"
+                 + (f"; rates above {n.normal_above:g} drawn as a rounded normal"
+                    if normal else "")) if pg else f"noise.model = {n.model}",
+                f"normal above {n.normal_above:g}" if pg and normal else "",
+                sampler=n.poisson, normal_above=float(n.normal_above)),
+        _decide(StageName.GAUSSIAN_NOISE, n.model == "gaussian",
+                "sRGB Gaussian noise, then clip" if n.model == "gaussian"
+                else f"noise.model = {n.model}"),
+    )
+
+
+def _output(scene: Scene) -> tuple[tuple, ...]:
+    """The tone, retone, quantize, crop and jpeg stages for the ``output`` section."""
+    S, out = StageName, scene.output
     retone = out.crf in RETONE_CURVES
     nodes = out.crf_table_size or A7R3_CRF_TABLE_X255.size
     curve = {"a7r3": "the A7R3 polynomial",
              "a7r3-lut": f"the A7R3 lookup table ({nodes} nodes)",
              "camera": f"the fitted response (Eq. 6 polynomial, [response] of gpu-blur "
                        f"calibrate) of camera {scene.camera.name}"}.get(out.crf)
-    add(S.RETONE, P.FINISH, retone,
-        f"output and sharp re-toned with {curve}" if retone
-        else f"output.crf = {out.crf}: no re-toning",
-        (out.crf + (f", {out.crf_table_size} nodes" if out.crf_table_size else ""))
-        if retone else "",
-        crf=out.crf, table_size=out.crf_table_size)
-    add(S.QUANTIZE, P.FINISH, out.bits > 0,
-        f"{out.bits}-bit, round half up" if out.bits else "output.bits = 0: float output",
-        bits=out.bits)
-    add(S.CROP, P.HOST, out.crop > 0,
-        f"{out.crop} px cut from every side of both outputs, on the host after the passes"
-        if out.crop else "output.crop = 0")
     quality = out.jpeg_quality
-    add(S.JPEG, P.HOST, quality is not None,
-        f"blurred output through a JPEG round trip (OpenCV, 4:2:0 chroma) at a quality drawn "
-        f"in [{quality[0]}, {quality[1]}], on the host after the crop" if quality is not None
-        else "output.jpeg_quality not set", "opencv, 4:2:0" if quality is not None else "")
-    return Plan(tuple(stages), fast_math=out.fast_math)
+    return (
+        _decide(S.TONE, out.crf != "none",
+                "sRGB OETF, then clip to [0, 1]" if out.crf != "none"
+                else "output.crf = none: output stays linear (clipped to [0, 1])"),
+        _decide(S.RETONE, retone,
+                f"output and sharp re-toned with {curve}" if retone
+                else f"output.crf = {out.crf}: no re-toning",
+                (out.crf + (f", {out.crf_table_size} nodes" if out.crf_table_size else ""))
+                if retone else "",
+                crf=out.crf, table_size=out.crf_table_size),
+        _decide(S.QUANTIZE, out.bits > 0,
+                f"{out.bits}-bit, round half up" if out.bits else "output.bits = 0: float output",
+                bits=out.bits),
+        _decide(S.CROP, out.crop > 0,
+                f"{out.crop} px cut from every side of both outputs, on the host after the "
+                "passes" if out.crop else "output.crop = 0"),
+        _decide(S.JPEG, quality is not None,
+                f"blurred output through a JPEG round trip (OpenCV, 4:2:0 chroma) at a quality "
+                f"drawn in [{quality[0]}, {quality[1]}], on the host after the crop"
+                if quality is not None else "output.jpeg_quality not set",
+                "opencv, 4:2:0" if quality is not None else ""),
+    )

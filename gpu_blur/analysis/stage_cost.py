@@ -21,21 +21,18 @@ import time
 import numpy as np
 
 from gpu_blur.plan import Plan, Stage, StageName, plan
+from gpu_blur.stages import STAGES
 
 S = StageName
 
+#: Switches that need others on: Poisson-Gaussian noise acts on the RAW mosaic.
+NEEDS: dict[str, tuple[str, ...]] = {"poisson_gaussian_noise": ("raw round trip",)}
 #: Switches: stages that run only together, switched on or off as one, each with the switches
-#: it needs on (Poisson-Gaussian noise acts on the RAW mosaic).
+#: it needs on (:data:`NEEDS`). Read from the stages' rows (:data:`gpu_blur.stages.STAGES`,
+#: :attr:`~gpu_blur.stages.StageSpec.switch`), in the order of their first stage.
 SWITCHES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    "saturation": ((S.SATURATE, S.RESTORE_SATURATED), ()),
-    "vignetting": ((S.VIGNETTING,), ()),
-    "raw round trip": ((S.LINEAR_TO_CAMERA, S.MOSAIC, S.INVERSE_WHITE_BALANCE, S.WHITE_BALANCE,
-                        S.DEMOSAIC, S.CAMERA_TO_LINEAR), ()),
-    "poisson_gaussian_noise": ((S.POISSON_GAUSSIAN_NOISE,), ("raw round trip",)),
-    "tone": ((S.TONE,), ()),
-    "gaussian_noise": ((S.GAUSSIAN_NOISE,), ()),
-    "retone": ((S.RETONE,), ()),
-    "quantize": ((S.QUANTIZE,), ()),
+    switch: (tuple(s.name for s in STAGES if s.switch == switch), NEEDS.get(switch, ()))
+    for switch in dict.fromkeys(s.switch for s in STAGES if s.switch is not None)
 }
 #: What a stage skipped by the scene runs with when forced on (its options then say nothing
 #: runnable): the A7R3 polynomial re-toning, 8-bit quantization.
