@@ -15,7 +15,9 @@ result, no kernel work; then, with ``output.jpeg_quality``, sends the blurred ou
 JPEG round trip (``jpeg``, :mod:`gpu_blur.outputs`), the same on every backend. Only kept
 stages are run (and, in kernel backends, compiled). Stage and pass names are the
 :class:`StageName` and :class:`Pass` constants (plain strings too, so a name from a scene or a
-message compares equal).
+message compares equal). What a stage is (its pass, place, reference functions, cost switch and
+values) is its row of :data:`gpu_blur.stages.STAGES`; :func:`plan` decides what the scene
+makes of it: kept or skipped and why, the variant, the options.
 """
 
 from __future__ import annotations
@@ -49,7 +51,8 @@ class Stage:
             whether the stage runs or not (the kernel's signature does not change); they
             follow the kernel's own arguments in plan order
             (:func:`gpu_blur.backends.kernel.stage_values`). A new pointwise stage with a
-            setting passes it here, with no change to the backends.
+            setting names its scene key in its row's
+            :attr:`~gpu_blur.stages.StageSpec.values`, with no change to the backends.
     """
 
     name: str
