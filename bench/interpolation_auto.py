@@ -35,7 +35,7 @@ import gpu_blur
 from gpu_blur.analysis.bench.host import cpu_name
 from gpu_blur.analysis.metrics import psnr
 from gpu_blur.dataset import default_photo
-from gpu_blur.imageio import read_image
+from gpu_blur.image_reading import read_image
 from gpu_blur.scene import scene_from_dict
 
 FRAMES, RUNS = 9, 3

@@ -20,7 +20,7 @@ import numpy as np
 
 from gpu_blur import files
 from gpu_blur.backends.flows import REGIONS_KEY
-from gpu_blur.imageio import temporary_path, write_image, write_new, write_text, write_whole
+from gpu_blur.file_writing import temporary_path, write_image, write_new, write_text, write_whole
 from gpu_blur.locking import earlier_pids, forget_earlier, take_lock
 from gpu_blur.outputs import write_dng, write_mask
 from gpu_blur.params import ARRAY_PARAMS
@@ -44,7 +44,7 @@ PATHS = ("blurred", "sharp", "arrays", "mask", "raw")
 EXTRAS = ("mask", "raw")
 _SAMPLE_FILE = re.compile(r"\d{6,}_.*\.(png|tiff|npz|dng)", re.DOTALL)
 _PROBE = "gpu_blur_write_test"
-#: A temporary file's name (:func:`gpu_blur.imageio.temporary_path`):
+#: A temporary file's name (:func:`gpu_blur.file_writing.temporary_path`):
 #: ``.<final name>.<pid>.part<final suffix>``.
 _TEMPORARY = re.compile(r"\.(.+)\.(\d+)\.part(\.[^.]*)?", re.DOTALL)
 #: The most bytes (UTF-8) of a sample's name its file names keep (``NNNNNN_<name>``): with
@@ -733,7 +733,7 @@ class DatasetWriter:
       names its pid, host and start) from opening to :meth:`close`; another writer on the
       folder is refused at once, naming the holder. The lock dies with its process.
     * Nothing half-written under a final name: each file is written under a temporary name
-      unique to the process (:func:`gpu_blur.imageio.temporary_path`) and renamed, and a
+      unique to the process (:func:`gpu_blur.file_writing.temporary_path`) and renamed, and a
       sample's line is appended and flushed only after its files, so the manifest lists
       only finished samples whatever moment a run is killed.
     * The manifest in sample order: lines are written in the order of ``specs`` however the
@@ -909,7 +909,7 @@ class DatasetWriter:
     def _ours(self, entry: Path) -> bool:
         """Whether ``entry`` is a temporary file an earlier run on this folder made.
 
-        Its name must be :func:`gpu_blur.imageio.temporary_path`'s for a file that run writes
+        Its name must be :func:`gpu_blur.file_writing.temporary_path`'s for a file that run writes
         there (a sample file in the set's folders; the manifest, run.json or the write probe
         beside them), with the process id of a run the lock file records
         (:func:`gpu_blur.locking.earlier_pids`): a file of the same look that someone else

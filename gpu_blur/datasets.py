@@ -38,7 +38,7 @@ from gpu_blur.dataset import (
     read_datalist,
     sequence_samples,
 )
-from gpu_blur.imageio import read_image
+from gpu_blur.image_reading import read_image
 
 _MASK64 = (1 << 64) - 1
 #: Mixed into the crop generator's seed, so crops are drawn apart from the pipeline's draws.

@@ -26,7 +26,8 @@ import cv2
 import numpy as np
 
 from gpu_blur.dataset import SampleSpec
-from gpu_blur.imageio import check_image, opencv_reason, read_image
+from gpu_blur.image_arrays import check_image
+from gpu_blur.image_reading import opencv_reason, read_image
 from gpu_blur.reference.output import to_integers
 from gpu_blur.scene import Scene
 from gpu_blur.scheduler import Schedule
@@ -131,8 +132,8 @@ def run_serial(job: Job, specs: Iterable[SampleSpec]) -> Iterator[tuple]:
 def decode(spec: SampleSpec) -> tuple[np.ndarray, ...] | None:
     """A sample's input files as ``synthesize`` reads them, or None when one fails a check.
 
-    Each file goes through :func:`~gpu_blur.imageio.read_image` and
-    :func:`~gpu_blur.imageio.check_image` (named by its path), and all must have one size; the
+    Each file goes through :func:`~gpu_blur.image_reading.read_image` and
+    :func:`~gpu_blur.image_arrays.check_image` (named by its path), and all must have one size; the
     arrays are read_image's, as ``synthesize`` gets them from a path (a mode none mask's 8-bit
     codes, like its image's, become value / 255 there, as the RSBlur authors read them). When
     anything fails, the sample is made from its paths instead, so ``synthesize`` reads them

@@ -142,7 +142,7 @@ def scene_files(scene) -> dict[str, Path]:
 def check_setup(o, scene) -> None:
     """Fail before any sample for what every sample would fail on (``o``: the options)."""
     from gpu_blur.cameras import scene_camera
-    from gpu_blur.imageio import read_kernel
+    from gpu_blur.kernel_files import read_kernel
     from gpu_blur.plan import raw_round_trip
     from gpu_blur.scheduler import check_tile
 

@@ -127,7 +127,7 @@ KERNEL_SIZE = Limit(1, 255, integer=True, reason=(
 #: random ones 5 to 29), while 511 pixels is 27 % of a 1920 x 1200 RSBlur frame's width and
 #: 71 % of a GoPro frame's 720 rows, the largest images gpu_blur makes from the data sets: a
 #: wider kernel is not camera shake for those. Checked on a .npy file's header and an image's
-#: before they are loaded (gpu_blur.imageio.read_kernel).
+#: before they are loaded (gpu_blur.kernel_files.read_kernel).
 KERNEL_SIDE = Limit(1, 511, integer=True, reason=(
     "pixels a side of a given kernel, a read per pixel and tap: 511 x 511 is 261,121 taps; "
     "measured camera-shake kernels span tens of pixels, 511 is a quarter of a 1920-pixel "
@@ -182,7 +182,7 @@ CAM2LIN_LARGEST = Limit(0, 8.0, reason=(
 #: The environment variable that replaces :data:`MAX_PIXELS` (see :func:`max_pixels`).
 MAX_PIXELS_VARIABLE = "GPU_BLUR_MAX_PIXELS"
 #: The most pixels (width x height) an image file may hold by default: 2^28, 268 MP. It is
-#: read from the file's header before anything is decoded (gpu_blur.imageio.read_image), as
+#: read from the file's header before anything is decoded (gpu_blur.image_reading.read_image), as
 #: a PNG of one colour is a few hundred KB at 12000 x 12000 and decoding takes at least 3 bytes
 #: a pixel (8-bit RGB; 6 for 16 bits, 12 for float TIFFs), then 24 as float64: 0.8 GB and
 #: 6.4 GB at 2^28. One frame of the largest camera sensors is about 150 MP; the data sets

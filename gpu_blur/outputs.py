@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gpu_blur.imageio import swap_red_blue
+from gpu_blur.image_arrays import swap_red_blue
 
 #: float32(c / 255) for every 8-bit code c, as quantization gives them (a gather, not a divide).
 _CODE_VALUES = (np.arange(256) / 255.0).astype(np.float32)
@@ -107,12 +107,12 @@ def write_dng(path, raw: np.ndarray, info: dict) -> None:
     transform equal the pipeline's: ColorMatrix1 = diag(1 / gains) Lin2Cam XYZ->sRGB, the
     XYZ -> camera map whose neutral is AsShotNeutral.
 
-    The file appears complete or not at all (as :func:`gpu_blur.imageio.write_image`).
+    The file appears complete or not at all (as :func:`gpu_blur.file_writing.write_image`).
     """
     import tifffile
 
     from gpu_blur.constants import XYZ_TO_SRGB
-    from gpu_blur.imageio import write_whole
+    from gpu_blur.file_writing import write_whole
     from gpu_blur.reference.fixedmath import inverse3, matmul3
 
     gains = np.asarray(info["wb_gains"], np.float64)
@@ -149,6 +149,6 @@ def _rationals(values) -> tuple[int, ...]:
 
 def write_mask(path, mask: np.ndarray) -> None:
     """A saturation mask (H x W x 3 in [0, 1]) as a 16-bit PNG, codes ``round(m * 65535)``."""
-    from gpu_blur.imageio import write_image
+    from gpu_blur.file_writing import write_image
 
     write_image(path, mask, 16)

@@ -413,7 +413,7 @@ def run(runner: Backend, sample_plan: Plan, params: dict, camera, frames, mask,
         params: its drawn parameters.
         camera: its camera.
         frames: the input frames, ``H x W x 3`` as stored (uint8/uint16 codes, or float64
-            in [0, 1]; :func:`gpu_blur.imageio.check_image`), in host memory; or inputs a
+            in [0, 1]; :func:`gpu_blur.image_arrays.check_image`), in host memory; or inputs a
             kernel backend put on its device (``put``: whole images only).
         mask: blur mode none: the given saturation mask, or None.
         schedule: tile size, memory budget and spot-check fraction.

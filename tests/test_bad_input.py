@@ -16,7 +16,8 @@ import simplejpeg
 
 import gpu_blur
 from gpu_blur.cli import main
-from gpu_blur.imageio import check_kernel, read_image, read_kernel
+from gpu_blur.image_reading import read_image
+from gpu_blur.kernel_files import check_kernel, read_kernel
 from gpu_blur.scene import SceneError, load_scene, scene_from_dict
 
 
@@ -584,7 +585,7 @@ HEADER_FORMATS = ["gif", "webp-lossless", "webp-lossy", "webp-extended", "ppm", 
 @pytest.mark.parametrize("fmt", HEADER_FORMATS)
 def test_gif_webp_and_pnm_files_are_refused_from_their_header_before_decoding(
         tmp_path, monkeypatch, fmt):
-    from gpu_blur.imageio import _header_size
+    from gpu_blur.image_reading import _header_size
 
     data = encoded(fmt)
     assert _header_size(data) == (32, 24)  # as OpenCV decodes it

@@ -718,7 +718,7 @@ def test_generate_blurs_only_what_the_photo_holds_at_its_edges(tmp_path, coffee_
     from scipy.ndimage import map_coordinates
 
     from gpu_blur.cli import main
-    from gpu_blur.imageio import read_image
+    from gpu_blur.image_reading import read_image
     from gpu_blur.reference.transfer import linear_to_srgb, srgb_to_linear
 
     photo = np.round(coffee_rgb[120:168, 180:244] * 255).astype(np.uint8)

@@ -15,7 +15,7 @@ from gpu_blur.datasets import (
     SharpSequences,
     epoch_seed,
 )
-from gpu_blur.imageio import read_image
+from gpu_blur.image_reading import read_image
 
 
 def write_image(path, seed, size=(16, 16)):

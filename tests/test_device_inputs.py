@@ -14,7 +14,7 @@ from conftest import KERNEL_BACKEND_SPECS, spec_backend, spec_dtype
 from gpu_blur.backends import OnDevice, get_backend
 from gpu_blur.backends.kernel import INSPECT_COLUMNS, INSPECT_ITEMS, Arg
 from gpu_blur.cameras import scene_camera
-from gpu_blur.imageio import unit_values
+from gpu_blur.image_arrays import unit_values
 from gpu_blur.kernel_constants import INSPECT_LOADS
 from gpu_blur.plan import StageName as S
 from gpu_blur.plan import plan

@@ -20,7 +20,7 @@ import gpu_blur.generate
 from gpu_blur.cli import main
 from gpu_blur.dataset import SampleSpec
 from gpu_blur.generate import Job, make_sample
-from gpu_blur.imageio import read_image
+from gpu_blur.image_reading import read_image
 from gpu_blur.reference.interpolate import optical_flow
 from gpu_blur.scene import scene_from_dict
 from gpu_blur.testhooks import TEST_SLEEP_AFTER
@@ -188,7 +188,7 @@ def test_whole_jpegs_are_read_and_damaged_ones_refused(tmp_path, rocket_rgb, opt
 ])
 def test_a_scans_stuffed_bytes_restart_markers_and_end_are_read_from_every_0xff_run(
         data, pos, interval, mcus, want):
-    from gpu_blur.imageio import _jpeg_scan
+    from gpu_blur.image_reading import _jpeg_scan
 
     assert _jpeg_scan(data, pos, interval, mcus) == want
 

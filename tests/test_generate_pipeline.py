@@ -18,8 +18,8 @@ import pytest
 from conftest import KERNEL_BACKEND_SPECS, files, manifest_lines
 
 import gpu_blur.dataset
+import gpu_blur.file_writing
 import gpu_blur.generate
-import gpu_blur.imageio
 import gpu_blur.synthesis.inputs
 import gpu_blur.testhooks
 from gpu_blur.cli import main
@@ -129,7 +129,7 @@ def test_a_failing_write_stops_the_run_and_loses_nothing(tmp_path, photos, monke
     reference = tmp_path / "reference"
     assert main(args(folder, scene, reference, "--samples-per-photo", "4")) == 0
     expected = (reference / "manifest.jsonl").read_text().splitlines(keepends=True)
-    write_new = gpu_blur.imageio.write_new
+    write_new = gpu_blur.file_writing.write_new
 
     def write_fails_on_sample_3(path, data):
         if path.name.startswith(".000003_"):
@@ -138,7 +138,7 @@ def test_a_failing_write_stops_the_run_and_loses_nothing(tmp_path, photos, monke
             raise OSError(errno.EIO, os.strerror(errno.EIO), str(path))
         return write_new(path, data)
 
-    monkeypatch.setattr(gpu_blur.imageio, "write_new", write_fails_on_sample_3)
+    monkeypatch.setattr(gpu_blur.file_writing, "write_new", write_fails_on_sample_3)
     out = tmp_path / "out"
     run = args(folder, scene, out, "--samples-per-photo", "4", "--io-threads", threads)
     assert main(run) == 2

@@ -14,7 +14,8 @@ import pytest
 from conftest import KERNEL_BACKEND_SPECS
 
 from gpu_blur.dataset import default_photo
-from gpu_blur.imageio import read_image, unit_values
+from gpu_blur.image_arrays import unit_values
+from gpu_blur.image_reading import read_image
 from gpu_blur.plan import plan
 from gpu_blur.reference import interpolate
 from gpu_blur.reference.interpolate import (

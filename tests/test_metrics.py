@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-import gpu_blur.imageio
+import gpu_blur.file_writing
 from gpu_blur.analysis import metrics
 from gpu_blur.analysis.align import corner_displacement
 from gpu_blur.cli import main
@@ -321,7 +321,7 @@ def test_compare_json_is_written_whole_or_not_at_all(tmp_path, triple, monkeypat
             f.write(data[:len(data) // 2])
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(gpu_blur.imageio, "write_new", write_half)
+    monkeypatch.setattr(gpu_blur.file_writing, "write_new", write_half)
     assert main(["compare", triple["real"], triple["synth"], "--json", str(out)]) == 2
     monkeypatch.undo()
     assert out.read_text() == "the scores of an earlier run\n"

@@ -15,11 +15,13 @@ import numpy as np
 import pytest
 from conftest import files, manifest_lines
 
-import gpu_blur.imageio
+import gpu_blur.file_writing
+import gpu_blur.image_arrays
+import gpu_blur.image_reading
 from gpu_blur import dataset
 from gpu_blur.cli import main
 from gpu_blur.dataset import DatasetWriter, SampleSpec
-from gpu_blur.imageio import write_image
+from gpu_blur.file_writing import write_image
 from gpu_blur.testhooks import TEST_SLEEP_AFTER
 
 
@@ -60,8 +62,8 @@ def test_a_second_run_on_a_folder_being_written_stops_at_once_naming_the_holder(
 
 def test_temporary_names_hold_the_process_id(tmp_path, monkeypatch):
     written = []
-    real = gpu_blur.imageio.write_new
-    monkeypatch.setattr(gpu_blur.imageio, "write_new", lambda path, data: written.append(path)
+    real = gpu_blur.file_writing.write_new
+    monkeypatch.setattr(gpu_blur.file_writing, "write_new", lambda path, data: written.append(path)
                         or real(path, data))
     write_image(tmp_path / "x.png", np.zeros((2, 2, 3)), 8)
     assert written == [tmp_path / f".x.png.{os.getpid()}.part.png"]
@@ -70,7 +72,7 @@ def test_temporary_names_hold_the_process_id(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("write", [
     lambda path: write_image(path, np.zeros((2, 2, 3)), 8),
-    lambda path: gpu_blur.imageio.write_text(path, "{}"),
+    lambda path: gpu_blur.file_writing.write_text(path, "{}"),
     lambda path: dataset.save_arrays(path, {"kernel": np.ones((3, 3))}),
 ], ids=["image", "text", "arrays"])
 def test_a_link_planted_at_a_temporary_name_is_not_written_through(tmp_path, write):
@@ -81,7 +83,7 @@ def test_a_link_planted_at_a_temporary_name_is_not_written_through(tmp_path, wri
     out = tmp_path / "out"
     out.mkdir()
     final = out / "x.png"
-    gpu_blur.imageio.temporary_path(final).symlink_to(victim)
+    gpu_blur.file_writing.temporary_path(final).symlink_to(victim)
     write(final)
     assert victim.read_text() == "precious"
     assert final.is_file() and not final.is_symlink()
@@ -332,9 +334,9 @@ def test_red_and_blue_swap_as_numpys_reversed_channels_whatever_the_layout(dtype
     rng = np.random.default_rng(3)
     image = (rng.random((9, 14, 4)) * 1000).astype(dtype)
     for view in (image[:, :, :3], image[:, ::2, 1:], np.ascontiguousarray(image[:, :, :3])):
-        got = gpu_blur.imageio.swap_red_blue(view)
+        got = gpu_blur.image_arrays.swap_red_blue(view)
         assert got.dtype == view.dtype and got.flags.c_contiguous
         assert np.array_equal(got, view[:, :, ::-1])
-    path = Path(gpu_blur.imageio.__file__).parent / "data" / "coffee.png"
-    rgb = gpu_blur.imageio.read_image(path)
+    path = Path(gpu_blur.image_reading.__file__).parent / "data" / "coffee.png"
+    rgb = gpu_blur.image_reading.read_image(path)
     assert np.array_equal(rgb, cv2.imread(str(path), cv2.IMREAD_UNCHANGED)[:, :, ::-1])

@@ -299,7 +299,7 @@ def test_8_bit_frames_give_the_sharp_reference_of_their_float_values(retone, cof
 def test_sharp_reference_from_codes_is_the_curve_of_every_pixel_bitwise(crf, dtype, bits):
     """render_sharp evaluates the curve once per code and gathers: the same values."""
     from gpu_blur.cameras import scene_camera
-    from gpu_blur.imageio import unit_values
+    from gpu_blur.image_arrays import unit_values
     from gpu_blur.reference.output import quantize
     from gpu_blur.synthesis.host import _render_values, render_sharp
 

@@ -345,7 +345,7 @@ def test_cupy_arrays_come_back_as_cupy_arrays_on_the_gpu():
 def test_device_resident_runs_equal_runs_from_host_memory_in_tiles(spec, mode, dtype):
     """Inputs put on the device (no tile) and streamed from the host in tiles: same bits.
 
-    A uint8 mask is divided on the device (unit_values) and on the host (imageio.unit_values).
+    A uint8 mask is divided on the device (unit_values) and on the host (image_arrays.unit_values).
     """
     name, precision = spec_parts(spec)
     scene = scene_for(mode, precision=precision)

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from gpu_blur.imageio import opencv_reason
+from gpu_blur.image_reading import opencv_reason
 
 __all__ = [
     "DEFAULT_GAUSS_SIZE",

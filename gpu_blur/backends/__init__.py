@@ -6,7 +6,7 @@ caller uses. ``numpy`` is the float64 reference (:mod:`gpu_blur.backends.numpy`)
 and ``warp`` share one kernel backend (:mod:`gpu_blur.backends.kernel`) and differ only in
 devices, buffers, launching and how a pass configuration becomes a kernel build.
 
-Frames come as stored (:func:`gpu_blur.imageio.check_image`: uint8/uint16 codes or float64 in
+Frames come as stored (:func:`gpu_blur.image_arrays.check_image`: uint8/uint16 codes or float64 in
 [0, 1]). Kernel backends return their outputs as :class:`OnDevice` arrays, which the next pass
 takes without a copy; ``np.asarray`` (or ``.numpy()``) brings one to the host as float64. The
 numpy backend returns numpy arrays. Any pass also takes host arrays.

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from gpu_blur.imageio import unit_values
+from gpu_blur.image_arrays import unit_values
 from gpu_blur.plan import Plan
 from gpu_blur.reference.interpolate import (
     INTERPOLATION_AUTO,
@@ -137,7 +137,7 @@ def gap_regions(plan: Plan, params: dict, gaps: int) -> RegionFactors:
 class UnitFrames:
     """Frames as stored, read one at a time as float64 sRGB values in [0, 1].
 
-    ``frames[i]`` is :func:`gpu_blur.imageio.unit_values` of the stored frame, made when asked
+    ``frames[i]`` is :func:`gpu_blur.image_arrays.unit_values` of the stored frame, made when asked
     and not kept (the reference then holds two frames at a time, not the sequence).
     """
 

@@ -50,7 +50,7 @@ class NumpyBackend:
             params: its drawn parameters (``kernel``, ``homographies``; ``flows`` with
                 interpolated frames, computed here when missing).
             frames: full-size sRGB frames, H x W x 3 uint8/uint16 codes or floats in [0, 1]
-                (:func:`gpu_blur.imageio.check_image`), read one at a time (mode average), or
+                (:func:`gpu_blur.image_arrays.check_image`), read one at a time (mode average), or
                 one photo (kernel, trajectory), or the blurred image (none).
             mask: blur mode none only: the saturation mask that came with the image.
             region: the part of the image to return.

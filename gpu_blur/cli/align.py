@@ -51,7 +51,9 @@ def run(args) -> int:
     import numpy as np
 
     from gpu_blur.analysis.align import align_ecc, inside_mask, warp_to_reference
-    from gpu_blur.imageio import read_image, to_unit, write_image, write_text
+    from gpu_blur.file_writing import write_image, write_text
+    from gpu_blur.image_arrays import to_unit
+    from gpu_blur.image_reading import read_image
 
     if args.frames and not args.output:
         raise ValueError("gpu-blur align: give --output DIR for the warped frames")

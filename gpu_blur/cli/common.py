@@ -60,7 +60,8 @@ def refuse_writing_over_inputs(option: str, outputs, inputs, fix: str) -> None:
 
 def read_unit(path: Path, role: str):
     """An image file as float64 sRGB values in [0, 1], H x W x 3; errors name the role."""
-    from gpu_blur.imageio import read_image, to_unit
+    from gpu_blur.image_arrays import to_unit
+    from gpu_blur.image_reading import read_image
 
     try:
         return to_unit(read_image(path), str(path))

@@ -53,7 +53,7 @@ def run(args) -> int:
     import math
 
     from gpu_blur.analysis import metrics
-    from gpu_blur.imageio import write_text
+    from gpu_blur.file_writing import write_text
 
     ref_path = args.interp or args.sharp
     ref_kind = "interp" if args.interp else "sharp"

@@ -51,7 +51,7 @@ def run(args) -> int:
     import json
 
     from gpu_blur.conformance import validate
-    from gpu_blur.imageio import write_text
+    from gpu_blur.file_writing import write_text
 
     names = args.backend or validate.kernel_devices()
     if not names:

@@ -250,7 +250,7 @@ def big_pattern(y: np.ndarray, x: np.ndarray) -> np.ndarray:
 class BigFrame:
     """A full-size frame too large to hold, made for the slices the backends ask for."""
 
-    dtype = np.dtype(np.float64)  # values in [0, 1], as gpu_blur.imageio.check_image gives
+    dtype = np.dtype(np.float64)  # values in [0, 1], as gpu_blur.image_arrays.check_image gives
 
     def __init__(self, h: int, w: int):
         self.shape = (h, w, 3)

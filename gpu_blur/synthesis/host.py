@@ -15,7 +15,7 @@ from gpu_blur.backends.flows import scene_factors
 from gpu_blur.backends.kernel import KernelBackend
 from gpu_blur.backends.numpy import retone
 from gpu_blur.cameras import Camera
-from gpu_blur.imageio import unit_values
+from gpu_blur.image_arrays import unit_values
 from gpu_blur.plan import Plan, StageName
 from gpu_blur.reference import transfer
 from gpu_blur.reference.output import crop_border, quantize
@@ -154,7 +154,7 @@ def render_sharp(sample_plan: Plan, camera: Camera, sharp: np.ndarray) -> np.nda
     Args:
         sample_plan: the sample's plan.
         camera: its camera (``output.crf = "camera"`` re-tones with its fitted response).
-        sharp: sRGB image as stored (:func:`gpu_blur.imageio.check_image`), H x W x 3.
+        sharp: sRGB image as stored (:func:`gpu_blur.image_arrays.check_image`), H x W x 3.
     """
     coded = sharp.dtype in (np.uint8, np.uint16)
     values = unit_values(np.arange(np.iinfo(sharp.dtype).max + 1, dtype=sharp.dtype)

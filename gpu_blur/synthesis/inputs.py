@@ -16,7 +16,8 @@ import numpy as np
 
 from gpu_blur import arrays
 from gpu_blur.backends import OnDevice
-from gpu_blur.imageio import check_image, check_layout, read_image, unit_values
+from gpu_blur.image_arrays import check_image, check_layout, unit_values
+from gpu_blur.image_reading import read_image
 from gpu_blur.plan import raw_round_trip
 from gpu_blur.scene import Scene
 
@@ -25,7 +26,7 @@ from gpu_blur.scene import Scene
 class Inputs:
     """One sample's inputs: frames (a stack for mode average), mask, sharp, and their names.
 
-    Host arrays as stored (:func:`gpu_blur.imageio.check_layout`), or after
+    Host arrays as stored (:func:`gpu_blur.image_arrays.check_layout`), or after
     :meth:`~gpu_blur.synthesis.resident.ResidentPath.put`,
     :class:`~gpu_blur.backends.OnDevice` values.
     """

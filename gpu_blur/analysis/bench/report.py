@@ -8,7 +8,7 @@ from pathlib import Path
 from gpu_blur.analysis.bench.peers import BORDER_PX, KERNEL_SIZE
 from gpu_blur.analysis.bench.plot import write_plot
 from gpu_blur.analysis.bench.workload import MIN_RUNS
-from gpu_blur.imageio import write_text
+from gpu_blur.file_writing import write_text
 
 
 def _number(value, digits: int = 3) -> str:

@@ -41,7 +41,7 @@ from gpu_blur.analysis.bench.workload import (
     quick_knobs,
     select_knobs,
 )
-from gpu_blur.imageio import write_text
+from gpu_blur.file_writing import write_text
 from gpu_blur.locking import take_lock
 
 #: The report keys a resumed run must share with the JSON it finishes, and what sets each.

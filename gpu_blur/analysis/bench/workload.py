@@ -168,7 +168,7 @@ def make_frames(width: int, height: int, frames: int = FRAMES) -> list[np.ndarra
     import cv2
 
     from gpu_blur.dataset import default_photo
-    from gpu_blur.imageio import read_image
+    from gpu_blur.image_reading import read_image
 
     photo = read_image(default_photo())
     pan = (frames - 1) * PAN_PX

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from gpu_blur.imageio import write_text
+from gpu_blur.file_writing import write_text
 
 
 def _toml_string(text: str) -> str:
@@ -72,7 +72,7 @@ def write_camera_file(path: str | Path, camera: dict) -> None:
 
     The text goes to a temporary file next to ``path``, is loaded back with
     :func:`gpu_blur.cameras.load_camera`, and is renamed onto ``path``
-    (:func:`gpu_blur.imageio.write_text`), so ``path`` is never half-written or invalid.
+    (:func:`gpu_blur.file_writing.write_text`), so ``path`` is never half-written or invalid.
 
     Raises:
         ValueError: for a name not ending in .toml or .json, or a camera the loader refuses.

@@ -122,7 +122,8 @@ def sample_patches(image_path: str | Path, boxes) -> np.ndarray:
     Raises:
         ValueError: naming the image and the box that does not fit inside it.
     """
-    from gpu_blur.imageio import read_image, to_unit
+    from gpu_blur.image_arrays import to_unit
+    from gpu_blur.image_reading import read_image
 
     image = to_unit(read_image(image_path), str(image_path))
     height, width = image.shape[:2]

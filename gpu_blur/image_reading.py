@@ -1,21 +1,23 @@
-"""Reading and writing images: RGB order, integer codes to [0, 1] and back."""
+"""Reading image files: format sniffing, sizes from headers, the pixel budget, damage checks.
+
+A file's width and height come from its header before anything is decoded (a small file that
+claims a huge image costs no memory); PNG and JPEG files are checked for truncation and damage
+that their decoders pass over; OpenCV then decodes them as stored.
+"""
 
 from __future__ import annotations
 
 import io
-import math
-import os
 import re
 import struct
 from collections.abc import Callable
 from pathlib import Path
-from tokenize import TokenError
 
 import cv2
 import numpy as np
 
 from gpu_blur import limits
-from gpu_blur.reference.output import code_dtype, to_integers
+from gpu_blur.image_arrays import swap_red_blue
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _WAY_OUT = "re-export or re-copy the file, or remove it from the input"
@@ -350,8 +352,8 @@ def too_many_pixels(width: int, height: int) -> str | None:
             f"environment variable {limits.MAX_PIXELS_VARIABLE}={pixels}")
 
 
-def _decode(path: Path, where: str, fix: str,
-            refuse: Callable[[int, int], str | None] = too_many_pixels) -> np.ndarray:
+def decode_file(path: Path, where: str, fix: str,
+                refuse: Callable[[int, int], str | None] = too_many_pixels) -> np.ndarray:
     """An image file decoded by OpenCV as stored (IMREAD_UNCHANGED), after :func:`_damage`.
 
     Its width and height are checked with ``refuse`` first, from the header
@@ -415,7 +417,7 @@ def read_image(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.exists():  # anything else there is refused by its kind (files.open_regular)
         raise ValueError(f"{path}: no such file")
-    image = _decode(path, str(path), f"; {_WAY_OUT}")
+    image = decode_file(path, str(path), f"; {_WAY_OUT}")
     if image.ndim == 2:
         image = image[:, :, None]
     channels = image.shape[2]
@@ -440,325 +442,9 @@ def read_image(path: str | Path) -> np.ndarray:
     return swap_red_blue(image)
 
 
-def swap_red_blue(image: np.ndarray) -> np.ndarray:
-    """An H x W x 3 image with its first and last channels swapped (OpenCV's BGR <-> RGB).
-
-    A new contiguous array of the same values: OpenCV's ``cvtColor`` for uint8, uint16 and
-    float32 (a permutation; about 15 times faster than copying numpy's reversed view, 0.9
-    against 16 ms for 1920 x 1200 uint8 on a 2-core VM), numpy for other dtypes.
-    """
-    if image.dtype in (np.uint8, np.uint16, np.float32):
-        return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-    return np.ascontiguousarray(image[:, :, ::-1])
-
-
-def _where(mask: np.ndarray) -> str:
-    """'row r, column c, channel k' of the first True entry of an H x W x 3 mask."""
-    row, col, ch = np.unravel_index(int(np.argmax(mask)), mask.shape)
-    return f"row {row}, column {col}, channel {ch}"
-
-
-def to_unit(image: np.ndarray, what: str = "image") -> np.ndarray:
-    """uint8 / uint16 codes or floats in [0, 1] -> float64 in [0, 1], H x W x 3.
-
-    Raises:
-        ValueError: as :func:`check_image`.
-    """
-    return unit_values(check_image(image, what))
-
-
-def unit_values(image: np.ndarray) -> np.ndarray:
-    """A checked image (:func:`check_image`) as float64 in [0, 1]: codes / (2^bits - 1)."""
-    if image.dtype == np.uint8:
-        return image / 255.0
-    if image.dtype == np.uint16:
-        return image / 65535.0
-    return np.asarray(image, dtype=np.float64)
-
-
-def check_layout(image, what: str = "image") -> np.ndarray:
-    """An H x W x 3 RGB input of uint8, uint16 or float values; the values are not read.
-
-    Raises:
-        ValueError: naming ``what`` and the way out, for a wrong shape or dtype.
-    """
-    image = np.asarray(image)
-    if image.ndim != 3 or image.shape[2] != 3:
-        hint = (": for a grayscale image repeat it, np.repeat(x[..., None], 3, axis=2)"
-                if image.ndim == 2 else "")
-        raise ValueError(f"{what}: expected an H x W x 3 RGB array, got shape {image.shape}"
-                         f"{hint}")
-    if image.size == 0:
-        raise ValueError(f"{what}: the image is empty (shape {image.shape})")
-    if image.dtype not in (np.uint8, np.uint16) and not np.issubdtype(image.dtype, np.floating):
-        raise ValueError(f"{what}: unsupported dtype {image.dtype}; use uint8, uint16 or float "
-                         "in [0, 1] (e.g. x.astype(np.uint8) for 0..255 integers)")
-    return image
-
-
-def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
-    """An H x W x 3 RGB input as stored: uint8 or uint16 codes, or float64 values in [0, 1].
-
-    Frames stay in their integer codes until a backend reads them (kernels upload 1 or 2
-    bytes per value and divide on the device); floats are checked and made float64. Kernel
-    backends make the same checks on the device (``KernelBackend.inspect``) and come here
-    only for the message.
-
-    Raises:
-        ValueError: naming ``what``, with how many bad values there are, where the first is,
-            and the way out, for a wrong shape or dtype, NaN or infinity, or floats outside
-            [0, 1].
-    """
-    image = check_layout(image, what)
-    if image.dtype in (np.uint8, np.uint16):
-        return image
-    x = image.astype(np.float64)
-    finite = np.isfinite(x)
-    if not finite.all():
-        nan = int(np.count_nonzero(np.isnan(x)))
-        inf = x.size - int(np.count_nonzero(finite)) - nan
-        raise ValueError(
-            f"{what}: {nan} NaN and {inf} infinite value(s), the first at "
-            f"{_where(~finite)}; float images must be finite sRGB values in [0, 1]: fix "
-            "what produced them, or replace them (np.nan_to_num(x, nan=0.0, posinf=1.0, "
-            "neginf=0.0))")
-    if x.min() < 0:
-        low = x < 0
-        raise ValueError(
-            f"{what}: {np.count_nonzero(low)} negative value(s), the lowest "
-            f"{x.min():.6g}, the first at {_where(low)}; float images must be sRGB values "
-            "in [0, 1] (not mean-subtracted or normalized data): clip rounding errors "
-            "with np.clip(x, 0, 1)")
-    if x.max() > 1:
-        high = x > 1
-        raise ValueError(
-            f"{what}: {np.count_nonzero(high)} value(s) above 1, the highest "
-            f"{x.max():.6g}, the first at {_where(high)}; float images must be sRGB values "
-            "in [0, 1]: pass 0..255 data as uint8 (or divide it by 255), clip small "
-            "overshoots with np.clip(x, 0, 1)")
-    return x
-
 
 def opencv_reason(error: cv2.error) -> str:
     """OpenCV's own sentence from a cv2.error, without its source file and line."""
     text = " ".join(str(error).split())
     match = re.search(r"error: \(-?\d+:[^)]*\) (.*?)(?: in function .*)?$", text)
     return (match.group(1) if match else text).strip().rstrip(".")
-
-
-def temporary_path(path: Path) -> Path:
-    """Where ``path`` is written before it is renamed into place.
-
-    ``.<name>.<pid>.part<suffix>`` beside it: the process id keeps two processes apart, the
-    suffix keeps the format. Written with :func:`write_new`.
-    """
-    return path.with_name(f".{path.name}.{os.getpid()}.part{path.suffix}")
-
-
-def write_new(path: Path, data: bytes) -> Path:
-    """``data`` as the new regular file ``path`` of its folder; returns ``path``.
-
-    Whatever is there is removed first (a file a killed run left, or a link someone put
-    there: the link itself, not what it points to); then ``O_EXCL | O_NOFOLLOW`` make sure
-    the bytes land in a file made here, never through a link onto another file.
-
-    Raises:
-        OSError: the file cannot be made (also when something appears there in between).
-    """
-    path.unlink(missing_ok=True)
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
-    with os.fdopen(os.open(path, flags, 0o666), "wb") as f:
-        f.write(data)
-    return path
-
-
-def write_whole(path: Path, data: bytes, check: Callable[[Path], None] | None = None) -> None:
-    """``data`` as the file ``path``, which appears complete or not at all.
-
-    Written to :func:`temporary_path` (:func:`write_new`), then renamed onto ``path``; the
-    temporary file is removed on failure. ``check``: called with the temporary file before
-    the rename; what it raises leaves ``path`` as it was.
-    """
-    tmp = temporary_path(path)
-    try:
-        write_new(tmp, data)
-        if check is not None:
-            check(tmp)
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
-    """Write an H x W x 3 RGB image in [0, 1]: PNG with 8/16 bits, or float32 TIFF for bits 0.
-
-    ``image`` may also be its codes already (:func:`to_integers`: uint8 for 8 bits, uint16
-    for 16), as a worker process sends them (:func:`gpu_blur.generate.for_driver`).
-    The file appears complete or not at all (encoded, written to a new temporary file, then
-    renamed; the temporary file is removed on failure).
-    """
-    path = Path(path)
-    if bits == 0:
-        data = np.asarray(image, dtype=np.float32)
-    elif np.asarray(image).dtype == code_dtype(bits):
-        data = np.asarray(image)
-    else:
-        data = to_integers(image, bits)
-    try:
-        ok, encoded = cv2.imencode(".tiff" if bits == 0 else ".png", swap_red_blue(data))
-    except cv2.error:
-        ok = False
-    if not ok:
-        raise OSError(f"{path}: could not encode the image")
-    write_whole(path, encoded.tobytes())
-
-
-def write_text(path: str | Path, text: str,
-               check: Callable[[Path], None] | None = None) -> None:
-    """Write a text file that appears complete or not at all (as :func:`write_image`).
-
-    Args:
-        path: the file.
-        text: its contents.
-        check: called with the temporary file before it is renamed onto ``path``; what it
-            raises leaves ``path`` as it was.
-    """
-    path = Path(path)
-    try:
-        write_whole(path, text.encode(), check)
-    except OSError as e:
-        raise OSError(e.errno, e.strerror, str(path)) from None  # the name asked for
-
-
-def read_kernel(path: str | Path) -> np.ndarray:
-    """A blur kernel from ``.npy`` (2-D floats) or a grayscale image (PNG, ...), as float64.
-
-    The kernel is checked (odd sides up to :data:`gpu_blur.limits.KERNEL_SIDE`, finite,
-    non-negative, positive sum) but not normalized here; the blur stage normalizes it to sum
-    1. Its size is checked from the header before it is loaded (:func:`_read_npy`,
-    :func:`_decode`).
-
-    Raises:
-        ValueError: naming the file (as ``blur.kernel = ...``) and what is wrong with it.
-    """
-    path = Path(path)
-    where = f"blur.kernel = {str(path)!r}"
-    if not path.exists():  # anything else there is refused by its kind (files.open_regular)
-        raise ValueError(f"{where}: no such file (a relative path is taken from the scene "
-                         "file's folder)")
-    if path.suffix.lower() == ".npy":
-        kernel = _read_npy(path, where)
-    else:
-        kernel = _decode(path, where, "", lambda width, height: _kernel_too_wide(height, width))
-    kernel = kernel_weights(kernel, where)
-    check_kernel(kernel, where)
-    return kernel
-
-
-def kernel_weights(kernel, where: str) -> np.ndarray:
-    """A kernel's weights as float64; integers and floats only (a complex part is not dropped).
-
-    Raises:
-        ValueError: starting with ``where``, naming the dtype and the way out.
-    """
-    try:
-        kernel = np.asarray(kernel)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}: not an array of numbers; give a 2-D array of "
-                         "floats") from None
-    kind = kernel.dtype.kind
-    if kind == "c":
-        raise ValueError(f"{where}: holds {kernel.dtype} values; kernel weights are real (the "
-                         "imaginary part would be lost): pass np.real(k) or np.abs(k)")
-    if kind not in "iuf":
-        raise ValueError(f"{where}: holds {kernel.dtype} values, not numbers; kernel weights "
-                         "are integers or floats: pass k.astype(np.float64)")
-    return kernel.astype(np.float64)
-
-
-def _read_npy(path: Path, where: str) -> np.ndarray:
-    """A kernel's ``.npy`` file, after its header's shape and dtype are checked.
-
-    The header (format 1.0 or 2.0, what ``np.save`` writes for numbers) is read first, and a
-    shape :func:`check_kernel` refuses, or one whose data does not fit in the file, is
-    refused before any array is made: ``np.load`` makes the array the header asks for.
-    """
-    from numpy.lib import format as npy
-
-    from gpu_blur.files import open_regular
-
-    way_out = "save the kernel with np.save"
-    with open_regular(path, where) as f:
-        try:
-            version = npy.read_magic(f)
-            if version not in ((1, 0), (2, 0)):
-                raise ValueError(f"format version {version[0]}.{version[1]}, not 1.0 or 2.0")
-            read_header = npy.read_array_header_1_0 if version == (1, 0) \
-                else npy.read_array_header_2_0
-            shape, _, dtype = read_header(f)
-            start = f.tell()
-        except (SyntaxError, TokenError, RecursionError):  # numpy parses the header as Python
-            raise ValueError(f"{where}: not a numpy array file (its header is no valid Python "
-                             f"literal); {way_out}") from None
-        except (ValueError, OSError, EOFError) as e:
-            raise ValueError(f"{where}: not a numpy array file ({e}); {way_out}") from None
-        if dtype.hasobject:
-            raise ValueError(f"{where}: holds Python objects ({dtype}), which are not loaded; "
-                             f"{way_out} from a float array")
-        _check_kernel_shape(shape, where)
-        need, have = math.prod(shape) * dtype.itemsize, os.fstat(f.fileno()).st_size - start
-        if need > have:
-            raise ValueError(f"{where}: its header gives a {shape[0]} x {shape[1]} array of "
-                             f"{dtype} ({need:,} bytes) but {have:,} bytes follow it: the file "
-                             f"is truncated or its header damaged; {way_out} again")
-        try:
-            f.seek(0)
-            return np.load(f, allow_pickle=False)
-        except (ValueError, OSError, EOFError) as e:
-            raise ValueError(f"{where}: not a numpy array file ({e}); {way_out}") from None
-
-
-def _kernel_too_wide(rows: int, cols: int) -> str | None:
-    """Why a kernel of ``rows`` x ``cols`` is too large or empty (limits.KERNEL_SIDE), or None."""
-    if min(rows, cols) < 1:
-        return (f"is {rows} x {cols}; a kernel needs at least one row and column of weights: "
-                "check what wrote it")
-    problem = limits.KERNEL_SIDE.problem(max(rows, cols))
-    if problem is None:
-        return None
-    return (f"is {rows} x {cols}; allowed sides: {problem}: crop it to the rows and columns "
-            "that hold its weight, or scale it down with the images it blurs")
-
-
-def _check_kernel_shape(shape: tuple[int, ...], where: str) -> None:
-    """Refuse a kernel shape: not 2-D, a side above limits.KERNEL_SIDE, or an even side."""
-    if len(shape) != 2:
-        raise ValueError(f"{where}: a kernel is 2-D (one channel), got shape {shape}")
-    problem = _kernel_too_wide(*shape)
-    if problem:
-        raise ValueError(f"{where}: {problem}")
-    if shape[0] % 2 == 0 or shape[1] % 2 == 0:
-        raise ValueError(f"{where}: is {shape[0]} x {shape[1]}; a kernel needs odd "
-                         "sides (its centre is the origin): pad it with a row or column of "
-                         "zeros where the blur should not move")
-
-
-def check_kernel(kernel: np.ndarray, where: str) -> None:
-    """Refuse what :func:`gpu_blur.reference.motion_kernel.normalize_kernel` cannot normalize.
-
-    Raises:
-        ValueError: starting with ``where``, saying what is wrong and the way out.
-    """
-    _check_kernel_shape(kernel.shape, where)
-    bad = int(np.count_nonzero(~np.isfinite(kernel)))
-    if bad:
-        raise ValueError(f"{where}: holds {bad} NaN or infinite weight(s); kernel weights must "
-                         "be finite")
-    negative = int(np.count_nonzero(kernel < 0))
-    if negative:
-        raise ValueError(f"{where}: holds {negative} negative weight(s), the lowest "
-                         f"{float(kernel.min()):.6g}; a blur kernel is non-negative: clip them "
-                         "to 0 (np.clip(k, 0, None)) or fix what made it")
-    if not kernel.sum() > 0:
-        raise ValueError(f"{where}: its weights sum to {float(kernel.sum()):.6g}; a blur kernel "
-                         "needs some positive weight (it is scaled to sum 1)")

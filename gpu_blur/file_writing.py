@@ -1,0 +1,102 @@
+"""Writing files that appear complete or not at all: images (PNG, float TIFF) and text.
+
+Each file is written to a new temporary file beside it (:func:`temporary_path`), then renamed
+into place.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from gpu_blur.image_arrays import swap_red_blue
+from gpu_blur.reference.output import code_dtype, to_integers
+
+
+def temporary_path(path: Path) -> Path:
+    """Where ``path`` is written before it is renamed into place.
+
+    ``.<name>.<pid>.part<suffix>`` beside it: the process id keeps two processes apart, the
+    suffix keeps the format. Written with :func:`write_new`.
+    """
+    return path.with_name(f".{path.name}.{os.getpid()}.part{path.suffix}")
+
+
+def write_new(path: Path, data: bytes) -> Path:
+    """``data`` as the new regular file ``path`` of its folder; returns ``path``.
+
+    Whatever is there is removed first (a file a killed run left, or a link someone put
+    there: the link itself, not what it points to); then ``O_EXCL | O_NOFOLLOW`` make sure
+    the bytes land in a file made here, never through a link onto another file.
+
+    Raises:
+        OSError: the file cannot be made (also when something appears there in between).
+    """
+    path.unlink(missing_ok=True)
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+    with os.fdopen(os.open(path, flags, 0o666), "wb") as f:
+        f.write(data)
+    return path
+
+
+def write_whole(path: Path, data: bytes, check: Callable[[Path], None] | None = None) -> None:
+    """``data`` as the file ``path``, which appears complete or not at all.
+
+    Written to :func:`temporary_path` (:func:`write_new`), then renamed onto ``path``; the
+    temporary file is removed on failure. ``check``: called with the temporary file before
+    the rename; what it raises leaves ``path`` as it was.
+    """
+    tmp = temporary_path(path)
+    try:
+        write_new(tmp, data)
+        if check is not None:
+            check(tmp)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
+    """Write an H x W x 3 RGB image in [0, 1]: PNG with 8/16 bits, or float32 TIFF for bits 0.
+
+    ``image`` may also be its codes already (:func:`to_integers`: uint8 for 8 bits, uint16
+    for 16), as a worker process sends them (:func:`gpu_blur.generate.for_driver`).
+    The file appears complete or not at all (encoded, written to a new temporary file, then
+    renamed; the temporary file is removed on failure).
+    """
+    path = Path(path)
+    if bits == 0:
+        data = np.asarray(image, dtype=np.float32)
+    elif np.asarray(image).dtype == code_dtype(bits):
+        data = np.asarray(image)
+    else:
+        data = to_integers(image, bits)
+    try:
+        ok, encoded = cv2.imencode(".tiff" if bits == 0 else ".png", swap_red_blue(data))
+    except cv2.error:
+        ok = False
+    if not ok:
+        raise OSError(f"{path}: could not encode the image")
+    write_whole(path, encoded.tobytes())
+
+
+def write_text(path: str | Path, text: str,
+               check: Callable[[Path], None] | None = None) -> None:
+    """Write a text file that appears complete or not at all (as :func:`write_image`).
+
+    Args:
+        path: the file.
+        text: its contents.
+        check: called with the temporary file before it is renamed onto ``path``; what it
+            raises leaves ``path`` as it was.
+    """
+    path = Path(path)
+    try:
+        write_whole(path, text.encode(), check)
+    except OSError as e:
+        raise OSError(e.errno, e.strerror, str(path)) from None  # the name asked for
+
