@@ -31,7 +31,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gpu_blur.dataset import default_photo
+from gpu_blur.discovery import default_photo
 
 H, W, FRAMES = 1200, 1920, 9
 

@@ -34,7 +34,7 @@ import numpy as np
 import gpu_blur
 from gpu_blur.analysis.bench.host import cpu_name
 from gpu_blur.analysis.metrics import psnr
-from gpu_blur.dataset import default_photo
+from gpu_blur.discovery import default_photo
 from gpu_blur.image_reading import read_image
 from gpu_blur.scene import scene_from_dict
 

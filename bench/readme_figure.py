@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 import gpu_blur
-from gpu_blur.dataset import default_photo
+from gpu_blur.discovery import default_photo
 from gpu_blur.reference.output import to_integers
 
 OUT = Path(__file__).parent / "results" / "readme_pipeline.png"

@@ -40,7 +40,7 @@ from torch_chain import BORDER, random_parameters, realblur_j_chain
 import gpu_blur
 from gpu_blur.analysis.bench.host import cpu_name, source_commit
 from gpu_blur.analysis.bench.run import _size
-from gpu_blur.dataset import default_photo
+from gpu_blur.discovery import default_photo
 
 SCENE = "realblur_j"
 RESULTS = Path(__file__).resolve().parent / "results"

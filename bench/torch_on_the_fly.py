@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 import gpu_blur
-from gpu_blur.dataset import default_photo
+from gpu_blur.discovery import default_photo
 from gpu_blur.scene import scene_from_dict
 
 

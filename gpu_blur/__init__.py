@@ -16,6 +16,7 @@ One sample, module by module:
                     arrays.py: the array types batches come in; torch.py: RealisticBlur, the
                     batch API as a training transform
     backends/       numpy (reference/), OpenCL (kernels/opencl/), Warp (warp_kernels/)
+    discovery.py    inputs: sequences, photos and already-blurred images, as samples
     dataset.py      outputs: blurred and sharp images, parameters, the manifest
                     (generation.py: generate_set, a whole set; generate.py and
                     distributed.py make its samples)
@@ -25,12 +26,11 @@ benchmark), which measures and never synthesizes. Test hooks: :mod:`gpu_blur.tes
 the tolerance table: :mod:`gpu_blur.tolerances` (the tests' helpers: :mod:`gpu_blur.testing`).
 """
 
-__version__ = "0.1.0"
-
-from gpu_blur.generation import SetReport, generate_set  # noqa: E402
-from gpu_blur.plan import Plan, Stage, plan  # noqa: E402
-from gpu_blur.scene import Scene, SceneError, load_scene  # noqa: E402
-from gpu_blur.synthesis import Batch, Synthesis, Synthesizer, synthesize  # noqa: E402
+from gpu_blur.generation import SetReport, generate_set
+from gpu_blur.plan import Plan, Stage, plan
+from gpu_blur.scene import Scene, SceneError, load_scene
+from gpu_blur.synthesis import Batch, Synthesis, Synthesizer, synthesize
+from gpu_blur.version import __version__
 
 __all__ = ["Batch", "Plan", "Scene", "SceneError", "SetReport", "Stage", "Synthesis",
            "Synthesizer", "generate_set", "load_scene", "plan", "synthesize", "__version__"]

@@ -5,7 +5,7 @@ in DataLoader workers (CPU) without importing torch; items are the stored codes 
 arrays (uint8 for 8-bit files: H x W x 3, frame stacks F x H x W x 3) with the item's index
 first, ready for :class:`gpu_blur.torch.RealisticBlur` on the GPU, which draws the blur,
 noise and ISP of each sample from (seed, epoch, index). Discovery is
-:mod:`gpu_blur.dataset`'s, as ``gpu-blur generate`` finds its inputs.
+:mod:`gpu_blur.discovery`'s, as ``gpu-blur generate`` finds its inputs.
 
 Seeded random crops and flips are fixed by (seed, epoch, index) too (:func:`epoch_seed`), so
 a run repeats and each epoch sees other crops. Crop offsets are even: a crop then starts on
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.dataset import (
+from gpu_blur.discovery import (
     BLURRED_EXPECTED,
     BlurredSample,
     SampleSpec,
@@ -150,7 +150,7 @@ class SharpSequences(_Augmented):
 
     GoPro_Large's ``<seq>/sharp/*.png`` and RSBlur's ``<session>/<id>/*.png`` (the sharp frames
     of one real blurred image), found as ``gpu-blur generate`` finds them
-    (:func:`gpu_blur.dataset.find_sequences`), windows as ``--samples-per-sequence`` takes
+    (:func:`gpu_blur.discovery.find_sequences`), windows as ``--samples-per-sequence`` takes
     them. Item: ``(index, frames)``, frames F x H x W x 3.
 
     Raises:
@@ -225,7 +225,7 @@ class _Pairs(_Augmented):
 class BlurredImages(_Pairs):
     """Already-blurred images with their saturation masks, for blur mode none.
 
-    The RSBlur authors' layouts (:data:`gpu_blur.dataset.BLURRED_LAYOUTS`): GoPro_INTER_ABME
+    The RSBlur authors' layouts (:data:`gpu_blur.discovery.BLURRED_LAYOUTS`): GoPro_INTER_ABME
     ``<seq>/<id>/avg_inter_img/``, RSBlur ``<session>/<id>/avg65_img/`` and GoPro_U
     ``centroid_blurred_img/``, each image's mask under the same name in the ``*_mask_100/``
     folder beside it (8-bit codes: value / 255, as the authors read them) and its sharp

@@ -8,7 +8,7 @@ run, byte for byte, whichever worker makes which sample (on devices of one model
 models, or a GPU and a CPU, may differ in a float32 last bit).
 
 What crosses a process boundary: the job (a few hundred bytes, once per worker), each
-:class:`~gpu_blur.dataset.SampleSpec` (index, name, input paths) and each result (the
+:class:`~gpu_blur.discovery.SampleSpec` (index, name, input paths) and each result (the
 :class:`~gpu_blur.synthesis.Synthesis` with only what the set writes,
 :func:`~gpu_blur.generate.for_driver`: blurred and sharp as the set's integer codes, the mask
 if saved, the drawn parameters and the plan; 1.4 MB for the 600 x 400 built-in photo at 8
@@ -35,7 +35,7 @@ from multiprocessing.connection import wait
 
 from gpu_blur import caches, testhooks
 from gpu_blur.backends import usable_devices
-from gpu_blur.dataset import SampleSpec
+from gpu_blur.discovery import SampleSpec
 from gpu_blur.generate import Job, decode, default_io_threads, for_driver, make_sample, run_serial
 
 RAY_INSTALL = "pip install 'gpu_blur[ray]'"

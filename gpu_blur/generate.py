@@ -25,7 +25,7 @@ from concurrent.futures import Executor, Future
 import cv2
 import numpy as np
 
-from gpu_blur.dataset import SampleSpec
+from gpu_blur.discovery import SampleSpec
 from gpu_blur.image_arrays import check_image
 from gpu_blur.image_reading import opencv_reason, read_image
 from gpu_blur.reference.output import to_integers

@@ -271,7 +271,8 @@ class _Run:
 
     def __init__(self, o, progress: Progress, on_device, on_resume):
         from gpu_blur.backends import get_backend
-        from gpu_blur.dataset import BUILT_IN_INPUT, DatasetWriter, find_samples, library_versions
+        from gpu_blur.dataset import DatasetWriter, library_versions
+        from gpu_blur.discovery import BUILT_IN_INPUT, find_samples
         from gpu_blur.distributed import pick_executor
         from gpu_blur.scene import load_scene
         from gpu_blur.scheduler import Schedule

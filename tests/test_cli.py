@@ -187,7 +187,7 @@ def device_worker(tmp_path, photos=1, size=(24, 32)):
     import os
 
     from gpu_blur import distributed
-    from gpu_blur.dataset import find_samples
+    from gpu_blur.discovery import find_samples
     from gpu_blur.generate import Job
     from gpu_blur.scene import scene_from_dict
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gpu_blur.cli import main
-from gpu_blur.dataset import find_samples, find_sequences
+from gpu_blur.discovery import find_samples, find_sequences
 
 
 def write_frames(folder, names):

@@ -18,7 +18,7 @@ from conftest import files, manifest_lines
 
 from gpu_blur import distributed
 from gpu_blur.cli import main
-from gpu_blur.dataset import find_samples
+from gpu_blur.discovery import find_samples
 from gpu_blur.distributed import parse_devices, run_devices, run_ray
 from gpu_blur.file_writing import write_image
 from gpu_blur.generate import Job, for_driver, run_serial

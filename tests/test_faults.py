@@ -18,7 +18,7 @@ import pytest
 
 import gpu_blur.generate
 from gpu_blur.cli import main
-from gpu_blur.dataset import SampleSpec
+from gpu_blur.discovery import SampleSpec
 from gpu_blur.generate import Job, make_sample
 from gpu_blur.image_reading import read_image
 from gpu_blur.reference.interpolate import optical_flow

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import KERNEL_BACKEND_SPECS
 
-from gpu_blur.dataset import default_photo
+from gpu_blur.discovery import default_photo
 from gpu_blur.image_arrays import unit_values
 from gpu_blur.image_reading import read_image
 from gpu_blur.plan import plan

@@ -6,7 +6,7 @@ Layers (ARCHITECTURE.md, "Layers"), lowest first:
   (and itself);
 - ``gpu_blur.backends``: devices and passes; never the synthesis layer;
 - the synthesis layer (``gpu_blur.synthesis``, ``gpu_blur.generate``, ``gpu_blur.generation``,
-  ``gpu_blur.dataset``): samples and data sets from the backends;
+  ``gpu_blur.dataset``, ``gpu_blur.discovery``): samples and data sets from the backends;
 - ``gpu_blur.cli``: the command, which nothing else imports.
 
 ``gpu_blur.testing`` is the tests' helpers: no module of the package imports it (the tolerance
@@ -38,7 +38,7 @@ REFERENCE_MAY_IMPORT = ("gpu_blur.constants",)
 KNOWN_REFERENCE_EXCEPTIONS: tuple[str, ...] = ()
 BACKENDS = ("gpu_blur.backends",)
 SYNTHESIS = ("gpu_blur.synthesis", "gpu_blur.generate", "gpu_blur.generation",
-             "gpu_blur.dataset")
+             "gpu_blur.dataset", "gpu_blur.discovery")
 CLI = ("gpu_blur.cli",)
 TESTING = ("gpu_blur.testing",)
 

@@ -7,7 +7,7 @@ from conftest import KERNEL_BACKEND_SPECS, manifest_lines
 
 import gpu_blur
 from gpu_blur.cli import main
-from gpu_blur.dataset import find_blurred, find_samples
+from gpu_blur.discovery import find_blurred, find_samples
 from gpu_blur.image_reading import read_image
 
 SCENE = '[blur]\nmode = "none"\n[saturation]\nmode = "on"\n'

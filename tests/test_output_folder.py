@@ -20,7 +20,8 @@ import gpu_blur.image_arrays
 import gpu_blur.image_reading
 from gpu_blur import dataset
 from gpu_blur.cli import main
-from gpu_blur.dataset import DatasetWriter, SampleSpec
+from gpu_blur.dataset import DatasetWriter
+from gpu_blur.discovery import SampleSpec
 from gpu_blur.file_writing import write_image
 from gpu_blur.testhooks import TEST_SLEEP_AFTER
 

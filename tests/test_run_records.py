@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from conftest import KERNEL_BACKEND_SPECS, manifest_lines
 
-from gpu_blur import dataset
+from gpu_blur import dataset, discovery
 from gpu_blur.cli import main
 from gpu_blur.testhooks import TEST_FAULT
 
@@ -56,17 +56,17 @@ def test_the_built_in_photo_is_recorded_by_name_and_resumes_from_another_install
         tmp_path, monkeypatch):
     out = tmp_path / "set"
     assert main(["generate", "--output", str(out), "--limit", "1", "--quiet"]) == 0
-    installed = str(dataset.default_photo())
+    installed = str(discovery.default_photo())
     for name in ("manifest.jsonl", "run.json"):
         assert installed not in (out / name).read_text()
-    assert manifest_lines(out)[0]["inputs"] == [dataset.BUILT_IN_INPUT]
+    assert manifest_lines(out)[0]["inputs"] == [discovery.BUILT_IN_INPUT]
     # the same set finished where gpu_blur is installed elsewhere
     moved = tmp_path / "elsewhere" / "coffee.png"
     moved.parent.mkdir()
     shutil.copy(installed, moved)
-    monkeypatch.setattr(dataset, "default_photo", lambda: moved)
+    monkeypatch.setattr(discovery, "default_photo", lambda: moved)
     assert main(["generate", "--output", str(out), "--limit", "2", "--quiet", "--resume"]) == 0
-    assert [x["inputs"] for x in manifest_lines(out)] == [[dataset.BUILT_IN_INPUT]] * 2
+    assert [x["inputs"] for x in manifest_lines(out)] == [[discovery.BUILT_IN_INPUT]] * 2
 
 
 def test_params_files_hold_the_convention_of_each_array(tmp_path, photo):

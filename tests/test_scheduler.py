@@ -13,7 +13,7 @@ from gpu_blur.backends import FRAMES_PER_LAUNCH
 from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.cameras import scene_camera
 from gpu_blur.cli import main
-from gpu_blur.dataset import find_samples
+from gpu_blur.discovery import find_samples
 from gpu_blur.scene import scene_from_dict
 from gpu_blur.scheduler import (
     MIN_TILE,

@@ -140,7 +140,7 @@ def test_device_workers_do_not_import_a_package_planted_in_the_current_folder(tm
         import sys
         from pathlib import Path
         sys.path.insert(0, ROOT)  # gpu_blur from this tree: -E drops PYTHONPATH
-        from gpu_blur.dataset import find_samples
+        from gpu_blur.discovery import find_samples
         from gpu_blur.distributed import run_devices
         from gpu_blur.generate import Job
         from gpu_blur.scene import load_scene

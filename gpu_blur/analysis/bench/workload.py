@@ -158,7 +158,7 @@ def setting_scene(setting: Setting, *extra: dict):
 def make_frames(width: int, height: int, frames: int = FRAMES) -> list[np.ndarray]:
     """The benchmark's input: windows of the upscaled built-in photo, panning right.
 
-    The photo (600 x 400, :func:`gpu_blur.dataset.default_photo`) is upscaled with bicubic
+    The photo (600 x 400, :func:`gpu_blur.discovery.default_photo`) is upscaled with bicubic
     interpolation until a ``width x height`` window fits ``(frames - 1) * PAN_PX`` times
     side by side; frame ``i`` starts ``i * PAN_PX`` pixels right of frame 0.
 
@@ -167,7 +167,7 @@ def make_frames(width: int, height: int, frames: int = FRAMES) -> list[np.ndarra
     """
     import cv2
 
-    from gpu_blur.dataset import default_photo
+    from gpu_blur.discovery import default_photo
     from gpu_blur.image_reading import read_image
 
     photo = read_image(default_photo())

@@ -1,0 +1,549 @@
+"""Finding inputs on disk: frame sequences, photos and already-blurred images, as samples.
+
+What ``gpu-blur generate`` and :mod:`gpu_blur.datasets` read: the published layouts (GoPro,
+RSBlur, RealBlur, datalists), in natural order, each sample numbered (:class:`SampleSpec`);
+a set written inside its input is never read back. Writing a set: :mod:`gpu_blur.dataset`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import os
+import re
+from collections.abc import Callable, Iterator
+from importlib import resources
+from pathlib import Path
+
+from gpu_blur import files
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+#: The files that mark a folder as a set gpu-blur wrote (:class:`gpu_blur.dataset.DatasetWriter`).
+MANIFEST = "manifest.jsonl"
+RUN = "run.json"
+#: The most samples one run makes. Each waits in memory until made (a SampleSpec with its
+#: input paths, about 0.3 KB) and adds a manifest line (about 1 KB): 10 million samples hold
+#: some 3 GB of list and write 10 GB of manifest, and take days on a fast GPU.
+MAX_SAMPLES = 10_000_000
+
+
+@dataclasses.dataclass(frozen=True)
+class SampleSpec:
+    """One sample to make: its index (which, with the seed, fixes its draws) and its inputs.
+
+    ``problem`` says why the sample cannot be made (a sequence shorter than ``blur.frames``,
+    a blurred image without its mask); such a sample keeps its index, so fixing its input
+    later moves no other sample's draws. ``roles`` names each input for blur mode none
+    (``blurred``, ``mask``, ``sharp``); empty for frames and photos.
+    """
+
+    index: int
+    name: str
+    inputs: tuple[Path, ...]
+    problem: str | None = None
+    roles: tuple[str, ...] = ()
+
+
+#: How the manifest and run.json name the built-in photo: its installed path differs from one
+#: machine or environment to the next, so a set records the name.
+BUILT_IN_INPUT = "built-in: coffee.png"
+
+
+def default_photo() -> Path:
+    """The built-in input: 'coffee' by Rachel Michetti, CC0, as shipped by scikit-image.
+
+    A 600 x 400 photograph whose spoon and cup rim have specular highlights that clip.
+    """
+    return Path(str(resources.files("gpu_blur").joinpath("data/coffee.png")))
+
+
+def input_label(path: Path) -> str:
+    """How the manifest records an input: its path (:func:`shown`), the built-in photo by name."""
+    return BUILT_IN_INPUT if path == default_photo() else shown(str(path))
+
+
+def shown(text: str) -> str:
+    r"""``text`` as UTF-8 text holds it: each byte of a path that is not UTF-8 as ``\xNN``.
+
+    Python gives such a byte of a file name as a lone surrogate (``surrogateescape``), which
+    UTF-8, and so the manifest's JSON, cannot hold; other text is returned as it is.
+    """
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:  # a lone surrogate no file name gives
+        return text.encode("utf-8", "backslashreplace").decode()
+
+
+def _natural(name: str) -> tuple:
+    """Sort key comparing runs of digits as numbers: ``2.png`` before ``10.png``.
+
+    Names that tie as numbers (``01.png``, ``1.png``) fall back to the plain text.
+    """
+    parts = re.split(r"(\d+)", name)
+    return tuple(int(p) if i % 2 else p for i, p in enumerate(parts)), name
+
+
+def _identity(path: Path | None) -> tuple[int, int] | None:
+    """(device, inode) of an existing folder, else None."""
+    try:
+        st = os.stat(path) if path is not None else None
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino) if st is not None else None
+
+
+def _walk(folder: Path, skip: tuple[int, int] | None) -> Iterator[tuple[Path, bool]]:
+    """(path, is a folder) of every entry under ``folder``, depth first, in natural order.
+
+    The folder whose :func:`_identity` is ``skip`` is left out with all it holds, and so is
+    every folder holding a set ``gpu-blur generate`` wrote (its :data:`MANIFEST` and
+    :data:`RUN`): a set made inside the input is never read back as input. Linked folders are
+    listed but not entered, and unreadable ones skipped, as ``Path.rglob`` does; a link that
+    leads nowhere or into a loop of links is no folder.
+    """
+    try:
+        with os.scandir(folder) as it:
+            entries = sorted(it, key=lambda e: _natural(e.name))
+    except OSError:  # unreadable, or gone since it was listed
+        return
+    for entry in entries:
+        try:
+            is_dir = entry.is_dir()
+        except OSError:  # a loop of links (ELOOP): no folder, and an image fails when read
+            is_dir = False
+        if is_dir and ((skip is not None and _identity(Path(entry.path)) == skip)
+                       or _holds_a_set(Path(entry.path))):
+            continue
+        yield Path(entry.path), is_dir
+        if is_dir and not entry.is_symlink():
+            yield from _walk(Path(entry.path), skip)
+
+
+def _holds_a_set(folder: Path) -> bool:
+    """Whether ``folder`` holds a set ``gpu-blur generate`` wrote (a manifest and run.json)."""
+    return (folder / MANIFEST).is_file() and (folder / RUN).is_file()
+
+
+def _images(folder: Path) -> list[Path]:
+    """The images directly in ``folder``, in natural order (none when it cannot be read)."""
+    try:
+        paths = [p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+    except OSError:
+        return []
+    return sorted(paths, key=lambda p: _natural(p.name))
+
+
+def _sequence_name(folder: Path, root: Path) -> str:
+    """A sequence's name: its folder relative to ``root``, or ``root``'s name when it is root."""
+    return root.name if folder == root else folder.relative_to(root).as_posix()
+
+
+def _is_rsblur_sample(folder: Path) -> bool:
+    """Whether ``folder`` is an RSBlur-style ``<session>/<id>/`` folder: both names digits."""
+    return folder.name.isdigit() and folder.parent.name.isdigit()
+
+
+def find_sequences(root: Path, exclude: Path | None = None) -> list[tuple[str, list[Path]]]:
+    """Frame sequences under ``root``, GoPro-style and RSBlur-style, in natural order.
+
+    * GoPro-style: every ``.../<seq>/sharp/`` folder; its images are the sequence
+      (``GOPRO_Large/train/GOPR0372_07_00/sharp/000047.png``); named ``<seq>``.
+    * RSBlur-style: every ``.../<session>/<id>/`` folder whose two names are digits (RSBlur's
+      ``0001/000001``) and that holds images itself: those images are the sequence, the
+      sharp frames of one real blurred image (RSBlur_sharps gives 9 per image). Its
+      subfolders (``avg65_img/``, ``avg65_mask_100/``, ``gt/``, ``real_blur/``) are not
+      frames and are never read; named ``<session>/<id>``. ``root`` itself counts when it
+      is such a folder.
+
+    Natural order compares runs of digits as numbers: frames ``0.png, 1.png, ..., 9.png,
+    10.png`` in that order, and sequences likewise by their folders' names.
+
+    Args:
+        root: the input folder.
+        exclude: a folder under ``root`` left out with all it holds (the output folder).
+
+    Returns:
+        (sequence name relative to root, its frames) pairs.
+    """
+    folders = [root] + [p for p, is_dir in _walk(root, _identity(exclude)) if is_dir]
+    sharp = {f: _images(f) for f in folders[1:] if f.name == "sharp"}
+    named = {f.parent for f, frames in sharp.items() if frames}
+    seqs = []
+    for folder in folders:
+        if sharp.get(folder):
+            seqs.append((_sequence_name(folder.parent, root), sharp[folder]))
+        elif folder not in named and _is_rsblur_sample(folder):
+            frames = _images(folder)
+            if frames:
+                seqs.append((_sequence_name(folder, root), frames))
+    return seqs
+
+
+@dataclasses.dataclass(frozen=True)
+class BlurredLayout:
+    """Where a published layout of already-blurred images keeps each sample's files.
+
+    Every ``.../<blurred>/`` folder holds blurred images; each image's saturation mask has the
+    same file name in the folder beside it named as :attr:`mask` says, and its sharp reference
+    is in the ``<sharp>/`` folder beside both (RSBlur authors' README and datalists; layouts in
+    ``RSBLUR_PIPELINE.md`` Sec. 2).
+    """
+
+    dataset: str
+    blurred: str
+    sharp: str
+    #: (end of a blurred file's stem, end of its sharp file's stem): the sharp file's name;
+    #: None: the sharp folder holds the one sharp image of its sample.
+    sharp_stem: tuple[str, str] | None = None
+
+    @property
+    def mask(self) -> str:
+        """The mask folder: the authors' loaders replace ``_img`` by ``_mask_100``."""
+        return self.blurred.removesuffix("_img") + "_mask_100"
+
+
+#: The already-blurred layouts blur mode none reads: GoPro_INTER_ABME's
+#: ``<seq>/<id>/avg_inter_img/avg_blur.png`` (sharp ``<id>/gt/gt_sharp.png``), RSBlur's
+#: ``<session>/<id>/avg65_img/avg_blur.png`` (sharp in ``gt/`` too) and GoPro_U's
+#: ``centroid_blurred_img/<name>_blurred.png`` (sharp ``target_img/<name>_gt.png``).
+BLURRED_LAYOUTS = (
+    BlurredLayout("GoPro_INTER_ABME", "avg_inter_img", "gt"),
+    BlurredLayout("RSBlur", "avg65_img", "gt"),
+    BlurredLayout("GoPro_U", "centroid_blurred_img", "target_img", ("_blurred", "_gt")),
+)
+#: What blur mode none looks for, for messages.
+BLURRED_EXPECTED = ("already-blurred images in " + ", ".join(
+    f"{lay.blurred}/ (masks in {lay.mask}/, {lay.dataset})" for lay in BLURRED_LAYOUTS))
+
+
+@dataclasses.dataclass(frozen=True)
+class BlurredSample:
+    """One already-blurred image with its saturation mask and sharp reference (when found).
+
+    ``problem`` says why it cannot be used (no mask; a sharp folder without its image).
+    """
+
+    name: str
+    blurred: Path
+    mask: Path | None
+    sharp: Path | None
+    problem: str | None = None
+
+
+def _sharp_of(blurred: Path, layout: BlurredLayout) -> tuple[Path | None, str | None]:
+    """(sharp reference, problem) of a blurred image: (None, None) without a sharp folder."""
+    folder = blurred.parent.parent / layout.sharp
+    if not folder.is_dir():
+        return None, None
+    if layout.sharp_stem is not None:
+        end, sharp_end = layout.sharp_stem
+        stem = blurred.stem.removesuffix(end) + sharp_end if blurred.stem.endswith(end) \
+            else blurred.stem
+        path = folder / (stem + blurred.suffix)
+        if path.is_file():
+            return path, None
+        return None, (f"{blurred}: its sharp reference {path} is missing ({layout.dataset} "
+                      f"names it <name>{sharp_end}{blurred.suffix} in {layout.sharp}/); add "
+                      f"it, or move {folder} away to use the blurred image as the reference")
+    images = _images(folder)
+    if len(images) == 1:
+        return images[0], None
+    return None, (f"{blurred}: {folder} holds {len(images)} images where {layout.dataset} "
+                  f"keeps the one sharp reference of this sample (gt_sharp.png); leave one "
+                  f"there, or move {folder} away to use the blurred image as the reference")
+
+
+def find_blurred(root: Path, masks: bool = True,
+                 exclude: Path | None = None) -> list[BlurredSample]:
+    """Already-blurred images under ``root`` in the layouts of :data:`BLURRED_LAYOUTS`.
+
+    Every image directly in a ``<blurred>/`` folder is a sample, in natural order, named by
+    its path relative to ``root`` without the ``<blurred>/`` folder and the suffix
+    (``GOPR0372_07_00/000001/avg_blur``). Its mask is the file of the same name in the mask
+    folder beside it (``avg65_mask_100/avg_blur.png``), read as the authors do (8-bit value /
+    255). A sharp folder beside them (``gt/``, ``target_img/``) must hold the sample's sharp
+    reference; without that folder the sample has none (blur mode none then uses the blurred
+    image as the reference).
+
+    Args:
+        root: the input folder.
+        masks: look for masks; a blurred image without its mask is a sample with its
+            ``problem`` set. False: masks are not read (no saturation synthesis).
+        exclude: a folder under ``root`` left out with all it holds (the output folder).
+    """
+    by_folder = {lay.blurred: lay for lay in BLURRED_LAYOUTS}
+    samples = []
+    for folder, is_dir in _walk(root, _identity(exclude)):
+        layout = by_folder.get(folder.name) if is_dir else None
+        if layout is None:
+            continue
+        base = folder.parent
+        prefix = "" if base == root else base.relative_to(root).as_posix() + "/"
+        for blurred in _images(folder):
+            name = prefix + blurred.stem
+            mask = base / layout.mask / blurred.name if masks else None
+            sharp, problem = _sharp_of(blurred, layout)
+            if mask is not None and not mask.is_file():
+                problem = (f"{blurred}: no saturation mask {mask} ({layout.dataset} keeps it "
+                           f"under the same name in {layout.mask}/); add it, or run "
+                           "without masks: saturation.mode = off for gpu-blur generate, "
+                           "masks=False for gpu_blur.datasets")
+                mask = None
+            samples.append(BlurredSample(name, blurred, mask, sharp, problem))
+    return samples
+
+
+def _windows(count: int, size: int, per_sequence: int | None) -> Iterator[int]:
+    """First frames of a sequence's windows, in order (see :func:`find_samples`)."""
+    if per_sequence is None:
+        return iter(range(0, count - size + 1, size))
+    if per_sequence == 1:
+        return iter([0])
+    last = count - size
+    return (round(j * last / (per_sequence - 1)) for j in range(per_sequence))
+
+
+def find_realblur_pairs(root: Path) -> list[BlurredSample]:
+    """RealBlur's evaluation pairs under ``root``, in natural order.
+
+    ``<scene>/blur/blur_<n>.png`` with ``<scene>/gt/gt_<n>.png`` (RealBlur_J and RealBlur_R,
+    Rim et al. ECCV 2020), named ``<scene>/blur_<n>``; a blurred image without its ground
+    truth has ``problem`` set, naming the file expected.
+    """
+    pairs = []
+    for folder, is_dir in _walk(root, None):
+        if not (is_dir and folder.name == "blur"):
+            continue
+        prefix = "" if folder.parent == root else folder.parent.relative_to(root).as_posix() + "/"
+        for blurred in _images(folder):
+            if not blurred.stem.startswith("blur_"):
+                continue
+            sharp = folder.parent / "gt" / ("gt_" + blurred.stem[5:] + blurred.suffix)
+            problem = None if sharp.is_file() else (
+                f"{blurred}: its ground truth {sharp} is missing (RealBlur pairs "
+                "<scene>/blur/blur_<n> with <scene>/gt/gt_<n>)")
+            pairs.append(BlurredSample(prefix + blurred.stem, blurred, None,
+                                       sharp if problem is None else None, problem))
+    return pairs
+
+
+def read_datalist(path: Path, root: Path) -> list[BlurredSample]:
+    """The pairs of a datalist as the RSBlur authors ship them (``datalist/*.txt``).
+
+    One ``<sharp> <blurred>`` line each, paths relative to ``root``; named by the blurred path
+    without its suffix. A pair whose file is missing has ``problem`` set. Each path must lie
+    inside ``root`` once resolved: a list must not read files elsewhere (an absolute path, a
+    ``..`` out of ``root``, or a link under ``root`` that points out of it).
+
+    Raises:
+        ValueError: naming the file and line when a line is not two paths, or a path lies
+            outside ``root``.
+    """
+    inside = root.resolve()
+    pairs = []
+    for number, line in enumerate(files.read_text(path, f"datalist {path}").splitlines(), 1):
+        fields = line.split()
+        if not fields:
+            continue
+        if len(fields) != 2:
+            raise ValueError(f"{path}, line {number}: {len(fields)} field(s) in {line!r}; a "
+                             "datalist line is '<sharp path> <blurred path>', relative to the "
+                             "data folder")
+        for field in fields:
+            try:
+                resolved = (root / field).resolve()
+                leads = None if resolved.is_relative_to(inside) else f"to {resolved}"
+            except (OSError, RuntimeError):
+                leads = "through a loop of links"
+            if leads:
+                raise ValueError(
+                    f"{path}, line {number}: {field} leads outside the data folder {inside} "
+                    f"({leads}); datalist paths are relative to the data folder and stay in "
+                    "it: fix the line, or pass the folder that holds the files as the data "
+                    "folder")
+        sharp, blurred = root / fields[0], root / fields[1]
+        missing = [str(p) for p in (blurred, sharp) if not p.is_file()]
+        problem = (f"{path}, line {number}: {' and '.join(missing)} not found (paths are "
+                   f"relative to {root})") if missing else None
+        pairs.append(BlurredSample(Path(fields[1]).with_suffix("").as_posix(), blurred, None,
+                                   sharp, problem))
+    return pairs
+
+
+def sequence_samples(sequences, size: int, per_sequence: int | None) -> Iterator[SampleSpec]:
+    """The windows of ``size`` frames of :func:`find_sequences`' sequences, numbered in order.
+
+    See :func:`find_samples`; a sequence too short gives one sample with ``problem``.
+    """
+    index = 0
+    for name, frames in sequences:
+        if len(frames) < size:
+            yield SampleSpec(index, f"{name}/{frames[0].stem}", tuple(frames),
+                             f"sequence {name} has {len(frames)} frame(s) in {frames[0].parent}, "
+                             f"fewer than blur.frames = {size}; add frames, lower blur.frames "
+                             "in the scene, or remove the sequence")
+            index += 1
+            continue
+        previous = None  # starts never decrease, so a repeat follows its first
+        for j, start in enumerate(_windows(len(frames), size, per_sequence)):
+            window = tuple(frames[start:start + size])
+            repeat = f"_{j}" if start == previous else ""
+            previous = start
+            yield SampleSpec(index, f"{name}/{window[0].stem}{repeat}", window)
+            index += 1
+
+
+def _blurred_samples(found: list[BlurredSample], per_photo: int) -> Iterator[SampleSpec]:
+    for i, sample in enumerate(found):
+        files = {"blurred": sample.blurred, "mask": sample.mask, "sharp": sample.sharp}
+        roles = tuple(k for k, path in files.items() if path is not None)
+        for k in range(per_photo):
+            suffix = f"_{k}" if per_photo > 1 else ""
+            yield SampleSpec(i * per_photo + k, f"{sample.name}{suffix}",
+                             tuple(files[r] for r in roles), sample.problem, roles)
+
+
+def _in_utf8(specs: Iterator[SampleSpec]) -> Iterator[SampleSpec]:
+    """``specs``, each whose name or an input's path is not UTF-8 failed with its reason.
+
+    Its name (and any problem) is then :func:`shown`, so its manifest line holds UTF-8 text.
+    """
+    for spec in specs:
+        odd = [text for text in (*map(str, spec.inputs), spec.name) if not _text(text)]
+        if odd:
+            spec = dataclasses.replace(spec, name=shown(spec.name), problem=(
+                f"{shown(odd[0])}: the path is not UTF-8 (\\xNN here is a byte that is not), "
+                "and a set records its samples' names and inputs as UTF-8 text; rename it to "
+                "UTF-8 (convmv -r -f <its encoding> -t utf-8 <folder>), then run the same "
+                "command with --resume"))
+        elif not _text(spec.problem or ""):
+            spec = dataclasses.replace(spec, problem=shown(spec.problem))
+        yield spec
+
+
+def _photo_samples(photos, per_photo: int) -> Iterator[SampleSpec]:
+    for i, (name, path) in enumerate(photos):
+        for k in range(per_photo):
+            suffix = f"_{k}" if per_photo > 1 else ""
+            yield SampleSpec(i * per_photo + k, f"{name}{suffix}", (path,))
+
+
+@dataclasses.dataclass(frozen=True)
+class Samples:
+    """The samples an input gives: how many (``total``), each made only when taken."""
+
+    total: int
+    make: Callable[[], Iterator[SampleSpec]]
+
+    def take(self, limit: int | None = None) -> list[SampleSpec]:
+        """The first ``limit`` samples (all without one), in index order.
+
+        Raises:
+            ValueError: when that is more than :data:`MAX_SAMPLES`, saying why.
+        """
+        count = self.total if limit is None else min(limit, self.total)
+        if count > MAX_SAMPLES:
+            raise ValueError(
+                f"the input gives {self.total:,} samples, more than the {MAX_SAMPLES:,} one run "
+                "makes: each waits in memory until it is made and adds a manifest line (about "
+                "1 KB); lower --samples-per-photo or --samples-per-sequence, or pass --limit "
+                f"(at most {MAX_SAMPLES:,})")
+        return list(itertools.islice(self.make(), count))
+
+
+def find_samples(root: Path | None, mode: str, frames_per_sample: int,
+                 samples_per_photo: int = 1, samples_per_sequence: int | None = None,
+                 exclude: Path | None = None, masks: bool = True) -> Samples:
+    """The samples a folder yields for a blur mode, counted at once and made when taken.
+
+    Args:
+        root: input folder, or None for the built-in photo.
+        mode: ``average`` takes windows of ``frames_per_sample`` consecutive frames from every
+            sequence :func:`find_sequences` finds: GoPro-style ``<seq>/sharp/*.png`` and
+            RSBlur-style ``<session>/<id>/*.png`` (digit names, the sharp frames of one real
+            blurred image directly in the folder; ``avg*/``, ``gt/``, ``real_blur/`` and other
+            subfolders ignored), frames and sequences in natural order (``2.png`` before
+            ``10.png``). ``kernel`` and ``trajectory`` take every image under ``root``
+            (recursively, in the same natural order) as a photo. ``none`` takes the
+            already-blurred images :func:`find_blurred` finds (GoPro_INTER_ABME, RSBlur and
+            GoPro_U layouts); a sample's inputs are its (blurred, mask, sharp) files, those
+            found, named by ``roles``.
+        frames_per_sample: frames per window (mode ``average``).
+        samples_per_photo: samples made from each photo, or each blurred image in mode
+            ``none`` (each with its own draws).
+        samples_per_sequence: mode ``average``: None (default) takes every consecutive,
+            non-overlapping window (``n // frames`` per sequence of ``n`` frames); ``K`` takes
+            exactly ``K`` windows per sequence, their first frames spread evenly from the first
+            window to the last (``round(j (n - frames) / (K - 1))``, ``j = 0 .. K - 1``; ``K = 1``
+            the first window): strided when ``K <= n // frames``, overlapping beyond, and the
+            same window again (with its own draws) when ``K > n - frames + 1``. Windows are
+            named by their first frame, plus ``_<j>`` for a repeat.
+        exclude: a folder under ``root`` whose images are never taken (the output folder:
+            a set written inside its input is not read back as input).
+        masks: mode ``none``: each blurred image needs its mask (without one its sample has
+            ``problem`` set); False reads no masks (for ``saturation.mode = off``).
+
+    A sequence with fewer than ``frames_per_sample`` frames gives one sample with its
+    ``problem`` set (reported as failed), unless no sequence is long enough. Samples are
+    numbered in order; taking the first N makes only those N.
+
+    Raises:
+        ValueError: naming the folder when it is missing, not a folder, or yields no sample.
+    """
+    if root is None:
+        if mode == "average":
+            raise ValueError("the built-in input is a single photo; blur.mode = average needs "
+                             "--input with <seq>/sharp/*.png sequences")
+        if mode == "none":
+            raise ValueError(f"the built-in input is a sharp photo; blur.mode = none needs "
+                             f"--input with {BLURRED_EXPECTED}")
+        photos = [("coffee", default_photo())]
+    else:
+        if not root.exists():
+            raise ValueError(f"--input {root}: no such folder")
+        if not root.is_dir():
+            raise ValueError(f"--input {root}: is a file, not a folder; pass the folder that "
+                             "holds the images")
+        if not any(root.iterdir()):
+            raise ValueError(f"--input {root}: the folder is empty")
+        if mode == "average":
+            if samples_per_sequence is not None and samples_per_sequence < 1:
+                raise ValueError(f"--samples-per-sequence {samples_per_sequence}: must be >= 1")
+            size = frames_per_sample
+            seqs = find_sequences(root, exclude)
+            if all(len(frames) < size for _, frames in seqs):
+                short = "".join(f"; {name} has {len(frames)}" for name, frames in seqs[:5])
+                raise ValueError(
+                    f"--input {root}: no <seq>/sharp/ folder with at least {size} "
+                    f"images (blur.frames){short} (nor an RSBlur-style <session>/<id>/ folder "
+                    "of frames); lower blur.frames, or for single photos use blur.mode = "
+                    "trajectory or kernel")
+            total = sum(1 if len(frames) < size else samples_per_sequence or len(frames) // size
+                        for _, frames in seqs)
+            return Samples(total, lambda: _in_utf8(sequence_samples(seqs, size,
+                                                                    samples_per_sequence)))
+        if mode == "none":
+            found = find_blurred(root, masks, exclude)
+            if not found:
+                raise ValueError(f"--input {root}: blur.mode = none found no {BLURRED_EXPECTED}")
+            return Samples(len(found) * samples_per_photo,
+                           lambda: _in_utf8(_blurred_samples(found, samples_per_photo)))
+        photos = [(p.relative_to(root).with_suffix("").as_posix(), p)
+                  for p, is_dir in _walk(root, _identity(exclude))
+                  if not is_dir and p.suffix.lower() in IMAGE_SUFFIXES]
+        if not photos:
+            raise ValueError(f"--input {root}: no images ({', '.join(IMAGE_SUFFIXES)}) found "
+                             "in it or its subfolders")
+    return Samples(len(photos) * samples_per_photo,
+                   lambda: _in_utf8(_photo_samples(photos, samples_per_photo)))
+
+
+def _text(value) -> bool:
+    """Whether ``value`` is a string that UTF-8 can hold (no lone surrogates)."""
+    if not isinstance(value, str):
+        return False
+    try:
+        value.encode()
+    except UnicodeEncodeError:
+        return False
+    return True

@@ -1,0 +1,7 @@
+"""The package's version.
+
+Apart from ``gpu_blur/__init__.py``, so that a module records it without importing the
+package's public API.
+"""
+
+__version__ = "0.1.0"
