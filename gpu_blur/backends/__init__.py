@@ -20,13 +20,18 @@ from __future__ import annotations
 
 import contextlib
 import functools
-from collections.abc import Sequence
-from typing import Protocol, runtime_checkable
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
 from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.reference.bayer import BayerPattern
+
+if TYPE_CHECKING:
+    from gpu_blur.cameras import Camera
+    from gpu_blur.plan import Plan
+    from gpu_blur.tiling import Region
 
 #: Frames summed per accumulate launch (blur mode average) on the kernel backends: a device
 #: stack of this many frames fills (on a GPU, on a copy stream, while the previous stack is
@@ -77,6 +82,121 @@ class Backend(Protocol):
 
     def device_array(self, values):
         """A result as the device holds it (see ``device_arrays``)."""
+
+
+class Slots(NamedTuple):
+    """A batch's device buffer: ``count`` slots ``stride`` values apart, one per sample.
+
+    Made by :meth:`ResidentBackend.slots`; sample b's values start at ``b * stride``
+    (:meth:`ResidentBackend.slot_image`).
+    """
+
+    buffer: object
+    count: int
+    stride: int
+
+
+class Drawn(NamedTuple):
+    """One sample of a batched to_raw or finish launch.
+
+    Attributes:
+        params: its drawn values (:func:`gpu_blur.params.draw_params`).
+        sample_index: its index (with the seed, its random stream).
+        slot: its row in the batch's buffers.
+    """
+
+    params: dict
+    sample_index: int
+    slot: int
+
+
+class ResidentBackend(Backend, Protocol):
+    """A backend that keeps a batch on its device: what the synthesis layer calls on one.
+
+    The kernel backends (:class:`gpu_blur.backends.kernel.KernelBackend`, OpenCL and Warp)
+    follow it; the device-resident path (``gpu_blur.synthesis.resident``) and the host path's
+    device rendering are written against it, never against a concrete backend
+    (tests/test_backends_protocol.py holds both to it). Images on the device are
+    :class:`OnDevice`; a batch's buffers are :class:`Slots`, one slot per sample.
+
+    Attributes:
+        sync_passes: whether each pass waits for its launches; a resident batch sets it False
+            to queue every launch back to back, and True again after.
+        wp_device: the Warp device (``cuda:0``, ``cpu``) on Warp, else None; a caller's
+            array on it is taken where it lies (``device_arrays``).
+    """
+
+    sync_passes: bool
+    wp_device: str | None
+
+    def put(self, image) -> OnDevice:
+        """An input as stored on the device: ``H x W x 3``, ``n x H x W x 3`` or a frame list."""
+
+    def frame(self, stack: OnDevice, index: int) -> OnDevice:
+        """Frame ``index`` (``H x W x 3``) of an ``n x H x W x 3`` stack :meth:`put` there."""
+
+    def slots(self, count: int, values: int) -> Slots:
+        """A new batch buffer of ``count`` slots of ``values`` compute-type values each."""
+
+    def slot_image(self, slots: Slots, b: int, shape) -> OnDevice:
+        """Slot ``b`` of a batch buffer as an image of ``shape`` (a view, or a device copy)."""
+
+    def stacked(self, slots: Slots, shape) -> OnDevice:
+        """Every slot of a batch buffer as one ``count x shape`` stack, no copy."""
+
+    def export(self, values: OnDevice, region: Region, into) -> None:
+        """Copy ``region`` (rows, columns) of a device image into ``into``, a host array."""
+
+    def codes_buffer(self, count: int, bits: int):
+        """A kept device buffer for ``count`` codes of ``bits`` (8 or 16) bits."""
+
+    def to_codes(self, values: OnDevice, bits: int, into=None) -> OnDevice:
+        """Device values in [0, 1] as their uint8 (``bits`` 8) or uint16 (16) codes there."""
+
+    def inspect_queued(self, images: Sequence[OnDevice]) -> Callable[[], np.ndarray]:
+        """The input checks' launches, queued; returns what reads their counts, a row each."""
+
+    def accumulate_batch(self, plans: Sequence[Plan], samples: Sequence[Drawn],
+                         inputs: Sequence[tuple[OnDevice, OnDevice | None]], linear: Slots,
+                         sat_mask: Slots) -> Slots:
+        """Pass 1 of every sample into its ``h x w x 3`` slot; returns the masks' slots."""
+
+    def to_raw_batch(self, plan: Plan, camera: Camera, samples: Sequence[Drawn], linear: Slots,
+                     mask: Slots, saturated: Slots, raw: Slots, origin: tuple[int, int],
+                     size: tuple[int, int], *, seed: int) -> None:
+        """Pass 2 of samples of one plan in one launch: ``saturated`` and ``raw`` slots."""
+
+    def finish_batch(self, plan: Plan, camera: Camera, samples: Sequence[Drawn], raw: Slots,
+                     saturated: Slots, view: Region, out: Region, result: Slots, *,
+                     seed: int) -> None:
+        """Pass 3 of samples of one plan in one launch: ``out.h x out.w x 3`` results."""
+
+    def render_sharp(self, plan: Plan, camera: Camera, image: OnDevice, out: Region,
+                     into: tuple[Slots, int] | None = None) -> OnDevice:
+        """The sharp reference over ``out`` (``out.h x out.w x 3``), rendered on the device."""
+
+    def render_sharp_batch(self, plans: Sequence[Plan], camera: Camera,
+                           images: Sequence[OnDevice], out: Region, into: Slots) -> None:
+        """:meth:`render_sharp` of every sample b's ``images[b]`` into slot b of ``into``."""
+
+    def pinned(self, shape, dtype=np.float32) -> np.ndarray:
+        """An uninitialized host array of ``shape`` in page-locked memory it copies directly."""
+
+    def wait(self) -> None:
+        """Wait for every launch and copy queued so far."""
+
+    def wait_for(self, stream) -> None:
+        """Launches and copies queued from now on wait for the work queued on ``stream``."""
+
+    def hand_to(self, stream) -> None:
+        """Work queued on ``stream`` from now on waits for what this backend queued so far."""
+
+
+def is_resident(backend) -> bool:
+    """Whether ``backend`` is a kernel backend, a :class:`ResidentBackend`."""
+    from gpu_blur.backends.kernel import KernelBackend
+
+    return isinstance(backend, KernelBackend)
 
 
 def to_host(values, dtype=np.float64) -> np.ndarray:

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from gpu_blur import arrays
+from gpu_blur.backends import Backend
 from gpu_blur.outputs import jpeg_round_trip
 from gpu_blur.plan import Plan, StageName
 from gpu_blur.reference.output import code_dtype, to_integers
@@ -32,7 +33,7 @@ class BatchIO:
         with_mask: the saturation masks are returned too.
     """
 
-    def __init__(self, scene: Scene, runner, resident: bool, channels_first: bool,
+    def __init__(self, scene: Scene, runner: Backend, resident: bool, channels_first: bool,
                  with_mask: bool):
         self.scene, self.runner, self.resident = scene, runner, resident
         self.channels_first, self.with_mask = channels_first, with_mask

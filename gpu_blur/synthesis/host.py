@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gpu_blur.backends import OnDevice
+from gpu_blur.backends import Backend, OnDevice, is_resident
 from gpu_blur.backends.flows import scene_factors
-from gpu_blur.backends.kernel import KernelBackend
 from gpu_blur.backends.numpy import retone
 from gpu_blur.cameras import Camera
 from gpu_blur.image_arrays import unit_values
@@ -32,7 +31,8 @@ class HostPath:
     """A Synthesizer's samples run from host memory (:mod:`gpu_blur.scheduler`).
 
     Args:
-        runner: the backend.
+        runner: the backend (a :class:`~gpu_blur.backends.ResidentBackend` where
+            :func:`~gpu_blur.backends.is_resident`: its device renders the sharp image).
         scene: the scene.
         camera: its camera.
         seed: dataset seed.
@@ -43,8 +43,8 @@ class HostPath:
         with_raw: the noisy mosaics are kept too.
     """
 
-    def __init__(self, runner, scene: Scene, camera: Camera, seed: int, schedule: Schedule,
-                 draws: Draws, io: BatchIO, with_mask: bool, with_raw: bool):
+    def __init__(self, runner: Backend, scene: Scene, camera: Camera, seed: int,
+                 schedule: Schedule, draws: Draws, io: BatchIO, with_mask: bool, with_raw: bool):
         self.runner, self.scene, self.camera, self.seed = runner, scene, camera, seed
         self.schedule, self.draws, self.io = schedule, draws, io
         self.with_mask, self.with_raw = with_mask, with_raw
@@ -106,7 +106,7 @@ class HostPath:
         tiled = run(self.runner, sample_plan, params, self.camera, frames, item.mask,
                     self.schedule, seed=self.seed, sample_index=sample_index,
                     on_device=on_device, keep_raw=self.with_raw)
-        if isinstance(self.runner, KernelBackend):
+        if is_resident(self.runner):
             sharp = self._rendered_in_bands(sample_plan, crop_border(item.sharp, crop))
         else:
             sharp = render_sharp(sample_plan, self.camera, crop_border(item.sharp, crop))

@@ -14,8 +14,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from gpu_blur.backends import OnDevice, pinned_owner
-from gpu_blur.backends.kernel import Drawn, KernelBackend, Slots
+from gpu_blur.backends import Drawn, OnDevice, ResidentBackend, Slots, pinned_owner
 from gpu_blur.cameras import Camera
 from gpu_blur.params import batch_uniforms
 from gpu_blur.plan import StageName, raw_round_trip
@@ -74,7 +73,7 @@ class ResidentPath:
     Holds one batch's device buffers between calls (:meth:`run` with ``reuse``).
 
     Args:
-        runner: the kernel backend.
+        runner: the kernel backend (OpenCL or Warp), as :class:`ResidentBackend` declares it.
         scene: the scene.
         camera: its camera.
         seed: dataset seed.
@@ -84,7 +83,7 @@ class ResidentPath:
         with_raw: the noisy mosaics are kept too.
     """
 
-    def __init__(self, runner: KernelBackend, scene: Scene, camera: Camera, seed: int,
+    def __init__(self, runner: ResidentBackend, scene: Scene, camera: Camera, seed: int,
                  draws: Draws, io: BatchIO, with_mask: bool, with_raw: bool):
         self.runner, self.scene, self.camera, self.seed = runner, scene, camera, seed
         self.draws, self.io, self.with_mask, self.with_raw = draws, io, with_mask, with_raw
@@ -129,7 +128,7 @@ class ResidentPath:
         # (sample, which, image): each input once (a default sharp is a frame); float values
         # are checked, 8/16-bit codes only looked at for the clip test. Listed input by input,
         # so a device batch's samples of one input (evenly spaced in its buffer) are counted
-        # in one launch (KernelBackend.inspect_queued)
+        # in one launch (ResidentBackend.inspect_queued)
         images = [(i, key, getattr(p, key)) for key in ("frames", "mask", "sharp")
                   for i, (item, p) in enumerate(zip(items, put, strict=True))
                   if getattr(item, key) is not None and (
@@ -311,7 +310,7 @@ class ResidentPath:
         """``region`` of a device image on the host, float32.
 
         With ``codes``: the output's integer codes, made on the device
-        (:meth:`~gpu_blur.backends.kernel.KernelBackend.to_codes`).
+        (:meth:`~gpu_blur.backends.ResidentBackend.to_codes`).
         """
         if codes:
             values = self._coded(values, self.scene.output.bits, kept=True)

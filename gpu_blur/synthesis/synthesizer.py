@@ -15,9 +15,8 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 
 from gpu_blur import arrays
-from gpu_blur.backends import get_backend, to_host
+from gpu_blur.backends import Backend, get_backend, is_resident, to_host
 from gpu_blur.backends.flows import interpolation_factor
-from gpu_blur.backends.kernel import KernelBackend
 from gpu_blur.cameras import scene_camera
 from gpu_blur.outputs import jpeg_round_trip, raw_metadata
 from gpu_blur.params import check_overrides
@@ -152,14 +151,14 @@ class Synthesizer:
                              f"{self.scene.noise.model!r}, isp.round_trip = "
                              f"{self.scene.isp.round_trip!r}); set noise.model = "
                              "'poisson-gaussian' or isp.round_trip = 'always'")
-        self.runner = (get_backend(backend, self.scene.output.precision)
-                       if isinstance(backend, str) else backend)
+        self.runner: Backend = (get_backend(backend, self.scene.output.precision)
+                                if isinstance(backend, str) else backend)
         self.camera = scene_camera(self.scene, self.runner.name)
         check_overrides(overrides)  # each one, whether or not its stage runs
         self.seed, self.overrides = seed, overrides
         self.schedule = schedule or Schedule()
         self.channels_first, self.with_mask, self.with_raw = channels_first, with_mask, with_raw
-        self.resident = (isinstance(self.runner, KernelBackend)
+        self.resident = (is_resident(self.runner)
                          and self.schedule == Schedule()
                          and interpolation_factor(plan(self.scene)) == 1)
         self._draws = Draws(self.scene, self.camera, seed, overrides)
@@ -185,7 +184,7 @@ class Synthesizer:
             np.stack(decoded, out=frames)
             synth(frames, out=out)
         """
-        if isinstance(self.runner, KernelBackend):
+        if is_resident(self.runner):
             return self.runner.pinned(tuple(shape), dtype)
         return np.empty(shape, dtype)
 

@@ -86,6 +86,8 @@ class KernelBackend(Inputs, Batch, Accumulate, Buffers):
     #: False queues every launch back to back (a batch: :class:`gpu_blur.Synthesizer`, or a
     #: CUDA graph capture: bench/gpu_targets.py); timings then hold launch times only.
     sync_passes = True
+    #: The Warp device (``cuda:0``, ``cpu``) on Warp; None elsewhere.
+    wp_device: str | None = None
 
     def __init__(self):
         self._constants: dict = {}  # (bytes, dtype) -> device copy of a small constant
@@ -106,6 +108,20 @@ class KernelBackend(Inputs, Batch, Accumulate, Buffers):
 
     def wait(self) -> None:
         """Wait for every launch and copy queued so far."""
+        raise NotImplementedError
+
+    def wait_for(self, stream) -> None:
+        """Launches and copies queued from now on wait for the work queued on ``stream``.
+
+        Only a backend with ``device_arrays`` (Warp) is handed a caller's stream.
+        """
+        raise NotImplementedError
+
+    def hand_to(self, stream) -> None:
+        """Work queued on ``stream`` from now on waits for what this backend queued so far.
+
+        Only a backend with ``device_arrays`` (Warp) is handed a caller's stream.
+        """
         raise NotImplementedError
 
     def _pass_kernels(self, config: PassConfig, source=None, interpolate: bool = False):

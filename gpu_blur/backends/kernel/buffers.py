@@ -9,27 +9,21 @@ slots and the per-sample tables, puts (through pinned staging or straight from
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
 
 import numpy as np
 
-from gpu_blur.backends import FRAMES_PER_LAUNCH, OnDevice, PinnedHost, copy_values, pinned_owner
+from gpu_blur.backends import (
+    FRAMES_PER_LAUNCH,
+    OnDevice,
+    PinnedHost,
+    Slots,
+    copy_values,
+    pinned_owner,
+)
 from gpu_blur.backends.kernel.config import Arg, Drawn, sample_tables, source_dtype
 from gpu_blur.plan import Pass
 from gpu_blur.testhooks import fault_planted, planted_fault
 from gpu_blur.tiling import Region
-
-
-class Slots(NamedTuple):
-    """A batch's device buffer: ``count`` slots ``stride`` values apart, one per sample.
-
-    Made by :meth:`KernelBackend.slots`; sample b's values start at ``b * stride``
-    (:meth:`KernelBackend.slot_image`).
-    """
-
-    buffer: object
-    count: int
-    stride: int
 
 
 def _check_slots(samples: Sequence[Drawn], buffers) -> None:

@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gpu_blur.backends import cfa_bits
+from gpu_blur.backends import Drawn, cfa_bits
 from gpu_blur.cameras import Camera
 from gpu_blur.kernel_constants import SAMPLE_REALS, SAMPLE_WORDS
 from gpu_blur.plan import Pass, Plan, StageName
@@ -158,20 +158,6 @@ def stage_values(plan: Plan, pass_: Pass) -> tuple[Arg, ...]:
                              "built without the sample's size): build it with "
                              "plan(scene, size=(height, width)), as synthesize does")
     return tuple(Arg("real", 0.0 if v is None else v) for s in stages for v in s.values)
-
-
-class Drawn(NamedTuple):
-    """One sample of a batched to_raw or finish launch.
-
-    Attributes:
-        params: its drawn values (:func:`gpu_blur.params.draw_params`).
-        sample_index: its index (with the seed, its random stream).
-        slot: its row in the batch's buffers.
-    """
-
-    params: dict
-    sample_index: int
-    slot: int
 
 
 def sample_tables(samples: Sequence[Drawn]) -> tuple[np.ndarray, np.ndarray]:
