@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.reference import average, demosaic, rng, transfer
+from gpu_blur.reference import average, demosaic, poisson_counts, rng, transfer
 
 # -- sRGB curve (reference.transfer) --------------------------------------------------------
 SRGB_DECODE_KNEE = transfer.SRGB_DECODE_KNEE
@@ -96,7 +96,7 @@ MALVAR2004_RB_AT_BR_X8 = _scaled(demosaic.MALVAR2004_RB_AT_BR, MALVAR2004_TAP_SC
 BILINEAR_G_X4 = _scaled(demosaic.BILINEAR_G, BILINEAR_TAP_SCALE)
 BILINEAR_RB_X4 = _scaled(demosaic.BILINEAR_RB, BILINEAR_TAP_SCALE)
 
-# -- counter-based random draws (reference.rng) ---------------------------------------------
+# -- counter-based random draws (reference.rng, reference.poisson_counts) -------------------
 #: Stream numbers (rng.Stream), by name.
 STREAMS = {s.name: int(s) for s in rng.Stream}
 #: Philox4x32 round multipliers and Weyl key increments (Warp; OpenCL uses Random123's header).
@@ -114,13 +114,13 @@ UNIFORM_SCALE = rng._UNIFORM_SCALE
 TWO_PI = rng._TWO_PI
 TWO_PI_FLOAT32 = float(np.float32(TWO_PI))
 #: log(k!) for k below the table's size, then Stirling's series with 0.5 log(2 pi).
-LOG_FACTORIAL_TABLE = tuple(rng.LOG_FACTORIAL_TABLE.tolist())
+LOG_FACTORIAL_TABLE = tuple(poisson_counts.LOG_FACTORIAL_TABLE.tolist())
 LOG_FACTORIAL_TABLE_SIZE = len(LOG_FACTORIAL_TABLE)
-HALF_LOG_TWO_PI = rng._HALF_LOG_TWO_PI
-POISSON_PTRS_MIN_RATE = rng.POISSON_PTRS_MIN_RATE
-POISSON_INVERSION_MAX_K = rng.POISSON_INVERSION_MAX_K
-#: PTRS (Hörmann 1993): setup, candidate shift, squeeze and tail bounds (rng.PTRS_*).
-PTRS = {name: getattr(rng, f"PTRS_{name}") for name in (
+HALF_LOG_TWO_PI = poisson_counts._HALF_LOG_TWO_PI
+POISSON_PTRS_MIN_RATE = poisson_counts.POISSON_PTRS_MIN_RATE
+POISSON_INVERSION_MAX_K = poisson_counts.POISSON_INVERSION_MAX_K
+#: PTRS (Hörmann 1993): setup, candidate shift, squeeze and tail bounds (poisson_counts.PTRS_*).
+PTRS = {name: getattr(poisson_counts, f"PTRS_{name}") for name in (
     "B0", "B1", "A0", "A1", "IA0", "IA1", "IA2", "VR0", "VR1", "K_SHIFT", "US_SQUEEZE",
     "US_TAIL")}
 

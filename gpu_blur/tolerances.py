@@ -189,15 +189,15 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("log_factorial", "opencl", "float32"): (1e-15, 0.0),
     ("log_factorial", "opencl", "float64"): (F64_LOG_FACTORIAL, 0.0),
     ("log_factorial", "opencl", "float32-nofp64"): (1e-6, 0.0),
-    # Poisson counts: the FRACTION OF PIXELS whose count differs from rng.poisson, as atol
-    # against 0 (issue: identical on >= 99.999 %). Measured 0 of 1.2e6 + 8.2e5 pixels.
+    # Poisson counts: the FRACTION OF PIXELS whose count differs from poisson_counts.poisson, as
+    # atol against 0 (issue: identical on >= 99.999 %). Measured 0 of 1.2e6 + 8.2e5 pixels.
     ("poisson_agreement", "opencl", "float32"): (0.0, 1e-5),
     ("poisson_agreement", "opencl", "float64"): (0.0, 1e-5),
     # float32 without fp64, inversion rates (< 10) only (measured 1e-5 at rate 3); float PTRS
     # differs on 0.35 % of pixels at 1e4 and 15 % at 1e7, so it is checked statistically.
     ("poisson_agreement", "opencl", "float32-nofp64"): (0.0, 1e-4),
     # The normal approximation above a threshold (noise.poisson = "normal",
-    # tests/test_opencl_knobs.py): the FRACTION OF COUNTS differing from rng.poisson(...,
+    # tests/test_opencl_knobs.py): the FRACTION OF COUNTS differing from poisson_counts.poisson(...,
     # normal_above=1000) at rates 0 to 1e7; a count moves only where rate + sqrt(rate) z falls
     # within the device libm's ulps of a half integer. Measured 0 of 2.3e5 (Intel's CPU runtime,
     # PoCL, an NVIDIA H200). Without fp64 the sum rounds in float (0.5 % of counts move at 1e5,
@@ -215,9 +215,9 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # log(k!), k = 0 .. 1e12: the table exactly, Stirling through Warp's log (measured 0.0 on
     # both; 1.5e-16 relative on the H200 with fuse_fp=True).
     ("log_factorial", "warp", "float64"): (F64_LOG_FACTORIAL, 0.0),
-    # Poisson counts: the FRACTION OF PIXELS whose count differs from rng.poisson, as atol
-    # against 0 (issue: identical on >= 99.999 %). Measured 0 of 1.2e6 + 8.2e5 pixels on both
-    # devices, with fuse_fp=False and (H200) fuse_fp=True.
+    # Poisson counts: the FRACTION OF PIXELS whose count differs from poisson_counts.poisson, as
+    # atol against 0 (issue: identical on >= 99.999 %). Measured 0 of 1.2e6 + 8.2e5 pixels on
+    # both devices, with fuse_fp=False and (H200) fuse_fp=True.
     ("poisson_agreement", "warp", "float64"): (0.0, 1e-5),
     # The normal approximation above a threshold, as the OpenCL row (tests/test_warp_knobs.py):
     # measured 0 of 2.3e5 counts on the CPU and on an H200.

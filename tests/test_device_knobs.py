@@ -2,7 +2,8 @@
 
 * the normal approximation of the Poisson counts above a threshold rate (OpenCL
   ``gb_poisson_normal_above``, Warp ``random.poisson_normal_above``) against
-  ``rng.poisson(..., normal_above=...)``, over the targets of tests/test_device_random.py;
+  ``poisson_counts.poisson(..., normal_above=...)``, over the targets of
+  tests/test_device_random.py;
 * resampled A7R3 tables through the CRF lookup (gb_pixel.h, pixel.py), over the targets of
   tests/test_device_pixel.py;
 * fast maths: the sRGB curves and the normals of the ``float32-fast`` builds (OpenCL
@@ -20,7 +21,7 @@ import pytest
 from conftest import report
 from device_functions import target_fixture, target_specs
 
-from gpu_blur.reference import rng, transfer
+from gpu_blur.reference import poisson_counts, rng, transfer
 from gpu_blur.reference.rng import Stream
 from gpu_blur.testing import assert_close, z_mean, z_var
 
@@ -69,7 +70,8 @@ def knob_grid(real):
 def test_normal_path_counts_equal_the_reference(program, record_property):
     rates, ys, xs = knob_grid(program.real)
     counts = device_counts(program, "t_poisson_normal_above", rates, ys, xs, 13, THRESHOLD)
-    expected = rng.poisson(rates.astype(np.float64), SEED, 13, ys, xs, normal_above=THRESHOLD)
+    expected = poisson_counts.poisson(rates.astype(np.float64), SEED, 13, ys, xs,
+                                      normal_above=THRESHOLD)
     differing = np.count_nonzero(counts != expected) / counts.size
     report(record_property, f"poisson_normal_differing_fraction[{program}]", differing)
     assert_close(differing, 0.0, "poisson_normal_agreement", program.lang, program.build)

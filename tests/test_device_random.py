@@ -18,7 +18,7 @@ from conftest import report
 from device_functions import target_fixture, target_specs
 from test_rng import KNOWN_ANSWERS
 
-from gpu_blur.reference import rng
+from gpu_blur.reference import poisson_counts, rng
 from gpu_blur.reference.rng import Stream
 from gpu_blur.testing import assert_close, tolerance, z_mean, z_var
 
@@ -139,7 +139,7 @@ def test_log_factorial_matches_reference(program, record_property):
     k = np.concatenate([np.arange(0, 3000), np.round(np.logspace(np.log10(3000), 12, 500))])
     k = k.astype(program.wide)
     (out,) = program.run("t_log_factorial", k.size, [k], [(k.shape, program.wide)])
-    expected = rng.log_factorial(k.astype(np.float64))
+    expected = poisson_counts.log_factorial(k.astype(np.float64))
     np.testing.assert_array_equal(out[:16], expected[:16].astype(program.wide))
     rel = np.abs(out - expected)[16:] / expected[16:]
     report(record_property, f"log_factorial_max_rel_error[{program}]", rel.max())
@@ -174,16 +174,16 @@ def poisson_grid(rows, cols, origin=(0, 0)):
 
 @functools.cache
 def reference_poisson(rate: float, sample_index: int) -> np.ndarray:
-    """rng.poisson on the fixed grid at one rate (cached across targets)."""
+    """poisson_counts.poisson on the fixed grid at one rate (cached across targets)."""
     ys, xs = poisson_grid(POISSON_ROWS, POISSON_COLS, POISSON_ORIGIN)
-    return rng.poisson(np.full(ys.shape, rate), SEED, sample_index, ys, xs)
+    return poisson_counts.poisson(np.full(ys.shape, rate), SEED, sample_index, ys, xs)
 
 
 @functools.cache
 def reference_sweep(real: np.dtype) -> np.ndarray:
     ys, xs = poisson_grid(SWEEP_ROWS, SWEEP_RATES.size)
     rates = np.broadcast_to(SWEEP_RATES.astype(real).astype(np.float64), ys.shape)
-    return rng.poisson(rates, SEED, 23, ys, xs)
+    return poisson_counts.poisson(rates, SEED, 23, ys, xs)
 
 
 def device_poisson(program, rates, ys, xs, sample_index, seed=SEED):
@@ -199,7 +199,7 @@ def device_poisson(program, rates, ys, xs, sample_index, seed=SEED):
 
 
 def skip_float_ptrs(program, rate):
-    if program.build == "float32-nofp64" and rate >= rng.POISSON_PTRS_MIN_RATE:
+    if program.build == "float32-nofp64" and rate >= poisson_counts.POISSON_PTRS_MIN_RATE:
         pytest.skip("float PTRS is not expected to repeat the reference (statistics test it)")
 
 
@@ -223,7 +223,7 @@ def test_poisson_counts_equal_reference_over_log_spaced_rates(program, record_pr
     expected = reference_sweep(program.real)
     columns = slice(None)
     if program.build == "float32-nofp64":
-        columns = SWEEP_RATES.astype(program.real) < rng.POISSON_PTRS_MIN_RATE
+        columns = SWEEP_RATES.astype(program.real) < poisson_counts.POISSON_PTRS_MIN_RATE
     differ = counts[:, columns] != expected[:, columns]
     report(record_property, f"poisson_sweep_differing_fraction[{program}]", differ.mean())
     report(record_property, f"poisson_sweep_worst_rate_fraction[{program}]",

@@ -15,7 +15,7 @@ from test_noise import poisson_gaussian_moments
 
 from gpu_blur.constants import A7R3_CRF_TABLE_X255
 from gpu_blur.plan import plan
-from gpu_blur.reference import noise, rng, transfer
+from gpu_blur.reference import noise, poisson_counts, rng, transfer
 from gpu_blur.reference.rng import Stream
 from gpu_blur.scene import SceneError, scene_from_dict
 from gpu_blur.testing import assert_close, z_mean, z_var
@@ -33,7 +33,7 @@ _X = np.arange(N, dtype=np.int64)
 
 @pytest.mark.parametrize("rate", [1000.5, 3e3, 1e4, 1e6, 1e9])
 def test_normal_approximation_has_the_poisson_mean_and_variance_on_flat_patches(rate):
-    counts = rng.poisson(np.full(N, rate), SEED, 3, _Y, _X, normal_above=1000.0)
+    counts = poisson_counts.poisson(np.full(N, rate), SEED, 3, _Y, _X, normal_above=1000.0)
     assert np.all(counts == np.floor(counts)) and counts.min() >= 0
     # N(rate, rate) rounded: mean rate, variance rate + 1/12 (Sheppard), far below the
     # standard error of the variance here; fourth moment of the normal, 3 rate^2.
@@ -43,8 +43,8 @@ def test_normal_approximation_has_the_poisson_mean_and_variance_on_flat_patches(
 
 def test_normal_approximation_is_not_the_exact_sampler_above_the_threshold():
     rate = np.full(N, 5e4)
-    exact = rng.poisson(rate, SEED, 5, _Y, _X)
-    approx = rng.poisson(rate, SEED, 5, _Y, _X, normal_above=1e3)
+    exact = poisson_counts.poisson(rate, SEED, 5, _Y, _X)
+    approx = poisson_counts.poisson(rate, SEED, 5, _Y, _X, normal_above=1e3)
     assert np.count_nonzero(approx != exact) > 0.9 * N
 
 
@@ -54,12 +54,13 @@ def test_counts_at_or_below_the_threshold_are_the_exact_samplers_bit_for_bit():
     rates = np.concatenate([[0.0, -3.0, 1e-9, 9.99, 10.0, threshold, np.nextafter(threshold, 0)],
                             10 ** gen.uniform(-2, 2.4, 20_000), 10 ** gen.uniform(2.4, 7, 20_000)])
     ys, xs = gen.integers(0, 2**20, rates.size), gen.integers(0, 2**20, rates.size)
-    exact = rng.poisson(rates, SEED, 9, ys, xs)
-    mixed = rng.poisson(rates, SEED, 9, ys, xs, normal_above=threshold)
+    exact = poisson_counts.poisson(rates, SEED, 9, ys, xs)
+    mixed = poisson_counts.poisson(rates, SEED, 9, ys, xs, normal_above=threshold)
     below = rates <= threshold
     assert below.sum() > 20_000 and (~below).sum() > 15_000
     np.testing.assert_array_equal(mixed[below], exact[below])
-    above = rng.poisson_normal_approximation(rates[~below], SEED, 9, ys[~below], xs[~below])
+    above = poisson_counts.poisson_normal_approximation(rates[~below], SEED, 9, ys[~below],
+                                                        xs[~below])
     np.testing.assert_array_equal(mixed[~below], above)
 
 
@@ -74,7 +75,7 @@ def test_normal_approximation_matches_a_scalar_transcription_of_its_formula():
     gen = np.random.default_rng(2)
     rates = np.concatenate([[0.0, 1e-6, 0.3, 2.0], 10 ** gen.uniform(-1, 8, 3000)])
     ys, xs = gen.integers(0, 5000, rates.size), gen.integers(0, 5000, rates.size)
-    counts = rng.poisson_normal_approximation(rates, SEED, 4, ys, xs)
+    counts = poisson_counts.poisson_normal_approximation(rates, SEED, 4, ys, xs)
     expected = [normal_count_scalar(float(r), SEED, 4, int(y), int(x))
                 for r, y, x in zip(rates, ys, xs, strict=True)]
     np.testing.assert_array_equal(counts, expected)
@@ -82,24 +83,25 @@ def test_normal_approximation_matches_a_scalar_transcription_of_its_formula():
 
 def test_normal_approximation_clamps_at_zero_for_small_rates():
     rates = np.full(N, 0.5)  # rate - sqrt(rate) * 5.8 < 0: the clamp decides often
-    counts = rng.poisson(rates, SEED, 6, _Y, _X, normal_above=0.0)
+    counts = poisson_counts.poisson(rates, SEED, 6, _Y, _X, normal_above=0.0)
     assert counts.min() == 0.0 and not np.signbit(counts).any()
-    assert np.array_equal(rng.poisson(np.array([0.0, -1.0]), SEED, 6, 0, np.arange(2),
+    assert np.array_equal(poisson_counts.poisson(np.array([0.0, -1.0]), SEED, 6, 0, np.arange(2),
                                       normal_above=0.0), [0.0, 0.0])
 
 
 def test_normal_approximation_uses_global_coordinates_so_a_tile_draws_what_the_image_draws():
     rate = 10 ** np.random.default_rng(3).uniform(2, 6, (40, 30))
     rows, cols = np.arange(40)[:, None], np.arange(30)[None, :]
-    whole = rng.poisson(rate, SEED, 2, rows, cols, normal_above=500.0)
-    tile = rng.poisson(rate[7:33, 4:19], SEED, 2, rows[7:33], cols[:, 4:19], normal_above=500.0)
+    whole = poisson_counts.poisson(rate, SEED, 2, rows, cols, normal_above=500.0)
+    tile = poisson_counts.poisson(rate[7:33, 4:19], SEED, 2, rows[7:33], cols[:, 4:19],
+                                  normal_above=500.0)
     np.testing.assert_array_equal(tile, whole[7:33, 4:19])
 
 
 @pytest.mark.parametrize("bad", [-1.0, math.nan, math.inf, "many"])
 def test_bad_threshold_is_refused_naming_it(bad):
     with pytest.raises(ValueError, match="normal_above must be a finite Poisson rate >= 0"):
-        rng.poisson(np.ones(3), SEED, 0, 0, np.arange(3), normal_above=bad)
+        poisson_counts.poisson(np.ones(3), SEED, 0, 0, np.arange(3), normal_above=bad)
 
 
 @pytest.mark.parametrize("x", [0.2, 0.6])

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from gpu_blur.reference import noise, rng
+from gpu_blur.reference import noise, poisson_counts, rng
 from gpu_blur.reference.rng import Stream
 
 SEED = 20220724
@@ -54,7 +54,8 @@ def test_poisson_gaussian_is_k_times_counts_plus_read_noise_from_documented_stre
     out = noise.add_poisson_gaussian(raw, k, sigma_r, seed=SEED, sample_index=4, origin=(6, 10))
     y = np.arange(6, 30)[:, None]
     x = np.arange(10, 41)[None, :]
-    counts = rng.poisson(np.maximum(raw, 0.0) / k, SEED, 4, y, x, stream=Stream.SHOT_NOISE)
+    counts = poisson_counts.poisson(np.maximum(raw, 0.0) / k, SEED, 4, y, x,
+                                    stream=Stream.SHOT_NOISE)
     z = rng.pixel_normals(SEED, 4, Stream.READ_NOISE, y, x, count=1)[..., 0]
     np.testing.assert_array_equal(out, k * counts + sigma_r * z)
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from gpu_blur.reference import rng
+from gpu_blur.reference import poisson_counts, rng
 from gpu_blur.reference.rng import Stream
 from gpu_blur.testing import assert_close, z_mean, z_var
 
@@ -388,8 +388,9 @@ def exact_log_factorial(k: int) -> Decimal:
 
 
 def test_log_factorial_table_is_correctly_rounded():
-    for k in range(rng.LOG_FACTORIAL_TABLE.size):
-        assert rng.log_factorial(np.array([k]))[0] == float(exact_log_factorial(k)), f"k = {k}"
+    for k in range(poisson_counts.LOG_FACTORIAL_TABLE.size):
+        got = poisson_counts.log_factorial(np.array([k]))[0]
+        assert got == float(exact_log_factorial(k)), f"k = {k}"
 
 
 def test_log_factorial_relative_error_is_at_float64_rounding():
@@ -401,15 +402,16 @@ def test_log_factorial_relative_error_is_at_float64_rounding():
             ]
         )
     ).astype(np.int64)
-    got = rng.log_factorial(ks.astype(np.float64))
+    got = poisson_counts.log_factorial(ks.astype(np.float64))
     expected = [float(exact_log_factorial(int(k))) for k in ks]
     assert_close(got, expected, "log_factorial")
-    assert rng.log_factorial(np.array([15.0, 16.0]))[1] > rng.log_factorial(np.array([15.0]))[0]
+    log_factorial = poisson_counts.log_factorial
+    assert log_factorial(np.array([15.0, 16.0]))[1] > log_factorial(np.array([15.0]))[0]
 
 
 def test_log_factorial_rejects_negative_k():
     with pytest.raises(ValueError, match="k >= 0"):
-        rng.log_factorial(np.array([3.0, -1.0]))
+        poisson_counts.log_factorial(np.array([3.0, -1.0]))
 
 
 # --------------------------------------------------------------------------------------------
@@ -423,7 +425,7 @@ _X = np.arange(POISSON_N, dtype=np.int64)
 
 @pytest.mark.parametrize("rate", [0.0, 1e-12, 0.5, 1.0, 9.99, 10.0, 10.01, 30.0, 1e4, 1e7])
 def test_poisson_mean_and_variance_match_rate(rate):
-    counts = rng.poisson(np.full(POISSON_N, rate), SEED, 17, _Y, _X)
+    counts = poisson_counts.poisson(np.full(POISSON_N, rate), SEED, 17, _Y, _X)
     assert np.all(counts == np.round(counts)) and counts.min() >= 0
     # Poisson: variance = rate, fourth central moment = rate * (1 + 3 rate).
     assert abs(z_mean(counts, rate, rate)) < 5.0
@@ -433,7 +435,7 @@ def test_poisson_mean_and_variance_match_rate(rate):
 def test_poisson_mean_and_variance_over_log_spaced_rates():
     rates = np.logspace(-3, 7, 41)
     rows = 20_000
-    counts = rng.poisson(
+    counts = poisson_counts.poisson(
         np.broadcast_to(rates, (rows, rates.size)),
         SEED,
         23,
@@ -448,7 +450,7 @@ def test_poisson_mean_and_variance_over_log_spaced_rates():
 
 @pytest.mark.parametrize("rate", [3.0, 10.0, 15.0])
 def test_poisson_distribution_matches_exact_pmf_chi_square(rate):
-    counts = rng.poisson(np.full(POISSON_N, rate), SEED, 29, _Y, _X).astype(np.int64)
+    counts = poisson_counts.poisson(np.full(POISSON_N, rate), SEED, 29, _Y, _X).astype(np.int64)
     # Bins holding at least 20 expected counts; both tails lumped into the end bins.
     lo = int(stats.poisson.ppf(20.0 / POISSON_N, rate))
     hi = int(stats.poisson.isf(20.0 / POISSON_N, rate))
@@ -469,7 +471,7 @@ def test_poisson_distribution_matches_exact_pmf_chi_square(rate):
 
 def test_poisson_rate_zero_and_negative_rates_give_exact_zero():
     rate = np.array([0.0, -0.0, -1.0, -1e300, 0.0])
-    counts = rng.poisson(rate, SEED, 0, 0, np.arange(5))
+    counts = poisson_counts.poisson(rate, SEED, 0, 0, np.arange(5))
     assert np.array_equal(counts, np.zeros(5)) and not np.signbit(counts).any()
 
 
@@ -477,11 +479,11 @@ def test_poisson_rate_zero_and_negative_rates_give_exact_zero():
 def test_poisson_rejects_nan_and_inf_rates_naming_how_many(bad):
     rate = np.array([[1.0, bad], [bad, 2.0]])
     with pytest.raises(ValueError, match=r"2 of 4 rates .*index \(0, 1\)"):
-        rng.poisson(rate, SEED, 0, np.arange(2)[:, None], np.arange(2))
+        poisson_counts.poisson(rate, SEED, 0, np.arange(2)[:, None], np.arange(2))
 
 
 def test_poisson_inversion_cap_is_never_reached_below_the_switch():
-    rate = np.nextafter(rng.POISSON_PTRS_MIN_RATE, 0.0)
+    rate = np.nextafter(poisson_counts.POISSON_PTRS_MIN_RATE, 0.0)
     u_max = float(rng.uniform_from_bits(np.uint32(0xFFFFFFFF)))
     k, p = 0, math.exp(-rate)
     cdf = p
@@ -489,7 +491,7 @@ def test_poisson_inversion_cap_is_never_reached_below_the_switch():
         k += 1
         p *= rate / k
         cdf += p
-    assert k < rng.POISSON_INVERSION_MAX_K, f"search needs k = {k}"
+    assert k < poisson_counts.POISSON_INVERSION_MAX_K, f"search needs k = {k}"
     assert k <= 31
 
 
@@ -524,7 +526,7 @@ def reference_poisson_scalar(rate: float, seed: int, sample: int, y: int, x: int
                 return float(k)
             if k < 0 or (us < 0.013 and v > us):
                 continue
-            log_fact = float(rng.log_factorial(np.array([float(k)]))[0])
+            log_fact = float(poisson_counts.log_factorial(np.array([float(k)]))[0])
             if math.log(v * inv_alpha / (a / (us * us) + b)) <= -mu + k * math.log(mu) - log_fact:
                 return float(k)
         r += 1
@@ -537,7 +539,7 @@ def test_poisson_vectorized_matches_scalar_transcription_of_the_algorithm():
     )
     ys = gen.integers(0, 5000, rates.size)
     xs = gen.integers(0, 5000, rates.size)
-    counts = rng.poisson(rates, SEED, 31, ys, xs)
+    counts = poisson_counts.poisson(rates, SEED, 31, ys, xs)
     expected = [
         reference_poisson_scalar(float(r), SEED, 31, int(y), int(x))
         for r, y, x in zip(rates, ys, xs, strict=True)
@@ -550,10 +552,10 @@ def test_poisson_tile_equals_whole_image_and_seed_changes_draws():
     rate = 10 ** gen.uniform(-1, 5, (40, 30))
     rows = np.arange(40)[:, None]
     cols = np.arange(30)[None, :]
-    whole = rng.poisson(rate, SEED, 2, rows, cols)
-    tile = rng.poisson(rate[12:31, 5:22], SEED, 2, rows[12:31], cols[:, 5:22])
+    whole = poisson_counts.poisson(rate, SEED, 2, rows, cols)
+    tile = poisson_counts.poisson(rate[12:31, 5:22], SEED, 2, rows[12:31], cols[:, 5:22])
     np.testing.assert_array_equal(tile, whole[12:31, 5:22])
-    other = rng.poisson(rate, SEED + 1, 2, rows, cols)
+    other = poisson_counts.poisson(rate, SEED + 1, 2, rows, cols)
     assert np.count_nonzero(other != whole) > 0.8 * whole.size
 
 
@@ -634,8 +636,8 @@ def test_poisson_in_chunks_of_pixels_equals_the_whole_image_bit_for_bit(monkeypa
     rate[:5] = generator.uniform(0.0, 9.9, (5, 53))  # inversion
     rate[5, :7] = 0.0
     y, x = np.arange(37)[:, None] + 1000, np.arange(53)[None, :]
-    monkeypatch.setattr(rng, "POISSON_CHUNK", 10**9)
-    whole = rng.poisson(rate, 3, 9, y, x, normal_above=normal_above)
-    monkeypatch.setattr(rng, "POISSON_CHUNK", 97)  # chunks that end mid-row
-    chunked = rng.poisson(rate, 3, 9, y, x, normal_above=normal_above)
+    monkeypatch.setattr(poisson_counts, "POISSON_CHUNK", 10**9)
+    whole = poisson_counts.poisson(rate, 3, 9, y, x, normal_above=normal_above)
+    monkeypatch.setattr(poisson_counts, "POISSON_CHUNK", 97)  # chunks that end mid-row
+    chunked = poisson_counts.poisson(rate, 3, 9, y, x, normal_above=normal_above)
     assert np.array_equal(chunked, whole)

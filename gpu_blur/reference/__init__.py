@@ -27,7 +27,8 @@ from gpu_blur.reference.demosaic import demosaic_bilinear, demosaic_malvar2004
 from gpu_blur.reference.motion_kernel import convolve_kernel, random_motion_kernel
 from gpu_blur.reference.noise import add_gaussian_srgb, add_poisson_gaussian
 from gpu_blur.reference.output import crop_border, quantize
-from gpu_blur.reference.rng import Stream, philox4x32, poisson
+from gpu_blur.reference.poisson_counts import poisson
+from gpu_blur.reference.rng import Stream, philox4x32
 from gpu_blur.reference.saturation import restore_saturated, synthesize_saturation
 from gpu_blur.reference.shake import camera_shake_homographies, shake_blur, warp_homography
 from gpu_blur.reference.transfer import (

@@ -18,7 +18,8 @@ import math
 
 import numpy as np
 
-from gpu_blur.reference.rng import Stream, pixel_normals, poisson, require_finite
+from gpu_blur.reference.poisson_counts import poisson, require_finite
+from gpu_blur.reference.rng import Stream, pixel_normals
 
 __all__ = [
     "SRGB_GAUSSIAN_BASE_STD",
@@ -76,7 +77,7 @@ def add_poisson_gaussian(
 
     Per sample, with ``n = poisson(max(x, 0) / K)`` (stream SHOT_NOISE; with
     ``poisson_normal_above`` set, rates above it use the normal approximation, see
-    :func:`~gpu_blur.reference.rng.poisson`) and ``z`` the first normal of
+    :func:`~gpu_blur.reference.poisson_counts.poisson`) and ``z`` the first normal of
     :func:`~gpu_blur.reference.rng.pixel_normals` (stream READ_NOISE)::
 
         x' = K * n + sigma_r * z

@@ -1,4 +1,6 @@
-"""Counter-based random draws as Warp device functions: the Warp side of gpu_blur/reference/rng.py.
+"""Counter-based random draws as Warp device functions: the Warp side of the reference's draws.
+
+They repeat gpu_blur/reference/rng.py and gpu_blur/reference/poisson_counts.py.
 
 Provides Philox4x32-10 (:func:`philox4x32`), the per-pixel words (:func:`pixel_bits`),
 uniforms (:func:`uniform`), Box-Muller normals (:func:`box_muller`, :func:`pixel_normal`, and
@@ -8,7 +10,8 @@ above a threshold rate (:func:`poisson_normal_above`, scene ``noise.poisson = "n
 ``@wp.func``, for kernels of the Warp backend to call. kernels/opencl/include/gb_random.h is
 the OpenCL port of the same functions.
 
-The contract is rng.py's module docstring, repeated here operation for operation:
+The contract is the module docstrings of rng.py and poisson_counts.py, repeated here operation
+for operation:
 
 key
     ``(key0, key1) = (seed & 0xFFFFFFFF, seed >> 32)`` (``rng.key_from_seed``), two
@@ -78,8 +81,8 @@ __all__ = [
     "uniform",
 ]
 
-# The numbers below come from gpu_blur.reference.rng through gpu_blur.kernel_constants, which
-# gives gb_random.h the same values.
+# The numbers below come from gpu_blur.reference.rng and .poisson_counts through
+# gpu_blur.kernel_constants, which gives gb_random.h the same values.
 
 # -- stream numbers (rng.Stream), as wp.uint32 constants -----------------------------------------
 PARAMS = wp.constant(wp.uint32(constants.STREAMS["PARAMS"]))
@@ -110,12 +113,12 @@ _TWO_PI_F32 = wp.constant(wp.float32(constants.TWO_PI_FLOAT32))
 
 # -- log(k!) and Poisson -------------------------------------------------------------------------
 _vec16d = wp.types.vector(length=constants.LOG_FACTORIAL_TABLE_SIZE, dtype=wp.float64)
-#: log(k!) for k = 0..15: rng.LOG_FACTORIAL_TABLE, the same float64 values.
+#: log(k!) for k = 0..15: poisson_counts.LOG_FACTORIAL_TABLE, the same float64 values.
 LOG_FACTORIAL_TABLE = wp.constant(_vec16d(*constants.LOG_FACTORIAL_TABLE))
 _HALF_LOG_TWO_PI = wp.constant(wp.float64(constants.HALF_LOG_TWO_PI))
-#: rng.POISSON_PTRS_MIN_RATE: PTRS at and above this rate, inversion below.
+#: poisson_counts.POISSON_PTRS_MIN_RATE: PTRS at and above this rate, inversion below.
 POISSON_PTRS_MIN_RATE = wp.constant(wp.float64(constants.POISSON_PTRS_MIN_RATE))
-#: rng.POISSON_INVERSION_MAX_K: hard stop of the inversion search.
+#: poisson_counts.POISSON_INVERSION_MAX_K: hard stop of the inversion search.
 POISSON_INVERSION_MAX_K = wp.constant(int(constants.POISSON_INVERSION_MAX_K))
 
 _F0 = wp.constant(wp.float64(0.0))
@@ -130,7 +133,7 @@ _F12 = wp.constant(wp.float64(12.0))
 _F360 = wp.constant(wp.float64(360.0))
 _F1260 = wp.constant(wp.float64(1260.0))
 _F1680 = wp.constant(wp.float64(1680.0))
-# PTRS setup and test constants (Hoermann 1993): rng.PTRS_*.
+# PTRS setup and test constants (Hoermann 1993): poisson_counts.PTRS_*.
 _PTRS_B0 = wp.constant(wp.float64(constants.PTRS["B0"]))
 _PTRS_B1 = wp.constant(wp.float64(constants.PTRS["B1"]))
 _PTRS_A0 = wp.constant(wp.float64(constants.PTRS["A0"]))
@@ -305,7 +308,7 @@ def pixel_normal_fast(
 
 @wp.func
 def log_factorial(k: wp.float64) -> wp.float64:
-    """``log(k!)`` for integer-valued ``k >= 0`` (rng.log_factorial).
+    """``log(k!)`` for integer-valued ``k >= 0`` (poisson_counts.log_factorial).
 
     The table below 16; else Stirling::
 
@@ -357,7 +360,7 @@ def poisson(
     x: wp.uint32,
     y: wp.uint32,
 ) -> wp.float64:
-    """One Poisson count at pixel ``(x, y)`` of stream SHOT_NOISE (rng.poisson), in float64.
+    """One Poisson count at pixel ``(x, y)`` of stream SHOT_NOISE (poisson_counts.poisson), float64.
 
     The rate is clamped at 0 (negative rates and -0.0 give +0.0). The reference refuses
     non-finite rates; here NaN gives NaN and +inf gives +inf (as gb_poisson), so the PTRS loop
@@ -415,7 +418,7 @@ def poisson_normal_count(
     x: wp.uint32,
     y: wp.uint32,
 ) -> wp.float64:
-    """A count by the normal approximation (rng.poisson_normal_approximation), in float64.
+    """A count by the normal approximation (poisson_counts.poisson_normal_approximation), float64.
 
     For a finite rate >= 0: ``z`` the cos normal of :func:`box_muller` on words 0 and 1 of round
     0 of stream SHOT_NOISE, then ``max(0, floor(rate + sqrt(rate) z + 0.5))`` (rounded half
@@ -440,7 +443,7 @@ def poisson_normal_above(
     x: wp.uint32,
     y: wp.uint32,
 ) -> wp.float64:
-    """rng.poisson with ``normal_above``: the normal approximation above the threshold.
+    """poisson_counts.poisson with ``normal_above``: the normal approximation above the threshold.
 
     Rates strictly above ``normal_above`` (>= 0, the host checks it) take
     :func:`poisson_normal_count`, all others :func:`poisson`, so counts at or below it are

@@ -1,12 +1,13 @@
 /* gb_random.h: counter-based random draws for the kernels, the device side of
- * gpu_blur/reference/rng.py.
+ * gpu_blur/reference/rng.py and gpu_blur/reference/poisson_counts.py.
  *
  * Provides Philox4x32-10 (gb_philox, from pyopencl's bundled Random123 philox.cl), the per-pixel
  * words (gb_pixel_bits), uniforms (gb_uniform), Box-Muller normals (gb_box_muller,
  * gb_pixel_normal), log(k!) (gb_log_factorial), the Poisson sampler (gb_poisson) and its normal
  * approximation above a threshold rate (gb_poisson_normal_above, scene noise.poisson = "normal").
  *
- * The contract is rng.py's module docstring, repeated here operation for operation:
+ * The contract is the module docstrings of rng.py and poisson_counts.py, repeated here
+ * operation for operation:
  *   key      (seed & 0xFFFFFFFF, seed >> 32), passed as a uint2
  *   counter  (x, y, sample_index, (stream << 24) | round), x and y the pixel's GLOBAL column
  *            and row, round in [0, 2^24) numbering blocks of four words of one pixel
@@ -53,11 +54,12 @@ typedef float gb_wide;
 #define GB_WIDE(x) (x##f)
 #endif
 
-/* From gpu_blur.reference.rng, in gb_constants.h: the stream numbers GB_STREAM_<NAME> (rng.Stream;
- * SPOT_CHECK is host only), GB_STREAM_SHIFT and GB_ROUND_LIMIT (2^24 rounds below the stream
- * byte), GB_UNIFORM_SHIFT and GB_UNIFORM_SCALE, 2 pi (GB_TWO_PI_DOUBLE, GB_TWO_PI_FLOAT), log(k!)
- * (GB_LOG_FACTORIAL_TABLE, GB_HALF_LOG_TWO_PI), GB_POISSON_PTRS_MIN_RATE,
- * GB_POISSON_INVERSION_MAX_K and PTRS's GB_PTRS_<NAME> (rng.PTRS_<NAME>). */
+/* From gpu_blur.reference.rng and .poisson_counts, in gb_constants.h: the stream numbers
+ * GB_STREAM_<NAME> (rng.Stream; SPOT_CHECK is host only), GB_STREAM_SHIFT and GB_ROUND_LIMIT
+ * (2^24 rounds below the stream byte), GB_UNIFORM_SHIFT and GB_UNIFORM_SCALE, 2 pi
+ * (GB_TWO_PI_DOUBLE, GB_TWO_PI_FLOAT), log(k!) (GB_LOG_FACTORIAL_TABLE, GB_HALF_LOG_TWO_PI),
+ * GB_POISSON_PTRS_MIN_RATE, GB_POISSON_INVERSION_MAX_K and PTRS's GB_PTRS_<NAME>
+ * (poisson_counts.PTRS_<NAME>). */
 
 /* Philox4x32-10 block function: four 32-bit words of counter under a two-word key. */
 static inline uint4 gb_philox(uint4 counter, uint2 key)
@@ -134,11 +136,12 @@ static inline real gb_pixel_normal(uint2 key, uint sample_index, uint stream, ui
     return (j & 1u) ? z_sin : z_cos;
 }
 
-/* log(k!) for k = 0..15, the float64 values of rng.LOG_FACTORIAL_TABLE (gb_constants.h). */
+/* log(k!) for k = 0..15, the float64 values of poisson_counts.LOG_FACTORIAL_TABLE
+ * (gb_constants.h). */
 __constant gb_wide gb_log_factorial_table[GB_LOG_FACTORIAL_TABLE_SIZE] = GB_LOG_FACTORIAL_TABLE;
 
-/* log(k!) for integer-valued k >= 0 (rng.log_factorial): the table below 16 (its size), else
- * Stirling:
+/* log(k!) for integer-valued k >= 0 (poisson_counts.log_factorial): the table below 16 (its
+ * size), else Stirling:
  *   r = 1/k;  s = r (1/12 - r^2 (1/360 - r^2 (1/1260 - r^2 / 1680)))
  *   log k! = (k + 0.5) log k - k + 0.5 log(2 pi) + s */
 static inline gb_wide gb_log_factorial(gb_wide k)
@@ -154,7 +157,7 @@ static inline gb_wide gb_log_factorial(gb_wide k)
     return (k + GB_WIDE(0.5)) * log(k) - k + GB_HALF_LOG_TWO_PI + series;
 }
 
-/* One Poisson count at pixel (x, y) of stream SHOT_NOISE (rng.poisson), as a real.
+/* One Poisson count at pixel (x, y) of stream SHOT_NOISE (poisson_counts.poisson), as a real.
  * The rate is clamped at 0 (negative rates give 0). The reference refuses non-finite rates; here
  * NaN gives NaN and +inf gives +inf, so that the PTRS loop never runs on them. In a float build
  * counts above 2^24 round to the nearest float. */
@@ -211,9 +214,9 @@ static inline real gb_poisson(real rate_in, uint2 key, uint sample_index, uint x
     return (real)NAN; /* unreachable: each attempt accepts with probability > 0.9 */
 }
 
-/* A Poisson count by the normal approximation (rng.poisson_normal_approximation) for a finite
- * rate >= 0, in gb_wide: z the cos normal of Box-Muller on words 0 and 1 of round 0 of stream
- * SHOT_NOISE (the words PTRS's first attempt reads), then
+/* A Poisson count by the normal approximation (poisson_counts.poisson_normal_approximation)
+ * for a finite rate >= 0, in gb_wide: z the cos normal of Box-Muller on words 0 and 1 of round 0
+ * of stream SHOT_NOISE (the words PTRS's first attempt reads), then
  *   count = max(0, floor(rate + sqrt(rate) z + 0.5))      (rounded half up, clamped at 0)
  * with every operation rounded once, as the reference. Never fast maths: see gb_math.h. */
 static inline gb_wide gb_poisson_normal_count(gb_wide rate, uint2 key, uint sample_index, uint x,
@@ -227,10 +230,10 @@ static inline gb_wide gb_poisson_normal_count(gb_wide rate, uint2 key, uint samp
     return count > GB_WIDE(0.0) ? count : GB_WIDE(0.0);
 }
 
-/* rng.poisson with normal_above: rates strictly above `normal_above` (>= 0, the host checks it)
- * take gb_poisson_normal_count, all others gb_poisson, so counts at or below the threshold are
- * gb_poisson's bit for bit. NaN and +inf go to gb_poisson (NaN and +inf out). The threshold is a
- * `real`, rounded as the rate is. */
+/* poisson_counts.poisson with normal_above: rates strictly above `normal_above` (>= 0, the
+ * host checks it) take gb_poisson_normal_count, all others gb_poisson, so counts at or below the
+ * threshold are gb_poisson's bit for bit. NaN and +inf go to gb_poisson (NaN and +inf out). The
+ * threshold is a `real`, rounded as the rate is. */
 static inline real gb_poisson_normal_above(real rate_in, real normal_above, uint2 key,
                                            uint sample_index, uint x, uint y)
 {
