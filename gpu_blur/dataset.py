@@ -24,7 +24,7 @@ from gpu_blur.file_writing import temporary_path, write_image, write_new, write_
 from gpu_blur.locking import earlier_pids, forget_earlier, take_lock
 from gpu_blur.outputs import write_dng, write_mask
 from gpu_blur.params import ARRAY_PARAMS
-from gpu_blur.reference.interpolate import INTERPOLATION_AUTO
+from gpu_blur.reference.flow import INTERPOLATION_AUTO
 from gpu_blur.version import __version__
 
 #: The lock file a run holds (``fcntl.flock``) while it writes its output folder.

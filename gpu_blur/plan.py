@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from gpu_blur.constants import A7R3_CRF_TABLE_X255
-from gpu_blur.reference.interpolate import INTERPOLATION_AUTO, MOTION_SCALE
+from gpu_blur.reference.flow import INTERPOLATION_AUTO, MOTION_SCALE
 from gpu_blur.reference.transfer import RETONE_CURVES, retone_polynomial
 from gpu_blur.scene import Scene, load_scene
 from gpu_blur.stages import PASSES, STAGES, Pass, StageName, stage_values

@@ -24,7 +24,7 @@ from gpu_blur import limits
 from gpu_blur.constants import GAUSSIAN_SRGB_NOISE_STD
 from gpu_blur.files import parse_settings, read_text
 from gpu_blur.limits import Limit
-from gpu_blur.reference.interpolate import (
+from gpu_blur.reference.flow import (
     FLOW_METHODS,
     INTERPOLATION_AUTO,
     INTERPOLATION_FACTORS,

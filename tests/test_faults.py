@@ -21,7 +21,7 @@ from gpu_blur.cli import main
 from gpu_blur.discovery import SampleSpec
 from gpu_blur.generate import Job, make_sample
 from gpu_blur.image_reading import read_image
-from gpu_blur.reference.interpolate import optical_flow
+from gpu_blur.reference.flow import optical_flow
 from gpu_blur.scene import scene_from_dict
 from gpu_blur.testhooks import TEST_SLEEP_AFTER
 

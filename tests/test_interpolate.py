@@ -26,6 +26,7 @@ from gpu_blur.backends.flows import with_flows
 from gpu_blur.plan import plan
 from gpu_blur.reference.average import FrameAccumulator, average_frames
 from gpu_blur.reference.blur import blur_halo
+from gpu_blur.reference.flow import optical_flow, sequence_flows
 from gpu_blur.reference.interpolate import (
     CONSISTENCY_ABSOLUTE_PX2,
     CONSISTENCY_RELATIVE,
@@ -34,8 +35,6 @@ from gpu_blur.reference.interpolate import (
     interpolated_average,
     interpolation_halo,
     interpolation_times,
-    optical_flow,
-    sequence_flows,
 )
 from gpu_blur.reference.transfer import srgb_to_linear
 from gpu_blur.scene import SceneError, scene_from_dict

@@ -17,14 +17,9 @@ from gpu_blur.discovery import default_photo
 from gpu_blur.image_arrays import unit_values
 from gpu_blur.image_reading import read_image
 from gpu_blur.plan import plan
-from gpu_blur.reference import interpolate
-from gpu_blur.reference.interpolate import (
-    gap_factor,
-    gap_motion,
-    gap_weights,
-    interpolated_average,
-    sequence_flows,
-)
+from gpu_blur.reference import flow
+from gpu_blur.reference.flow import gap_factor, gap_motion, sequence_flows
+from gpu_blur.reference.interpolate import gap_weights, interpolated_average
 from gpu_blur.reference.transfer import srgb_to_linear
 from gpu_blur.scene import SceneError, scene_from_dict
 from gpu_blur.synthesis import Synthesizer
@@ -82,12 +77,12 @@ def test_gap_motion_measures_a_pan_and_zero_without_motion():
 
 def test_still_gaps_get_factor_1_and_no_flow_is_computed_for_them(monkeypatch):
     frames = [unit_values(f) for f in still_then_pan(2, 2)]
-    factors = interpolate.adaptive_factors(frames, 1.0)
+    factors = flow.adaptive_factors(frames, 1.0)
     assert factors == (1, 1, 8, 8)
     calls, grays = [], []
-    real_flow, real_gray = interpolate._flow, interpolate.gray8
-    monkeypatch.setattr(interpolate, "_flow", lambda a, b, m: calls.append(1) or real_flow(a, b, m))
-    monkeypatch.setattr(interpolate, "gray8", lambda f: grays.append(1) or real_gray(f))
+    real_flow, real_gray = flow._flow, flow.gray8
+    monkeypatch.setattr(flow, "_flow", lambda a, b, m: calls.append(1) or real_flow(a, b, m))
+    monkeypatch.setattr(flow, "gray8", lambda f: grays.append(1) or real_gray(f))
     flows = sequence_flows(frames, "dis", factors)
     assert len(calls) == 4  # forward and backward of the two moving gaps only
     assert len(grays) == 4  # frames 0 (for the size), 2, 3 and 4, each once
@@ -96,14 +91,14 @@ def test_still_gaps_get_factor_1_and_no_flow_is_computed_for_them(monkeypatch):
 
 def test_flows_from_stored_codes_are_the_flows_from_their_values():
     codes = np.arange(256, dtype=np.uint8).reshape(16, 16, 1).repeat(3, axis=2)
-    assert np.array_equal(interpolate.gray8(codes), interpolate.gray8(codes / 255.0))
+    assert np.array_equal(flow.gray8(codes), flow.gray8(codes / 255.0))
     frames = still_then_pan(0, 2)
     from gpu_blur.backends.flows import UnitFrames
 
     assert np.array_equal(sequence_flows(UnitFrames(frames)),
                           sequence_flows([unit_values(f) for f in frames]))
-    assert np.array_equal(interpolate.region_factors(UnitFrames(frames), 1.0, SIDE).factors,
-                          interpolate.region_factors([unit_values(f) for f in frames], 1.0,
+    assert np.array_equal(flow.region_factors(UnitFrames(frames), 1.0, SIDE).factors,
+                          flow.region_factors([unit_values(f) for f in frames], 1.0,
                                                      SIDE).factors)
 
 
@@ -111,9 +106,9 @@ def test_flows_made_in_threads_are_each_pairs_own_flow(monkeypatch):
     frames = [unit_values(f) for f in still_then_pan(0, 3)]
     flows = sequence_flows(frames)
     for i in range(3):
-        assert np.array_equal(flows[i, 0], interpolate.optical_flow(frames[i], frames[i + 1]))
-        assert np.array_equal(flows[i, 1], interpolate.optical_flow(frames[i + 1], frames[i]))
-    monkeypatch.setattr(interpolate.os, "cpu_count", lambda: 1)  # one thread: the same bits
+        assert np.array_equal(flows[i, 0], flow.optical_flow(frames[i], frames[i + 1]))
+        assert np.array_equal(flows[i, 1], flow.optical_flow(frames[i + 1], frames[i]))
+    monkeypatch.setattr(flow.os, "cpu_count", lambda: 1)  # one thread: the same bits
     assert np.array_equal(sequence_flows(frames), flows)
 
 
@@ -265,31 +260,31 @@ def region_scene(precision: str = "float64", side: int = SIDE, frames: int = 4):
 
 def test_still_regions_away_from_moving_ones_get_factor_1():
     frames = [unit_values(f) for f in half_moving(2)]
-    regions = interpolate.region_factors(frames, 1.0, SIDE)
+    regions = flow.region_factors(frames, 1.0, SIDE)
     assert regions.factors.shape == (2, 3, 5) and regions.factors.dtype == np.uint8
     # columns 0..79 stand still, 80..159 pan 6 px a frame: the region at 64..95 holds both,
     # the one at 32..63 takes its neighbour's factor, the one at 0..31 stays at 1
     assert (regions.factors[:, :, 0] == 1).all()
     assert (regions.factors[:, :, 1:] == 8).all()
     assert regions.gaps == (8, 8)
-    own = interpolate.region_motion(frames[0], frames[1], SIDE)
+    own = flow.region_motion(frames[0], frames[1], SIDE)
     assert (own[:, :2] < 0.5).all() and (own[:, 3:] > 5).all()
     # without regions the whole frame takes the moving half's factor
-    assert interpolate.adaptive_factors(frames, 1.0) == (8, 8)
+    assert flow.adaptive_factors(frames, 1.0) == (8, 8)
 
 
 def test_region_motion_of_the_whole_frame_is_the_gap_motion():
     frames = [unit_values(f) for f in half_moving(1)]
-    assert interpolate.region_motion(*frames, 0)[0, 0] == gap_motion(*frames)
+    assert flow.region_motion(*frames, 0)[0, 0] == gap_motion(*frames)
     with pytest.raises(ValueError, match="multiple of 16"):
-        interpolate.region_motion(*frames, 24)
+        flow.region_motion(*frames, 24)
 
 
 def test_a_sliver_past_the_shrunk_frame_takes_its_neighbours_motion():
     # 96 x 97 frames shrink by 2 (a quarter would be under 32 rows) to 48 x 48: the seventh
     # column of 16 px regions is column 96 alone, which no shrunk pixel covers
     frames = [unit_values(f)[:, :97] for f in half_moving(1)]
-    motion = interpolate.region_motion(*frames, 16)
+    motion = flow.region_motion(*frames, 16)
     assert motion.shape == (6, 7)
     assert np.array_equal(motion[:, 6], motion[:, 5])
 
@@ -302,7 +297,7 @@ def test_each_region_averages_bit_for_bit_as_a_frame_with_its_factors_everywhere
     maps = np.empty((2, 3, 5), np.uint8)
     maps[0] = 8
     maps[1] = [1, 1, 8, 4, 4]
-    blurred, mask = interpolated_average(frames, interpolate.RegionFactors(SIDE, maps), flows)
+    blurred, mask = interpolated_average(frames, flow.RegionFactors(SIDE, maps), flows)
     for columns, gaps in ((slice(0, 64), (8, 1)), (slice(64, 96), (8, 8)),
                           (slice(96, 160), (8, 4))):
         own_blurred, own_mask = interpolated_average(frames, gaps, flows)

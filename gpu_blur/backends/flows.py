@@ -1,7 +1,7 @@
 """The optical flows of interpolated averaging, computed once per sample on the host.
 
 With ``blur.interpolation > 1`` the accumulate pass warps frames along the sequence's optical
-flows (gpu_blur.reference.interpolate). The flows come from OpenCV on the host, once per
+flows (gpu_blur.reference.flow). The flows come from OpenCV on the host, once per
 sample: the scheduler adds them to the sample's parameters before the first tile
 (:func:`with_flows`), so every tile, every backend and the spot checks use the same flows, and
 the blur halo (gpu_blur.reference.blur.blur_halo) covers them. A backend called without them
@@ -16,7 +16,7 @@ import numpy as np
 
 from gpu_blur.image_arrays import unit_values
 from gpu_blur.plan import Plan
-from gpu_blur.reference.interpolate import (
+from gpu_blur.reference.flow import (
     INTERPOLATION_AUTO,
     INTERPOLATION_FACTORS,
     RegionFactors,
@@ -30,7 +30,7 @@ from gpu_blur.timings import timer
 #: sample, recorded in the manifest).
 FACTORS_KEY = "interpolation_factors"
 #: The parameter holding each gap's factor per region (``blur.interpolation_region`` > 0): an
-#: ``(n - 1) x BH x BW`` uint8 array (:class:`~gpu_blur.reference.interpolate.RegionFactors`),
+#: ``(n - 1) x BH x BW`` uint8 array (:class:`~gpu_blur.reference.flow.RegionFactors`),
 #: saved with the sample's arrays.
 REGIONS_KEY = "interpolation_regions"
 
@@ -51,7 +51,7 @@ def scene_factors(scene, frames: Sequence[np.ndarray]) -> RegionFactors | None:
     """Each gap's factors under ``blur.interpolation = "auto"``, else ``None``.
 
     Measured once per sample from the host frames as stored, per region when
-    ``blur.interpolation_region`` > 0 (:func:`gpu_blur.reference.interpolate.region_factors`,
+    ``blur.interpolation_region`` > 0 (:func:`gpu_blur.reference.flow.region_factors`,
     timed as ``kernels``).
     """
     b = scene.blur
@@ -151,7 +151,7 @@ class UnitFrames:
         return unit_values(self._frames[index])
 
     def gray8(self, index: int) -> np.ndarray:
-        """Frame ``index``'s :func:`~gpu_blur.reference.interpolate.gray8` (8-bit: its codes)."""
+        """Frame ``index``'s :func:`~gpu_blur.reference.flow.gray8` (8-bit: its codes)."""
         stored = self._frames[index]
         return gray8(stored if stored.dtype == np.uint8 else unit_values(stored))
 
@@ -171,7 +171,7 @@ def with_flows(plan: Plan, params: dict, frames: Sequence[np.ndarray]) -> dict:
     Returns:
         A new dict (the caller's is not changed: flows are no drawn value and stay out of the
         manifest) with ``flows`` of shape ``(n - 1) x 2 x H x W x 2`` float32
-        (:func:`gpu_blur.reference.interpolate.sequence_flows`), computed here, timed as
+        (:func:`gpu_blur.reference.flow.sequence_flows`), computed here, timed as
         ``kernels`` (the accumulate pass's host part).
     """
     if interpolation_factor(plan) == 1 or params.get("flows") is not None:

@@ -8,7 +8,7 @@ from gpu_blur.backends.flows import with_factors
 from gpu_blur.cameras import Camera
 from gpu_blur.params import draw_params
 from gpu_blur.plan import Plan, StageName, plan
-from gpu_blur.reference.interpolate import RegionFactors
+from gpu_blur.reference.flow import RegionFactors
 from gpu_blur.scene import Scene
 from gpu_blur.synthesis.inputs import Inputs
 

@@ -21,7 +21,7 @@ from gpu_blur.analysis.bench.workload import (
     Setting,
     setting_scene,
 )
-from gpu_blur.reference.interpolate import INTERPOLATION_AUTO, INTERPOLATION_FACTORS
+from gpu_blur.reference.flow import INTERPOLATION_AUTO, INTERPOLATION_FACTORS
 
 #: Residual histograms: bins per unit of value, one per 8-bit code (gpu_blur.analysis.metrics).
 KL_BINS = 255
