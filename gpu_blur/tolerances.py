@@ -455,7 +455,7 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # The response at its inverse table's nodes against the nodes: bisection to float64
     # resolution, then Horner's rounding with cancelling coefficients (measured 2.6e-14).
     ("crf_inverse_nodes", "numpy", "float64"): (0.0, 1e-13),
-    # -- frame interpolation (tests/test_interpolate.py) --
+    # -- frame interpolation (tests/reference/test_interpolate.py) --
     # An integer-shift sequence of a photo with exact flows against its bilinear reconstruction
     # at the intermediates' sub-pixel shifts, written out independently: the same bilinear
     # maths in another order, values <= 1 (measured 1.1e-16 per frame, 2.8e-17 averaged).

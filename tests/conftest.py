@@ -1,4 +1,12 @@
-"""Fixtures shared by the tests."""
+"""Fixtures and helpers shared by the tests.
+
+The test modules sit in folders that mirror the package (tests/reference/ for
+gpu_blur/reference/, tests/backends/ for gpu_blur/backends/, and so on), without __init__.py.
+Under pytest's default "prepend" import mode each module's folder and this one go on sys.path,
+so the modules import ``conftest``, ``golden`` and ``device_functions`` by name, and a test
+module's file name must be unique across all folders (pytest stops at collection with "import
+file mismatch" otherwise).
+"""
 
 from __future__ import annotations
 
@@ -9,7 +17,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-DATA = Path(__file__).resolve().parents[1] / "gpu_blur" / "data"
+#: This folder (tests/), its data folder and the repository root. The test modules sit one folder
+#: down (tests/<part>/, mirroring gpu_blur/), so they take these paths from here rather than
+#: counting parents of their own __file__.
+TESTS = Path(__file__).resolve().parent
+TEST_DATA = TESTS / "data"
+ROOT = TESTS.parent
+DATA = ROOT / "gpu_blur" / "data"
 
 
 @pytest.fixture(scope="session")
@@ -35,7 +49,7 @@ def rocket_rgb() -> np.ndarray:
     """
     import cv2
 
-    path = Path(__file__).resolve().parent / "data" / "rocket.jpg"
+    path = TEST_DATA / "rocket.jpg"
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
     assert bgr is not None, f"cannot read {path}"
     rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)[:426].astype(np.float64) / 255.0

@@ -108,7 +108,7 @@ def test_side_by_side_rows_agree_with_the_reference_where_the_maths_is_the_same(
     report, _ = quick_report
     demosaic = {r["method"]: r for r in report["side_by_side"]["demosaic"]}
     assert demosaic["gpu_blur numpy Malvar 2004 (float64)"]["max_abs_error"] == 0
-    # colour-demosaicing's Malvar is the same filter (tests/test_demosaic.py checks it)
+    # colour-demosaicing's Malvar is the same filter (tests/reference/test_demosaic.py checks it)
     assert (demosaic["colour-demosaicing Malvar 2004 (float64)"]["max_abs_error"]
             <= tolerance("demosaic_malvar2004", "independent", "float64")[1])
     assert (demosaic[f"gpu_blur {KERNEL_BACKEND} Malvar 2004 (float32)"]["max_abs_error"]

@@ -7,11 +7,12 @@ the test's name states. Kernel backends round their inputs to their compute type
 is about the kernels' arithmetic, the reference is fed the same rounded values.
 
 Covered elsewhere, not repeated here: uniforms never reach a log as exactly 0 or 1
-(tests/test_rng.py::test_uniforms_are_never_0_or_1_even_at_extreme_words for the reference,
-test_uniform_is_exact_for_every_23_bit_value_and_both_ends in tests/test_device_random.py for
-the kernels of both languages, at the words 0 and 2^32 - 1); fp32 and fp64 compute
-within their rows (tests/test_backends.py); near-singular matrices refused by the reference
-(tests/test_color.py); the reference's knees and round trips (tests/test_transfer.py).
+(tests/reference/test_rng.py::test_uniforms_are_never_0_or_1_even_at_extreme_words for the
+reference, test_uniform_is_exact_for_every_23_bit_value_and_both_ends in
+tests/test_device_random.py for the kernels of both languages, at the words 0 and 2^32 - 1); fp32
+and fp64 compute within their rows (tests/test_backends.py); near-singular matrices refused by
+the reference (tests/reference/test_color.py); the reference's knees and round trips
+(tests/reference/test_transfer.py).
 
 The test marked ``slow`` (buffers of more than 2^29 values) runs a small form by default, so
 that CI, which runs every test, stays quick. ``GPU_BLUR_HEAVY=1`` gives the float32 kernel
@@ -130,7 +131,7 @@ def test_srgb_encode_at_zero_one_knees_and_denormals_steps_down_only_at_the_iec_
     # (1.055 - 0.055 rounds below 1: OETF(1) is 1 - 2^-53 in the reference, 1 - 2^-24 in
     # float32; white comes out exactly 1 through the saturated restore, tested below)
     # IEC 61966-2-1's knees disagree: the exact OETF steps down 3.1e-8 from the last value
-    # below 0.0031308 to the first at or above it (tests/test_transfer.py pins it for the
+    # below 0.0031308 to the first at or above it (tests/reference/test_transfer.py pins it for the
     # reference). The kernels take the same branch for every input (float32: no float lies
     # between 0.0031308 and the float nearest it) and keep the same step, to their row.
     rtol, atol = rows("linear_to_srgb", spec)

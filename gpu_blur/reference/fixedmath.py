@@ -27,7 +27,7 @@ Methods (formulas and coefficients from the literature; the code is ours):
   ``r^18``), quadrant by ``q mod 4``;
 * ``power(x, y) = exp(y log x)`` with ``log x`` and the product in double-double.
 
-Accuracy (tests/test_fixedmath.py, against 50-digit :mod:`decimal` values and Python's
+Accuracy (tests/reference/test_fixedmath.py, against 50-digit :mod:`decimal` values and Python's
 ``math``): ``exp``, ``log``, ``sin``, ``cos`` within 1 ulp of the correctly rounded value on
 their tested ranges, ``power`` within 1 ulp for ``|y log x| <= 700`` and ``|y| <= 16`` (its
 error grows with ``|y|`` by about ``|y| 2**-62`` relative). Results in the subnormal range
@@ -53,7 +53,7 @@ __all__ = [
     "sincos",
 ]
 
-# -- constants (each checked against 50-digit decimal values in tests/test_fixedmath.py) -----
+# -- constants (each checked against 50-digit decimal values in tests/reference/test_fixedmath.py)
 #: ln 2 in two parts: a 42-bit high part (``k * LN2_HI`` is exact for ``|k| < 2**11``) and
 #: the float64 nearest the rest.
 LN2_HI = float.fromhex("0x1.62e42fefa3800p-1")

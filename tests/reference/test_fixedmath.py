@@ -5,7 +5,8 @@ arithmetic. The recorded digests fix the functions' bits on fixed grids, so any 
 evaluation order shows. The ``bits`` tests run the draws of every blur mode and numpy-backend
 samples in subprocesses with and without numpy's AVX-512 and AVX2 paths and compare digests.
 
-Run as a script (``python tests/test_fixedmath.py``) this module prints those digests as JSON.
+Run as a script (``python tests/reference/test_fixedmath.py``) this module prints those digests
+as JSON.
 """
 
 from __future__ import annotations
@@ -23,7 +24,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+#: The tests folder (golden.py) and the repository root: this module also runs as a script,
+#: without conftest, so it counts its own parents (it sits in tests/reference/).
+TESTS = Path(__file__).resolve().parents[1]
+ROOT = TESTS.parent
 if __name__ == "__main__":
     sys.path.insert(0, str(ROOT))
 
@@ -227,7 +231,7 @@ PROBE_SCENES = {
 def sample_digests() -> dict[str, str]:
     """Digests (tests/golden.py's: outputs and drawn parameters) of numpy-backend samples of
     :data:`PROBE_SCENES`, and of the draws alone for more sample indices."""
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    sys.path.insert(0, str(TESTS))
     from golden import _inputs, digest
 
     from gpu_blur import synthesize

@@ -314,8 +314,8 @@ def test_motion_kernel_is_a_centred_normalised_kernel_that_fits(size):
 def test_motion_kernels_keep_their_recorded_bits():
     """3,000 kernels of every GoPro_U size from the pipeline's own draws hash as recorded when
     the walk's Box-Muller, turns and lengths moved to fixedmath and plain IEEE operations
-    (the same digest with numpy's AVX-512 paths off: tests/test_fixedmath.py runs this draw in
-    both); any change to a kernel's bits would move every kernel-blur output."""
+    (the same digest with numpy's AVX-512 paths off: tests/reference/test_fixedmath.py runs this
+    draw in both); any change to a kernel's bits would move every kernel-blur output."""
     import hashlib
 
     from gpu_blur.reference import rng

@@ -15,11 +15,10 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import KERNEL_BACKEND_SPECS, make_backend, spec_backend, spec_dtype
+from conftest import KERNEL_BACKEND_SPECS, ROOT, make_backend, spec_backend, spec_dtype
 
 import gpu_blur
 from gpu_blur.backends.flows import with_flows
@@ -395,7 +394,7 @@ def check_tile_equals_whole_image(k, pair):
     for a, b in zip(tile, whole, strict=True):
         assert np.array_equal(a, b[y0:y1, x0:x1])
 
-OPENCL_DIR = Path(__file__).resolve().parents[1] / "kernels" / "opencl"
+OPENCL_DIR = ROOT / "kernels" / "opencl"
 
 
 class OpenCLInterpolate:
