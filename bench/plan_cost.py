@@ -7,7 +7,8 @@ Run from the repository root: ``python bench/plan_cost.py [--size WxH] [--backen
 --size 1920x1200``. Input: the built-in photo panned 2 px a frame
 (:func:`gpu_blur.analysis.stage_cost.bench_inputs`). Times are medians of 5 runs after a warm-up
 (kernel builds), the device synchronized; stages of a fused pass are timed as the passes with
-less without them (:mod:`gpu_blur.analysis.stage_cost`).
+less without them, each with the interval of that median difference (a stage whose interval
+holds 0 costs nothing measurable here; :mod:`gpu_blur.analysis.stage_cost`).
 """
 
 from __future__ import annotations
@@ -41,7 +42,8 @@ def main() -> None:
                 "with_plan_ms": round(c.with_plan * 1e3, 2),
                 "every_stage_on_ms": round(c.every_stage * 1e3, 2),
                 "saved_fraction": round(1 - c.with_plan / c.every_stage, 3),
-                "stages_ms": {name: {"kept": kept, "ms": round(s * 1e3, 2)}
+                "stages_ms": {name: {"kept": kept, "ms": round(s * 1e3, 2),
+                                     "interval_ms": [round(t * 1e3, 2) for t in c.intervals[name]]}
                               for name, (kept, s) in c.switches.items()}})
             print(f"{scene:<11} {backend:<11} plan {rows[-1]['with_plan_ms']:8.1f} ms, "
                   f"every stage on {rows[-1]['every_stage_on_ms']:8.1f} ms", flush=True)

@@ -8,14 +8,19 @@ restore); a switch is timed alone, the switches that need it off (Poisson-Gaussi
 the RAW round trip) and those it needs on. The accumulate pass (linearize and blur, one kernel)
 is timed whole. Every time is a median of ``repeats`` runs after one warm-up run (kernel
 builds), the device synchronized before the clock stops; a difference is the median of
-differences of runs taken in turns. ``gpu-blur plan SCENE --cost`` prints :func:`format_costs`;
+differences of runs taken in turns, with a distribution-free interval for that median
+(:func:`median_interval`): a difference whose interval holds 0 is within the timing noise and
+is printed as such, never as a negative cost. ``gpu-blur plan SCENE --cost`` prints
+:func:`format_costs`;
 ``bench/plan_cost.py`` compares the plan with every stage forced on, per example scene.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import statistics
+import textwrap
 import time
 
 import numpy as np
@@ -37,6 +42,9 @@ SWITCHES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 #: What a stage skipped by the scene runs with when forced on (its options then say nothing
 #: runnable): the A7R3 polynomial re-toning, 8-bit quantization.
 FORCED_OPTIONS = {S.RETONE: {"crf": "a7r3"}, S.QUANTIZE: {"bits": 8}}
+#: The least coverage of the interval a cost difference is judged by (5 runs give their range,
+#: 94 %).
+CONFIDENCE = 0.9
 
 
 def switch_on(p: Plan, name: str) -> Plan:
@@ -84,8 +92,11 @@ class StageCosts:
         accumulate: the accumulate pass (linearize and blur) with the plan.
         passes: the to_raw and finish passes with the plan.
         forced: the to_raw and finish passes with every stage on.
-        switches: switch name -> (kept by the plan, seconds it adds: with less without).
+        switches: switch name -> (kept by the plan, seconds it adds: with less without, the
+            median of the runs' differences).
         params: the sample's parameters (``interpolation_factors`` under interpolation auto).
+        intervals: switch name -> (low, high) seconds, the interval of its median difference
+            (:func:`median_interval`); ``"every stage"``: that of ``forced - passes``.
     """
 
     backend: str
@@ -96,6 +107,7 @@ class StageCosts:
     forced: float
     switches: dict[str, tuple[bool, float]]
     params: dict
+    intervals: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
 
     @property
     def with_plan(self) -> float:
@@ -131,14 +143,33 @@ def _median_time(run, repeats: int) -> float:
     return statistics.median(_seconds(run) for _ in range(repeats))
 
 
-def _median_difference(run_with, run_without, repeats: int) -> float:
-    """Median of ``time(run_with) - time(run_without)`` over runs taken in turns.
+def median_interval(values, confidence: float = CONFIDENCE) -> tuple[float, float]:
+    """A distribution-free interval for the median of ``values``: (low, high).
 
-    A drifting load on a shared machine then shifts both alike.
+    The order statistics x_(k) and x_(n+1-k) with k the largest whose coverage, 1 - 2 P(B <
+    k) for B ~ Binomial(n, 1/2), is at least ``confidence``; the whole range when no k reaches
+    it (5 values: their range, 94 %). No assumption on the noise's distribution: timings on a
+    loaded machine have long tails.
+    """
+    ordered = sorted(values)
+    n, k = len(ordered), 1
+    for j in range(2, n // 2 + 1):
+        if 1 - 2 * sum(math.comb(n, i) for i in range(j)) / 2**n < confidence:
+            break
+        k = j
+    return ordered[k - 1], ordered[n - k]
+
+
+def _median_difference(run_with, run_without,
+                       repeats: int) -> tuple[float, tuple[float, float]]:
+    """Median of ``time(run_with) - time(run_without)`` and its :func:`median_interval`.
+
+    Runs taken in turns: a drifting load on a shared machine then shifts both alike.
     """
     run_with()  # warm-up: kernel builds, first allocations
     run_without()
-    return statistics.median(_seconds(run_with) - _seconds(run_without) for _ in range(repeats))
+    differences = [_seconds(run_with) - _seconds(run_without) for _ in range(repeats)]
+    return statistics.median(differences), median_interval(differences)
 
 
 def stage_costs(scene, backend: str = "numpy", size: tuple[int, int] = (320, 480), *,
@@ -193,7 +224,7 @@ def stage_costs(scene, backend: str = "numpy", size: tuple[int, int] = (320, 480
             wait()
         return run
 
-    switches = {}
+    switches, intervals = {}, {}
     for name in SWITCHES:
         # the switch alone: with the switches that need it off, and those it needs on
         kept, base = switch_kept(p, name), p
@@ -206,12 +237,31 @@ def stage_costs(scene, backend: str = "numpy", size: tuple[int, int] = (320, 480
             for need in SWITCHES[name][1]:
                 base = switch_on(base, need)
             pair = switch_on(base, name), base
-        switches[name] = (kept, _median_difference(*map(passes, pair), repeats))
+        seconds, intervals[name] = _median_difference(*map(passes, pair), repeats)
+        switches[name] = (kept, seconds)
     t_plan = _median_time(passes(p), repeats)
-    t_forced = t_plan + _median_difference(passes(every_stage_on(p)), passes(p), repeats)
+    added, intervals["every stage"] = _median_difference(passes(every_stage_on(p)), passes(p),
+                                                         repeats)
+    t_forced = t_plan + added
     shown = {k: v for k, v in params.items() if k != "flows" and not isinstance(v, np.ndarray)}
     return StageCosts(backend, runner.device, (h, w), t_accumulate, t_plan, t_forced, switches,
-                      shown)
+                      shown, intervals)
+
+
+def cost_text(seconds: float, interval: tuple[float, float] | None) -> str:
+    """A measured difference in words, never a negative cost.
+
+    ``12.3 ms`` when its interval lies above 0; ``within noise (< 2.1 ms)`` when it holds 0
+    (the interval's top, the most it may cost; ``< 0.1 ms`` below that); ``none (3.0 ms
+    faster with it)`` when it lies below 0.
+    """
+    low, high = interval if interval is not None else (seconds, seconds)
+    ms = 1e3
+    if low > 0:
+        return f"{seconds * ms:.1f} ms"
+    if high < 0:
+        return f"none ({-seconds * ms:.1f} ms faster with it)"
+    return f"within noise (< {max(high * ms, 0.1):.1f} ms)"
 
 
 def format_costs(costs: StageCosts, p: Plan) -> str:
@@ -219,7 +269,7 @@ def format_costs(costs: StageCosts, p: Plan) -> str:
     ms = 1e3
     h, w = costs.size
     blur = p[S.BLUR]
-    lines = [f"cost on {costs.backend} ({costs.device}), {w} x {h} px, median of timed runs "
+    lines = [f"cost on {costs.backend} ({costs.device}), {w} x {h} px, medians of timed runs "
              "after a warm-up:",
              f"  accumulate pass (linearize + blur{f' [{blur.variant}]' if blur.kept else ''}, "
              f"one pass): {costs.accumulate * ms:.1f} ms"]
@@ -229,17 +279,25 @@ def format_costs(costs: StageCosts, p: Plan) -> str:
                      "(the photo panned 2 px a frame)")
     lines.append(f"  to_raw + finish passes: {costs.passes * ms:.1f} ms with the plan")
     width = max(len(n) for n in SWITCHES)
-    for name, (kept, seconds) in costs.switches.items():
+    texts = {name: cost_text(seconds, costs.intervals.get(name))
+             for name, (_, seconds) in costs.switches.items()}
+    text_width = max(len(t) for t in texts.values())
+    for name, (kept, _) in costs.switches.items():
         stages = ", ".join(SWITCHES[name][0])
-        what = "costs" if kept else "would cost"
+        what = "costs     " if kept else "would cost"
         lines.append(f"    {'run ' if kept else 'skip'} {name:<{width}}  {what} "
-                     f"{seconds * ms:7.1f} ms  ({stages})")
-    saved = 1 - costs.with_plan / costs.every_stage if costs.every_stage > 0 else 0.0
+                     f"{texts[name]:>{text_width}}  ({stages})")
+    forced = costs.intervals.get("every stage")
+    if costs.every_stage > costs.with_plan and (forced is None or forced[0] > 0):
+        saved = f"the plan saves {1 - costs.with_plan / costs.every_stage:.0%}"
+    else:
+        saved = "the plan saves nothing measurable here"
+    note = ("Stages of one fused pass cannot be timed alone: each figure is the median of the "
+            "to_raw + finish time with the stages on less the time with them off, runs taken "
+            "in turns; 'within noise' where that median's interval (order statistics, at least "
+            f"{CONFIDENCE:.0%} coverage) holds 0, with the most it may cost. numpy runs the "
+            "stages one by one and is timed the same way.")
     lines += [f"  all passes: {costs.with_plan * ms:.1f} ms with the plan, "
-              f"{costs.every_stage * ms:.1f} ms with every stage forced on "
-              f"(the plan saves {saved:.0%})",
-              "Stages of one fused pass cannot be timed alone: each figure is the to_raw + "
-              "finish time with the stages on less the time with them off (on a busy machine "
-              "noise can make a small one negative); numpy runs them one by one, the same "
-              "way."]
+              f"{costs.every_stage * ms:.1f} ms with every stage forced on ({saved})",
+              textwrap.fill(note, 100)]
     return "\n".join(lines)
