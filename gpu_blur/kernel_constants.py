@@ -9,8 +9,8 @@ kernel languages from this module:
   ``gpu_blur.backends.opencl`` puts that text in front of every program it builds.
   ``kernels/opencl/include/gb_constants.h`` is the same text on disk, for builds that only
   pass ``-I kernels/opencl/include`` (the device-function tests); ``python -m
-  gpu_blur.kernel_constants`` rewrites it and tests/test_kernel_constants.py fails when it is
-  out of date.
+  gpu_blur.kernel_constants`` rewrites it and tests/backends/test_kernel_constants.py fails when
+  it is out of date.
 
 Literals are exact: a float is written as its shortest round-trip decimal (``repr``), wrapped
 in ``GB_REAL``/``GB_WIDE`` where the kernel's type decides between float and double, so a

@@ -170,8 +170,8 @@ WB_WEIGHT = Limit(0, 1e12, low_open=True, reason=(
 #: [0, 1]^3 (per row, the sum of the positive entries or of the negative ones). Lin2Cam gives
 #: the RAW signal of a linear colour, which must stay near [0, 1] for the float32 tolerance (a
 #: Lin2Cam of 8 x the identity failed, see above); presets: 1.0 to 1.11 (a desaturating Cam2Lin
-#: of tests/test_hard_cases.py: 1.6). Cam2Lin turns RAW into linear sRGB; presets: 1.0 to 2.2
-#: (a Cam2Lin with rows [8, -4, -3] passed).
+#: of tests/backends/test_hard_cases.py: 1.6). Cam2Lin turns RAW into linear sRGB; presets: 1.0
+#: to 2.2 (a Cam2Lin with rows [8, -4, -3] passed).
 LIN2CAM_LARGEST = Limit(0, 2.0, reason=(
     "the largest RAW value Lin2Cam, the inverse of Cam2Lin, gives a [0, 1] colour; the "
     "presets' is at most 1.11"))

@@ -27,7 +27,7 @@ def _sum_bound(terms: int, magnitude: float) -> float:
 #: Float64 rows of weighted sums, from their bound instead of one device's measurement (a
 #: compiler may contract ``a * b + c`` or sum in another order; issue 35 saw Intel's runtime
 #: without AVX-512 at 6.7e-16 where AVX-512 gave 4.4e-16). apply_matrix: 3 products, the A7R3
-#: camera_to_linear row sums of |m| up to 2.47, |x| <= 1.2 (tests/test_device_pixel.py).
+#: camera_to_linear row sums of |m| up to 2.47, |x| <= 1.2 (tests/backends/test_device_pixel.py).
 F64_APPLY_MATRIX = _sum_bound(3, 2.47 * 1.2)  # 2.0e-15
 #: Malvar-He-Cutler: at most 13 taps whose |weights| add up to at most 2.5 (R or B at a green
 #: or at the other colour, 20/8), linear RAW <= 1.
@@ -58,9 +58,10 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("srgb_round_trip", "numpy", "float64"): (1e-13, 2.5e-9),
     # Horner against numpy's polyval: rounding in a degree-7 sum with coefficients up to 368.
     ("crf_polynomial", "independent", "float64"): (0.0, 1e-12),
-    # A7R3 tables resampled to N nodes (output.crf_table_size, tests/test_knobs.py) against the
-    # authors' 2,551-node table, re-toning 1e6 + 1 values: the resolution alone, largest in the
-    # steep dark end (measured 5.79e-3, 1.46e-3 and 3.51e-4; one 8-bit code is 3.9e-3).
+    # A7R3 tables resampled to N nodes (output.crf_table_size, tests/reference/test_knobs.py)
+    # against the authors' 2,551-node table, re-toning 1e6 + 1 values: the resolution alone,
+    # largest in the steep dark end (measured 5.79e-3, 1.46e-3 and 3.51e-4; one 8-bit code is
+    # 3.9e-3).
     ("crf_table_256", "numpy", "float64"): (0.0, 6e-3),
     ("crf_table_1024", "numpy", "float64"): (0.0, 1.5e-3),
     ("crf_table_4096", "numpy", "float64"): (0.0, 3.6e-4),
@@ -246,14 +247,14 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # H200's worst is at z = -0.0026.
     ("normal", "opencl", "float32-fast"): (0.0, 6e-5),
     ("normal", "warp", "float32-fast"): (0.0, 2e-5),
-    # The whole pipeline with output.fast_math (tests/test_knobs_backends.py: trajectory blur,
-    # saturation, RAW round trip, noise none or sRGB Gaussian, float output) against the
+    # The whole pipeline with output.fast_math (tests/backends/test_knobs_backends.py: trajectory
+    # blur, saturation, RAW round trip, noise none or sRGB Gaussian, float output) against the
     # float64 reference: OpenCL 4.9e-6 / 1.2e-5 (Intel with AVX-512, noise none / Gaussian),
     # 1.19e-4 / 1.19e-4 (Intel, AVX2), 6.6e-7 (PoCL), 5.5e-7 (H200); Warp 7.5e-7 (CPU), 8.2e-7
     # (CUDA).
     ("pipeline_fast_math", "opencl", "float32"): (0.0, 2e-4),
     ("pipeline_fast_math", "warp", "float32"): (0.0, 2e-6),
-    # -- backends against the reference (tests/test_backends.py) --
+    # -- backends against the reference (tests/backends/test_backends.py) --
     # numpy is the reference: it must agree with itself exactly, tiled or not.
     **{(stage, "numpy", "float64"): (0.0, 0.0) for stage in (
         "accumulate", "to_raw", "saturate", "finish", "finish_crf_polynomial", "pipeline",
@@ -328,8 +329,8 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("cross_backend_crf_polynomial", "kernels", "float32"): (0.0, 6e-5),
     ("cross_backend_crf_polynomial", "kernels", "float64"): (0.0, F64_CRF_POLYNOMIAL),
     # -- hard cases --
-    # tests/test_hard_cases.py: crafted inputs through the passes on every backend, measured on
-    # Intel's CPU OpenCL runtime and Warp's CPU device (the larger value); numpy is the
+    # tests/backends/test_hard_cases.py: crafted inputs through the passes on every backend,
+    # measured on Intel's CPU OpenCL runtime and Warp's CPU device (the larger value); numpy is the
     # reference. The sRGB curves through the passes (accumulate with blur mode none is the
     # EOTF, finish without RAW the OETF) use the pixel rows above on the kernels.
     ("srgb_to_linear", "numpy", "float64"): (0.0, 0.0),

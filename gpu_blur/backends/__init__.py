@@ -116,7 +116,7 @@ class ResidentBackend(Backend, Protocol):
     The kernel backends (:class:`gpu_blur.backends.kernel.KernelBackend`, OpenCL and Warp)
     follow it; the device-resident path (``gpu_blur.synthesis.resident``) and the host path's
     device rendering are written against it, never against a concrete backend
-    (tests/test_backends_protocol.py holds both to it). Images on the device are
+    (tests/backends/test_backends_protocol.py holds both to it). Images on the device are
     :class:`OnDevice`; a batch's buffers are :class:`Slots`, one slot per sample.
 
     Attributes:

@@ -1,9 +1,9 @@
 """The conformance cases: crafted inputs and real photos that every backend must get right.
 
 One source for ``gpu-blur validate`` (:mod:`gpu_blur.conformance.checks` and the checks'
-topic modules, imported at the end of this one) and the test suite (tests/test_hard_cases.py
-imports these inputs and helpers), so that a green CI and a green ``validate`` mean the same
-thing.
+topic modules, imported at the end of this one) and the test suite
+(tests/backends/test_hard_cases.py imports these inputs and helpers), so that a green CI and a
+green ``validate`` mean the same thing.
 
 The helpers take any backend (``gpu_blur.backends.get_backend``); pass outputs come back to the
 host as float64 arrays. Kernel backends round their inputs to their compute type; where a check

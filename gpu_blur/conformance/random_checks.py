@@ -146,7 +146,7 @@ def _poisson_high(t: Target) -> list[Outcome]:
     if _float_samplers(t):
         return [Outcome("", "poisson_agreement", None, "", None, "", None,
                         "float PTRS moves counts at large rates: the test suite checks their "
-                        "statistics (tests/test_hard_cases.py)")]
+                        "statistics (tests/backends/test_hard_cases.py)")]
     got = poisson_counts(t, t.backend, HIGH_RATES)
     ref = poisson_counts(t, REFERENCE, HIGH_RATES)
     if not t.kernels:

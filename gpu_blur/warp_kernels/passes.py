@@ -10,8 +10,8 @@ Buffers are flat arrays: RGB images hold 3 values per pixel, row-major; the RAW 
 Kernels address pixels by global coordinates, like kernels/opencl/, so a tile with its halo
 gives the values of a whole-image launch. Geometry is Warp ``int`` (int32): up to 2^31 - 1
 values per buffer, as Warp's array shapes (WarpBackend refuses larger buffers and names tiles);
-Warp turns the indices into 64-bit byte offsets (tests/test_hard_cases.py runs buffers past 2^31
-bytes). Streamed sums (frames, poses) are compensated, as in kernels/opencl/accumulate.cl.
+Warp turns the indices into 64-bit byte offsets (tests/backends/test_hard_cases.py runs buffers
+past 2^31 bytes). Streamed sums (frames, poses) are compensated, as in kernels/opencl/accumulate.cl.
 """
 
 

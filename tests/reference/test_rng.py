@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import KNOWN_ANSWERS
 from scipy import stats
 
 from gpu_blur.reference import poisson_counts, rng
@@ -15,39 +16,6 @@ from gpu_blur.reference.rng import Stream
 from gpu_blur.testing import assert_close, z_mean, z_var
 
 SEED = 0x5EED_CAFE_F00D_1234
-
-# Random123 tests/kat_vectors (github.com/DEShawResearch/random123), the philox4x32 lines:
-# rounds, counter (4 words), key (2 words), expected output (4 words). The same lines appear in
-# several independent ports; test_philox_matches_pyopencl_random123_on_opencl re-derives them
-# on the OpenCL device from pyopencl's bundled philox.cl.
-KNOWN_ANSWERS = [
-    (10, (0, 0, 0, 0), (0, 0), (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8)),
-    (
-        10,
-        (0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF),
-        (0xFFFFFFFF, 0xFFFFFFFF),
-        (0x408F276D, 0x41C83B0E, 0xA20BC7C6, 0x6D5451FD),
-    ),
-    (
-        10,
-        (0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344),
-        (0xA4093822, 0x299F31D0),
-        (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1),
-    ),
-    (7, (0, 0, 0, 0), (0, 0), (0x5F6FB709, 0x0D893F64, 0x4F121F81, 0x4F730A48)),
-    (
-        7,
-        (0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF),
-        (0xFFFFFFFF, 0xFFFFFFFF),
-        (0x5207DDC2, 0x45165E59, 0x4D8EE751, 0x8C52F662),
-    ),
-    (
-        7,
-        (0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344),
-        (0xA4093822, 0x299F31D0),
-        (0x4DFCCABA, 0x190A87F0, 0xC47362BA, 0xB6B5242A),
-    ),
-]
 
 
 # --------------------------------------------------------------------------------------------

@@ -19,7 +19,7 @@
  * = 2^24 q: a float, so `compensation` holds the errors' sum exactly and sum + compensation
  * rounds the exact total once. gb_blur_average_exact (accumulate.cl) sums the same values as
  * integer counts of q and rounds that total once: the same bits, with one integer add a
- * frame (tests/test_hard_cases.py compares both on the cases nearest the rounding).
+ * frame (tests/backends/test_hard_cases.py compares both on the cases nearest the rounding).
  */
 #ifndef GB_SUM_H
 #define GB_SUM_H

@@ -4,10 +4,9 @@ import dataclasses
 import subprocess
 import sys
 import zipfile
-from pathlib import Path
 
 import pytest
-from conftest import KERNEL_BACKEND_SPECS
+from conftest import KERNEL_BACKEND_SPECS, ROOT
 
 opencl = pytest.importorskip("gpu_blur.backends.opencl")
 from gpu_blur.backends.kernel import pass_config  # noqa: E402
@@ -87,7 +86,7 @@ def test_generate_with_the_opencl_backend_writes_a_set(tmp_path):
 
 
 def test_the_wheel_carries_the_kernel_sources(tmp_path):
-    root = Path(__file__).resolve().parents[1]
+    root = ROOT
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w",
                     str(tmp_path), str(root)], check=True)
     (wheel,) = tmp_path.glob("gpu_blur-*.whl")

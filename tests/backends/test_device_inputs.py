@@ -204,7 +204,7 @@ def test_render_sharp_matches_the_host_render(spec, source, output, coffee_rgb):
         dtype = "float32-fast"
     if sample_plan.kept(S.QUANTIZE):
         # float32 rounding can move a value across a rounding boundary: one code at most, on
-        # few values (finish's rule, tests/test_backends.py)
+        # few values (finish's rule, tests/backends/test_backends.py)
         top = 2 ** sample_plan[S.QUANTIZE].options["bits"] - 1
         codes = np.abs(np.rint(got * top) - np.rint(ref * top))
         _, allowed = tolerance("quantize_code_changes", spec_backend(spec), dtype)

@@ -9,10 +9,10 @@ is about the kernels' arithmetic, the reference is fed the same rounded values.
 Covered elsewhere, not repeated here: uniforms never reach a log as exactly 0 or 1
 (tests/reference/test_rng.py::test_uniforms_are_never_0_or_1_even_at_extreme_words for the
 reference, test_uniform_is_exact_for_every_23_bit_value_and_both_ends in
-tests/test_device_random.py for the kernels of both languages, at the words 0 and 2^32 - 1); fp32
-and fp64 compute within their rows (tests/test_backends.py); near-singular matrices refused by
-the reference (tests/reference/test_color.py); the reference's knees and round trips
-(tests/reference/test_transfer.py).
+tests/backends/test_device_random.py for the kernels of both languages, at the words 0 and
+2^32 - 1); fp32 and fp64 compute within their rows (tests/backends/test_backends.py);
+near-singular matrices refused by the reference (tests/reference/test_color.py); the reference's
+knees and round trips (tests/reference/test_transfer.py).
 
 The test marked ``slow`` (buffers of more than 2^29 values) runs a small form by default, so
 that CI, which runs every test, stays quick. ``GPU_BLUR_HEAVY=1`` gives the float32 kernel

@@ -14,9 +14,8 @@ import functools
 
 import numpy as np
 import pytest
-from conftest import report
+from conftest import KNOWN_ANSWERS, report
 from device_functions import target_fixture, target_specs
-from test_rng import KNOWN_ANSWERS
 
 from gpu_blur.reference import poisson_counts, rng
 from gpu_blur.reference.rng import Stream

@@ -2,7 +2,7 @@
 
 ``noise.poisson = "normal"`` in the to_raw pass, ``output.crf_table_size`` in the finish pass,
 and ``output.fast_math`` through the whole pipeline (float32 kernel backends). The device
-functions behind them are tested one by one in tests/test_device_knobs.py.
+functions behind them are tested one by one in tests/backends/test_device_knobs.py.
 """
 
 import numpy as np

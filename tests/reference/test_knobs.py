@@ -1,8 +1,8 @@
 """Accuracy knobs in the reference and the scene: the Poisson normal approximation, resampled
 A7R3 response tables, and the fast-maths switch (issue 7).
 
-The kernels' side of the same knobs is in tests/test_device_knobs.py,
-the passes' in tests/test_knobs_backends.py.
+The kernels' side of the same knobs is in tests/backends/test_device_knobs.py,
+the passes' in tests/backends/test_knobs_backends.py.
 """
 
 from __future__ import annotations

@@ -3,9 +3,9 @@
 * the normal approximation of the Poisson counts above a threshold rate (OpenCL
   ``gb_poisson_normal_above``, Warp ``random.poisson_normal_above``) against
   ``poisson_counts.poisson(..., normal_above=...)``, over the targets of
-  tests/test_device_random.py;
+  tests/backends/test_device_random.py;
 * resampled A7R3 tables through the CRF lookup (gb_pixel.h, pixel.py), over the targets of
-  tests/test_device_pixel.py;
+  tests/backends/test_device_pixel.py;
 * fast maths: the sRGB curves and the normals of the ``float32-fast`` builds (OpenCL
   ``GB_FAST_MATH``: native_ functions in float builds; Warp: modules built with ``fast_math``,
   CUDA's approximate float intrinsics, which Warp's CPU compiler ignores) against the reference

@@ -16,15 +16,15 @@ from __future__ import annotations
 import ast
 import inspect
 import textwrap
-from pathlib import Path
 
 import pytest
+from conftest import ROOT
 
 from gpu_blur.backends import Backend, ResidentBackend, is_resident
 from gpu_blur.backends.kernel import KernelBackend
 from gpu_blur.backends.numpy import NumpyBackend
 
-SYNTHESIS = Path(__file__).resolve().parents[1] / "gpu_blur" / "synthesis"
+SYNTHESIS = ROOT / "gpu_blur" / "synthesis"
 
 #: The names the synthesis layer gives its backend object.
 RUNNER_NAMES = ("runner", "backend")
