@@ -7,7 +7,7 @@
    mode and precision, budgets ascending): the peak must stay under the budget.
    ``equal_to_cpu_whole`` compares with Warp's CPU device, whole image: equal in float64
    only (CUDA fuses a * b + c in float32); tiled against whole on one device is
-   tests/test_scheduler.py's job.
+   tests/synthesis/test_scheduler.py's job.
 
 Writes $OUT/scheduler_gpu.json (bench/results/scheduler_gpu_h100.json came from an H100).
 """

@@ -12,7 +12,7 @@ device; H and W must be even (the Bayer 2 x 2 cell). Everything runs batched on 
 device in float32, as the authors' code does; only the per-sample parameters differ by sample.
 The noise comes from torch's own generators, so it cannot equal gpu_blur's counter-based
 stream value for value; with ``noise=False`` the chain is deterministic and agrees with
-gpu_blur's numpy float64 reference (``tests/test_torch_chain.py``).
+gpu_blur's numpy float64 reference (``tests/synthesis/test_torch_chain.py``).
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ stage is, as opposed to whether a scene runs it, is read from here: :func:`gpu_b
 takes each stage's pass, its place in the plan and its kernel values from its row (and decides
 only kept or skipped, why, the variant and the options), and
 :data:`gpu_blur.analysis.stage_cost.SWITCHES` groups the stages by their cost switch.
-``tests/test_stage_registry.py`` fails when a stage lacks a row or a row lacks a part.
+``tests/synthesis/test_stage_registry.py`` fails when a stage lacks a row or a row lacks a part.
 
 This module imports nothing of the package: the reference functions are dotted names, which
 that test resolves.

@@ -22,7 +22,8 @@ TEST_SLEEP_AFTER = "GPU_BLUR_TEST_SLEEP_AFTER"
 #: ``GPU_BLUR_TEST_FAULT=<pass>`` or ``<pass>@<row>,<col>`` (``pass`` one of accumulate,
 #: to_raw, finish): the kernel backends (OpenCL, Warp) corrupt that pass's output at global
 #: pixel (row, col) (default 0, 0) by 0.25, in every tile whose output holds the pixel, so a
-#: test can check that spot checks (``--verify``) catch a wrong kernel (tests/test_scheduler.py).
+#: test can check that spot checks (``--verify``) catch a wrong kernel
+#: (tests/synthesis/test_scheduler.py).
 TEST_FAULT = "GPU_BLUR_TEST_FAULT"
 
 #: ``GPU_BLUR_TEST_FAIL_ONCE=<index>:<marker file>`` in the driver's environment: the Ray task

@@ -74,11 +74,11 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # The RealBlur-J chain with noise off against a literal transcription of the note's steps
     # (row-vector matrices, packed 4-plane mosaic, stored-order gains, correlate with zero pad).
     ("pipeline_realblur_j", "independent", "float64"): (0.0, 1e-9),
-    # bench/torch_chain.py (the authors' chain as float32 torch ops; tests/test_torch_chain.py)
-    # against the reference, noise off (issue 15: 1e-4): float32 Horner of the A7R3 polynomial
-    # (section 8: <= 3e-5) and pow; measured 2.7e-5 on photo crops, CPU. With noise, each
-    # channel's std on a flat grey: both draw their own noise; spread over seeds 0.3 to 0.6 %
-    # each, means within 0.05 %.
+    # bench/torch_chain.py (the authors' chain as float32 torch ops;
+    # tests/synthesis/test_torch_chain.py) against the reference, noise off (issue 15: 1e-4):
+    # float32 Horner of the A7R3 polynomial (section 8: <= 3e-5) and pow; measured 2.7e-5 on
+    # photo crops, CPU. With noise, each channel's std on a flat grey: both draw their own
+    # noise; spread over seeds 0.3 to 0.6 % each, means within 0.05 %.
     ("pipeline_realblur_j", "torch", "float32"): (0.0, 5e-5),
     ("noise_std_realblur_j", "torch", "float32"): (0.03, 0.0),
     # WB and colour steps cancel with noise off, on a flat field (issue 2: <= 1e-9).

@@ -17,7 +17,7 @@ is recorded under what its bits depend on (:func:`record_key`), in
     python tests/golden.py --write tests/data/golden_outputs.json   # record (this machine)
     python tests/golden.py --check tests/data/golden_outputs.json   # compare, list changes
 
-``tests/test_golden_outputs.py`` runs the check for every backend present whose key was
+``tests/synthesis/test_golden_outputs.py`` runs the check for every backend present whose key was
 recorded. The record holds this project's development machine (an Intel Xeon with AVX-512:
 numpy, PoCL 3.1, Intel's CPU runtime, Warp's CPU device) and its GPU machine, recorded when the
 draws moved to fixedmath (issue 35): NVIDIA OpenCL and Warp CUDA on an H200 (driver 580.159.04).

@@ -259,7 +259,7 @@ def test_arrays_of_the_wrong_shape_or_type_say_what_is_expected(image, message):
 
 # ---- scene, kernel, camera, Bayer pattern ----------------------------------------------------
 
-@pytest.mark.parametrize("data, message", [  # what tests/test_scene.py does not cover
+@pytest.mark.parametrize("data, message", [  # what tests/synthesis/test_scene.py does not cover
     ({"noise": {"spread": 1.5}}, "noise.spread = 1.5 is invalid; allowed: int or float <= 1"),
     ({"blur": 3}, "blur must be a [blur] table"),
     ({"blur": {"mode": "kernel", "kernel_size": [4, 4]}}, "holds no odd size"),

@@ -8,13 +8,12 @@ and the interpolated case; ``GPU_BLUR_HEAVY=1`` runs every case and the tiled ru
 
 import json
 import os
-from pathlib import Path
 
 import pytest
-from conftest import BACKEND_SPECS
+from conftest import BACKEND_SPECS, TEST_DATA
 from golden import CASES, TILED, run_case
 
-RECORD = json.loads((Path(__file__).parent / "data" / "golden_outputs.json").read_text())
+RECORD = json.loads((TEST_DATA / "golden_outputs.json").read_text())
 HEAVY = os.environ.get("GPU_BLUR_HEAVY") == "1"
 RUNS = [(c, None) for c in (CASES if HEAVY else ("minimal", "rsblur", "realblur_j",
                                                  "interpolated"))]

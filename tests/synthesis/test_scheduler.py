@@ -373,7 +373,7 @@ def test_generate_says_where_the_time_went(tmp_path, small, capsys):
     small_photos(tmp_path / "in", small, count=3)
     backend = KERNEL_BACKEND_SPECS[0].split("/")[0] if KERNEL_BACKEND_SPECS else "numpy"
     # one thread does every step, so each category is its own work (with I/O threads,
-    # reading and writing are its waits for them: tests/test_generate_pipeline.py)
+    # reading and writing are its waits for them: tests/synthesis/test_generate_pipeline.py)
     assert main(["generate", "--input", str(tmp_path / "in"), "--output", str(tmp_path / "o"),
                  "--backend", backend, "--verify", "0.5", "--quiet", "--io-threads", "1"]) == 0
     out = capsys.readouterr().out

@@ -4,17 +4,17 @@ gpu_blur's numpy float64 reference on the built-in RealBlur-J scene."""
 from __future__ import annotations
 
 import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from conftest import ROOT
 
 import gpu_blur
 from gpu_blur.scene import scene_from_dict, scene_path, toml_loads
 from gpu_blur.testing import assert_close
 
-_PATH = Path(__file__).resolve().parents[1] / "bench" / "torch_chain.py"
+_PATH = ROOT / "bench" / "torch_chain.py"
 _SPEC = importlib.util.spec_from_file_location("torch_chain", _PATH)
 torch_chain = importlib.util.module_from_spec(_SPEC)
 _SPEC.loader.exec_module(torch_chain)
