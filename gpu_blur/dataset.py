@@ -21,13 +21,14 @@ from gpu_blur import files
 from gpu_blur.backends.flows import REGIONS_KEY
 from gpu_blur.discovery import MANIFEST, RUN, SampleSpec, _text, input_label
 from gpu_blur.file_writing import temporary_path, write_image, write_new, write_text, write_whole
-from gpu_blur.locking import earlier_pids, forget_earlier, take_lock
+from gpu_blur.locking import earlier_pids, forget_earlier, release_lock, take_lock
 from gpu_blur.outputs import write_dng, write_mask
 from gpu_blur.params import ARRAY_PARAMS
 from gpu_blur.reference.flow import INTERPOLATION_AUTO
 from gpu_blur.version import __version__
 
-#: The lock file a run holds (``fcntl.flock``) while it writes its output folder.
+#: The lock file a run holds (:mod:`gpu_blur.locking`) while it writes its output folder; a run
+#: that closes its set removes it (:meth:`DatasetWriter.close`).
 LOCK = ".gpu_blur.lock"
 #: The set's folders; they hold only files named as DatasetWriter.write names them.
 SUBFOLDERS = ("blur", "sharp", "params", "mask", "raw")
@@ -301,9 +302,11 @@ class DatasetWriter:
 
     What it guarantees:
 
-    * One writer per folder: it holds an advisory lock (``fcntl.flock`` on :data:`LOCK`, which
-      names its pid, host and start) from opening to :meth:`close`; another writer on the
-      folder is refused at once, naming the holder. The lock dies with its process.
+    * One writer per folder: it holds an advisory lock (:func:`gpu_blur.locking.take_lock` on
+      :data:`LOCK`, which names its pid, host and start) from opening to :meth:`close`; another
+      writer on the folder is refused at once, naming the holder. The lock dies with its
+      process; :meth:`close` and a refusal remove the file (a killed run leaves it, blocking
+      nothing, as the record of its temporary files).
     * Nothing half-written under a final name: each file is written under a temporary name
       unique to the process (:func:`gpu_blur.file_writing.temporary_path`) and renamed, and a
       sample's line is appended and flushed only after its files, so the manifest lists
@@ -373,8 +376,8 @@ class DatasetWriter:
         try:
             self._open(run, overwrite, resume, specs,
                        len(specs) if total is None and specs is not None else total)
-        except BaseException:
-            os.close(self._lock)
+        except BaseException as e:  # a refusal (ValueError) changed nothing: no file left
+            release_lock(self._lock, self.out / LOCK, remove=isinstance(e, ValueError))
             raise
 
     def _open(self, run, overwrite, resume, specs, total) -> None:
@@ -665,20 +668,26 @@ class DatasetWriter:
         self._sorted = True
 
     def close(self) -> None:
-        """Close the manifest and release the output folder's lock.
+        """Close the manifest and release the output folder's lock, removing :data:`LOCK`.
+
+        The lock file stays when the manifest's last lines cannot be written (the next run
+        removes this one's temporary files by its record) or it records a killed run
+        (:func:`gpu_blur.locking.release_lock`).
 
         Raises:
             OSError: naming the manifest when its last lines cannot be written (a full disk).
         """
+        closed = False
         try:
             self.manifest.close()
             if not self._sorted:  # a resume made an earlier sample again
                 self._sort_manifest()
+            closed = True
         except OSError as e:
             raise OSError(f"{self.manifest_path}: cannot write its last lines ({e.strerror or e}); "
                           "the samples it lists are kept: free space or fix the folder, then "
                           "run the same command with --resume") from None
         finally:
             if self._lock is not None:
-                os.close(self._lock)
+                release_lock(self._lock, self.out / LOCK, remove=closed)
                 self._lock = None

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import platform
 import re
 import sys
@@ -42,7 +41,7 @@ from gpu_blur.analysis.bench.workload import (
     select_knobs,
 )
 from gpu_blur.file_writing import write_text
-from gpu_blur.locking import take_lock
+from gpu_blur.locking import release_lock, take_lock
 
 #: The report keys a resumed run must share with the JSON it finishes, and what sets each.
 RESUME_KEYS = {"size": "--size", "devices": "--backends (their devices)", "runs": "--runs",
@@ -244,8 +243,10 @@ def run_from_args(args: argparse.Namespace, progress: bool = True) -> int:
     tag = args.tag or device_tag(choose_backends(args.backends))
     saved = report_paths(args.output, tag)[0]
     saved.parent.mkdir(parents=True, exist_ok=True)
-    # one run per report: a second one would interleave its rows with this one's
-    lock = take_lock(saved.with_name(f".{saved.name}.lock"), f"bench report {saved}",
+    # one run per report: a second one would interleave its rows with this one's; the lock
+    # file goes when the run ends (gpu_blur.locking.release_lock)
+    lock_file = saved.with_name(f".{saved.name}.lock")
+    lock = take_lock(lock_file, f"bench report {saved}",
                      "wait for that run to end, or give another --output or --tag")
     print(f"bench: writing {saved} as each row finishes (stopped, the same command goes on "
           "from there)", flush=True)
@@ -264,7 +265,7 @@ def run_from_args(args: argparse.Namespace, progress: bool = True) -> int:
             print(f"wrote {path}")
         return 0
     finally:
-        os.close(lock)
+        release_lock(lock, lock_file)
 
 
 def main(argv: Sequence[str] | None = None, default_output: Path = Path(".")) -> int:
