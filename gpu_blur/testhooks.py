@@ -16,7 +16,7 @@ import numpy as np
 
 #: ``GPU_BLUR_TEST_SLEEP_AFTER=<n>``: ``gpu-blur generate`` sleeps for an hour right after
 #: sample ``n``'s manifest line is written, so a test can kill it at a known point
-#: (tests/test_resume.py, tests/test_output_folder.py, tests/test_faults.py).
+#: (tests/io/test_resume.py, tests/io/test_output_folder.py, tests/io/test_faults.py).
 TEST_SLEEP_AFTER = "GPU_BLUR_TEST_SLEEP_AFTER"
 
 #: ``GPU_BLUR_TEST_FAULT=<pass>`` or ``<pass>@<row>,<col>`` (``pass`` one of accumulate,
@@ -28,7 +28,7 @@ TEST_FAULT = "GPU_BLUR_TEST_FAULT"
 
 #: ``GPU_BLUR_TEST_FAIL_ONCE=<index>:<marker file>`` in the driver's environment: the Ray task
 #: that makes sample ``index`` kills its worker process (as a lost node would) unless the marker
-#: file exists, creating it first: only the first attempt fails (tests/test_distributed.py).
+#: file exists, creating it first: only the first attempt fails (tests/io/test_distributed.py).
 TEST_FAIL_ONCE = "GPU_BLUR_TEST_FAIL_ONCE"
 
 

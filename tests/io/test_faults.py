@@ -15,6 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import TEST_DATA
 
 import gpu_blur.generate
 from gpu_blur.cli import main
@@ -105,7 +106,7 @@ def test_only_opencv_and_memory_errors_of_a_sample_fail_that_sample(job, monkeyp
 
 # ---- damaged JPEG data is refused ---------------------------------------------------------
 
-ROCKET = Path(__file__).resolve().parent / "data" / "rocket.jpg"
+ROCKET = TEST_DATA / "rocket.jpg"
 
 
 def scan_middle(data):

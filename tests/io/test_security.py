@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import ROOT
 
 from gpu_blur import caches
 
@@ -150,7 +151,7 @@ def test_device_workers_do_not_import_a_package_planted_in_the_current_folder(tm
             specs = find_samples(Path("."), "trajectory", 1, 1).take()
             made = list(run_devices(job, specs, ["numpy"]))
             print(json.dumps({"made": len(made), "errors": [str(e) for _, _, e in made if e]}))
-    """).replace("ROOT", repr(str(Path(__file__).resolve().parents[1]))))
+    """).replace("ROOT", repr(str(ROOT))))
     done = subprocess.run([PYTHON, *flags, str(driver)], cwd=work, capture_output=True,
                           text=True, env=_bare_env(HOME=str(tmp_path)), timeout=120)
     assert not marker.exists(), done.stderr
