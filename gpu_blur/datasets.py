@@ -1,11 +1,24 @@
 """Map-style data sets of the published deblurring layouts, for training loops (no torch here).
 
 Each class has ``__len__`` and ``__getitem__``, so it serves as a ``torch.utils.data.Dataset``
-in DataLoader workers (CPU) without importing torch; items are the stored codes as numpy
-arrays (uint8 for 8-bit files: H x W x 3, frame stacks F x H x W x 3) with the item's index
-first, ready for :class:`gpu_blur.torch.RealisticBlur` on the GPU, which draws the blur,
-noise and ISP of each sample from (seed, epoch, index). Discovery is
-:mod:`gpu_blur.discovery`'s, as ``gpu-blur generate`` finds its inputs.
+in DataLoader workers (CPU) without importing torch. Discovery is :mod:`gpu_blur.discovery`'s,
+as ``gpu-blur generate`` finds its inputs.
+
+An item is a tuple: the item's index (an ``int``, 0 <= index < len) first, then numpy arrays
+of the stored codes, channels-last, RGB and contiguous: ``uint8`` for 8-bit files, ``uint16``
+for 16-bit ones (float TIFFs: ``float32`` in [0, 1]).
+
+- :class:`Photos`: ``(index, image)``, image H x W x 3.
+- :class:`SharpSequences`: ``(index, frames)``, frames F x H x W x 3 (F = ``frames``).
+- :class:`BlurredImages`: ``(index, blurred, mask, sharp)``, each H x W x 3 (the mask as
+  stored: 8-bit codes, value x 255); with ``masks=False`` ``(index, blurred, sharp)``.
+- :class:`RealBlurPairs`: ``(index, blurred, sharp)``, each H x W x 3.
+
+H x W is ``crop`` x ``crop`` when a crop is given, else the file's size. A DataLoader stacks
+items into an int64 tensor of B indices and B x H x W x 3 (B x F x H x W x 3) tensors of the
+same dtype, which :class:`gpu_blur.torch.RealisticBlur` takes as they are (it reads the layout
+from the shape), on the CPU or moved to a GPU, drawing the blur, noise and ISP of each sample
+from (seed, epoch, index).
 
 Seeded random crops and flips are fixed by (seed, epoch, index) too (:func:`epoch_seed`), so
 a run repeats and each epoch sees other crops. Crop offsets are even: a crop then starts on
@@ -151,7 +164,8 @@ class SharpSequences(_Augmented):
     GoPro_Large's ``<seq>/sharp/*.png`` and RSBlur's ``<session>/<id>/*.png`` (the sharp frames
     of one real blurred image), found as ``gpu-blur generate`` finds them
     (:func:`gpu_blur.discovery.find_sequences`), windows as ``--samples-per-sequence`` takes
-    them. Item: ``(index, frames)``, frames F x H x W x 3.
+    them. Item: ``(index, frames)``, frames F x H x W x 3 (F = ``frames``), the stored codes
+    (uint8 for 8-bit PNGs), for blur mode average.
 
     Raises:
         ValueError: naming the folder when it holds no sequence of ``frames`` frames, or the
@@ -183,8 +197,9 @@ class Photos(_Augmented):
     """Sharp photos, for blur modes kernel and trajectory.
 
     Every image under ``root`` (in natural order), or the built-in photo when ``root`` is
-    None, each ``samples_per_photo`` times (with other crops and draws). Item:
-    ``(index, image)``.
+    None (scikit-image's "coffee", 400 x 600), each ``samples_per_photo`` times (with other
+    crops and draws). Item: ``(index, image)``, image H x W x 3, the stored codes (uint8 for
+    8-bit files, as the built-in photo is).
     """
 
     def __init__(self, root=None, *, samples_per_photo: int = 1, crop: int | None = None,
@@ -230,8 +245,9 @@ class BlurredImages(_Pairs):
     ``centroid_blurred_img/``, each image's mask under the same name in the ``*_mask_100/``
     folder beside it (8-bit codes: value / 255, as the authors read them) and its sharp
     reference in ``gt/`` or ``target_img/`` (without that folder, the blurred image again, as
-    blur mode none takes it). Item: ``(index, blurred, mask, sharp)``; with ``masks=False``
-    (no saturation synthesis) ``(index, blurred, sharp)`` and no mask is read.
+    blur mode none takes it). Item: ``(index, blurred, mask, sharp)``, each H x W x 3 as
+    stored (uint8 for 8-bit files); with ``masks=False`` (no saturation synthesis) ``(index,
+    blurred, sharp)`` and no mask is read.
 
     Raises:
         ValueError: naming the folder when it holds none of these layouts, or the samples
@@ -254,7 +270,8 @@ class RealBlurPairs(_Pairs):
 
     ``<scene>/blur/blur_<n>.png`` with ``<scene>/gt/gt_<n>.png`` under ``root``, or the pairs a
     ``datalist`` names (the authors' ``<sharp> <blurred>`` text files, paths relative to
-    ``root``), in the list's order. Item: ``(index, blurred, sharp)``.
+    ``root``), in the list's order. Item: ``(index, blurred, sharp)``, each H x W x 3 as
+    stored (uint8 for RealBlur's 8-bit PNGs).
 
     Raises:
         ValueError: naming the folder or list when it gives no pair, or the pairs whose files
