@@ -94,7 +94,7 @@ def test_to_raw_pass_noise_agrees_with_the_reference_on_almost_every_pixel(spec,
 
 # The finish pass against the reference, case by case (demosaics, borders, curves, noise,
 # quantization): gpu_blur.conformance.raw_checks.FINISH_CASES, run on every backend by
-# tests/test_validate.py.
+# tests/cli/test_validate.py.
 
 
 @pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
