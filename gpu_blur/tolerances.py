@@ -381,7 +381,7 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
         ("input_float32", "float32"): (0.0, 2.5e-7),
         ("input_float32", "float64"): (0.0, 2.5e-7),
     }.items()},
-    # -- quality metrics and alignment (tests/test_metrics.py, tests/test_align.py) --
+    # -- quality metrics and alignment (tests/analysis/test_metrics.py, test_align.py) --
     # gpu_blur.analysis.metrics against scikit-image 0.26 (peak_signal_noise_ratio;
     # structural_similarity with gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
     # channel_axis=-1) on two photographs with noise, blur, JPEG, shift and darkening, RGB and
@@ -394,7 +394,7 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("noise_level_units", "numpy", "float64"): (1e-13, 0.0),
     # ECC homography (OpenCV findTransformECC, float32) against the homography a photograph
     # was warped by (float64 bilinear), as the largest displacement of the image's corners, in
-    # pixels (tests/test_align.py: 280 x 480 and 306 x 520 crops, rotations of 1.5 and 2
+    # pixels (tests/analysis/test_align.py: 280 x 480 and 306 x 520 crops, rotations of 1.5 and 2
     # degrees, shifts of 4 to 28 px, slight perspective, 1 and 3 pyramid levels, with and
     # without 8-bit noise): measured 0.021 to 0.116 (rocket's 1.5 degree rotation, its sky
     # constrains the perspective terms weakly); 0.14 in a wider sweep (2 degrees, shifts of 8
@@ -431,7 +431,7 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("shake_rotation", "numpy", "float64"): (0.0, 1e-14),
     # The mean of n <= 9 identical frames or warps by a running sum: (n - 1) * 2**-53 relative.
     ("blur_mean_of_copies", "numpy", "float64"): (1e-15, 0.0),
-    # -- calibration (tests/test_calibrate.py) --
+    # -- calibration (tests/analysis/test_calibrate.py) --
     # CIE L*a*b* -> XYZ against colour-science's Lab_to_XYZ on the ColorChecker: measured 0.
     ("lab_to_xyz", "independent", "float64"): (1e-15, 1e-17),
     # The chart's XYZ adapted by constants.D50_TO_D65 (RSBlur's MATLAB matrix) against
