@@ -32,8 +32,9 @@ import ast
 from pathlib import Path
 
 import pytest
+from conftest import ROOT
 
-PACKAGE = Path(__file__).resolve().parents[1] / "gpu_blur"
+PACKAGE = ROOT / "gpu_blur"
 
 REFERENCE = ("gpu_blur.reference",)
 #: What the reference may import besides itself. Known exceptions, none today: a module named
