@@ -85,9 +85,9 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("pipeline_wb_color_cancel", "numpy", "float64"): (0.0, 1e-9),
     # -- OpenCL pixel stages --
     # kernels/opencl/include/gb_pixel.h and gb_demosaic.h against the reference
-    # (tests/test_opencl_pixel.py). Inputs are rounded to the build's type and the reference is
-    # fed the same values; float32 builds also round the constants the host passes. Measured on
-    # Intel's CPU OpenCL runtime (FP contraction on: the compiler may fuse a * b + c).
+    # (tests/backends/test_device_pixel.py). Inputs are rounded to the build's type and the
+    # reference is fed the same values; float32 builds also round the constants the host passes.
+    # Measured on Intel's CPU OpenCL runtime (FP contraction on: the compiler may fuse a * b + c).
     # sRGB: float32 pow and the rounded 0.055 / 1.055: measured 3.6e-7 / 1.7e-7 relative on
     # Intel's CPU runtime and up to 2.4e-7 on an NVIDIA H200 (OpenCL allows pow 16 ulps);
     # denormal results round to float32's denormal grid (< 1e-45).
@@ -106,8 +106,8 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("crf_lookup", "opencl", "float32"): (0.0, 8e-8),
     ("crf_lookup", "opencl", "float64"): (0.0, F64_LERP),
     # The same function on the tables resampled to 256, 1,024 and 4,096 nodes
-    # (output.crf_table_size, tests/test_opencl_knobs.py): measured 8.5e-8 (float32, 256 nodes;
-    # 7.2e-8 on the authors' table in the same test) and 1.1e-16 (float64).
+    # (output.crf_table_size, tests/backends/test_device_knobs.py): measured 8.5e-8 (float32,
+    # 256 nodes; 7.2e-8 on the authors' table in the same test) and 1.1e-16 (float64).
     ("crf_lookup_resampled", "opencl", "float32"): (0.0, 1e-7),
     ("crf_lookup_resampled", "opencl", "float64"): (0.0, F64_LERP),
     # A7R3 3 x 3 matrices (float64 ones for the reference) on linear pixels in [-0.1, 1.2]:
@@ -123,11 +123,11 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     ("demosaic_bilinear", "opencl", "float32"): (0.0, 8e-8),
     ("demosaic_bilinear", "opencl", "float64"): (0.0, 0.0),
     # -- Warp pixel stages --
-    # gpu_blur/warp_kernels/pixel.py against the reference (tests/test_warp_pixel.py), Warp's
-    # default fuse_fp=True. Inputs are rounded to the instance's type and the reference is fed
-    # the same values; float32 instances also round the constants the host passes. Measured on
-    # Warp's "cpu" device (clang, no contraction across Warp's statements) and on CUDA (NVIDIA
-    # H200, which fuses a * b + c): each row covers the larger, both given as CPU / CUDA.
+    # gpu_blur/warp_kernels/pixel.py against the reference (tests/backends/test_device_pixel.py),
+    # Warp's default fuse_fp=True. Inputs are rounded to the instance's type and the reference is
+    # fed the same values; float32 instances also round the constants the host passes. Measured on
+    # Warp's "cpu" device (clang, no contraction across Warp's statements) and on CUDA (NVIDIA H200,
+    # which fuses a * b + c): each row covers the larger, both given as CPU / CUDA.
     # sRGB float32: float pow and the rounded 0.055 / 1.055, relative 3.6e-7 / 3.6e-7 (decode)
     # and 2.0e-7 / 1.7e-7 (encode); denormal results round to float32's grid (< 1e-45).
     ("srgb_to_linear", "warp", "float32"): (4e-7, 1e-45),
@@ -142,8 +142,8 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # A7R3 lookup table (2,551 nodes): absolute 7.4e-8 / 7.4e-8 (float32), 0 / 1.1e-16 (float64).
     ("crf_lookup", "warp", "float32"): (0.0, 8e-8),
     ("crf_lookup", "warp", "float64"): (0.0, F64_LERP),
-    # Tables resampled to 256, 1,024 and 4,096 nodes (tests/test_warp_knobs.py): measured
-    # 8.5e-8 (float32) and 0 (float64) on the CPU.
+    # Tables resampled to 256, 1,024 and 4,096 nodes (tests/backends/test_device_knobs.py):
+    # measured 8.5e-8 (float32) and 0 (float64) on the CPU.
     ("crf_lookup_resampled", "warp", "float32"): (0.0, 1e-7),
     ("crf_lookup_resampled", "warp", "float64"): (0.0, F64_LERP),
     # A7R3 3 x 3 matrices (float64 ones for the reference) on linear pixels in [-0.1, 1.2]:
@@ -174,8 +174,8 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # pairs <= 2.2e-16 absolute and <= 3.5e-16 relative.
     ("box_muller", "independent", "float64"): (5e-16, 5e-16),
     # -- OpenCL random --
-    # kernels/opencl/include/gb_random.h against rng (tests/test_opencl_random.py); the dtype
-    # names the build: float32 (samplers in double on an fp64 device), float64, and
+    # kernels/opencl/include/gb_random.h against rng (tests/backends/test_device_random.py); the
+    # dtype names the build: float32 (samplers in double on an fp64 device), float64, and
     # float32-nofp64 (float throughout, for devices without cl_khr_fp64). Measured on Intel's
     # CPU OpenCL runtime. Words and uniforms are compared bit for bit (no row).
     # Normals: float32 computes Box-Muller in double and rounds once, <= half a float32 ulp of
@@ -198,16 +198,16 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # differs on 0.35 % of pixels at 1e4 and 15 % at 1e7, so it is checked statistically.
     ("poisson_agreement", "opencl", "float32-nofp64"): (0.0, 1e-4),
     # The normal approximation above a threshold (noise.poisson = "normal",
-    # tests/test_opencl_knobs.py): the FRACTION OF COUNTS differing from poisson_counts.poisson(...,
-    # normal_above=1000) at rates 0 to 1e7; a count moves only where rate + sqrt(rate) z falls
-    # within the device libm's ulps of a half integer. Measured 0 of 2.3e5 (Intel's CPU runtime,
-    # PoCL, an NVIDIA H200). Without fp64 the sum rounds in float (0.5 % of counts move at 1e5,
-    # half at 1e7): statistics only.
+    # tests/backends/test_device_knobs.py): the FRACTION OF COUNTS differing from
+    # poisson_counts.poisson(..., normal_above=1000) at rates 0 to 1e7; a count moves only where
+    # rate + sqrt(rate) z falls within the device libm's ulps of a half integer. Measured 0 of 2.3e5
+    # (Intel's CPU runtime, PoCL, an NVIDIA H200). Without fp64 the sum rounds in float (0.5 % of
+    # counts move at 1e5, half at 1e7): statistics only.
     ("poisson_normal_agreement", "opencl", "float32"): (0.0, 1e-5),
     ("poisson_normal_agreement", "opencl", "float64"): (0.0, 1e-5),
     # -- Warp random --
-    # gpu_blur/warp_kernels/random.py against rng (tests/test_warp_random.py), on Warp's "cpu"
-    # device (x86-64) and on CUDA (an NVIDIA H200); the samplers are float64 whatever the
+    # gpu_blur/warp_kernels/random.py against rng (tests/backends/test_device_random.py), on Warp's
+    # "cpu" device (x86-64) and on CUDA (an NVIDIA H200); the samplers are float64 whatever the
     # caller's type, and the test module is built with fuse_fp=False. Words and uniforms are
     # compared bit for bit (no row).
     # Normals: the reference's operations through Warp's libm (measured 4.4e-16 on the CPU,
@@ -220,16 +220,16 @@ TOLERANCES: dict[tuple[str, str, str], tuple[float, float]] = {
     # atol against 0 (issue: identical on >= 99.999 %). Measured 0 of 1.2e6 + 8.2e5 pixels on
     # both devices, with fuse_fp=False and (H200) fuse_fp=True.
     ("poisson_agreement", "warp", "float64"): (0.0, 1e-5),
-    # The normal approximation above a threshold, as the OpenCL row (tests/test_warp_knobs.py):
-    # measured 0 of 2.3e5 counts on the CPU and on an H200.
+    # The normal approximation above a threshold, as the OpenCL row
+    # (tests/backends/test_device_knobs.py): measured 0 of 2.3e5 counts on the CPU and on an H200.
     ("poisson_normal_agreement", "warp", "float64"): (0.0, 1e-5),
     # -- fast maths (output.fast_math) --
     # float32 builds with GB_FAST_MATH (OpenCL native_powr in the sRGB curves, native_log /
     # sqrt / cos / sin in the normals; kernels/opencl/include/gb_math.h) and Warp modules built
     # with its fast_math option (CUDA's approximate float intrinsics, which also flush
     # denormals to zero; Warp's CPU compiler ignores the option) with float32 normals
-    # (random.pixel_normal_fast), against the reference (tests/test_opencl_knobs.py,
-    # tests/test_warp_knobs.py). Measured on Intel's CPU OpenCL runtime, Warp's CPU device and
+    # (random.pixel_normal_fast), against the reference (tests/backends/test_device_knobs.py).
+    # Measured on Intel's CPU OpenCL runtime, Warp's CPU device and
     # an NVIDIA H200 (OpenCL and Warp CUDA give the same numbers there).
     # OpenCL leaves native_ accuracy to the runtime, so its rows are the largest measured:
     # Intel's runtime told to build for AVX2 (CL_CONFIG_CPU_TARGET_ARCH=core-avx2, as on a CPU
