@@ -19,11 +19,11 @@ code lies in the ``gpu_blur`` package that is imported. It reports:
 
 Layers, by module path (first match): 0 ``cli``; 1 ``generation``, ``generate``, ``dataset``,
 ``datasets``, ``discovery``, ``distributed``; 2 ``synthesis``, ``pipeline``; 3 ``scheduler``,
-``plan``, ``params``; 4 ``backends``; 5 ``reference``, ``warp_kernels``. Every other module
-(``arrays``, ``imageio``, ``scene``, ``timings``, ``tiling``, ...) is *shared*: a helper any
-layer may call, in no layer, so its calls and returns are no layer crossing; they are counted
-as ``shared_calls``, and ``returns_up_with_shared`` counts the returns up with the shared
-modules as a layer 6 below all others.
+``params``; 4 ``backends``, ``warp_kernels``; 5 ``plan``, ``stages``; 6 ``reference``. Every
+other module (``arrays``, ``imageio``, ``scene``, ``timings``, ``tiling``, ...) is *shared*:
+a helper any layer may call, in no layer, so its calls and returns are no layer crossing; they
+are counted as ``shared_calls``, and ``returns_up_with_shared`` counts the returns up with the
+shared modules as a layer 7 below all others.
 
 The traced sample is the second of the set (index 1) after the first was made untraced, as a
 set's samples after its first run (kernels built, caches filled); ``--cold`` traces the
@@ -34,8 +34,8 @@ Run from the repository root, on any tree (``PYTHONPATH=<tree>`` picks an older 
     python bench/call_trace.py [--backend numpy|opencl:0:0|warp:cpu] [--cold]
         [--json bench/results/call_trace.json]
 
-``--json`` adds this run to the file (keyed by commit, backend and warm or cold), keeping the
-runs already there.
+``--json`` adds this run to the file (keyed by commit, backend, warm or cold, and layering),
+keeping the runs already there.
 """
 
 from __future__ import annotations
@@ -51,16 +51,25 @@ import time
 from pathlib import Path
 
 #: (layer, module path prefixes), first match wins; a prefix matches a module or a package.
+#: They follow the package's import graph (tests/architecture/test_layers.py checks that
+#: no module imports one of a higher layer): the backends import the plan (``plan``, ``stages``),
+#: which the scheduler and the draws (``params``) read, so the plan lies below the backends;
+#: the Warp kernels are the Warp backend's.
+#: Before 2026-11-27 the plan was put with the scheduler above the backends, which counted a
+#: backend reading its plan as a call up (docs/architecture-trace.md gives both).
 LAYERS = (
     (0, ("cli",)),
     (1, ("generation", "generate", "dataset", "datasets", "discovery", "distributed")),
     (2, ("synthesis", "pipeline")),
-    (3, ("scheduler", "plan", "params")),
-    (4, ("backends",)),
-    (5, ("reference", "warp_kernels")),
+    (3, ("scheduler", "params")),
+    (4, ("backends", "warp_kernels")),
+    (5, ("plan", "stages")),
+    (6, ("reference",)),
 )
+#: The name runs record their layering under (runs before it have none: "plan above backends").
+LAYERS_NAME = "import graph"
 #: The layer the shared modules take in ``returns_up_with_shared``.
-SHARED_LAYER = 6
+SHARED_LAYER = 7
 #: The groups whose entries are counted: name -> module path prefixes.
 GROUPS = {
     "synthesis": ("synthesis", "pipeline"),
@@ -255,7 +264,7 @@ def table(run: dict) -> str:
              f"  calls                        {c['calls']:>8}",
              f"  module transitions           {c['transitions']:>8}",
              f"  returns up a layer           {c['returns_up']:>8}"
-             f"   (shared modules as layer 6: {c['returns_up_with_shared']})",
+             f"   (shared modules as layer 7: {c['returns_up_with_shared']})",
              f"  calls up a layer             {c['calls_up']:>8}"]
     lines += [f"  {group + ' entered':<28} {n:>8}" for group, n in c["entered"].items()]
     for key, label in (("top_transitions", "most transitions"),
@@ -287,14 +296,15 @@ def main() -> None:
     run = {"commit": commit, "modified": modified, "backend": args.backend,
            "sample": "cold, sample 0" if args.cold else "warm, sample 1 after sample 0",
            "entry": entry, "python": sys.version.split()[0], "traced_seconds": round(took, 2),
-           "counts": summarize(trace)}
+           "layers": LAYERS_NAME, "counts": summarize(trace)}
     print(table(run))
     if args.json:
         runs = []
         if args.json.exists():
             runs = json.loads(args.json.read_text(encoding="utf-8"))["runs"]
-        key = (commit, args.backend, run["sample"])
-        runs = [r for r in runs if (r["commit"], r["backend"], r["sample"]) != key] + [run]
+        def key(r: dict) -> tuple:
+            return r["commit"], r["backend"], r["sample"], r.get("layers", "plan above backends")
+        runs = [r for r in runs if key(r) != key(run)] + [run]
         out = {"what": "bench/call_trace.py: one generated sample's calls in gpu_blur, "
                        "counted by module and layer (see the script's docstring)",
                "runs": runs}

@@ -29,6 +29,7 @@ and for a package of the same name (``gpu_blur/cli.py`` or ``gpu_blur/cli/``).
 from __future__ import annotations
 
 import ast
+import importlib.util
 from pathlib import Path
 
 import pytest
@@ -248,3 +249,29 @@ def test_a_violating_import_is_caught(tmp_path):
     (package / "dataset.py").write_text("def f():\n    import warp\n")
     assert direct_imports(package, SYNTHESIS, CONCRETE_BACKENDS, SYNTHESIS_MAY_IMPORT) == [
         "gpu_blur.dataset -> warp", "gpu_blur.synthesis.batches -> gpu_blur.backends.warp"]
+
+
+def call_trace_layers():
+    """``bench/call_trace.py``'s ``layer_of``, which counts one sample's calls by layer."""
+    spec = importlib.util.spec_from_file_location("call_trace", ROOT / "bench" / "call_trace.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return lambda name: module.layer_of(name.removeprefix("gpu_blur."))
+
+
+def test_call_trace_layers_follow_the_import_graph():
+    """No module of a layer the call trace counts reaches a module of a higher layer by imports.
+
+    So a call up in the trace is a callback, never a module calling what it imports.
+    """
+    layer_of, edges = call_trace_layers(), graph()
+    up = []
+    for name in sorted(edges):
+        low = layer_of(name)
+        if low is None:
+            continue
+        for target, chain in reached(edges, name).items():
+            high = layer_of(target)
+            if high is not None and high < low:
+                up.append(" -> ".join(f"{n} ({layer_of(n)})" for n in chain))
+    assert up == []
