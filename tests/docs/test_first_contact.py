@@ -32,6 +32,25 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 
+def test_readme_is_short_and_its_links_lead_to_files_here():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 200
+    targets = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
+    local = [t for t in targets if "://" not in t]
+    assert "docs/scenes.md" in local and "docs/cli/index.md" in local
+    missing = [t for t in local if not (ROOT / t).exists()]
+    assert not missing, f"README.md links to {missing}, which are not in the repository"
+
+
+def test_readme_carries_no_commit_hashes_issue_numbers_or_machine_paths():
+    text = (ROOT / "README.md").read_text()
+    hashes = [w for w in re.findall(r"\b[0-9a-f]{7,40}\b", text)
+              if re.search(r"[a-f]", w) and re.search(r"\d", w)]
+    assert not hashes
+    assert not re.search(r"\bissues? \d+|#\d+\b", text, re.IGNORECASE)
+    assert not re.search(r"(/work/|/home/|/root/|/tmp/|[A-Z]:\\)", text)
+
+
 def test_the_torch_extra_brings_the_transforms_default_backend():
     extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"][
         "optional-dependencies"]
