@@ -209,11 +209,16 @@ def _named_commit(*texts) -> str | None:
     for text in texts:
         if not isinstance(text, str):
             continue
-        m = re.search(r"\b(?:at commit|at|commit)\s+([0-9a-f]{7,40})\b", text) or \
+        m = re.search(r"\bat (?:commit )?([0-9a-f]{7,40})\b", text) or \
             re.fullmatch(r"([0-9a-f]{7,40})(\+modified)?(?: .*)?", text, re.S)
         if m:
             return m.group(1)[:7] + ("+modified" if "+modified" in text[:60] else "")
     return None
+
+
+def _named(data: dict) -> str | None:
+    """The commit a results file names in its ``what``, ``bench`` or ``source`` field."""
+    return _named_commit(data.get("what"), data.get("bench"), data.get("source"))
 
 
 def load(name: str) -> tuple[dict, Path]:
@@ -290,7 +295,7 @@ def bench_batches() -> str:
     table = _table(["scene", "numpy in and out", "pinned numpy", "torch CUDA",
                     "device kernels", "copy bound, serial", "copy bound, duplex"], rows)
     return table + "\n\n" + provenance(path, data["device"] + "; " + data["machine"]
-                                       + "; ms a sample, medians of three rounds", None)
+                                       + "; ms a sample, medians of three rounds", _named(data))
 
 
 def bench_pinned_h100() -> str:
@@ -306,7 +311,7 @@ def bench_pinned_h100() -> str:
     table = _table(["scene", "numpy in and out", "pinned numpy", "torch CUDA",
                     "device kernels"], rows)
     return table + "\n\n" + provenance(path, data["device"] + "; ms a sample, one figure "
-                                       "per round", None)
+                                       "per round", _named(data))
 
 
 def bench_back_to_back() -> str:
@@ -330,7 +335,8 @@ def bench_codes() -> str:
                          r.get("bound_serial_codes_ms")])
     table = _table(["device (RSBlur, pinned, batches of 16)", "float32 results",
                     "uint8 codes", "codes' copy bound"], rows)
-    return table + "\n\n" + provenance(path, "one H200 on a 16-core host; ms a sample", None)
+    return table + "\n\n" + provenance(path, "one H200 on a 16-core host; ms a sample",
+                                       _named(data))
 
 
 def bench_synthesize_vs_batch() -> str:
@@ -357,7 +363,7 @@ def bench_generate_threads() -> str:
     table = _table(["I/O threads", "samples/s"], rows)
     return table + "\n\n" + provenance(
         path, f"one H100, {data['cores']}-core host, `{data['backend']}`; RSBlur samples of "
-        f"{data['frames']} PNG frames of {data['image'][0]} x {data['image'][1]}", None)
+        f"{data['frames']} PNG frames of {data['image'][0]} x {data['image'][1]}", _named(data))
 
 
 def bench_generate_codes() -> str:
@@ -367,12 +373,13 @@ def bench_generate_codes() -> str:
     for key, label in (("codes_on_host", "float32 results, converted by the writers"),
                        ("codes_on_device", "8-bit codes made on the device")):
         part = data[key]
+        at = re.search(rf"'{key}' at ([0-9a-f]{{7,40}})", data.get("what", ""))
         rows.append([label, part["runs"][0]["samples_per_s"], part["bound_samples_per_s"],
-                     part["ratio_to_bound"]])
+                     part["ratio_to_bound"], f"`{at.group(1)}`" if at else "not recorded"])
     table = _table(["results", "samples/s", "host's decode-plus-encode bound",
-                    "share of the bound"], rows)
-    return table + "\n\n" + provenance(path, data["machine"] + "; one process, one GPU",
-                                       _named_commit(data.get("what")))
+                    "share of the bound", "code at"], rows)
+    return table + "\n\n" + provenance(path, data["machine"] + "; one process, one GPU, "
+                                       "the two runs back to back", None)
 
 
 def bench_generate_devices() -> str:
@@ -382,7 +389,7 @@ def bench_generate_devices() -> str:
     rows.append(["decode-plus-encode bound of the host", data["bound_samples_per_s"]])
     table = _table(["workers on warp:cuda:0", "samples/s"], rows)
     same = "every set the same bytes" if data.get("same_bytes") else "sets differ"
-    return table + "\n\n" + provenance(path, f"{data['device']}; {same}", None)
+    return table + "\n\n" + provenance(path, f"{data['device']}; {same}", _named(data))
 
 
 def bench_multi_gpu(name: str) -> str:
@@ -432,7 +439,8 @@ def bench_training() -> str:
                              "synthesis share", "synchronized share"], rows))
         parts.append(provenance(path, f"{data['device']}, `{data['backend']}`; batches of "
                                 f"{data['batch']}, crops of {data['crop']}, "
-                                f"{data['workers']} DataLoader workers, {data['input']}", None))
+                                f"{data['workers']} DataLoader workers, {data['input']}",
+                                _named(data)))
     return "\n\n".join(parts)
 
 
@@ -495,7 +503,8 @@ def bench_reference() -> str:
     data, path = load("reference_cpu")
     rows = [[k.replace("_", " "), v] for k, v in data["seconds"].items()]
     table = _table(["numpy float64, one call at 1920 x 1200", "seconds"], rows)
-    return table + "\n\n" + provenance(path, f"{data['device']}, numpy {data['numpy']}", None)
+    return table + "\n\n" + provenance(path, f"{data['device']}, numpy {data['numpy']}",
+                                       _named(data))
 
 
 def bench_plan_cost(name: str) -> str:
@@ -507,7 +516,7 @@ def bench_plan_cost(name: str) -> str:
                    rows, 2)
     size = data["size_wxh"]
     return table + "\n\n" + provenance(path, f"{data['host']} host; {size[0]} x {size[1]}, "
-                                       f"{data['input']}", None)
+                                       f"{data['input']}", _named(data))
 
 
 def bench_interpolation(name: str) -> str:
@@ -528,7 +537,7 @@ def bench_interpolation(name: str) -> str:
     seqs = sorted({r["sequence"] for r in data["rows"]})
     return table + "\n\n" + provenance(path, f"{data['device']}; {size[0]} x {size[1]}, "
                                        f"{data['frames']} frames; sequences: "
-                                       f"{', '.join(seqs)}", None)
+                                       f"{', '.join(seqs)}", _named(data))
 
 
 #: ``bench NAME [ARG]``: the tables a page may ask for.
