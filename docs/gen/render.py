@@ -540,6 +540,27 @@ def bench_interpolation(name: str) -> str:
                                        f"{', '.join(seqs)}", _named(data))
 
 
+METRICS = {"batch_numpy_ms": "numpy in and out", "batch_pinned_ms": "pinned numpy",
+           "batch_torch_cuda_ms": "torch CUDA in and out", "kernels_ms": "device kernels"}
+
+
+def bench_history(name: str) -> str:
+    """A results file's medians before and after the change it measured, per scene and path."""
+    data, path = load(name)
+    before = _named_commit(data["before"]) or data["before"].split()[0]
+    after = f"{_git_commit(path).split()[0]}"
+    rows = []
+    for scene, new in data["medians"]["after"].items():
+        old = data["medians"]["before"].get(scene, {})
+        for key, label in METRICS.items():
+            if key in new and key in old:
+                rows.append([_scene(scene), label, old[key], new[key]])
+    table = _table(["scene", "path", f"before (`{before}`)", f"after (`{after}`)"], rows, 2)
+    what = data["after"].split(":", 1)[-1].strip() if ":" in data["after"] else data["after"]
+    return (table + "\n\nThe change: " + _cell(what).rstrip(".") + ".\n\n"
+            + provenance(path, data["device"] + "; ms a sample, medians of the rounds", None))
+
+
 #: ``bench NAME [ARG]``: the tables a page may ask for.
 BENCH = {
     "per-sample": bench_per_sample,
@@ -558,6 +579,7 @@ BENCH = {
     "reference": bench_reference,
     "plan-cost": bench_plan_cost,
     "interpolation": bench_interpolation,
+    "history": bench_history,
 }
 
 

@@ -96,7 +96,8 @@ def test_every_marker_of_a_page_renders(page):
 @pytest.mark.parametrize("name", sorted(render.BENCH))
 def test_every_benchmark_table_names_its_device_and_commit(name):
     args = {"multi-gpu": ["multi_gpu_h200x4"], "plan-cost": ["plan_cost_cpu"],
-            "interpolation": ["interpolation_auto_cpu"]}.get(name, [])
+            "interpolation": ["interpolation_auto_cpu"],
+            "history": ["user_paths_h200"]}.get(name, [])
     text = render.BENCH[name](*args)
     provenance = [line for line in text.splitlines() if "`bench/results/" in line]
     assert provenance, f"{name}: no line naming its results file"
