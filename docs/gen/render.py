@@ -95,7 +95,9 @@ def _allowed(field) -> str:
     if field.limit is not None:
         kind = "integers" if field.limit.integer else "numbers"
         text = f"{kind} {field.limit.describe()}"
-        return f"`[low, high]`, {text}" if field.pair else text
+        text = f"`[low, high]`, {text}" if field.pair else text
+        words = getattr(field, "words", ())  # strings a number key also takes
+        return text + "".join(f", or `{json.dumps(w)}`" for w in words)
     return {str: "text", bool: "`true` \\| `false`"}.get(field.kind, str(field.kind))
 
 
