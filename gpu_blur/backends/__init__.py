@@ -340,16 +340,24 @@ def cfa_bits(pattern: str | None) -> int:
     return sum(c << (2 * i) for i, c in enumerate(BayerPattern(pattern).channels))
 
 
+#: The optional packages a backend imports, as a user installs them.
+_PACKAGES = {"warp": "NVIDIA Warp (package warp-lang)", "pyopencl": "pyopencl"}
+
+
 @contextlib.contextmanager
 def _extra(module: str, extra: str, backend: str):
-    """Turn a missing optional dependency into a RuntimeError that says how to install it."""
+    """Turn a missing optional dependency into a RuntimeError that says how to install it.
+
+    In words that fit both the Python API (``backend="warp:cpu"``) and ``--backend``.
+    """
     try:
         yield
     except ModuleNotFoundError as e:
         if e.name != module:
             raise
-        raise RuntimeError(f"--backend {backend} needs {module}, which is not installed: "
-                           f"pip install 'gpu_blur[{extra}]' (or use --backend numpy)") from None
+        raise RuntimeError(f"backend {backend!r} needs {_PACKAGES.get(module, module)}, which is "
+                           f"not installed: pip install 'gpu_blur[{extra}]', or use the numpy "
+                           "backend") from None
 
 
 def usable_devices(kind: str, precision: str) -> tuple[list[str], dict[str, str]]:

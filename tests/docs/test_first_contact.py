@@ -8,6 +8,7 @@ fits 100 columns with each source once; ``plan --cost`` never prints a negative 
 from __future__ import annotations
 
 import re
+import subprocess
 import sys
 from pathlib import Path
 
@@ -101,6 +102,19 @@ def test_the_cost_report_prints_no_negative_figure():
     assert not re.search(r"-\d", text), text
     assert "within noise (< 2.0 ms)" in text and "4.0 ms" in text
     assert "the plan saves nothing measurable here" in text
+
+
+def test_a_missing_backend_package_is_named_in_words_for_python_and_the_command():
+    code = ("import sys; sys.modules['warp'] = None; import numpy, gpu_blur\n"
+            "try:\n"
+            "    gpu_blur.synthesize(numpy.zeros((8, 8, 3), numpy.uint8), backend='warp:cpu')\n"
+            "except RuntimeError as e:\n"
+            "    print(e)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.strip() == ("backend 'warp:cpu' needs NVIDIA Warp (package warp-lang), which is "
+                           "not installed: pip install 'gpu_blur[warp]', or use the numpy "
+                           "backend")
 
 
 torch = pytest.importorskip("torch")
