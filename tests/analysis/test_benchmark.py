@@ -40,6 +40,7 @@ def quick_report(tmp_path_factory):
     return report, out
 
 
+@pytest.mark.slow
 def test_quick_run_writes_json_markdown_and_plot(quick_report):
     report, out = quick_report
     assert report["size"] == list(SIZE)
@@ -53,6 +54,7 @@ def test_quick_run_writes_json_markdown_and_plot(quick_report):
     assert plot is not None and plot.std() > 0
 
 
+@pytest.mark.slow
 def test_quick_run_has_two_settings_of_every_knob_on_both_backends(quick_report):
     report, _ = quick_report
     expected = benchmark.quick_knobs()
@@ -65,6 +67,7 @@ def test_quick_run_has_two_settings_of_every_knob_on_both_backends(quick_report)
             assert backends in ({"numpy", KERNEL_BACKEND}, {"-"}), setting
 
 
+@pytest.mark.slow
 def test_report_names_the_code_that_ran_by_commit_and_file_digest(quick_report):
     report, out = quick_report
     assert report["source_digest"] == benchmark.source_digest()
@@ -72,6 +75,7 @@ def test_report_names_the_code_that_ran_by_commit_and_file_digest(quick_report):
     assert report["source_digest"][:16] in (out / "accuracy_vs_time_test.md").read_text()
 
 
+@pytest.mark.slow
 def test_reference_runs_time_numpy_alone_and_the_table_says_so(quick_report):
     report, out = quick_report
     runs = {r["backend"]: len(r["runs_s"]) for r in report["rows"] if r["runs_s"]}
@@ -80,6 +84,7 @@ def test_reference_runs_time_numpy_alone_and_the_table_says_so(quick_report):
     assert "numpy: 1 run, no warm-up" in (out / "accuracy_vs_time_test.md").read_text()
 
 
+@pytest.mark.slow
 def test_quick_run_errors_are_finite_and_zero_for_the_reference(quick_report):
     report, _ = quick_report
     available = [r for r in report["rows"] if r["available"]]
@@ -95,6 +100,7 @@ def test_quick_run_errors_are_finite_and_zero_for_the_reference(quick_report):
     assert pipeline[KERNEL_BACKEND]["max_abs_error"] <= PIPELINE_ATOL
 
 
+@pytest.mark.slow
 def test_a_setting_that_changes_the_output_shows_an_error(quick_report):
     report, _ = quick_report
     bilinear = [r for r in report["rows"] if r["setting"] == "bilinear"]
@@ -104,6 +110,7 @@ def test_a_setting_that_changes_the_output_shows_an_error(quick_report):
     assert normal and all(r["residual_kl"] > 0 for r in normal)
 
 
+@pytest.mark.slow
 def test_side_by_side_rows_agree_with_the_reference_where_the_maths_is_the_same(quick_report):
     report, _ = quick_report
     demosaic = {r["method"]: r for r in report["side_by_side"]["demosaic"]}
@@ -141,6 +148,7 @@ def test_pareto_front_keeps_the_points_no_other_beats_in_time_and_error():
     assert benchmark.pareto_front(points) == [4, 0, 1, 3]
 
 
+@pytest.mark.slow
 def test_plot_is_drawn_with_opencv_without_matplotlib(quick_report, tmp_path, monkeypatch):
     report, _ = quick_report
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib fails
@@ -170,6 +178,7 @@ def test_output_files_are_tagged_cpu_or_by_the_first_gpu():
     assert benchmark.device_tag(gpu) == "nvidia-h200"
 
 
+@pytest.mark.slow
 def test_each_row_times_its_setting_and_the_accurate_one_equally_often(quick_report):
     report, out = quick_report
     for r in report["rows"]:

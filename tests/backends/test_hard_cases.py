@@ -14,11 +14,12 @@ tests/backends/test_device_random.py for the kernels of both languages, at the w
 near-singular matrices refused by the reference (tests/reference/test_color.py); the reference's
 knees and round trips (tests/reference/test_transfer.py).
 
-The test marked ``slow`` (buffers of more than 2^29 values) runs a small form by default, so
-that CI, which runs every test, stays quick. ``GPU_BLUR_HEAVY=1`` gives the float32 kernel
-backends the full size, 179 M pixels in one launch: about 12 GB of host memory and half a minute
-per backend on Intel's CPU OpenCL runtime and Warp's CPU device (float64 builds keep the small
-form: twice the memory, the same index code).
+The tests marked ``slow`` are this file's heaviest (``-m "not slow"`` leaves them out; CI runs
+every test). The one with buffers of more than 2^29 values runs a small form by default, so that
+CI stays quick. ``GPU_BLUR_HEAVY=1`` gives the float32 kernel backends the full size, 179 M
+pixels in one launch: about 12 GB of host memory and half a minute per backend on Intel's CPU
+OpenCL runtime and Warp's CPU device (float64 builds keep the small form: twice the memory, the
+same index code).
 """
 
 from __future__ import annotations
@@ -718,6 +719,7 @@ def test_reference_transfer_functions_are_odd_monotone_and_finite(a, b):
         assert drop <= 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 @settings(max_examples=12, deadline=None)
 @given(colour=st.tuples(*[st.floats(0.001, 1.0)] * 3), red=st.floats(0.5, 4.0),
@@ -761,6 +763,7 @@ def test_white_balance_cancels_on_every_backend(spec, red, blue, pattern, origin
 _untiled: dict = {}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
 @settings(max_examples=5, deadline=None)
 @given(tile=st.tuples(st.integers(16, 30), st.integers(16, 30)))  # scheduler.MIN_TILE up

@@ -85,6 +85,7 @@ def test_generate_with_the_opencl_backend_writes_a_set(tmp_path):
     assert '"backend": "opencl"' in line and '"device": "opencl ' in line
 
 
+@pytest.mark.slow
 def test_the_wheel_carries_the_kernel_sources(tmp_path):
     root = ROOT
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w",

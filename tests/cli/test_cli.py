@@ -16,6 +16,7 @@ def write_sequence(folder, n, size=(24, 32), seed=0):
         cv2.imwrite(str(folder / f"{i:06d}.png"), rng.integers(0, 256, (*size, 3), np.uint8))
 
 
+@pytest.mark.slow
 def test_generate_on_the_built_in_photo_writes_pairs_and_a_manifest(tmp_path, capsys):
     out = tmp_path / "set"
     assert main(["generate", "--output", str(out), "--limit", "2", "--quiet"]) == 0
@@ -33,6 +34,7 @@ def test_generate_on_the_built_in_photo_writes_pairs_and_a_manifest(tmp_path, ca
     assert "wrote 2 samples" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_manifest_names_the_device_that_made_each_sample(tmp_path, monkeypatch):
     # with --devices, workers hold other devices than the driver's backend: each line says the
     # device of the sample's own Synthesis (here a stand-in executor renames it)
@@ -79,6 +81,7 @@ def test_a_sample_names_its_device_model_not_the_device_s_number_on_this_host(sp
     assert not any(part.startswith(("opencl:", "warp:")) for part in backend.model.split())
 
 
+@pytest.mark.slow
 def test_generate_is_reproducible_for_a_seed(tmp_path):
     for name in ("a", "b"):
         assert main(["generate", "--output", str(tmp_path / name), "--limit", "1", "--quiet",
@@ -101,6 +104,7 @@ def test_generate_reads_gopro_sequences_in_windows_of_frames(tmp_path):
     assert [len(x["inputs"]) for x in lines] == [3, 3, 3]
 
 
+@pytest.mark.slow
 def test_generate_refuses_to_overwrite_an_existing_set(tmp_path, capsys):
     out = tmp_path / "set"
     assert main(["generate", "--output", str(out), "--limit", "1", "--quiet"]) == 0
@@ -171,6 +175,7 @@ def run_closed(*command):
                            "gpu_blur.cli", *command], timeout=300).returncode
 
 
+@pytest.mark.slow
 def test_generate_with_stdout_and_stderr_closed_makes_its_samples(tmp_path):
     out = tmp_path / "set"
     assert run_closed("generate", "--output", str(out), "--limit", "1", "--scene",

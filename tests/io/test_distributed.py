@@ -119,6 +119,7 @@ EXECUTORS = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend, executor", EXECUTORS)
 def test_every_executor_writes_the_files_and_manifest_of_a_serial_run(
         request, tmp_path, photos, reference, backend, executor):

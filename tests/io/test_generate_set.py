@@ -14,6 +14,7 @@ def files(folder):
             if p.is_file() and p.name != ".gpu_blur.lock"}
 
 
+@pytest.mark.slow
 def test_generate_set_reports_and_writes_the_clis_set(tmp_path, capsys):
     out, seen = tmp_path / "api", []
     report = gpu_blur.generate_set(out, limit=2, seed=3, backend="numpy", io_threads=1,

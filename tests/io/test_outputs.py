@@ -265,6 +265,7 @@ def test_generate_save_refuses_raw_without_the_round_trip_and_unknown_names(tmp_
         capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_set_recorded_before_output_jpeg_quality_existed_resumes(tmp_path, capsys):
     out = tmp_path / "set"
     assert main(["generate", "--output", str(out), "--limit", "1", "--quiet"]) == 0

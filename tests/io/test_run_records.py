@@ -52,6 +52,7 @@ def test_a_sample_without_spot_checks_says_none(tmp_path, photo):
     assert (line["tiles"], line["spot_checked_tiles"], line["spot_check"]) == (1, 0, "none")
 
 
+@pytest.mark.slow
 def test_the_built_in_photo_is_recorded_by_name_and_resumes_from_another_install(
         tmp_path, monkeypatch):
     out = tmp_path / "set"
