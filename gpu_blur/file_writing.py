@@ -31,13 +31,15 @@ def write_new(path: Path, data: bytes) -> Path:
 
     Whatever is there is removed first (a file a killed run left, or a link someone put
     there: the link itself, not what it points to); then ``O_EXCL | O_NOFOLLOW`` make sure
-    the bytes land in a file made here, never through a link onto another file.
+    the bytes land in a file made here, never through a link onto another file (Windows has
+    no ``O_NOFOLLOW``; ``O_EXCL`` alone refuses a link there, and ``O_BINARY`` keeps the bytes).
 
     Raises:
         OSError: the file cannot be made (also when something appears there in between).
     """
     path.unlink(missing_ok=True)
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+    flags = (os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
+             | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0))
     with os.fdopen(os.open(path, flags, 0o666), "wb") as f:
         f.write(data)
     return path
