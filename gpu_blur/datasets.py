@@ -161,11 +161,14 @@ class _Augmented:
 class SharpSequences(_Augmented):
     """Windows of ``frames`` consecutive sharp frames, for blur mode average.
 
-    GoPro_Large's ``<seq>/sharp/*.png`` and RSBlur's ``<session>/<id>/*.png`` (the sharp frames
-    of one real blurred image), found as ``gpu-blur generate`` finds them
+    GoPro_Large's ``<seq>/sharp/*.png``, GOPRO_Large_all's ``GOPRxxxx_yy_zz/*.png`` and RSBlur's
+    ``<session>/<id>/*.png`` (the sharp frames of one real blurred image), found as
+    ``gpu-blur generate`` finds them
     (:func:`gpu_blur.discovery.find_sequences`), windows as ``--samples-per-sequence`` takes
     them. Item: ``(index, frames)``, frames F x H x W x 3 (F = ``frames``), the stored codes
-    (uint8 for 8-bit PNGs), for blur mode average.
+    (uint8 for 8-bit PNGs), for blur mode average. GOPRO_Large's ``sharp/`` frames are one per
+    blurred image, with gaps between them (``gpu-blur generate`` refuses to average them):
+    give GOPRO_Large_all's frames for realistic blur.
 
     Raises:
         ValueError: naming the folder when it holds no sequence of ``frames`` frames, or the

@@ -56,6 +56,75 @@ class ResumeState:
 
 
 @dataclasses.dataclass(frozen=True)
+class InputFound:
+    """What the input holds and how it is blurred, known before any sample (``on_input``).
+
+    Attributes:
+        input: the input folder, or None for the built-in photo.
+        layout: its layout in words (photos; GOPRO_Large_all (GOPRxxxx_yy_zz/*.png); ...).
+        sequences: frame sequences in it (averaged in mode average, else taken as photos).
+        images: the frames averaged, the photos or the blurred images found.
+        samples: the samples the input gives.
+        taking: the samples this run's set holds (``limit`` taken into account).
+        mode: ``blur.mode``.
+        blur: the blur mode in words, with the frames per blur in mode average.
+    """
+
+    input: Path | None
+    layout: str
+    sequences: int
+    images: int
+    samples: int
+    taking: int
+    mode: str
+    blur: str
+
+    def lines(self) -> tuple[str, str]:
+        """``gpu-blur generate``'s two lines: ``input: ...`` and ``blur: ...``."""
+        def count(n: int, what: str) -> str:
+            return f"{n} {what}{'' if n == 1 else 's'}"
+
+        what = {"average": "frame", "none": "image"}.get(self.mode, "photo")
+        held = count(self.images, what)
+        if self.sequences:
+            held = f"{count(self.sequences, 'sequence')}, {held}"
+        limit = f", taking {self.taking} (--limit)" if self.taking < self.samples else ""
+        found = (f"{self.input}: {self.layout}; {held}" if self.input is not None
+                 else self.layout)
+        return (f"input: {found} -> {count(self.samples, 'sample')}{limit}",
+                f"blur: {self.blur}")
+
+
+def blur_in_words(scene, found) -> str:
+    """The scene's blur mode as ``generate`` prints it (``found``: the input's Samples)."""
+    from gpu_blur.discovery import GOPRO_NAME
+    from gpu_blur.scene import FROM_NAME
+
+    b = scene.blur
+    if b.mode == "average":
+        if b.frames == FROM_NAME:
+            counts = sorted({int(m[2]) for f in found.sequences
+                             if (m := GOPRO_NAME.fullmatch(f.folder.name))})
+            here = (f"{counts[0]}" if len(counts) == 1 else f"{counts[0]} to {counts[-1]}"
+                    ) if counts else "none"
+            frames = (f"yy consecutive frames per sample, yy from each sequence's name "
+                      f"GOPRxxxx_yy_zz (blur.frames = '{FROM_NAME}'; here {here})")
+        else:
+            frames = f"{b.frames} consecutive frames per sample"
+        raised = ("" if b.interpolation == 1 else ", the frame rate raised 1, 2, 4 or 8x per "
+                  "gap by interpolation (blur.interpolation = 'auto')"
+                  if isinstance(b.interpolation, str) else
+                  f", the frame rate raised {b.interpolation}x by interpolation")
+        return f"average of {frames}{raised}"
+    if b.mode == "kernel":
+        with_what = f"the kernel {b.kernel}" if b.kernel else "a random motion kernel per sample"
+        return f"kernel: each photo convolved with {with_what}"
+    if b.mode == "trajectory":
+        return "trajectory: camera shake over each photo"
+    return "none: the input images are blurred already (saturation, noise and ISP only)"
+
+
+@dataclasses.dataclass(frozen=True)
 class SetReport:
     """What a finished :func:`generate_set` made, and where its time went.
 
@@ -206,12 +275,14 @@ def generate_set(
     verify: float = 0.0, strict: bool = False, samples_per_photo: int | None = None,
     samples_per_sequence: int | None = None, limit: int | None = None,
     save: str | Iterable[str] = "", overwrite: bool = False, resume: bool = False,
+    average_gopro_large_sharp: bool = False, frames_as_photos: bool = False,
     progress: Progress = False, on_device: Callable[[str], None] | None = None,
     on_resume: Callable[[ResumeState], None] | None = None,
+    on_input: Callable[[InputFound], None] | None = None,
 ) -> SetReport:
     """Make a data set of blurred/sharp pairs and its manifest, as ``gpu-blur generate`` does.
 
-    Every keyword but the last three is the command's option of that name (``gpu-blur
+    Every keyword but the last four is the command's option of that name (``gpu-blur
     generate --help`` says more); the files are the command's, byte for byte.
 
     Args:
@@ -236,11 +307,18 @@ def generate_set(
         save: further outputs, ``"mask,raw"`` or ``["mask", "raw"]``.
         overwrite: replace an existing set in ``output``.
         resume: finish the set in ``output`` that a run with the same settings started.
+        average_gopro_large_sharp: blur.mode average over GOPRO_Large's ``<seq>/sharp/``
+            frames (beside ``<seq>/blur/``), refused without it: they are one ground-truth
+            frame per blurred image, with gaps between them (use GOPRO_Large_all).
+        frames_as_photos: a photo mode (trajectory, kernel) over an input of frame sequences,
+            each frame taken as a photo; refused without it.
         progress: True: a progress bar on standard error; a callable: ``progress(done,
             total)`` as each sample comes back; default: nothing.
         on_device: called with the device's description once the backend is open, before
             the options are checked.
         on_resume: with ``resume``, called with a :class:`ResumeState` before the first sample.
+        on_input: called with an :class:`InputFound` once the input is read, before its
+            layout is checked and the output folder opened.
 
     Returns:
         a :class:`SetReport`; samples that failed are in ``report.failed`` (and the manifest).
@@ -262,17 +340,18 @@ def generate_set(
         tile=None if tile is None else list(tile), max_device_memory=max_device_memory,
         verify=verify, strict=strict, samples_per_photo=samples_per_photo,
         samples_per_sequence=samples_per_sequence, limit=limit, save=save,
-        overwrite=overwrite, resume=resume)
-    return _Run(o, progress, on_device, on_resume).run()
+        overwrite=overwrite, resume=resume, average_gopro_large_sharp=average_gopro_large_sharp,
+        frames_as_photos=frames_as_photos)
+    return _Run(o, progress, on_device, on_resume, on_input).run()
 
 
 class _Run:
     """One :func:`generate_set` call: set up, make the samples, sum up."""
 
-    def __init__(self, o, progress: Progress, on_device, on_resume):
+    def __init__(self, o, progress: Progress, on_device, on_resume, on_input=None):
         from gpu_blur.backends import get_backend
         from gpu_blur.dataset import DatasetWriter, library_versions
-        from gpu_blur.discovery import BUILT_IN_INPUT, find_samples
+        from gpu_blur.discovery import BUILT_IN_INPUT, check_layout, find_samples
         from gpu_blur.distributed import pick_executor
         from gpu_blur.scene import load_scene
         from gpu_blur.scheduler import Schedule
@@ -285,9 +364,18 @@ class _Run:
         check_setup(o, scene)
         self.executor = pick_executor(o, scene.output.precision)  # serial, devices or ray
         per_photo = o.samples_per_photo or (1 if o.input else 4)
+        where = (f"scene file {scene.path}" if scene.path
+                 else "the default scene" if o.scene is None else "the scene")
         found = find_samples(o.input, scene.blur.mode, scene.blur.frames, per_photo,
                              o.samples_per_sequence, exclude=o.output,
-                             masks=scene.saturation.mode != "off")
+                             masks=scene.saturation.mode != "off", where=where)
+        if on_input is not None:
+            on_input(InputFound(o.input, found.layout, len(found.sequences), found.images,
+                                found.total, min(found.total, o.limit or found.total),
+                                scene.blur.mode, blur_in_words(scene, found)))
+        check_layout(found, o.input, scene.blur.mode, where,
+                     average_gopro_large_sharp=o.average_gopro_large_sharp,
+                     frames_as_photos=o.frames_as_photos)
         specs = found.take(o.limit)
         # the Schedule rides in Job.tile (tile, memory budget, spot checks; see pipeline)
         self.schedule = Schedule(tuple(o.tile) if o.tile else None, o.max_device_memory,

@@ -30,7 +30,7 @@ import numpy as np
 from gpu_blur.constants import A7R3_CRF_TABLE_X255
 from gpu_blur.reference.flow import INTERPOLATION_AUTO, MOTION_SCALE
 from gpu_blur.reference.transfer import RETONE_CURVES, retone_polynomial
-from gpu_blur.scene import Scene, load_scene
+from gpu_blur.scene import FROM_NAME, Scene, load_scene
 from gpu_blur.stages import PASSES, STAGES, Pass, StageName, stage_values
 
 __all__ = ["PASSES", "Pass", "Plan", "Stage", "StageName", "plan", "raw_round_trip"]
@@ -213,8 +213,10 @@ def _decide(name: str, kept, reason: str, variant: str = "", **options) -> tuple
 def _blur(b, interpolation_factors: tuple[int, ...] | None) -> tuple:
     """The blur stage for the scene's ``blur`` section."""
     blurring = b.mode != "none"
+    named = b.frames == FROM_NAME  # yy of each sequence's name, GOPRxxxx_yy_zz
+    frames = "yy" if named else b.frames
     if b.interpolation == INTERPOLATION_AUTO:
-        average = (f"mean of {b.frames} linear frames and their saturation masks, each gap "
+        average = (f"mean of {frames} linear frames and their saturation masks, each gap "
                    f"interpolated 1, 2, 4 or 8x ({b.flow} optical flow) to keep its motion, "
                    f"measured per sample at 1/{MOTION_SCALE} size, under "
                    f"{b.interpolation_tolerance:g} px a step"
@@ -224,11 +226,15 @@ def _blur(b, interpolation_factors: tuple[int, ...] | None) -> tuple:
                    "interpolation_factors"
                    + (" and interpolation_regions)" if b.interpolation_region else ")"))
     elif b.interpolation > 1:
-        average = (f"mean of {(b.frames - 1) * b.interpolation + 1} linear frames and their "
-                   f"saturation masks: {b.frames} frames and {b.interpolation - 1} interpolated "
+        total = (f"(yy - 1) x {b.interpolation} + 1" if named
+                 else (b.frames - 1) * b.interpolation + 1)
+        average = (f"mean of {total} linear frames and their "
+                   f"saturation masks: {frames} frames and {b.interpolation - 1} interpolated "
                    f"in each gap ({b.interpolation}x frame rate, {b.flow} optical flow)")
     else:
-        average = f"mean of {b.frames} linear frames and their saturation masks"
+        average = f"mean of {frames} linear frames and their saturation masks"
+    if named:
+        average += " (yy: each sequence's frames per blur, from its name GOPRxxxx_yy_zz)"
     options = {"interpolation": b.interpolation, "flow": b.flow} if b.mode == "average" else {}
     if options and b.interpolation == INTERPOLATION_AUTO:
         options["tolerance"] = float(b.interpolation_tolerance)

@@ -32,6 +32,9 @@ from gpu_blur.reference.flow import (
 )
 
 PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
+#: ``blur.frames`` taking each sequence's frames per blur from its folder's name, ``yy`` of
+#: ``GOPRxxxx_yy_zz`` (:func:`gpu_blur.discovery.frames_from_name`).
+FROM_NAME = "from-name"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,7 +43,7 @@ class Field:
 
     A key takes one of ``choices``, a value of type ``kind`` (str, bool), or a number within
     ``limit`` (:mod:`gpu_blur.limits`: finite, in range, with the reason); ``pair`` makes it a
-    ``[low, high]`` range of two such numbers.
+    ``[low, high]`` range of two such numbers; ``words``: strings a number key also takes.
     """
 
     default: Any
@@ -49,6 +52,7 @@ class Field:
     kind: type | None = None
     limit: Limit | None = None
     pair: bool = False
+    words: tuple = ()
 
 
 #: section -> key -> Field. The single definition of the scene format.
@@ -58,8 +62,10 @@ FIELDS: dict[str, dict[str, Field]] = {
                       "'kernel' (convolve one photo), 'trajectory' (camera shake over one photo), "
                       "'none' (input is already blurred sRGB)",
                       choices=("average", "kernel", "trajectory", "none")),
-        "frames": Field(9, "frames averaged per sample in mode 'average' (RSBlur: 9)",
-                        limit=limits.FRAMES),
+        "frames": Field(9, "frames averaged per sample in mode 'average' (RSBlur: 9), or "
+                        f"'{FROM_NAME}': yy of each sequence folder named GOPRxxxx_yy_zz "
+                        "(GOPRO_Large_all: yy frames make one blur)",
+                        limit=limits.FRAMES, words=(FROM_NAME,)),
         "interpolation": Field(1, "mode 'average': raise the frame rate by this factor before "
                                "averaging, (frames - 1) * factor + 1 frames in all (RSBlur: 8, "
                                "9 -> 65); 1 averages the frames as they are; 'auto' picks 1, "
@@ -230,6 +236,8 @@ def _check(where: str, key: str, field: Field, value):
 
     def number(v):
         problem = field.limit.problem(v)
+        if problem and field.words:
+            problem += "".join(f", or {w!r}" for w in field.words)
         if problem:
             fail(f"[low, high], each {problem}" if field.pair else problem)
         if type(v) not in (int, float):  # numpy scalars from the Python API
@@ -242,6 +250,8 @@ def _check(where: str, key: str, field: Field, value):
         if value not in field.choices or isinstance(value, bool) != isinstance(
                 field.choices[0], bool):
             fail(" | ".join(repr(c) for c in field.choices))
+        return value
+    if isinstance(value, str) and value in field.words:
         return value
     if field.pair:
         if not (isinstance(value, (list, tuple)) and len(value) == 2):
@@ -312,6 +322,10 @@ def _check_consistency(sections: dict, where: str) -> None:
         raise SceneError(f"{where}: blur.interpolation = {blur.interpolation!r} needs "
                          f"blur.mode = 'average' (it is {blur.mode!r}); allowed: 1 for "
                          "this mode, or set blur.mode = 'average'")
+    if blur.frames == FROM_NAME and blur.mode != "average":
+        raise SceneError(f"{where}: blur.frames = '{FROM_NAME}' needs blur.mode = 'average' "
+                         f"(it is {blur.mode!r}): it counts the frames averaged per blur; "
+                         "allowed for this mode: a number, or set blur.mode = 'average'")
     if blur.interpolation_region % REGION_STEP:
         raise SceneError(f"{where}: blur.interpolation_region = {blur.interpolation_region!r} "
                          f"is invalid; allowed: 0 or a multiple of {REGION_STEP} (e.g. 64)")

@@ -124,11 +124,15 @@ def bench_inputs(scene, width: int, height: int):
     """``(frames, mask)``: the benchmark's input for ``scene``.
 
     The built-in photo panned 2 px a frame (:func:`gpu_blur.analysis.bench.workload.make_frames`),
-    one frame for a one-photo scene.
+    one frame for a one-photo scene; under ``blur.frames = "from-name"`` (a count per input
+    sequence), the default count of the scene format.
     """
     from gpu_blur.analysis.bench.workload import make_frames
+    from gpu_blur.scene import FIELDS, FROM_NAME
 
     count = scene.blur.frames if scene.blur.mode == "average" else 1
+    if count == FROM_NAME:
+        count = FIELDS["blur"]["frames"].default
     return make_frames(width, height, count), None
 
 

@@ -26,11 +26,13 @@ def add_parser(sub) -> None:
         "generate", help="make a training set of blurred/sharp pairs",
         description="Synthesize realistic blurred/sharp PNG pairs and a JSONL manifest. "
         "With no --input, blurs the built-in photograph along camera-shake paths.")
-    g.add_argument("--input", type=Path, help="folder of GoPro-style sequences "
-                   "(<seq>/sharp/*.png, blur.mode = average), of photos (kernel, trajectory), "
-                   "or of already-blurred images with saturation masks (none: "
+    g.add_argument("--input", type=Path, help="folder of frame sequences for blur.mode = "
+                   "average (GOPRO_Large_all's GOPRxxxx_yy_zz/*.png, every frame; "
+                   "<seq>/sharp/*.png; RSBlur's <session>/<id>/*.png), of photos (kernel, "
+                   "trajectory), or of already-blurred images with saturation masks (none: "
                    "GoPro_INTER_ABME avg_inter_img/, RSBlur avg65_img/, GoPro_U "
-                   "centroid_blurred_img/)")
+                   "centroid_blurred_img/). generate prints the layout it found and the blur "
+                   "mode before it starts")
     g.add_argument("--output", type=Path, required=True, help="folder for blur/, sharp/, "
                    "params/, manifest.jsonl and run.json")
     g.add_argument("--scene", type=Path, help="scene TOML, or a built-in scene's name "
@@ -84,6 +86,14 @@ def add_parser(sub) -> None:
                    help="blur.mode = average: K windows per sequence, spread evenly from first "
                    "to last (overlapping when needed; default: every non-overlapping window)")
     g.add_argument("--limit", type=int, default=None, metavar="N", help="make at most N samples")
+    g.add_argument("--average-gopro-large-sharp", action="store_true", help="blur.mode = "
+                   "average over GOPRO_Large (<seq>/sharp/ beside <seq>/blur/) all the same; "
+                   "refused without it: those sharp frames are one ground-truth frame per "
+                   "blurred image, with gaps between them, and average into ghosted blur "
+                   "(average GOPRO_Large_all's frames with blur.frames = \"from-name\" instead)")
+    g.add_argument("--frames-as-photos", action="store_true", help="blur.mode = trajectory or "
+                   "kernel over an input of frame sequences all the same, each frame a photo "
+                   "of its own; refused without it (blur.mode = average averages them)")
     g.add_argument("--save", default="", metavar="LIST", help="also write, per pair, a comma "
                    "list of: mask (the blurred saturation mask, 16-bit PNG in mask/), raw (the "
                    "noisy Bayer mosaic before demosaicing, 16-bit DNG in raw/, its CFA pattern, "
@@ -157,6 +167,12 @@ def _say_device(device: str) -> None:
     print(f"device: {device}", file=sys.stderr)
 
 
+def _say_input(found) -> None:
+    """What the input holds and the blur mode (:class:`gpu_blur.generation.InputFound`)."""
+    for line in found.lines():
+        print(line, file=sys.stderr)
+
+
 def _generate(args) -> int:
     """Make the set; print what it did, or what stopped it; return the exit status."""
     from gpu_blur.generation import SetInterrupted, StrictStop, generate_set
@@ -174,8 +190,10 @@ def _generate(args) -> int:
             io_threads=args.io_threads, tile=args.tile, max_device_memory=args.max_device_memory,
             verify=args.verify, strict=args.strict, samples_per_photo=args.samples_per_photo,
             samples_per_sequence=args.samples_per_sequence, limit=args.limit, save=args.save,
-            overwrite=args.overwrite, resume=args.resume, progress=not args.quiet,
-            on_device=_say_device, on_resume=say_resume)
+            overwrite=args.overwrite, resume=args.resume,
+            average_gopro_large_sharp=args.average_gopro_large_sharp,
+            frames_as_photos=args.frames_as_photos, progress=not args.quiet,
+            on_device=_say_device, on_resume=say_resume, on_input=_say_input)
     except StrictStop as e:
         print(f"gpu-blur: error: {e}", file=sys.stderr)
         return 2

@@ -19,7 +19,7 @@ from gpu_blur.backends import OnDevice
 from gpu_blur.image_arrays import check_image, check_layout, unit_values
 from gpu_blur.image_reading import read_image
 from gpu_blur.plan import raw_round_trip
-from gpu_blur.scene import Scene
+from gpu_blur.scene import FROM_NAME, Scene
 
 
 @dataclasses.dataclass
@@ -99,9 +99,13 @@ def _same_shape(images, names):
 
 
 def frame_count(count: int, scene: Scene) -> None:
-    """Refuse a sample of mode average whose frame count is not the scene's ``blur.frames``."""
+    """Refuse a sample of mode average whose frame count is not the scene's ``blur.frames``.
+
+    Under ``blur.frames = "from-name"`` every count is the scene's: the sequence's name set it
+    when the window was cut (:func:`gpu_blur.discovery.frames_from_name`).
+    """
     wanted = scene.blur.frames
-    if count != wanted:
+    if count != wanted and wanted != FROM_NAME:
         where = f"scene file {scene.path}" if scene.path else "the scene"
         raise ValueError(f"blur.frames = {wanted} ({where}) but this sample has {count} "
                          f"frames: pass {wanted}, or set blur.frames = {count}")
