@@ -133,7 +133,7 @@ def test_a_loop_of_links_fails_only_its_sample(tmp_path):
     scene = tmp_path / "s.toml"
     scene.write_text("[blur]\nsteps = 3\n")
     out = tmp_path / "out"
-    assert generate(folder, out, scene) == 1
+    assert generate(folder, out, scene, "--frames-as-photos") == 1  # photos and sequences
     failed = [x[0] for x in lines_of(out) if x[1] == "failed"]
     assert failed == ["seqs/A/sharp/2", "x"] and len(lines_of(out)) == 11
     scene.write_text('[blur]\nmode = "average"\nframes = 2\n')
