@@ -17,7 +17,7 @@ from gpu_blur import __version__
 
 EPILOG = """examples:
   gpu-blur generate --output out/                      # built-in photo, camera shake
-  gpu-blur generate --input GOPRO/train --output out/ --scene rsblur   # 9 frames averaged
+  gpu-blur generate --input RSBlur --output out/ --scene rsblur   # 9 sharp frames averaged
   gpu-blur plan realblur_j.toml                        # which stages a scene runs, and why
   gpu-blur calibrate --chart patches.csv --output my_camera.toml   # a camera from a chart
   gpu-blur scene                                       # every scene key with its default
