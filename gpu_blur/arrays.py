@@ -10,6 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["DTYPES", "as_real", "as_warp", "channels_first", "channels_last", "check_dense",
+           "cuda_device", "dtype_name", "from_numpy", "from_warp", "library", "on_warp_device",
+           "producer_stream", "to_numpy", "view_at", "warp_samples"]
+
 #: Input dtypes a batch may have (floats are sRGB values in [0, 1]).
 DTYPES = ("uint8", "uint16", "float16", "float32", "float64")
 

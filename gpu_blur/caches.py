@@ -22,6 +22,9 @@ import os
 import stat
 from pathlib import Path
 
+__all__ = ["CacheError", "ENV", "FIX", "base", "check", "env_folder", "folder", "private",
+           "pyopencl_cache", "root", "set_cuda_cache", "set_opencl_caches", "set_warp_cache"]
+
 #: The environment variable that names the cache root (an absolute path).
 ENV = "GPU_BLUR_CACHE_DIR"
 FIX = f"set {ENV} to an absolute path of a folder of yours (created if missing)"

@@ -33,6 +33,10 @@ from gpu_blur.files import read_settings
 from gpu_blur.reference.color import camera_to_linear_matrix, checked_inverse
 from gpu_blur.scene import FIELDS, Scene
 
+__all__ = ["CAMERA_FILE_KEYS", "Camera", "FLOAT32_RESPONSE_MAX_ABS_SUM", "WhiteBalance",
+           "check_float32_response", "get_camera", "load_camera", "preset_names",
+           "read_camera_spec", "response_polynomial", "scene_camera"]
+
 
 @dataclasses.dataclass(frozen=True)
 class WhiteBalance:

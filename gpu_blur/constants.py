@@ -13,6 +13,9 @@ from importlib import resources
 
 import numpy as np
 
+__all__ = ["A7R3_CRF_POLYNOMIAL", "A7R3_CRF_TABLE_X255", "D50_TO_D65", "D65_TO_D50",
+           "GAUSSIAN_SRGB_NOISE_STD", "SRGB_TO_XYZ", "XYZ_TO_SRGB", "rsblur_data"]
+
 
 @functools.cache
 def rsblur_data() -> dict:

@@ -53,6 +53,8 @@ from gpu_blur.discovery import (
 )
 from gpu_blur.image_reading import read_image
 
+__all__ = ["BlurredImages", "Photos", "RealBlurPairs", "SharpSequences", "epoch_seed"]
+
 _MASK64 = (1 << 64) - 1
 #: Mixed into the crop generator's seed, so crops are drawn apart from the pipeline's draws.
 _CROP_STREAM = 0x63726F70  # "crop"

@@ -18,6 +18,13 @@ from pathlib import Path
 from gpu_blur import files
 from gpu_blur.scene import FROM_NAME
 
+__all__ = ["BLURRED_EXPECTED", "BLURRED_LAYOUTS", "BUILT_IN_INPUT", "BlurredLayout",
+           "BlurredSample", "FoundSequence", "GOPRO_NAME", "IMAGE_SUFFIXES", "LAYOUT_NAMES",
+           "MANIFEST", "MAX_SAMPLES", "RUN", "SampleSpec", "Samples", "check_layout",
+           "default_photo", "find_blurred", "find_realblur_pairs", "find_samples", "find_sequences",
+           "frames_from_name", "input_label", "read_datalist", "sequence_folder", "sequence_layout",
+           "sequence_samples", "shown"]
+
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 #: The files that mark a folder as a set gpu-blur wrote (:class:`gpu_blur.dataset.DatasetWriter`).
 MANIFEST = "manifest.jsonl"

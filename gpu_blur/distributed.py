@@ -38,6 +38,10 @@ from gpu_blur.backends import usable_devices
 from gpu_blur.discovery import SampleSpec
 from gpu_blur.generate import Job, decode, default_io_threads, for_driver, make_sample, run_serial
 
+__all__ = ["DEVICE_DEPTH", "DRIVER_SIGNALS", "GPU_BATCH", "PARENT_CHECK_S", "RAY_INSTALL",
+           "all_devices", "family", "import_ray", "parse_devices", "pick_executor", "run_devices",
+           "run_ray", "uses_cuda"]
+
 RAY_INSTALL = "pip install 'gpu_blur[ray]'"
 #: Samples per Ray task on GPUs. Ray starts a fresh worker process for every GPU task (its
 #: default ``max_calls=1``, which pins the process to the GPU Ray assigned and frees that

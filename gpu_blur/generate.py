@@ -34,6 +34,9 @@ from gpu_blur.scheduler import Schedule
 from gpu_blur.synthesis import Synthesis, synthesize
 from gpu_blur.timings import PoolTimes
 
+__all__ = ["Job", "MAX_DEFAULT_IO_THREADS", "QUEUE_PER_THREAD", "WriteBehind", "decode",
+           "default_io_threads", "for_driver", "make_sample", "run_pipelined", "run_serial"]
+
 #: Samples per I/O thread that may wait on each side of synthesis: decoded (or being decoded)
 #: ahead of the sample being made, and made but not yet written behind it. With N threads at
 #: most 2 N samples' inputs and 2 N samples' outputs are held, besides the one being made.

@@ -31,6 +31,9 @@ from pathlib import Path
 
 from gpu_blur import testhooks
 
+__all__ = ["InputFound", "Progress", "ResumeState", "SetInterrupted", "SetReport", "StrictStop",
+           "blur_in_words", "check_setup", "extras", "generate_set", "scene_files"]
+
 #: ``progress``: True (a progress bar on standard error), or ``progress(done, total)`` called
 #: as each sample comes back (made or failed); False or None: nothing.
 Progress = bool | Callable[[int, int], None] | None

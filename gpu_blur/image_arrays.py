@@ -5,6 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+__all__ = ["check_image", "check_layout", "swap_red_blue", "to_unit", "unit_values"]
+
 
 def swap_red_blue(image: np.ndarray) -> np.ndarray:
     """An H x W x 3 image with its first and last channels swapped (OpenCV's BGR <-> RGB).

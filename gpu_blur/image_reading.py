@@ -19,6 +19,8 @@ import numpy as np
 from gpu_blur import limits
 from gpu_blur.image_arrays import swap_red_blue
 
+__all__ = ["READ_FORMATS", "decode_file", "opencv_reason", "read_image", "too_many_pixels"]
+
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _WAY_OUT = "re-export or re-copy the file, or remove it from the input"
 

@@ -29,6 +29,18 @@ import numpy as np
 
 from gpu_blur.reference import average, demosaic, poisson_counts, rng, transfer
 
+__all__ = ["BILINEAR_G_X4", "BILINEAR_RB_X4", "BILINEAR_TAP_WEIGHT", "EXACT_COUNT_SHIFT",
+           "EXACT_FRAMES_MAX", "EXACT_UNIT", "HALF_LOG_TWO_PI", "HEADER", "INSPECT_LOADS",
+           "KERNEL_WORDS", "KERNEL_WORDS_COUNT", "LOG_FACTORIAL_TABLE", "LOG_FACTORIAL_TABLE_SIZE",
+           "MALVAR2004_G_AT_RB_X8", "MALVAR2004_RB_AT_BR_X8", "MALVAR2004_RB_AT_G_COLUMN_X8",
+           "MALVAR2004_RB_AT_G_ROW_X8", "MALVAR2004_TAP_WEIGHT", "OPENCL", "PHILOX_M4X32_0",
+           "PHILOX_M4X32_1", "PHILOX_W32_0", "PHILOX_W32_1", "POISSON_INVERSION_MAX_K",
+           "POISSON_PTRS_MIN_RATE", "PTRS", "ROUND_LIMIT", "SAMPLE_REALS", "SAMPLE_WORDS",
+           "SATURATION_LEVEL", "SRGB_DECODE_KNEE", "SRGB_DECODE_KNEE_FLOAT32", "SRGB_ENCODE_KNEE",
+           "SRGB_GAMMA", "SRGB_INV_GAMMA", "SRGB_OFFSET", "SRGB_SCALE", "SRGB_SLOPE", "STREAMS",
+           "STREAM_SHIFT", "TWO_PI", "TWO_PI_FLOAT32", "UNIFORM_SCALE", "UNIFORM_SHIFT",
+           "c_literal", "opencl_header", "value_of", "write_header"]
+
 # -- sRGB curve (reference.transfer) --------------------------------------------------------
 SRGB_DECODE_KNEE = transfer.SRGB_DECODE_KNEE
 SRGB_ENCODE_KNEE = transfer.SRGB_ENCODE_KNEE

@@ -12,6 +12,8 @@ import numpy as np
 from gpu_blur import limits
 from gpu_blur.image_reading import decode_file
 
+__all__ = ["check_kernel", "kernel_weights", "read_kernel"]
+
 
 def read_kernel(path: str | Path) -> np.ndarray:
     """A blur kernel from ``.npy`` (2-D floats) or a grayscale image (PNG, ...), as float64.

@@ -45,6 +45,12 @@ import os
 
 from gpu_blur.reference.shake import SHAKE_AUTO_STEPS_RANGE, SHAKE_ROLL_MAX_DEG
 
+__all__ = ["ALPHA", "CAM2LIN_LARGEST", "CRF_TABLE_SIZE", "CROP", "EXTENT", "FRAMES", "GAUSSIAN_STD",
+           "IMAGE_PIXELS", "INTERPOLATION_REGION", "INTERPOLATION_TOLERANCE", "JPEG_QUALITY",
+           "KERNEL_SIDE", "KERNEL_SIZE", "LIN2CAM_LARGEST", "Limit", "MAX_PIXELS",
+           "MAX_PIXELS_VARIABLE", "NORMAL_ABOVE", "READ_NOISE_STD", "ROLL", "SHOT_NOISE_K",
+           "SPREAD", "STEPS", "VIGNETTING", "WB_GAIN", "WB_WEIGHT", "max_pixels"]
+
 
 @dataclasses.dataclass(frozen=True)
 class Limit:

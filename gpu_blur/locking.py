@@ -30,6 +30,8 @@ try:
 except ImportError:  # everywhere but Windows
     msvcrt = None
 
+__all__ = ["LockHeld", "earlier_pids", "forget_earlier", "release_lock", "take_lock"]
+
 
 class LockHeld(ValueError):
     """Another process holds the lock; the message names it (pid, host, start)."""

@@ -25,6 +25,8 @@ import time
 
 from tqdm import tqdm
 
+__all__ = ["ENV", "NOTICE_AFTER_S", "building", "say", "verbosity", "verbosity_set"]
+
 QUIET, NORMAL, VERBOSE = 0, 1, 2
 #: The environment variable that holds the verbosity.
 ENV = "GPU_BLUR_VERBOSITY"

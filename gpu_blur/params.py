@@ -21,6 +21,9 @@ from gpu_blur.reference.bayer import BayerPattern
 from gpu_blur.reference.noise import draw_noise_levels
 from gpu_blur.scene import PATTERNS, Scene
 
+__all__ = ["ARRAY_PARAMS", "DRAW_INDEX", "OVERRIDE_LIMITS", "batch_uniforms", "check_overrides",
+           "draw_params", "image_streams"]
+
 #: Index of each scalar draw in stream PARAMS (a contract: changing one changes every dataset).
 DRAW_INDEX = {
     "alpha": 0,

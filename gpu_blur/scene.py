@@ -31,6 +31,11 @@ from gpu_blur.reference.flow import (
     REGION_STEP,
 )
 
+__all__ = ["Blur", "CameraSettings", "FIELDS", "FROM_NAME", "Field", "Isp", "Noise", "Optics",
+           "Output", "PATTERNS", "Saturation", "Scene", "SceneError", "builtin_scenes",
+           "check_scene", "describe_fields", "load_scene", "scene_from_dict", "scene_path",
+           "toml_loads"]
+
 PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 #: ``blur.frames`` taking each sequence's frames per blur from its folder's name, ``yy`` of
 #: ``GOPRxxxx_yy_zz`` (:func:`gpu_blur.discovery.frames_from_name`).

@@ -103,6 +103,9 @@ from gpu_blur.tiling import Region, tiles
 from gpu_blur.timings import timer
 from gpu_blur.tolerances import mismatch, tolerance
 
+__all__ = ["Footprint", "MIN_TILE", "S", "SPOT_CHECK_FAILED", "Schedule", "SpotCheckError", "Tiled",
+           "check_budget", "check_tile", "format_bytes", "parse_bytes", "run", "spot_check_tiles"]
+
 S = StageName
 
 #: The smallest tile side, given (``tile``, ``--tile``) or from a memory budget (smaller images

@@ -16,6 +16,8 @@ from __future__ import annotations
 import dataclasses
 import enum
 
+__all__ = ["PASSES", "Pass", "SIZE", "STAGES", "StageName", "StageSpec", "stage_values"]
+
 
 class Pass(enum.StrEnum):
     """Where a stage runs: one of the three kernel passes, or the host after them."""

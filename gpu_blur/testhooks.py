@@ -14,6 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+__all__ = ["TEST_FAIL_ONCE", "TEST_FAULT", "TEST_SLEEP_AFTER", "fail_once", "fail_once_setting",
+           "fault_planted", "planted_fault", "sleep_after"]
+
 #: ``GPU_BLUR_TEST_SLEEP_AFTER=<n>``: ``gpu-blur generate`` sleeps for an hour right after
 #: sample ``n``'s manifest line is written, so a test can kill it at a known point
 #: (tests/io/test_resume.py, tests/io/test_output_folder.py, tests/io/test_faults.py).

@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterator
 
+__all__ = ["Region", "tiles"]
+
 
 @dataclasses.dataclass(frozen=True)
 class Region:

@@ -30,6 +30,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+__all__ = ["CATEGORIES", "HOST_COMPUTE", "MEANING", "PoolTimes", "RunTotals", "Timings", "current",
+           "since", "timer"]
+
 CATEGORIES = ("reading", "copies", "kernels", "checks", "writing")
 
 

@@ -10,6 +10,9 @@ import math
 
 import numpy as np
 
+__all__ = ["F64_APPLY_MATRIX", "F64_CRF_POLYNOMIAL", "F64_LERP", "F64_LOG_FACTORIAL", "F64_MALVAR",
+           "F64_SRGB_OPENCL", "F64_SRGB_WARP", "TOLERANCES", "mismatch", "tolerance"]
+
 #: Unit roundoff of float64 (IEEE 754 binary64, round to nearest).
 _U64 = 2.0**-53
 

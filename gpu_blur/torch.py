@@ -36,6 +36,8 @@ from gpu_blur.datasets import (  # noqa: F401  (re-exported: the data side of th
 from gpu_blur.params import check_overrides
 from gpu_blur.synthesis import Synthesizer
 
+__all__ = ["RealisticBlur", "WARP_MISSING", "batch_layout"]
+
 #: What the default backend needs, and how to get it, in the words of this API.
 WARP_MISSING = ("RealisticBlur(backend=None) runs on NVIDIA Warp (warp:cpu for CPU tensors, "
                 "warp:cuda:<n> for CUDA ones), and its package warp-lang is not installed: "

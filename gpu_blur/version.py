@@ -4,4 +4,6 @@ Apart from ``gpu_blur/__init__.py``, so that a module records it without importi
 package's public API.
 """
 
+__all__ = ["__version__"]
+
 __version__ = "0.1.0"

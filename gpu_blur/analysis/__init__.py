@@ -6,3 +6,5 @@
 * :mod:`gpu_blur.analysis.metrics`: PSNR, SSIM, residual KL divergence, noise level;
 * :mod:`gpu_blur.analysis.bench`: accuracy against speed of every backend (``gpu-blur bench``).
 """
+
+__all__: list[str] = []

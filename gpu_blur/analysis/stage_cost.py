@@ -28,6 +28,10 @@ import numpy as np
 from gpu_blur.plan import Plan, Stage, StageName, plan
 from gpu_blur.stages import STAGES
 
+__all__ = ["CONFIDENCE", "FORCED_OPTIONS", "NEEDS", "S", "SWITCHES", "StageCosts", "bench_inputs",
+           "cost_text", "every_stage_on", "format_costs", "median_interval", "stage_costs",
+           "switch_kept", "switch_off", "switch_on"]
+
 S = StageName
 
 #: Switches that need others on: Poisson-Gaussian noise acts on the RAW mosaic.

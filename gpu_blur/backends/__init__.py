@@ -33,6 +33,11 @@ if TYPE_CHECKING:
     from gpu_blur.plan import Plan
     from gpu_blur.tiling import Region
 
+__all__ = ["Backend", "COPY_THREADS", "Drawn", "FRAMES_PER_LAUNCH", "OnDevice",
+           "PARALLEL_COPY_VALUES", "PinnedHost", "ResidentBackend", "Slots", "cfa_bits",
+           "copy_values", "fill_stack", "get_backend", "is_resident", "pinned_owner", "to_host",
+           "usable_devices"]
+
 #: Frames summed per accumulate launch (blur mode average) on the kernel backends: a device
 #: stack of this many frames fills (on a GPU, on a copy stream, while the previous stack is
 #: summed on the compute stream) and one launch adds them to the running sums in registers.

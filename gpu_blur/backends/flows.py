@@ -26,6 +26,9 @@ from gpu_blur.reference.flow import (
 )
 from gpu_blur.timings import timer
 
+__all__ = ["FACTORS_KEY", "REGIONS_KEY", "UnitFrames", "gap_factors", "gap_regions",
+           "interpolation_factor", "scene_factors", "with_factors", "with_flows"]
+
 #: The parameter holding each gap's factor under ``blur.interpolation = "auto"`` (measured per
 #: sample, recorded in the manifest).
 FACTORS_KEY = "interpolation_factors"

@@ -23,6 +23,8 @@ from gpu_blur.reference.saturation import restore_saturated, synthesize_saturati
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
 
+__all__ = ["DEMOSAIC", "NumpyBackend", "S", "retone"]
+
 S = StageName
 DEMOSAIC = {"malvar2004": demosaic.demosaic_malvar2004, "bilinear": demosaic.demosaic_bilinear}
 

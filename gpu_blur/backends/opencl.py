@@ -37,6 +37,11 @@ from gpu_blur.plan import Pass
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
 
+__all__ = ["CPU_RUNTIME_ORDER", "DeviceInfo", "FAST_MATH_RUNTIMES", "ICD_FOLDER_ENV",
+           "NO_PLATFORM_HELP", "OpenCLBackend", "OpenCLError", "SOURCES", "SOURCE_BITS",
+           "best_device", "config_defines", "device_rank", "kernel_dir", "opencl_devices",
+           "private_folder", "register_cpu_runtimes", "select_device"]
+
 NO_PLATFORM_HELP = (
     "no OpenCL platform found. For a CPU device: pip install intel-opencl-rt "
     "intel-cmplr-lib-rt (Intel's CPU runtime, which gpu_blur registers by itself), or PoCL "

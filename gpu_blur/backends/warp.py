@@ -36,6 +36,9 @@ from gpu_blur.plan import Pass, Plan, StageName
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
 
+__all__ = ["DOWNLOAD_CHUNK", "Launches", "MAX_BUFFER_VALUES", "QUAD_VIEWS", "RECORDED_LAUNCHES",
+           "ROW_TABLES", "ROW_TABLE_BYTES", "S", "WarpBackend", "warp_devices"]
+
 S = StageName
 
 wp.config.log_level = wp.LOG_WARNING  # no banner or per-module load lines

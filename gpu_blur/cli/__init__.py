@@ -15,6 +15,8 @@ import sys
 
 from gpu_blur import __version__
 
+__all__ = ["COMMANDS", "EPILOG", "main"]
+
 EPILOG = """examples:
   gpu-blur generate --output out/                      # built-in photo, camera shake
   gpu-blur generate --input RSBlur --output out/ --scene rsblur   # 9 sharp frames averaged

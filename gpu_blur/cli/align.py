@@ -7,6 +7,8 @@ from pathlib import Path
 
 from gpu_blur.cli.common import read_unit, refuse_writing_over_inputs, same_size
 
+__all__ = ["add_parser", "run"]
+
 
 def add_parser(sub) -> None:
     """The subcommand and its options."""

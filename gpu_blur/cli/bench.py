@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from gpu_blur.cli.common import verbosity, verbosity_arguments
 
+__all__ = ["add_parser", "run"]
+
 
 def add_parser(sub) -> None:
     """The subcommand; its options are :mod:`gpu_blur.analysis.bench.run`'s."""

@@ -7,6 +7,8 @@ from pathlib import Path
 
 from gpu_blur.cli.common import refuse_writing_over_inputs
 
+__all__ = ["add_parser", "run"]
+
 
 def add_parser(sub) -> None:
     """The subcommand and its options."""

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import textwrap
 
+__all__ = ["WIDTH", "add_parser", "camera_rows", "run"]
+
 #: The listing's width: rows and the wrapped sources fit a 100-column terminal.
 WIDTH = 100
 

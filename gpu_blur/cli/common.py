@@ -7,6 +7,9 @@ import contextlib
 import os
 from pathlib import Path
 
+__all__ = ["read_unit", "refuse_writing_over_inputs", "same_size", "verbosity",
+           "verbosity_arguments"]
+
 
 def verbosity_arguments(p: argparse.ArgumentParser) -> None:
     """--quiet / --verbose: how much the command says on stderr besides errors."""

@@ -16,6 +16,8 @@ from pathlib import Path
 
 from gpu_blur.cli.common import verbosity, verbosity_arguments
 
+__all__ = ["SHOW_FAILED", "STOP_SIGNALS", "Terminated", "add_parser", "run"]
+
 #: Failed samples listed one by one in the summary (all are in the manifest).
 SHOW_FAILED = 20
 

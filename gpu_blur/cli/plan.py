@@ -5,6 +5,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+__all__ = ["add_parser", "cost_size", "run"]
+
 
 def add_parser(sub) -> None:
     """The subcommand and its options."""

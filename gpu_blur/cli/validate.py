@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+__all__ = ["add_parser", "run"]
+
 
 def _precisions(text: str) -> list[str]:
     """--precision's comma list, each float32 or float64."""

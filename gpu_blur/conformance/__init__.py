@@ -28,6 +28,12 @@ from gpu_blur.reference import transfer
 from gpu_blur.scene import scene_from_dict
 from gpu_blur.tiling import Region
 
+__all__ = ["A7R3_DIP_POINTS", "A7R3_POLYNOMIAL_POINTS", "BIG", "BigFrame", "DESATURATING",
+           "NEAR_SINGULAR", "NO_RAW_FINISH", "OUT_OF_GAMUT", "POSES_LEAVING_THE_IMAGE", "PRIMARIES",
+           "RATES", "StreamedFrames", "big_pattern", "coffee", "coffee_crop", "decode_on",
+           "finish_on", "in_a_row", "on_device", "prepare", "scene_for", "seam_image", "shift",
+           "tall_thin_linear", "transfer_points"]
+
 #: The seed and sample index every case draws its parameters and noise with.
 SEED, SAMPLE = 23, 5
 

@@ -31,6 +31,8 @@ from gpu_blur.conformance.checks import (
 )
 from gpu_blur.tiling import Region
 
+__all__: list[str] = []
+
 
 def _accumulate_mode(t: Target, mode: str) -> list[Outcome]:
     photo = coffee_crop()

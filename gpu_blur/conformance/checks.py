@@ -27,6 +27,10 @@ from gpu_blur import tolerances
 from gpu_blur.backends import to_host
 from gpu_blur.backends.numpy import NumpyBackend
 
+__all__ = ["AGAINST", "CHECKS", "Check", "Outcome", "REFERENCE", "Target", "check", "exact",
+           "family", "finite_or_none", "holds", "passed", "row_sources", "run_check", "selected",
+           "within"]
+
 REFERENCE = NumpyBackend()
 
 

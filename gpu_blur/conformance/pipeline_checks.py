@@ -28,6 +28,8 @@ from gpu_blur.conformance.checks import (
 )
 from gpu_blur.scene import SceneError, builtin_scenes
 
+__all__: list[str] = []
+
 # -- tiles ---------------------------------------------------------------------------------------
 
 def _synthesize(t: Target, backend, inputs, settings: dict, **kwargs):

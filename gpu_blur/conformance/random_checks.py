@@ -23,6 +23,9 @@ from gpu_blur.conformance.checks import (
 )
 from gpu_blur.reference import rng
 
+__all__ = ["HIGH_RATES", "LOW_RATES", "UNIFORM_DRAW", "UNIFORM_PROBE_CL", "device_uniforms",
+           "poisson_block", "poisson_counts", "reference_uniforms"]
+
 #: OpenCL C that writes the noise stages' Philox words and uniforms of each pixel (the kernels'
 #: own gb_pixel_bits and gb_uniform). The Warp twin is gpu_blur/conformance/warp_probe.py.
 UNIFORM_PROBE_CL = """

@@ -37,6 +37,8 @@ from gpu_blur.plan import plan
 from gpu_blur.reference import bayer
 from gpu_blur.tiling import Region
 
+__all__ = ["FINISH_CASES"]
+
 
 def _to_raw(t: Target, settings, linear, mask, *, camera="a7r3", overrides=None, origin=(0, 0)):
     """(device, reference) outputs of the to_raw pass: ((raw, sat), (raw, sat))."""

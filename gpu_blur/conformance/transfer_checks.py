@@ -19,6 +19,8 @@ from gpu_blur.conformance import (
 from gpu_blur.conformance.checks import REFERENCE, Outcome, Target, check, holds, within
 from gpu_blur.reference import transfer
 
+__all__: list[str] = []
+
 
 @check("accumulate: sRGB decode at 0, 1, knees, denormals", quick=True)
 def _srgb_decode(t: Target) -> list[Outcome]:

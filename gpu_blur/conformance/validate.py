@@ -16,6 +16,9 @@ from gpu_blur import backends
 from gpu_blur.conformance import checks
 from gpu_blur.conformance.checks import Outcome, Target
 
+__all__ = ["PRECISIONS", "UsageError", "device_info", "kernel_devices", "open_target", "render",
+           "run"]
+
 PRECISIONS = ("float32", "float64")
 
 

@@ -9,6 +9,8 @@ import warp as wp
 from gpu_blur import caches
 from gpu_blur.warp_kernels import random
 
+__all__ = ["pixel_uniforms"]
+
 caches.set_warp_cache()  # a private kernel cache (Warp is normally started by then: checked)
 
 

@@ -23,6 +23,10 @@ import numpy as np
 from gpu_blur.constants import D50_TO_D65, D65_TO_D50, SRGB_TO_XYZ, XYZ_TO_SRGB
 from gpu_blur.reference import fixedmath
 
+__all__ = ["MAX_CONDITION_NUMBER", "adapt_d50_to_d65", "adapt_d65_to_d50", "apply_matrix",
+           "camera_to_linear_matrix", "camera_to_xyz", "checked_inverse", "correct_xyz",
+           "linear_to_xyz", "uncorrect_xyz", "xyz_to_camera", "xyz_to_linear"]
+
 #: Matrices worse conditioned than this are refused: their inverse would amplify float32
 #: rounding in the kernels by more than a millionfold.
 MAX_CONDITION_NUMBER = 1e6

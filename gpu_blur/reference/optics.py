@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["vignette", "vignetting_gain"]
+
 
 def vignetting_gain(strength: float, full_h: int, full_w: int, rows, columns) -> np.ndarray:
     """1 - s (r / r_corner)^2 at pixels (rows, columns) of a full_h x full_w image.

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["CODE_CHUNK", "code_dtype", "crop_border", "quantize", "to_integers"]
+
 
 def crop_border(image, pixels: int) -> np.ndarray:
     """Cut ``pixels`` from every side (the RSBlur pipelines cut 4 to hide demosaic borders)."""

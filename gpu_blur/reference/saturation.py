@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["ALPHA_RANGE", "restore_saturated", "synthesize_saturation"]
+
 #: Range of alpha, drawn per image (RSBlur PyTorch and TF pipelines).
 ALPHA_RANGE = (0.25, 1.75)
 

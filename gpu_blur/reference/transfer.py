@@ -20,6 +20,12 @@ import numpy as np
 
 from gpu_blur.reference import fixedmath
 
+__all__ = ["RETONE_CURVES", "SRGB_DECODE_KNEE", "SRGB_ENCODE_KNEE", "SRGB_GAMMA", "SRGB_OFFSET",
+           "SRGB_SCALE", "SRGB_SLOPE", "a7r3_lookup_table", "gamma_to_linear", "image_to_linear",
+           "inverse_lookup_crf", "linear_to_gamma", "linear_to_srgb", "lookup_crf",
+           "lookup_table_grid", "polynomial_crf", "resample_lookup_table", "retone",
+           "retone_polynomial", "srgb_to_linear"]
+
 #: sRGB EOTF knee on the encoded value (IEC 61966-2-1).
 SRGB_DECODE_KNEE = 0.04045
 #: sRGB OETF knee on the linear value (IEC 61966-2-1).

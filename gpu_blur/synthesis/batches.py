@@ -20,6 +20,8 @@ from gpu_blur.scene import Scene
 from gpu_blur.synthesis.inputs import Inputs, frame_count, kept_size
 from gpu_blur.tiling import Region
 
+__all__ = ["BatchIO", "jpeg_stage", "refuse_out_on_inputs"]
+
 
 class BatchIO:
     """A Synthesizer's batches in and out: its scene, backend and array layout.

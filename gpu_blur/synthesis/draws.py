@@ -12,6 +12,8 @@ from gpu_blur.reference.flow import RegionFactors
 from gpu_blur.scene import Scene
 from gpu_blur.synthesis.inputs import Inputs
 
+__all__ = ["Draws"]
+
 
 class Draws:
     """A scene's plans (made once per clip test, size and interpolation) and samples' draws.

@@ -26,6 +26,8 @@ from gpu_blur.synthesis.inputs import Inputs
 from gpu_blur.synthesis.results import inner
 from gpu_blur.tiling import Region, tiles
 
+__all__ = ["HostPath", "render_sharp"]
+
 
 class HostPath:
     """A Synthesizer's samples run from host memory (:mod:`gpu_blur.scheduler`).

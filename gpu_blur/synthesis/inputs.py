@@ -21,6 +21,9 @@ from gpu_blur.image_reading import read_image
 from gpu_blur.plan import raw_round_trip
 from gpu_blur.scene import FROM_NAME, Scene
 
+__all__ = ["Inputs", "bad_values", "check_codes", "checked", "checked_on_host", "codes_only",
+           "even", "frame_count", "gather", "kept_size", "reaches_clip_level", "sample_indices"]
+
 
 @dataclasses.dataclass
 class Inputs:

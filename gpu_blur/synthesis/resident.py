@@ -34,6 +34,8 @@ from gpu_blur.synthesis.results import inner
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
 
+__all__ = ["ResidentPath", "STREAMED_BYTES", "STREAMED_SAMPLES"]
+
 #: Samples per part of a batch in pinned memory (:meth:`ResidentPath.batch`): the
 #: device downloads one part's results while it uploads the next part's inputs.
 STREAMED_SAMPLES = 4

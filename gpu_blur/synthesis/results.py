@@ -11,6 +11,8 @@ from gpu_blur.plan import Plan
 from gpu_blur.reference.output import crop_border
 from gpu_blur.tiling import Region
 
+__all__ = ["Batch", "Synthesis", "inner"]
+
 
 @dataclasses.dataclass
 class Synthesis:

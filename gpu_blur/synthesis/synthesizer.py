@@ -39,6 +39,8 @@ from gpu_blur.synthesis.resident import ResidentPath
 from gpu_blur.synthesis.results import Batch, Synthesis
 from gpu_blur.timings import current, since, timer
 
+__all__ = ["Synthesizer", "synthesize"]
+
 
 def _as_scene(scene) -> Scene:
     if isinstance(scene, Scene):

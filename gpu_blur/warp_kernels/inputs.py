@@ -30,6 +30,9 @@ from gpu_blur.warp_kernels.passes import (
     source_value_func,
 )
 
+__all__ = ["count_add", "counts6", "gather_codes_kernel", "inspect_kernel", "render_sharp_kernel",
+           "to_codes_kernel", "unit_values_codes_kernel", "unit_values_kernel"]
+
 
 @wp.func
 def count_add(counts: wp.array(dtype=wp.uint32), i: int, add: wp.uint32):

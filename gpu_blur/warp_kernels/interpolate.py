@@ -23,6 +23,8 @@ from gpu_blur.kernel_constants import SATURATION_LEVEL
 from gpu_blur.warp_kernels import pixel
 from gpu_blur.warp_kernels.passes import add_compensated, source_value_func
 
+__all__ = ["consistent", "interpolate_kernels", "region_factor", "sample_flow"]
+
 
 @wp.func
 def region_factor(factors: wp.array(dtype=wp.uint32), map0: int, side: int, cols: int, gx: int,

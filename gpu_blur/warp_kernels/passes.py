@@ -23,6 +23,10 @@ import warp as wp
 from gpu_blur.kernel_constants import EXACT_COUNT_SHIFT, EXACT_UNIT, SATURATION_LEVEL
 from gpu_blur.warp_kernels import pixel, random
 
+__all__ = ["LEAN", "SOURCE_TOP", "TO_RAW_REGISTERS", "accumulate_kernels", "add_compensated",
+           "code_at", "finish_kernel", "retone_quantize_func", "sample_of", "source_value_func",
+           "to_raw_kernel"]
+
 # CUDA build options of the passes' kernels, each kept where it was faster on an H200
 # (bench/gpu_targets.py; none changes a bit, nor the CPU build). LEAN: no grid-stride loop, a
 # thread does one element and returns (to_raw and finish keep the loop); to_raw capped at 64

@@ -8,6 +8,9 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
+__all__ = ["ROOT", "available_backends", "choose_backends", "cpu_name", "device_tag",
+           "load_average", "source_commit", "source_digest"]
+
 #: The repository root (or the installed package's parent folder): gpu_blur/analysis/bench/..
 ROOT = Path(__file__).resolve().parents[3]
 

@@ -23,6 +23,9 @@ from gpu_blur.analysis.bench.workload import (
 )
 from gpu_blur.reference.flow import INTERPOLATION_AUTO, INTERPOLATION_FACTORS
 
+__all__ = ["KL_BINS", "Measurement", "NOT_OFFERED", "Runner", "errors", "finite_or_none",
+           "measurement_key", "median_time", "scene_refusal", "synthesize_setting"]
+
 #: Residual histograms: bins per unit of value, one per 8-bit code (gpu_blur.analysis.metrics).
 KL_BINS = 255
 

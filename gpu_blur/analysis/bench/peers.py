@@ -9,6 +9,9 @@ import numpy as np
 from gpu_blur.analysis.bench.measure import finite_or_none, median_time
 from gpu_blur.analysis.bench.workload import SAMPLE_INDEX, SEED
 
+__all__ = ["BORDER_PX", "KERNEL_SIZE", "PATTERN", "demosaic_side_by_side",
+           "kernel_blur_side_by_side"]
+
 #: Side-by-side demosaic errors leave out this many pixels at every edge: border rules differ
 #: (OpenCV's own border handling; ours mirrors the mosaic keeping the Bayer phase).
 BORDER_PX = 8

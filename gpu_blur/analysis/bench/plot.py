@@ -16,6 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+__all__ = ["MARKERS", "PAD", "PANELS", "Placed", "Point", "figure", "pareto_front", "place_labels",
+           "spread", "write_plot"]
+
 
 def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
     """Indices of the points no other point beats in both time and error (lower is better).

@@ -10,6 +10,8 @@ from gpu_blur.analysis.bench.plot import write_plot
 from gpu_blur.analysis.bench.workload import MIN_RUNS
 from gpu_blur.file_writing import write_text
 
+__all__ = ["markdown", "report_paths", "summary_table", "write_report"]
+
 
 def _number(value, digits: int = 3) -> str:
     if value is None:

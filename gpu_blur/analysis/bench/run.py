@@ -43,6 +43,8 @@ from gpu_blur.analysis.bench.workload import (
 from gpu_blur.file_writing import write_text
 from gpu_blur.locking import release_lock, take_lock
 
+__all__ = ["RESUME_KEYS", "SIDE_BY_SIDE", "add_arguments", "main", "run_benchmark", "run_from_args"]
+
 #: The report keys a resumed run must share with the JSON it finishes, and what sets each.
 RESUME_KEYS = {"size": "--size", "devices": "--backends (their devices)", "runs": "--runs",
                "reference_runs": "--reference-runs", "quick": "--quick",

@@ -8,6 +8,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
+__all__ = ["BASE", "BASE_SCENE", "DEFAULT_SIZE", "FRAMES", "KERNEL_ONLY_KEYS", "KNOBS", "MIN_RUNS",
+           "MIN_SIDE", "NOISE_FREE", "PAN_PX", "QUICK_SIZE", "Setting", "make_frames", "merge",
+           "quick_knobs", "select_knobs", "setting_scene"]
+
 #: The input's size, width x height, and frame count (blur.mode = "average").
 DEFAULT_SIZE = (1920, 1200)
 #: ``--quick``'s size: a few minutes for every backend of a 2-core CPU (README, bench).

@@ -7,6 +7,8 @@ from pathlib import Path
 
 from gpu_blur.file_writing import write_text
 
+__all__ = ["camera_file_text", "write_camera_file"]
+
 
 def _toml_string(text: str) -> str:
     """``text`` as a TOML basic string, its characters as they are but quotes and controls.

@@ -11,6 +11,8 @@ import numpy as np
 from gpu_blur.constants import D50_TO_D65
 from gpu_blur.files import parse_settings, read_text
 
+__all__ = ["COLORCHECKER24", "ChartReference", "lab_to_xyz", "load_chart_reference"]
+
 #: Built-in chart reference (gpu_blur/data).
 COLORCHECKER24 = "colorchecker24.json"
 

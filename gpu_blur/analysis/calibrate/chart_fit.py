@@ -14,6 +14,9 @@ import numpy as np
 from gpu_blur.analysis.calibrate.chart import ChartReference, load_chart_reference
 from gpu_blur.reference.color import camera_to_linear_matrix, linear_to_xyz
 
+__all__ = ["ChartFit", "MAX_CHART_CONDITION", "MIN_PATCHES", "condition_number", "fit_brightness",
+           "fit_chart", "fit_color_correction", "fit_photometric_alignment", "white_balance_gains"]
+
 #: T (9 unknowns) and alpha (1) from 3 equations per patch need at least 4 patches.
 MIN_PATCHES = 4
 #: Largest condition number (ratio of the largest to the smallest singular value) of an N x 3

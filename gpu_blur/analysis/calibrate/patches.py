@@ -13,6 +13,9 @@ import numpy as np
 
 from gpu_blur.files import parse_settings, read_text
 
+__all__ = ["IMAGE_SUFFIXES", "read_patch_boxes", "read_patch_values", "read_patches",
+           "sample_patches"]
+
 #: The suffixes read as images (patch means over ``--boxes``).
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
 

@@ -18,6 +18,10 @@ from scipy.optimize import nnls
 from gpu_blur.analysis.calibrate.chart_fit import condition_number
 from gpu_blur.reference.transfer import polynomial_crf
 
+__all__ = ["CRF_CLIP_MARGIN", "DEFAULT_CRF_ORDER", "INVERSE_TABLE_NODES", "MAX_CRF_CONDITION",
+           "MAX_CRF_ORDER", "MONOTONE_GRID", "MONOTONE_ROUNDS", "MONOTONE_SLOPE_TOL", "ResponseFit",
+           "fit_response", "inverse_response", "read_response", "response_inverse_table"]
+
 #: Default order K of the response polynomial (Rim et al. fit K = 7, supplementary Sec. 7).
 DEFAULT_CRF_ORDER = 7
 #: Highest order accepted: the ascending-power coefficients of higher orders cancel so much

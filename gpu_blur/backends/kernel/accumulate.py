@@ -41,6 +41,8 @@ from gpu_blur.reference.interpolate import (
 )
 from gpu_blur.tiling import Region
 
+__all__ = ["Accumulate", "S"]
+
 S = StageName
 
 

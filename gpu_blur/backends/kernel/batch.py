@@ -28,6 +28,8 @@ from gpu_blur.kernel_constants import EXACT_FRAMES_MAX
 from gpu_blur.plan import Pass, Plan, StageName
 from gpu_blur.tiling import Region
 
+__all__ = ["Batch", "S"]
+
 S = StageName
 
 

@@ -25,6 +25,8 @@ from gpu_blur.plan import Pass
 from gpu_blur.testhooks import fault_planted, planted_fault
 from gpu_blur.tiling import Region
 
+__all__ = ["Buffers"]
+
 
 def _check_slots(samples: Sequence[Drawn], buffers) -> None:
     """Refuse a batched launch whose slots could not hold what its kernel reads or writes.

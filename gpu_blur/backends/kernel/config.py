@@ -27,6 +27,9 @@ from gpu_blur.reference.rng import key_from_seed
 from gpu_blur.reference.transfer import a7r3_lookup_table
 from gpu_blur.tiling import Region
 
+__all__ = ["Arg", "PassConfig", "S", "average_args", "finish_args", "pass_config", "retone_curves",
+           "sample_tables", "sharp_config", "source_dtype", "stage_values", "to_raw_args"]
+
 S = StageName
 
 

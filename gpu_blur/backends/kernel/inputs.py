@@ -22,6 +22,8 @@ from gpu_blur.reference.output import code_dtype
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
 
+__all__ = ["INSPECT_COLUMNS", "INSPECT_ITEMS", "Inputs", "inspect_items"]
+
 #: The columns of :meth:`KernelBackend.inspect`'s counts, in order (kernels/opencl/inputs.cl,
 #: gpu_blur/warp_kernels/inputs.py write them in this order).
 INSPECT_COLUMNS = ("nan", "infinite", "below_0", "above_1", "clip_level", "above_0")
