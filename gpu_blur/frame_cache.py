@@ -1,0 +1,145 @@
+"""Decoded input frames shared by the samples that use them, within a memory budget.
+
+Windows of one sequence overlap whenever a set asks for more windows than fit side by side
+(``--samples-per-sequence``, a window stride shorter than the window): without a cache each
+window decodes its frames again. :class:`FrameCache` decodes each file once while it stays
+within the budget, least recently used first out, and a frame that several I/O threads ask for
+at once is decoded by one of them while the others wait for it.
+
+A cached frame is the reader's array made read-only (``writeable = False``), so no sample can
+change what another sample reads. A file is known by its path and its ``os.stat`` identity
+(device, inode, size, modification time): a file replaced during a run is decoded again.
+"""
+
+from __future__ import annotations
+
+import collections
+import os
+import threading
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["CacheCounts", "FrameCache", "default_budget"]
+
+#: The share of the host's physical memory :func:`default_budget` gives the cache.
+MEMORY_SHARE = 1 / 8
+#: :func:`default_budget`'s ceiling, in bytes (1 GiB holds 150 decoded 1920 x 1200 8-bit frames).
+MAX_DEFAULT_BYTES = 1 << 30
+
+
+def default_budget() -> int:
+    """Bytes of decoded frames a run keeps by default: 1/8 of physical memory, at most 1 GiB."""
+    try:
+        physical = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, OSError, ValueError):  # not POSIX (Windows): the ceiling
+        return MAX_DEFAULT_BYTES
+    return int(min(MAX_DEFAULT_BYTES, physical * MEMORY_SHARE))
+
+
+@dataclass(frozen=True)
+class CacheCounts:
+    """What a cache did.
+
+    ``hits``: frames served decoded (waits on another thread's decode included); ``misses``:
+    files decoded; ``evicted``: frames dropped to stay in the budget.
+    """
+
+    hits: int
+    misses: int
+    evicted: int
+
+    def summary(self) -> str:
+        """One line for a run's summary."""
+        asked = self.hits + self.misses
+        share = f" ({100 * self.hits / asked:.0f} % of {asked} reads)" if asked else ""
+        return (f"frame cache: {self.misses} decoded, {self.hits} served decoded{share}, "
+                f"{self.evicted} evicted")
+
+
+class FrameCache:
+    """Decoded frames by file, at most ``budget`` bytes of them; safe to share across threads.
+
+    Args:
+        budget: bytes of decoded frames kept; 0 keeps none (every read decodes, as before).
+    """
+
+    def __init__(self, budget: int):
+        if budget < 0:
+            raise ValueError(f"frame cache budget: {budget} bytes; give 0 or more")
+        self.budget = budget
+        self._frames: collections.OrderedDict[tuple, np.ndarray] = collections.OrderedDict()
+        self._pending: dict[tuple, Future] = {}
+        self._bytes = 0
+        self._lock = threading.Lock()
+        self._hits = self._misses = self._evicted = 0
+
+    def read(self, path: str | Path, reader: Callable[[Path], np.ndarray]) -> np.ndarray:
+        """``reader(path)``'s array, read-only, decoded once while it stays in the budget.
+
+        A reader's exception reaches every thread waiting on that file, and nothing is kept.
+        """
+        path = Path(path)
+        if self.budget == 0:
+            with self._lock:
+                self._misses += 1
+            return reader(path)
+        key = _identity(path)
+        with self._lock:
+            frame = self._frames.get(key)
+            if frame is not None:
+                self._frames.move_to_end(key)
+                self._hits += 1
+                return frame
+            pending = self._pending.get(key)
+            if pending is None:
+                self._pending[key] = mine = Future()
+                self._misses += 1
+            else:
+                self._hits += 1
+        if pending is not None:
+            return pending.result()
+        try:
+            frame = reader(path)
+            frame.flags.writeable = False
+        except BaseException as error:
+            with self._lock:
+                del self._pending[key]
+            mine.set_exception(error)
+            raise
+        with self._lock:
+            del self._pending[key]
+            self._keep(key, frame)
+        mine.set_result(frame)
+        return frame
+
+    def counts(self) -> CacheCounts:
+        """The hits, misses and evictions so far."""
+        with self._lock:
+            return CacheCounts(self._hits, self._misses, self._evicted)
+
+    def _keep(self, key: tuple, frame: np.ndarray) -> None:
+        """Keep ``frame``, dropping the least recently used ones past the budget (lock held)."""
+        if frame.nbytes > self.budget:
+            return
+        self._frames[key] = frame
+        self._bytes += frame.nbytes
+        while self._bytes > self.budget:
+            _, dropped = self._frames.popitem(last=False)
+            self._bytes -= dropped.nbytes
+            self._evicted += 1
+
+
+def _identity(path: Path) -> tuple:
+    """A file's path and stat identity.
+
+    A path that cannot be stat'ed is known by name only (its reader then says what is wrong).
+    """
+    try:
+        stat = os.stat(path)
+    except OSError:
+        return (str(path),)
+    return (str(path), stat.st_dev, stat.st_ino, stat.st_size, stat.st_mtime_ns)

@@ -1,0 +1,121 @@
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from gpu_blur.frame_cache import FrameCache
+
+
+class CountingReader:
+    """A reader that returns a frame per file (its bytes' length as the value) and counts calls."""
+
+    def __init__(self, delay: float = 0.0, fail: bool = False):
+        self.calls: list[str] = []
+        self.delay, self.fail = delay, fail
+        self.lock = threading.Lock()
+
+    def __call__(self, path):
+        with self.lock:
+            self.calls.append(path.name)
+        time.sleep(self.delay)
+        if self.fail:
+            raise ValueError(f"{path}: corrupt")
+        return np.full((4, 4, 3), len(path.read_bytes()), dtype=np.uint8)
+
+
+def frames(tmp_path, count):
+    paths = []
+    for i in range(count):
+        paths.append(tmp_path / f"{i}.png")
+        paths[-1].write_bytes(b"x" * (i + 1))
+    return paths
+
+
+def test_a_frame_read_twice_is_decoded_once_and_read_only(tmp_path):
+    (path,) = frames(tmp_path, 1)
+    cache, reader = FrameCache(1 << 20), CountingReader()
+    first, again = cache.read(path, reader), cache.read(path, reader)
+    assert again is first and reader.calls == ["0.png"]
+    assert not first.flags.writeable
+    with pytest.raises(ValueError):
+        first[0, 0, 0] = 7
+    counts = cache.counts()
+    assert (counts.hits, counts.misses, counts.evicted) == (1, 1, 0)
+    assert counts.summary() == ("frame cache: 1 decoded, 1 served decoded (50 % of 2 reads), "
+                                "0 evicted")
+
+
+def test_the_least_recently_used_frame_leaves_first_past_the_budget(tmp_path):
+    a, b, c = frames(tmp_path, 3)
+    cache, reader = FrameCache(2 * 48), CountingReader()  # two 4 x 4 x 3 uint8 frames
+    cache.read(a, reader)
+    cache.read(b, reader)
+    cache.read(a, reader)  # a is now the most recent
+    cache.read(c, reader)  # b leaves
+    cache.read(a, reader)
+    cache.read(b, reader)
+    assert reader.calls == ["0.png", "1.png", "2.png", "1.png"]
+    assert cache.counts().evicted == 2
+
+
+def test_a_replaced_file_is_decoded_again(tmp_path):
+    (path,) = frames(tmp_path, 1)
+    cache, reader = FrameCache(1 << 20), CountingReader()
+    assert cache.read(path, reader)[0, 0, 0] == 1
+    path.write_bytes(b"yyy")
+    assert cache.read(path, reader)[0, 0, 0] == 3
+    assert len(reader.calls) == 2
+
+
+def test_threads_asking_for_one_frame_at_once_share_one_decode(tmp_path):
+    (path,) = frames(tmp_path, 1)
+    cache, reader = FrameCache(1 << 20), CountingReader(delay=0.2)
+    got = []
+    threads = [threading.Thread(target=lambda: got.append(cache.read(path, reader)))
+               for _ in range(8)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert reader.calls == ["0.png"] and len(got) == 8
+    assert all(frame is got[0] for frame in got)
+
+
+def test_a_failed_decode_reaches_every_waiter_and_is_not_kept(tmp_path):
+    (path,) = frames(tmp_path, 1)
+    cache, reader = FrameCache(1 << 20), CountingReader(delay=0.2, fail=True)
+    errors = []
+
+    def read():
+        try:
+            cache.read(path, reader)
+        except ValueError as error:
+            errors.append(str(error))
+
+    threads = [threading.Thread(target=read) for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert errors == [f"{path}: corrupt"] * 4 and len(reader.calls) == 1
+    reader.fail, reader.delay = False, 0.0
+    assert cache.read(path, reader)[0, 0, 0] == 1  # tried again, not a kept failure
+
+
+def test_a_zero_budget_decodes_every_read_and_a_negative_one_is_refused(tmp_path):
+    (path,) = frames(tmp_path, 1)
+    cache, reader = FrameCache(0), CountingReader()
+    cache.read(path, reader)
+    cache.read(path, reader)
+    assert len(reader.calls) == 2 and cache.counts().misses == 2
+    with pytest.raises(ValueError, match="frame cache budget: -1 bytes; give 0 or more"):
+        FrameCache(-1)
+
+
+def test_a_frame_larger_than_the_budget_is_served_but_not_kept(tmp_path):
+    (path,) = frames(tmp_path, 1)
+    cache, reader = FrameCache(10), CountingReader()
+    cache.read(path, reader)
+    cache.read(path, reader)
+    assert len(reader.calls) == 2
