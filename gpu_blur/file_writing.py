@@ -73,6 +73,15 @@ def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
     renamed; the temporary file is removed on failure).
     """
     path = Path(path)
+    write_whole(path, encode_image(image, bits, str(path)))
+
+
+def encode_image(image: np.ndarray, bits: int, what: str = "image") -> bytes:
+    """The bytes :func:`write_image` writes for ``image``: its PNG (8/16 bits) or TIFF (0).
+
+    Raises:
+        OSError: ``what``: could not encode the image.
+    """
     if bits == 0:
         data = np.asarray(image, dtype=np.float32)
     elif np.asarray(image).dtype == code_dtype(bits):
@@ -84,8 +93,8 @@ def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
     except cv2.error:
         ok = False
     if not ok:
-        raise OSError(f"{path}: could not encode the image")
-    write_whole(path, encoded.tobytes())
+        raise OSError(f"{what}: could not encode the image")
+    return encoded.tobytes()
 
 
 def write_text(path: str | Path, text: str,

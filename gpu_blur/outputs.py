@@ -112,10 +112,16 @@ def write_dng(path, raw: np.ndarray, info: dict) -> None:
 
     The file appears complete or not at all (as :func:`gpu_blur.file_writing.write_image`).
     """
+    from gpu_blur.file_writing import write_whole
+
+    write_whole(Path(path), dng_bytes(raw, info))
+
+
+def dng_bytes(raw: np.ndarray, info: dict) -> bytes:
+    """The bytes of the DNG :func:`write_dng` writes."""
     import tifffile
 
     from gpu_blur.constants import XYZ_TO_SRGB
-    from gpu_blur.file_writing import write_whole
     from gpu_blur.reference.fixedmath import inverse3, matmul3
 
     gains = np.asarray(info["wb_gains"], np.float64)
@@ -139,7 +145,7 @@ def write_dng(path, raw: np.ndarray, info: dict) -> None:
     encoded = io.BytesIO()
     tifffile.imwrite(encoded, raw_codes(raw, info), photometric="cfa", extratags=tags,
                      subfiletype=0)
-    write_whole(Path(path), encoded.getvalue())
+    return encoded.getvalue()
 
 
 _DENOMINATOR = 10**6
