@@ -95,11 +95,14 @@ SAVED_ARRAYS = (*ARRAY_PARAMS, REGIONS_KEY)
 def _inputs(spec: SampleSpec) -> dict:
     """A manifest line's ``inputs`` (:func:`input_label`), and in mode none ``input_roles``.
 
-    The roles are ``blurred``, ``mask`` and ``sharp``, in the order of the inputs.
+    The roles are ``blurred``, ``mask`` and ``sharp``, in the order of the inputs. A window
+    of frames (blur mode average) says its sequence and place (:meth:`Window.manifest`).
     """
     line = {"inputs": [input_label(p) for p in spec.inputs]}
     if spec.roles:
         line["input_roles"] = list(spec.roles)
+    if spec.window is not None:
+        line.update(spec.window.manifest())
     return line
 
 
@@ -168,13 +171,18 @@ def library_versions(backend: str) -> dict[str, str]:
     return versions
 
 
+#: Scene keys of [blur] added since sets were made, with the value those sets had.
+_BEFORE_THEM = {"draws": "per-sample", "stride": 0}
+
+
 def _set_keys(scene):
     """A recorded scene without its None-valued keys, as resume compares it.
 
     A key added to the scene format since a set was made is absent from its run.json, and
-    None means the same (a stage off, or the camera's level). ``blur.interpolation_region``
-    counts only under ``blur.interpolation = "auto"``, where a set made before it had one
-    factor per gap: 0.
+    None means the same (a stage off, or the camera's level); so do ``blur.draws =
+    "per-sample"`` and ``blur.stride = 0``, what sets made before them did.
+    ``blur.interpolation_region`` counts only under ``blur.interpolation = "auto"``, where a
+    set made before it had one factor per gap: 0.
     """
     if not isinstance(scene, dict):
         return scene
@@ -185,6 +193,8 @@ def _set_keys(scene):
         scene["blur"] = ({"interpolation_region": 0, **blur}
                          if blur.get("interpolation") == INTERPOLATION_AUTO
                          else {k: v for k, v in blur.items() if k != "interpolation_region"})
+        scene["blur"] = {k: v for k, v in scene["blur"].items()
+                         if k not in _BEFORE_THEM or v != _BEFORE_THEM[k]}
     return scene
 
 

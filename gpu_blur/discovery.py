@@ -20,7 +20,7 @@ from gpu_blur.scene import FROM_NAME
 
 __all__ = ["BLURRED_EXPECTED", "BLURRED_LAYOUTS", "BUILT_IN_INPUT", "BlurredLayout",
            "BlurredSample", "FoundSequence", "GOPRO_NAME", "IMAGE_SUFFIXES", "LAYOUT_NAMES",
-           "MANIFEST", "MAX_SAMPLES", "RUN", "SampleSpec", "Samples", "check_layout",
+           "MANIFEST", "MAX_SAMPLES", "RUN", "SampleSpec", "Samples", "Window", "check_layout",
            "default_photo", "find_blurred", "find_realblur_pairs", "find_samples", "find_sequences",
            "frames_from_name", "input_label", "read_datalist", "sequence_folder", "sequence_layout",
            "sequence_samples", "shown"]
@@ -52,13 +52,39 @@ LAYOUT_NAMES = {GOPRO_LARGE: "GOPRO_Large (<seq>/sharp/ beside <seq>/blur/)",
 
 
 @dataclasses.dataclass(frozen=True)
+class Window:
+    """Where a window of blur mode average lies: its sequence and its place in it.
+
+    Attributes:
+        sequence: the sequence's name (:func:`find_sequences`).
+        sequence_index: the sequence's number among the input's sequences, from 0, in
+            their natural order; under ``blur.draws = "per-sequence"`` it keys the draws
+            every window of the sequence shares (with the seed).
+        number: the window's number in its sequence, from 0.
+        first_frame: the number of its first frame in the sequence, from 0.
+    """
+
+    sequence: str
+    sequence_index: int
+    number: int
+    first_frame: int
+
+    def manifest(self) -> dict:
+        """The keys a manifest line gives the window: sequence, its index, window, first frame."""
+        return {"sequence": self.sequence, "sequence_index": self.sequence_index,
+                "window": self.number, "first_frame": self.first_frame}
+
+
+@dataclasses.dataclass(frozen=True)
 class SampleSpec:
     """One sample to make: its index (which, with the seed, fixes its draws) and its inputs.
 
     ``problem`` says why the sample cannot be made (a sequence shorter than ``blur.frames``,
     a blurred image without its mask); such a sample keeps its index, so fixing its input
     later moves no other sample's draws. ``roles`` names each input for blur mode none
-    (``blurred``, ``mask``, ``sharp``); empty for frames and photos.
+    (``blurred``, ``mask``, ``sharp``); empty for frames and photos. ``window``: in blur mode
+    average, the sequence the sample's frames come from and where (None for photos and
+    blurred images).
     """
 
     index: int
@@ -66,6 +92,7 @@ class SampleSpec:
     inputs: tuple[Path, ...]
     problem: str | None = None
     roles: tuple[str, ...] = ()
+    window: Window | None = None
 
 
 #: How the manifest and run.json name the built-in photo: its installed path differs from one
@@ -367,10 +394,15 @@ def find_blurred(root: Path, masks: bool = True,
     return samples
 
 
-def _windows(count: int, size: int, per_sequence: int | None) -> Iterator[int]:
-    """First frames of a sequence's windows, in order (see :func:`find_samples`)."""
+def _windows(count: int, size: int, per_sequence: int | None, stride: int = 0
+             ) -> Iterator[int]:
+    """First frames of a sequence's windows, in order (see :func:`find_samples`).
+
+    ``stride``: frames between consecutive windows' first frames without ``per_sequence``
+    (0: ``size``, windows side by side).
+    """
     if per_sequence is None:
-        return iter(range(0, count - size + 1, size))
+        return iter(range(0, count - size + 1, stride or size))
     if per_sequence == 1:
         return iter([0])
     last = count - size
@@ -444,32 +476,36 @@ def read_datalist(path: Path, root: Path) -> list[BlurredSample]:
     return pairs
 
 
-def sequence_samples(sequences, size: int | Sequence[int],
-                     per_sequence: int | None) -> Iterator[SampleSpec]:
+def sequence_samples(sequences, size: int | Sequence[int], per_sequence: int | None,
+                     stride: int = 0) -> Iterator[SampleSpec]:
     """The windows of ``size`` frames of :func:`find_sequences`' sequences, numbered in order.
 
     ``size``: frames per window, one number for all or one per sequence (``from-name``).
-    See :func:`find_samples`; a sequence too short gives one sample with ``problem``.
+    ``stride``: frames between consecutive windows' first frames (0: ``size``).
+    See :func:`find_samples`; a sequence too short gives one sample with ``problem``. Each
+    sample's :class:`Window` says its sequence (numbered in the order given) and place.
     """
     index = 0
     named = isinstance(size, (list, tuple))
     sizes = size if named else [size] * len(sequences)
-    for (name, frames), wanted in zip(sequences, sizes, strict=True):
+    for number, ((name, frames), wanted) in enumerate(zip(sequences, sizes, strict=True)):
         if len(frames) < wanted:
             asked = (f"the {wanted} its name asks for (blur.frames = '{FROM_NAME}'); add frames"
                      if named else
                      f"blur.frames = {wanted}; add frames, lower blur.frames in the scene")
             yield SampleSpec(index, f"{name}/{frames[0].stem}", tuple(frames),
                              f"sequence {name} has {len(frames)} frame(s) in {frames[0].parent}, "
-                             f"fewer than {asked}, or remove the sequence")
+                             f"fewer than {asked}, or remove the sequence",
+                             window=Window(name, number, 0, 0))
             index += 1
             continue
         previous = None  # starts never decrease, so a repeat follows its first
-        for j, start in enumerate(_windows(len(frames), wanted, per_sequence)):
+        for j, start in enumerate(_windows(len(frames), wanted, per_sequence, stride)):
             window = tuple(frames[start:start + wanted])
             repeat = f"_{j}" if start == previous else ""
             previous = start
-            yield SampleSpec(index, f"{name}/{window[0].stem}{repeat}", window)
+            yield SampleSpec(index, f"{name}/{window[0].stem}{repeat}", window,
+                             window=Window(name, number, j, start))
             index += 1
 
 
@@ -486,12 +522,15 @@ def _blurred_samples(found: list[BlurredSample], per_photo: int) -> Iterator[Sam
 def _in_utf8(specs: Iterator[SampleSpec]) -> Iterator[SampleSpec]:
     """``specs``, each whose name or an input's path is not UTF-8 failed with its reason.
 
-    Its name (and any problem) is then :func:`shown`, so its manifest line holds UTF-8 text.
+    Its name (and any problem, and its window's sequence) is then :func:`shown`, so its
+    manifest line holds UTF-8 text.
     """
     for spec in specs:
         odd = [text for text in (*map(str, spec.inputs), spec.name) if not _text(text)]
         if odd:
-            spec = dataclasses.replace(spec, name=shown(spec.name), problem=(
+            window = spec.window and dataclasses.replace(spec.window,
+                                                         sequence=shown(spec.window.sequence))
+            spec = dataclasses.replace(spec, name=shown(spec.name), window=window, problem=(
                 f"{shown(odd[0])}: the path is not UTF-8 (\\xNN here is a byte that is not), "
                 "and a set records its samples' names and inputs as UTF-8 text; rename it to "
                 "UTF-8 (convmv -r -f <its encoding> -t utf-8 <folder>), then run the same "
@@ -571,7 +610,7 @@ def _layouts(found: tuple[FoundSequence, ...]) -> str:
 def find_samples(root: Path | None, mode: str, frames_per_sample: int | str,
                  samples_per_photo: int = 1, samples_per_sequence: int | None = None,
                  exclude: Path | None = None, masks: bool = True,
-                 where: str = "the scene") -> Samples:
+                 where: str = "the scene", stride: int = 0) -> Samples:
     """The samples a folder yields for a blur mode, counted at once and made when taken.
 
     Args:
@@ -598,6 +637,9 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int | str,
             the first window): strided when ``K <= n // frames``, overlapping beyond, and the
             same window again (with its own draws) when ``K > n - frames + 1``. Windows are
             named by their first frame, plus ``_<j>`` for a repeat.
+        stride: mode ``average`` without ``samples_per_sequence``: frames between
+            consecutive windows' first frames (``blur.stride``), ``(n - frames) // stride +
+            1`` windows per sequence; 0 (default): ``frames``, the windows side by side.
         exclude: a folder under ``root`` whose images are never taken (the output folder:
             a set written inside its input is not read back as input).
         masks: mode ``none``: each blurred image needs its mask (without one its sample has
@@ -610,7 +652,8 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int | str,
 
     Raises:
         ValueError: naming the folder when it is missing, not a folder, or yields no sample;
-            with :data:`FROM_NAME`, naming a sequence folder not named ``GOPRxxxx_yy_zz``.
+            with :data:`FROM_NAME`, naming a sequence folder not named ``GOPRxxxx_yy_zz``;
+            ``samples_per_sequence`` with a ``stride``.
     """
     if root is None:
         if mode == "average":
@@ -632,6 +675,12 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int | str,
         if mode == "average":
             if samples_per_sequence is not None and samples_per_sequence < 1:
                 raise ValueError(f"--samples-per-sequence {samples_per_sequence}: must be >= 1")
+            if samples_per_sequence is not None and stride:
+                raise ValueError(
+                    f"--samples-per-sequence {samples_per_sequence} and blur.stride = {stride} "
+                    f"({where}) both place the windows: --samples-per-sequence spreads that "
+                    "many evenly over each sequence, blur.stride steps them that many frames "
+                    "apart from the first; give one")
             seqs = find_sequences(root, exclude)
             named = frames_per_sample == FROM_NAME
             sizes = ([frames_from_name(frames, where) for _, frames in seqs] if named
@@ -650,12 +699,14 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int | str,
                     f"images (blur.frames){short} (nor a GOPRO_Large_all GOPRxxxx_yy_zz/ or "
                     "RSBlur-style <session>/<id>/ folder of frames); lower blur.frames, or for "
                     "single photos use blur.mode = trajectory or kernel")
-            total = sum(1 if len(frames) < n else samples_per_sequence or len(frames) // n
+            total = sum(1 if len(frames) < n else samples_per_sequence
+                        or (len(frames) - n) // (stride or n) + 1
                         for (_, frames), n in zip(seqs, sizes, strict=True))
             size = sizes if named else frames_per_sample
             found = _found(root, seqs)
             return Samples(total, lambda: _in_utf8(sequence_samples(seqs, size,
-                                                                    samples_per_sequence)),
+                                                                    samples_per_sequence,
+                                                                    stride)),
                            _layouts(found), sum(len(frames) for _, frames in seqs), found)
         if mode == "none":
             found = find_blurred(root, masks, exclude)

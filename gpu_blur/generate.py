@@ -2,8 +2,8 @@
 
 The driver (``gpu-blur generate``) owns the output folder and the manifest; executors only
 make samples and hand them back as ``(spec, result, error)``, in any order. A sample's output
-depends only on (seed, sample index, scene), so any executor, worker or device gives the same
-files.
+depends only on (seed, sample index, scene) and, under ``blur.draws = "per-sequence"``, its
+sequence's index (the spec's), so any executor, worker or device gives the same files.
 
 On one device the driver runs a pipeline (``--io-threads``): a pool of threads decodes the
 next samples' input files (:func:`run_pipelined`) and encodes and writes the finished ones
@@ -93,7 +93,8 @@ def make_sample(job: Job, spec: SampleSpec, inputs: tuple[np.ndarray, ...] | Non
 
     ``inputs`` are the sample's files already decoded (:func:`decode`), else its paths are
     read here. In blur mode none they go to ``synthesize`` as the mapping its ``roles`` name
-    (``{"blurred": ..., "mask": ..., "sharp": ...}``).
+    (``{"blurred": ..., "mask": ..., "sharp": ...}``). A window of a sequence goes with its
+    sequence's index, which keys its draws under ``blur.draws = "per-sequence"``.
 
     What fails only this sample (the reason goes to the manifest and the run goes on) is what
     this sample's inputs and size cause: ValueError (a check refused an input or a value),
@@ -113,7 +114,8 @@ def make_sample(job: Job, spec: SampleSpec, inputs: tuple[np.ndarray, ...] | Non
         # the float32 bytes to fetch, no conversion on the host)
         result = synthesize(given, job.scene,
                             seed=job.seed, sample_index=spec.index, backend=job.backend,
-                            tile=job.schedule, with_raw=job.with_raw, codes=bool(job.bits))
+                            tile=job.schedule, with_raw=job.with_raw, codes=bool(job.bits),
+                            sequence_index=spec.window and spec.window.sequence_index)
     except (ValueError, OSError) as e:
         return spec, None, str(e)
     except cv2.error as e:

@@ -371,7 +371,8 @@ class _Run:
                  else "the default scene" if o.scene is None else "the scene")
         found = find_samples(o.input, scene.blur.mode, scene.blur.frames, per_photo,
                              o.samples_per_sequence, exclude=o.output,
-                             masks=scene.saturation.mode != "off", where=where)
+                             masks=scene.saturation.mode != "off", where=where,
+                             stride=scene.blur.stride)
         if on_input is not None:
             on_input(InputFound(o.input, found.layout, len(found.sequences), found.images,
                                 found.total, min(found.total, o.limit or found.total),

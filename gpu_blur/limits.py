@@ -49,7 +49,7 @@ __all__ = ["ALPHA", "CAM2LIN_LARGEST", "CRF_TABLE_SIZE", "CROP", "EXTENT", "FRAM
            "IMAGE_PIXELS", "INTERPOLATION_REGION", "INTERPOLATION_TOLERANCE", "JPEG_QUALITY",
            "KERNEL_SIDE", "KERNEL_SIZE", "LIN2CAM_LARGEST", "Limit", "MAX_PIXELS",
            "MAX_PIXELS_VARIABLE", "NORMAL_ABOVE", "READ_NOISE_STD", "ROLL", "SHOT_NOISE_K",
-           "SPREAD", "STEPS", "VIGNETTING", "WB_GAIN", "WB_WEIGHT", "max_pixels"]
+           "SPREAD", "STEPS", "STRIDE", "VIGNETTING", "WB_GAIN", "WB_WEIGHT", "max_pixels"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,6 +109,10 @@ class Limit:
 FRAMES = Limit(1, 1024, integer=True, reason=(
     "frames averaged per sample, each held in host memory: 1,024 frames of 1920 x 1080 take "
     "6.4 GB; RSBlur averages 9"))
+STRIDE = Limit(0, 1_000_000, integer=True, reason=(
+    "frames from one window's first frame to the next one's in mode 'average', 0 = "
+    "blur.frames (windows side by side); fewer overlap, more leave frames out between "
+    "windows; a stride beyond a sequence's length takes its first window only"))
 #: 8 x the auto choice's largest (reference.shake.SHAKE_AUTO_STEPS_RANGE, about one pose per
 #: pixel of the path); each pose costs a bilinear read per pixel (numpy: ~0.2 us per pixel and
 #: pose, 31 s for 8,192 poses on 128 x 128) and 72 bytes of float64 3 x 3 on the device.

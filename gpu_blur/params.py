@@ -3,6 +3,9 @@
 Every scalar comes from a fixed index of stream ``PARAMS`` keyed by (seed, sample index), so
 fixing one with ``overrides`` never shifts another, and a sample's draws never depend on which
 worker, tile or backend makes it. Only the parameters of kept stages are drawn and reported.
+Under ``blur.draws = "per-sequence"`` the same streams are keyed by (seed, sequence index)
+instead (:class:`gpu_blur.reference.rng.Keyed`), so every window of a frame sequence draws the
+same values; the noise's pixels stay keyed by the sample index (the kernels' counters).
 """
 
 from __future__ import annotations
@@ -19,10 +22,10 @@ from gpu_blur.plan import Plan
 from gpu_blur.reference import motion_kernel, rng, shake
 from gpu_blur.reference.bayer import BayerPattern
 from gpu_blur.reference.noise import draw_noise_levels
-from gpu_blur.scene import PATTERNS, Scene
+from gpu_blur.scene import PATTERNS, PER_SEQUENCE, Scene
 
 __all__ = ["ARRAY_PARAMS", "DRAW_INDEX", "OVERRIDE_LIMITS", "batch_uniforms", "check_overrides",
-           "draw_params", "image_streams"]
+           "draw_keys", "draw_params", "image_streams"]
 
 #: Index of each scalar draw in stream PARAMS (a contract: changing one changes every dataset).
 DRAW_INDEX = {
@@ -123,21 +126,48 @@ def image_streams(scene: Scene) -> dict:
     return streams
 
 
-def batch_uniforms(scene: Scene, *, seed: int, sample_indices) -> list[dict]:
+def draw_keys(scene: Scene, sample_indices, sequence_indices=None
+              ) -> tuple[list[int], rng.Keyed]:
+    """The indices the per-image draws of these samples are keyed by, and what they number.
+
+    The samples' own (:attr:`~gpu_blur.reference.rng.Keyed.SAMPLE`), or under
+    ``blur.draws = "per-sequence"`` their frame sequences' (``sequence_indices``, one per
+    sample; :attr:`~gpu_blur.reference.rng.Keyed.SEQUENCE`), which then must be given.
+
+    Raises:
+        ValueError: a per-sequence scene without sequence indices, or not one per sample.
+    """
+    if scene.blur.draws != PER_SEQUENCE:
+        return list(sample_indices), rng.Keyed.SAMPLE
+    if sequence_indices is None or any(i is None for i in sequence_indices):
+        raise ValueError(
+            f"blur.draws = '{PER_SEQUENCE}' draws each sample's camera settings from its frame "
+            "sequence: give each sample's sequence index (synthesize's sequence_index, a "
+            "Synthesizer batch's sequences), as gpu-blur generate does for each window")
+    if len(sequence_indices) != len(sample_indices):
+        raise ValueError(f"sequences: {len(sequence_indices)} sequence indices for "
+                         f"{len(sample_indices)} samples; give one per sample")
+    return list(sequence_indices), rng.Keyed.SEQUENCE
+
+
+def batch_uniforms(scene: Scene, *, seed: int, sample_indices,
+                   sequence_indices=None) -> list[dict]:
     """Each sample's uniforms of :func:`image_streams`, drawn for the samples at once.
 
     Row b is what :func:`draw_params` draws for ``sample_indices[b]`` (its ``uniforms``
-    argument): the same values (:func:`gpu_blur.reference.rng.image_uniforms_batch`), in one
-    Philox evaluation per stream instead of one per sample.
+    argument; keyed by ``sequence_indices[b]`` under per-sequence draws, :func:`draw_keys`):
+    the same values (:func:`gpu_blur.reference.rng.image_uniforms_batch`), in one Philox
+    evaluation per stream instead of one per sample.
     """
-    drawn = {stream: rng.image_uniforms_batch(seed, sample_indices, stream, count)
+    keys, keyed = draw_keys(scene, sample_indices, sequence_indices)
+    drawn = {stream: rng.image_uniforms_batch(seed, keys, stream, count, keyed)
              for stream, count in image_streams(scene).items()}
-    return [{stream: u[b] for stream, u in drawn.items()} for b in range(len(sample_indices))]
+    return [{stream: u[b] for stream, u in drawn.items()} for b in range(len(keys))]
 
 
 def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_index: int,
                 image_shape: tuple[int, int], overrides: dict | None = None,
-                uniforms: dict | None = None) -> dict:
+                uniforms: dict | None = None, sequence_index: int | None = None) -> dict:
     """Draw every random value the plan needs for one sample.
 
     Args:
@@ -151,23 +181,27 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
             must lie within :data:`OVERRIDE_LIMITS`.
         uniforms: the sample's row of :func:`batch_uniforms` (drawn for a batch at once);
             None: drawn here.
+        sequence_index: the index of the frame sequence the sample is a window of; under
+            ``blur.draws = "per-sequence"`` the draws are keyed by it (:func:`draw_keys`),
+            else it is not used.
 
     Returns:
         A dict of plain Python scalars and, for ``kernel`` / ``homographies``, float64 arrays.
 
     Raises:
         ValueError: an unknown or unused override, or one outside its range (naming it, the
-            value and what is allowed).
+            value and what is allowed); a per-sequence scene without ``sequence_index``.
     """
     check_overrides(overrides)
     overrides = dict(overrides or {})
     streams = image_streams(scene)
     given = uniforms or {}
+    (key,), keyed = draw_keys(scene, [sample_index], [sequence_index])
 
     def stream_uniforms(stream):
         if stream in given:
             return given[stream]
-        return rng.image_uniforms(seed, sample_index, stream, streams[stream])
+        return rng.image_uniforms(seed, key, stream, streams[stream], keyed)
 
     u = stream_uniforms(rng.Stream.PARAMS)
     draw = {name: float(u[i]) for name, i in DRAW_INDEX.items()}

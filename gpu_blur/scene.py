@@ -32,7 +32,8 @@ from gpu_blur.reference.flow import (
 )
 
 __all__ = ["Blur", "CameraSettings", "FIELDS", "FROM_NAME", "Field", "Isp", "Noise", "Optics",
-           "Output", "PATTERNS", "Saturation", "Scene", "SceneError", "builtin_scenes",
+           "Output", "PATTERNS", "PER_SAMPLE", "PER_SEQUENCE", "Saturation", "Scene",
+           "SceneError", "builtin_scenes",
            "check_scene", "describe_fields", "load_scene", "scene_from_dict", "scene_path",
            "toml_loads"]
 
@@ -40,6 +41,10 @@ PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 #: ``blur.frames`` taking each sequence's frames per blur from its folder's name, ``yy`` of
 #: ``GOPRxxxx_yy_zz`` (:func:`gpu_blur.discovery.frames_from_name`).
 FROM_NAME = "from-name"
+#: ``blur.draws``: a sample's per-image values drawn from its own index (every set before
+#: them), or from its frame sequence's, shared by the sequence's windows
+#: (:class:`gpu_blur.reference.rng.Keyed`).
+PER_SAMPLE, PER_SEQUENCE = "per-sample", "per-sequence"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,6 +76,16 @@ FIELDS: dict[str, dict[str, Field]] = {
                         f"'{FROM_NAME}': yy of each sequence folder named GOPRxxxx_yy_zz "
                         "(GOPRO_Large_all: yy frames make one blur)",
                         limit=limits.FRAMES, words=(FROM_NAME,)),
+        "stride": Field(0, "mode 'average': frames from one window's first frame to the next "
+                        "one's in a sequence; 0 = blur.frames (consecutive windows side by "
+                        "side); fewer than blur.frames makes overlapping windows",
+                        limit=limits.STRIDE),
+        "draws": Field(PER_SAMPLE, f"mode 'average': '{PER_SAMPLE}' draws each sample's "
+                       "camera settings (white-balance gains, noise levels, saturation alpha, "
+                       f"Bayer pattern, JPEG quality) on its own; '{PER_SEQUENCE}' draws them "
+                       "once per frame sequence, shared by all of its windows (video "
+                       "deblurring); the noise's pixels differ per window either way",
+                       choices=(PER_SAMPLE, PER_SEQUENCE)),
         "interpolation": Field(1, "mode 'average': raise the frame rate by this factor before "
                                "averaging, (frames - 1) * factor + 1 frames in all (RSBlur: 8, "
                                "9 -> 65); 1 averages the frames as they are; 'auto' picks 1, "
@@ -331,6 +346,11 @@ def _check_consistency(sections: dict, where: str) -> None:
         raise SceneError(f"{where}: blur.frames = '{FROM_NAME}' needs blur.mode = 'average' "
                          f"(it is {blur.mode!r}): it counts the frames averaged per blur; "
                          "allowed for this mode: a number, or set blur.mode = 'average'")
+    for key, value, plain in (("draws", blur.draws, PER_SAMPLE), ("stride", blur.stride, 0)):
+        if value != plain and blur.mode != "average":
+            raise SceneError(f"{where}: blur.{key} = {value!r} needs blur.mode = 'average' (it "
+                             f"is {blur.mode!r}): it concerns the windows of frame sequences; "
+                             f"allowed for this mode: {plain!r}, or set blur.mode = 'average'")
     if blur.interpolation_region % REGION_STEP:
         raise SceneError(f"{where}: blur.interpolation_region = {blur.interpolation_region!r} "
                          f"is invalid; allowed: 0 or a multiple of {REGION_STEP} (e.g. 64)")

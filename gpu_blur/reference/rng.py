@@ -17,14 +17,18 @@ per-pixel draws
     *global* column and row in the full image (never tile-local), so tiling never changes a
     draw. ``round`` in ``[0, 2**24)`` numbers successive blocks of four words for one pixel.
 per-image draws
-    element ``i`` of a stream is word ``i % 4`` of ``counter = (i // 4, 0, sample_index,
-    stream << 24)``.
+    element ``i`` of a stream is word ``i % 4`` of ``counter = (i // 4, keyed, index,
+    stream << 24)``: ``keyed`` 0 (:attr:`Keyed.SAMPLE`) and ``index`` the sample index for a
+    sample's own draws; ``keyed`` 1 (:attr:`Keyed.SEQUENCE`) and ``index`` the sequence's for
+    the draws every window of one frame sequence shares (``blur.draws = "per-sequence"``).
 ``sample_index``
     in ``[0, 2**32)``: which sample (image, frame) of a data set the draw belongs to.
 ``stream``
     a :class:`Stream` value in the top 8 bits of counter word 3. Each stream is used either
-    per pixel or per image, never both: the per-image counter ``(j, 0, s, stream << 24)``
-    equals the per-pixel counter of pixel ``(x=j, y=0)`` at round 0 of the same stream.
+    per pixel or per image, never both: the per-image counter ``(j, k, s, stream << 24)``
+    equals the per-pixel counter of pixel ``(x=j, y=k)`` at round 0 of the same stream. A
+    sequence's draws (word 1 = 1) therefore never meet a sample's (word 1 = 0), whatever the
+    two indices, and a sample's draws are the same whether or not sequences are drawn.
 
 Uniforms
 --------
@@ -54,6 +58,7 @@ import numpy as np
 from gpu_blur.reference import fixedmath
 
 __all__ = [
+    "Keyed",
     "Stream",
     "box_muller",
     "image_uniforms",
@@ -106,6 +111,17 @@ class Stream(enum.IntEnum):
     READ_NOISE = 5  #: Gaussian read noise, one normal per RAW sample
     SRGB_NOISE = 6  #: Gaussian noise added in sRGB, three normals per pixel
     SPOT_CHECK = 7  #: which tiles a spot check recomputes (gpu_blur.scheduler), one per tile
+
+
+class Keyed(enum.IntEnum):
+    """What the index of a per-image draw numbers; the value is counter word 1.
+
+    A sample's draws and a frame sequence's draws (shared by the sequence's windows under
+    ``blur.draws = "per-sequence"``) come from the same streams, apart by this word.
+    """
+
+    SAMPLE = 0  #: the index is a sample's (every data set before per-sequence draws)
+    SEQUENCE = 1  #: the index is a frame sequence's, in the order the input lists them
 
 
 # --------------------------------------------------------------------------------------------
@@ -231,6 +247,14 @@ def _check_stream(stream) -> Stream:
         ) from None
 
 
+def _check_keyed(keyed) -> Keyed:
+    try:
+        return Keyed(keyed)
+    except ValueError:
+        raise ValueError(f"keyed must be a gpu_blur.reference.rng.Keyed (SAMPLE=0, "
+                         f"SEQUENCE=1); got {keyed!r}") from None
+
+
 def _check_round(round) -> int:
     if isinstance(round, bool) or not isinstance(round, (int, np.integer)):
         raise ValueError(f"round must be an int in [0, 2**24); got {round!r}")
@@ -282,18 +306,22 @@ def uniform_from_bits(bits) -> np.ndarray:
     return ((arr >> _UNIFORM_SHIFT).astype(np.float64) + 0.5) * _UNIFORM_SCALE
 
 
-def image_uniforms(seed: int, sample_index: int, stream: Stream, count: int) -> np.ndarray:
+def image_uniforms(seed: int, sample_index: int, stream: Stream, count: int,
+                   keyed: Keyed = Keyed.SAMPLE) -> np.ndarray:
     """Return the first ``count`` per-image uniforms of a stream.
 
-    Element ``i`` is word ``i % 4`` of ``philox4x32((i // 4, 0, sample_index, stream << 24),
-    key_from_seed(seed))``, through :func:`uniform_from_bits`. Asking for more elements never
-    changes the earlier ones.
+    Element ``i`` is word ``i % 4`` of ``philox4x32((i // 4, keyed, sample_index, stream <<
+    24), key_from_seed(seed))``, through :func:`uniform_from_bits`. Asking for more elements
+    never changes the earlier ones.
 
     Args:
         seed: 64-bit seed.
-        sample_index: sample number in ``[0, 2**32)``.
+        sample_index: sample number in ``[0, 2**32)`` (a sequence's with
+            :attr:`Keyed.SEQUENCE`).
         stream: a per-image :class:`Stream` (PARAMS, TRAJECTORY, KERNEL, SPOT_CHECK).
         count: number of uniforms, >= 0.
+        keyed: what ``sample_index`` numbers (:class:`Keyed`): a sample (default) or a
+            frame sequence.
 
     Returns:
         float64 array of shape ``(count,)``, values in (0, 1).
@@ -301,17 +329,20 @@ def image_uniforms(seed: int, sample_index: int, stream: Stream, count: int) -> 
     key = key_from_seed(seed)
     sample_index = _check_sample_index(sample_index)
     stream = _check_stream(stream)
+    keyed = _check_keyed(keyed)
     blocks = _blocks_of(count)
     if blocks <= _SCALAR_BLOCKS:  # a sample's few draws: Python ints beat numpy's set-up
         k0, k1 = int(key[0]), int(key[1])
         words = [w for b in range(blocks)
-                 for w in _philox4x32_ints(b, 0, sample_index, int(stream) << 24, k0, k1)]
+                 for w in _philox4x32_ints(b, int(keyed), sample_index, int(stream) << 24,
+                                           k0, k1)]
         shift = int(_UNIFORM_SHIFT)
         return np.array([((w >> shift) + 0.5) * _UNIFORM_SCALE for w in words[:count]])
-    return image_uniforms_batch(seed, [sample_index], stream, count)[0]
+    return image_uniforms_batch(seed, [sample_index], stream, count, keyed)[0]
 
 
-def image_uniforms_batch(seed: int, sample_indices, stream: Stream, count: int) -> np.ndarray:
+def image_uniforms_batch(seed: int, sample_indices, stream: Stream, count: int,
+                         keyed: Keyed = Keyed.SAMPLE) -> np.ndarray:
     """:func:`image_uniforms` of several samples at once: row b is sample_indices[b]'s.
 
     One Philox evaluation over every sample's blocks, for a batch's per-image draws (numpy's
@@ -323,13 +354,15 @@ def image_uniforms_batch(seed: int, sample_indices, stream: Stream, count: int) 
     """
     indices = [_check_sample_index(i) for i in sample_indices]
     blocks = _blocks_of(count)
+    keyed = _check_keyed(keyed)
     if blocks * len(indices) <= _SCALAR_BLOCKS:  # a sample or two of few draws
-        return np.array([image_uniforms(seed, i, stream, count) for i in indices]).reshape(
-            len(indices), count)
+        return np.array([image_uniforms(seed, i, stream, count, keyed)
+                         for i in indices]).reshape(len(indices), count)
     key = key_from_seed(seed)
     stream = _check_stream(stream)
     counter = np.zeros((len(indices), blocks, 4), dtype=np.uint64)
     counter[:, :, 0] = np.arange(blocks, dtype=np.uint64)
+    counter[:, :, 1] = int(keyed)
     counter[:, :, 2] = np.asarray(indices, dtype=np.uint64)[:, None]
     counter[:, :, 3] = int(stream) << 24
     bits = philox4x32(counter.reshape(-1, 4), key)

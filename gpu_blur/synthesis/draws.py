@@ -39,13 +39,15 @@ class Draws:
 
     def drawn(self, item: Inputs, sample_index: int, h: int, w: int,
               measured: RegionFactors | None, uniforms: dict | None = None, *,
-              saturated: bool | None = None):
+              saturated: bool | None = None, sequence_index: int | None = None):
         """A sample's plan and drawn values: (plan, params).
 
         ``measured``: the gaps' factors under interpolation auto
         (:func:`~gpu_blur.backends.flows.scene_factors`).
         ``uniforms``: the sample's row of :func:`gpu_blur.params.batch_uniforms`, else drawn.
         ``saturated``: the clip test's answer to plan by, for the input's own.
+        ``sequence_index``: its frame sequence's, which keys the draws under
+        ``blur.draws = "per-sequence"`` (:func:`gpu_blur.params.draw_keys`).
         """
         scene = self.scene
         frames = item.frames
@@ -59,7 +61,7 @@ class Draws:
             overrides = {k: v for k, v in (overrides or {}).items() if k != "alpha"}
         params = draw_params(scene, sample_plan, self.camera, seed=self.seed,
                              sample_index=sample_index, image_shape=(h, w), overrides=overrides,
-                             uniforms=uniforms)
+                             uniforms=uniforms, sequence_index=sequence_index)
         if measured is not None:  # the plan's factors, recorded in the manifest
             params = with_factors(sample_plan, params, frames, measured)
         return sample_plan, params

@@ -51,7 +51,8 @@ class HostPath:
         self.schedule, self.draws, self.io = schedule, draws, io
         self.with_mask, self.with_raw = with_mask, with_raw
 
-    def sample(self, item: Inputs, sample_index: int, *, on_device: bool = False) -> tuple:
+    def sample(self, item: Inputs, sample_index: int, *, on_device: bool = False,
+               sequence_index: int | None = None) -> tuple:
         """One checked sample.
 
         Returns (blurred, sharp, mask, raw, params, plan, tiles, spot checks): blurred left on
@@ -60,7 +61,7 @@ class HostPath:
         """
         crop = self.scene.output.crop
         blurred, mask, sharp, params, sample_plan, tiled = self.passes(
-            item, sample_index, on_device=on_device)
+            item, sample_index, on_device=on_device, sequence_index=sequence_index)
         out = (self.runner.device_array(blurred) if on_device
                else crop_border(blurred, crop))
         if isinstance(mask, np.ndarray):  # a device mask is fetched (and cropped) on use
@@ -70,13 +71,17 @@ class HostPath:
             raw = crop_border(raw, crop).astype(np.float32, copy=False)
         return out, sharp, mask, raw, params, sample_plan, tiled.tiles, tiled.checked
 
-    def batch(self, items: list[Inputs], indices, batch, lib: str, given):
-        """A batch run sample by sample from host memory (tiles, budgets, spot checks)."""
+    def batch(self, items: list[Inputs], indices, batch, lib: str, given, sequences=None):
+        """A batch run sample by sample from host memory (tiles, budgets, spot checks).
+
+        ``sequences``: each sample's sequence index (per-sequence draws), or None.
+        """
         out, params, plans, raws = None, [], [], []
         crop = self.scene.output.crop
         for b, item in enumerate(items):
             blurred, sat_mask, sharp_out, drawn, sample_plan, tiled = self.passes(
-                item, int(indices[b]))
+                item, int(indices[b]),
+                sequence_index=None if sequences is None else sequences[b])
             raws.append(tiled.raw)
             params.append(drawn)
             plans.append(sample_plan)
@@ -91,18 +96,21 @@ class HostPath:
             self._export(out, b, results)
         return out, params, plans, raws
 
-    def passes(self, item: Inputs, sample_index: int, *, on_device: bool = False):
+    def passes(self, item: Inputs, sample_index: int, *, on_device: bool = False,
+               sequence_index: int | None = None):
         """A prepared sample's passes from host memory (:mod:`gpu_blur.scheduler`).
 
         ``on_device``: leave the blurred image on the device (whole image, ``output.crop``
-        0). Returns (blurred, mask, sharp, params, plan, tiled).
+        0). ``sequence_index`` keys the draws under per-sequence draws; the noise stays keyed
+        by ``sample_index``. Returns (blurred, mask, sharp, params, plan, tiled).
         """
         scene = self.scene
         frames = item.frames
         h, w = frames[0].shape[:2]
         # interpolation auto: each gap's factor, measured on the host frames
         measured = scene_factors(scene, frames)
-        sample_plan, params = self.draws.drawn(item, sample_index, h, w, measured)
+        sample_plan, params = self.draws.drawn(item, sample_index, h, w, measured,
+                                               sequence_index=sequence_index)
         # how the passes run (tiles, halos, streamed frames, spot checks): gpu_blur.scheduler
         crop = scene.output.crop
         tiled = run(self.runner, sample_plan, params, self.camera, frames, item.mask,

@@ -198,8 +198,13 @@ def even(image, like: OnDevice):
     return image
 
 
-def sample_indices(indices, first_index, count: int) -> list[int]:
-    """A batch's sample indices as Python ints, each checked: a float is refused, not cut."""
+def sample_indices(indices, first_index, count: int, name: str = "indices",
+                   what: str = "sample index") -> list[int]:
+    """A batch's sample indices as Python ints, each checked: a float is refused, not cut.
+
+    ``name`` and ``what``: the argument and what it holds, for messages (a batch's
+    ``sequences``, its sequence indices, are checked alike).
+    """
     if indices is None:
         if not _whole(first_index) or not 0 <= first_index <= 2**32 - count:
             raise ValueError(f"first_index = {first_index!r}: needs an int, 0 <= first_index "
@@ -208,14 +213,15 @@ def sample_indices(indices, first_index, count: int) -> list[int]:
     if hasattr(indices, "tolist"):  # a numpy, torch or CuPy array: its values as Python's
         indices = indices.tolist()
     if isinstance(indices, str) or not isinstance(indices, Sequence):
-        raise ValueError(f"indices: one sample index per sample, a list or 1-D array of ints; "
+        raise ValueError(f"{name}: one {what} per sample, a list or 1-D array of ints; "
                          f"got {indices!r}")
     if len(indices) != count:
-        raise ValueError(f"indices: {len(indices)} sample indices for a batch of {count}; "
-                         "give one per sample")
+        many = what.removesuffix("index") + "indices"
+        raise ValueError(f"{name}: {len(indices)} {many} for a batch of {count}; give one per "
+                         "sample")
     for b, index in enumerate(indices):
         if not _whole(index) or not 0 <= index < 2**32:
-            raise ValueError(f"indices[{b}] = {index!r}: a sample index is an int in "
+            raise ValueError(f"{name}[{b}] = {index!r}: a {what} is an int in "
                              "[0, 2**32); pass ints (a float index is not rounded)")
     return [int(index) for index in indices]
 

@@ -92,14 +92,15 @@ class ResidentPath:
         self._buffers = None  # (shape key, buffers) of the last resident batch
 
     def sample(self, item: Inputs, sample_index: int, check: Callable[[], None], *,
-               on_device: bool = False, codes: bool = False) -> tuple:
+               on_device: bool = False, codes: bool = False,
+               sequence_index: int | None = None) -> tuple:
         """One prepared sample, a batch of one; ``check`` ends its input checks.
 
         Returns (blurred, sharp, mask, raw, params, plan, tiles, spot checks): blurred on the
         device with ``on_device``, else on the host (its codes with ``codes``, unless the JPEG
         stage is still to come), as sharp; mask and raw fetched on first use.
         """
-        done = self.run([item], [sample_index])
+        done = self.run([item], [sample_index], sequences=[sequence_index])
         check()
         runner, (h, w) = self.runner, done.size
         blurred = runner.slot_image(done.blurred, 0, (done.out.h, done.out.w, 3))
@@ -175,10 +176,12 @@ class ResidentPath:
             sharp = stack
         return Inputs(stack, mask, sharp, item.names, item.label)
 
-    def batch(self, items: list[Inputs], indices, batch, lib: str, given, bits: int = 0):
+    def batch(self, items: list[Inputs], indices, batch, lib: str, given, bits: int = 0,
+              sequences=None):
         """A batch put on the device: its passes batched, its outputs exported once each.
 
         ``bits`` 8 or 16: blurred and sharp leave as their codes, made on the device.
+        ``sequences``: each sample's sequence index (per-sequence draws), or None.
 
         A batch of 8/16-bit codes in this backend's pinned memory (``Synthesizer.pinned``), of
         at least :data:`STREAMED_BYTES` a sample, goes in parts of :data:`STREAMED_SAMPLES`,
@@ -213,7 +216,9 @@ class ResidentPath:
             for start in range(0, count, step):
                 part, check = self.prepared(items[start:start + step], clip_test_later=True)
                 done = self.run(part, indices[start:start + step], reuse=True,
-                                fresh_results=handed and not bits, as_clipped=clip_test)
+                                fresh_results=handed and not bits, as_clipped=clip_test,
+                                sequences=None if sequences is None
+                                else sequences[start:start + step])
                 check()
                 if clip_test:
                     self._unclipped(done, part)
@@ -321,7 +326,8 @@ class ResidentPath:
         return out
 
     def run(self, items: list[Inputs], indices: Sequence[int], *, reuse: bool = False,
-            fresh_results: bool = False, as_clipped: bool = False) -> _Resident:
+            fresh_results: bool = False, as_clipped: bool = False,
+            sequences: Sequence[int | None] | None = None) -> _Resident:
         """Samples put on the device, each pass launched once per plan for the whole batch.
 
         The samples' draws come first (their per-image uniforms at once), then the accumulate
@@ -334,6 +340,10 @@ class ResidentPath:
         batch's buffers between calls. ``fresh_results``: new blurred and sharp slots
         all the same (the caller hands them over as the outputs). ``as_clipped``: plan every
         sample as one whose input reaches the clip level (its clip test is still to be read).
+        ``sequences``: each sample's sequence index, which keys its per-image draws under
+        ``blur.draws = "per-sequence"``; the noise's pixels stay keyed by ``indices`` (each
+        :class:`~gpu_blur.backends.Drawn`'s sample index), so windows of one sequence share
+        their camera settings and differ in their noise.
         """
         runner, camera, crop = self.runner, self.camera, self.scene.output.crop
         h, w = items[0].frames.shape[-3:-1]
@@ -341,12 +351,15 @@ class ResidentPath:
         out = inner((h, w), crop)
         buffers = self._batch_buffers(count, h, w, out, reuse, fresh_results)
         linear, sat_mask, saturated, raw, result, sharp_slots = buffers
-        uniforms = batch_uniforms(self.scene, seed=self.seed, sample_indices=indices)
+        sequences = [None] * count if sequences is None else list(sequences)
+        uniforms = batch_uniforms(self.scene, seed=self.seed, sample_indices=indices,
+                                  sequence_indices=sequences)
         groups: dict = {}  # id(plan) -> (plan, its samples as Drawn, in batch order)
         params, plans, samples = [], [], []
         for b, (item, index) in enumerate(zip(items, indices, strict=True)):
             sample_plan, drawn = self.draws.drawn(item, int(index), h, w, None, uniforms[b],
-                                                  saturated=as_clipped or item.saturated)
+                                                  saturated=as_clipped or item.saturated,
+                                                  sequence_index=sequences[b])
             params.append(drawn)
             plans.append(sample_plan)
             samples.append(Drawn(drawn, int(index), b))

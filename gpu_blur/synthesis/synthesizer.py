@@ -52,7 +52,8 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
                backend: str = "numpy", overrides: Mapping | None = None,
                tile: tuple[int, int] | Schedule | None = None, on_device: bool = False,
                max_device_memory: int | str | None = None, verify: float = 0.0,
-               with_raw: bool = False, codes: bool = False) -> Synthesis:
+               with_raw: bool = False, codes: bool = False,
+               sequence_index: int | None = None) -> Synthesis:
     """Synthesize one realistic blurred image (a :class:`Synthesizer` batch of one).
 
     Args:
@@ -90,6 +91,12 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
             ``output.bits = 8``, uint16 for 16: ``to_integers`` of the float results, bit
             for bit), made on a kernel backend's device: a quarter (a half) of the bytes to
             fetch and no conversion on the host (``gpu-blur generate`` writes them as they are).
+        sequence_index: the index of the frame sequence this sample is a window of (0 <=
+            index < 2**32). Under ``blur.draws = "per-sequence"`` the camera settings
+            (white-balance gains, noise levels, alpha, Bayer pattern, JPEG quality) are drawn
+            from (seed, sequence_index), the same for every window of the sequence, while the
+            noise's pixels stay drawn from (seed, sample_index); required there, not used
+            otherwise.
 
     Returns:
         A :class:`Synthesis`. Images whose RAW round trip needs even sizes lose their last
@@ -109,7 +116,8 @@ def synthesize(inputs, scene=None, *, seed: int = 0, sample_index: int = 0,
         schedule = Schedule(tile, max_device_memory, verify)
     synthesizer = Synthesizer(scene, backend=backend, seed=seed, overrides=overrides,
                               schedule=schedule, with_raw=with_raw)
-    return synthesizer.sample(inputs, sample_index, on_device=on_device, codes=codes)
+    return synthesizer.sample(inputs, sample_index, on_device=on_device, codes=codes,
+                              sequence_index=sequence_index)
 
 
 class Synthesizer:
@@ -191,7 +199,7 @@ class Synthesizer:
         return np.empty(shape, dtype)
 
     def sample(self, inputs, sample_index: int = 0, *, on_device: bool = False,
-               codes: bool = False) -> Synthesis:
+               codes: bool = False, sequence_index: int | None = None) -> Synthesis:
         """One sample from :func:`synthesize`'s ``inputs`` (arrays or paths)."""
         start, before = time.perf_counter(), current().snapshot()
         scene = self.scene
@@ -211,9 +219,10 @@ class Synthesizer:
         crop = scene.output.crop
         if self.resident:
             made = self._resident_path.sample(item, sample_index, check, on_device=on_device,
-                                              codes=codes)
+                                              codes=codes, sequence_index=sequence_index)
         else:
-            made = self._host_path.sample(item, sample_index, on_device=on_device)
+            made = self._host_path.sample(item, sample_index, on_device=on_device,
+                                          sequence_index=sequence_index)
         out, sharp, mask, raw, params, sample_plan, tiles, spot_checks = made
         if sample_plan.kept(StageName.JPEG):
             out = jpeg_round_trip(out, params["jpeg_quality"])
@@ -231,7 +240,7 @@ class Synthesizer:
 
     def __call__(self, batch, *, mask=None, sharp=None, first_index: int = 0,
                  indices: Sequence[int] | None = None, out: Sequence | None = None,
-                 codes: bool = False) -> Batch:
+                 codes: bool = False, sequences: Sequence[int] | None = None) -> Batch:
         """Synthesize a batch; sample b has sample index ``first_index + b``.
 
         Args:
@@ -254,10 +263,13 @@ class Synthesizer:
                 8) or uint16 (16), ``to_integers`` of the float results; on a kernel backend
                 made on the device (a quarter or half of the float32 bytes to fetch), after
                 the JPEG stage on the host. The mask stays float32.
+            sequences: each sample's frame sequence index (B ints, as ``indices``), which
+                keys its camera settings under ``blur.draws = "per-sequence"``
+                (:func:`synthesize`'s ``sequence_index``); required there, not used otherwise.
 
         Returns:
             A :class:`Batch`; sample b equals ``synthesize`` with ``sample_index =
-            first_index + b`` bit for bit.
+            first_index + b`` (and ``sequence_index = sequences[b]``) bit for bit.
 
         Raises:
             ValueError: a bad shape, dtype or value, naming the sample (``sample 3 of 16``)
@@ -278,16 +290,19 @@ class Synthesizer:
         if caller is not None:
             self.runner.wait_for(caller)
         indices = sample_indices(indices, first_index, len(items))
+        if sequences is not None:
+            sequences = sample_indices(sequences, 0, len(items), "sequences", "sequence index")
         # codes made on the device, or from the float results here (JPEG stage, host batches)
         device_codes = codes and self.resident and self.scene.output.jpeg_quality is None
         bits = self.scene.output.bits if device_codes else 0
         out_given, given = out, (None if codes and not device_codes else out)
         if self.resident:
             out, params, plans, raws = self._resident_path.batch(items, indices, batch, lib,
-                                                                 given, bits)
+                                                                 given, bits, sequences)
         else:
             items, _ = self._prepared(items)
-            out, params, plans, raws = self._host_path.batch(items, indices, batch, lib, given)
+            out, params, plans, raws = self._host_path.batch(items, indices, batch, lib, given,
+                                                             sequences)
         jpeg_stage(out[0], plans, params)  # channels-last, as the backend wrote them
         if codes and not device_codes:
             out = self._io.codes_here(out, lib, out_given)
