@@ -101,7 +101,7 @@ class InputFound:
 def blur_in_words(scene, found) -> str:
     """The scene's blur mode as ``generate`` prints it (``found``: the input's Samples)."""
     from gpu_blur.discovery import GOPRO_NAME
-    from gpu_blur.scene import FROM_NAME
+    from gpu_blur.scene import FROM_NAME, PER_SEQUENCE
 
     b = scene.blur
     if b.mode == "average":
@@ -118,7 +118,10 @@ def blur_in_words(scene, found) -> str:
                   "gap by interpolation (blur.interpolation = 'auto')"
                   if isinstance(b.interpolation, str) else
                   f", the frame rate raised {b.interpolation}x by interpolation")
-        return f"average of {frames}{raised}"
+        apart = f", windows {b.stride} frames apart (blur.stride)" if b.stride else ""
+        shared = (f", camera settings drawn once per sequence (blur.draws = '{PER_SEQUENCE}')"
+                  if b.draws == PER_SEQUENCE else "")
+        return f"average of {frames}{raised}{apart}{shared}"
     if b.mode == "kernel":
         with_what = f"the kernel {b.kernel}" if b.kernel else "a random motion kernel per sample"
         return f"kernel: each photo convolved with {with_what}"
