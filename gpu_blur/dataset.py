@@ -20,9 +20,9 @@ import numpy as np
 from gpu_blur import files
 from gpu_blur.backends.flows import REGIONS_KEY
 from gpu_blur.discovery import MANIFEST, RUN, SampleSpec, _text, input_label
-from gpu_blur.file_writing import temporary_path, write_image, write_new, write_text, write_whole
+from gpu_blur.file_writing import encode_image, temporary_path, write_new, write_text, write_whole
 from gpu_blur.locking import earlier_pids, forget_earlier, release_lock, take_lock
-from gpu_blur.outputs import write_dng, write_mask
+from gpu_blur.outputs import dng_bytes
 from gpu_blur.params import ARRAY_PARAMS
 from gpu_blur.reference.flow import INTERPOLATION_AUTO
 from gpu_blur.version import __version__
@@ -60,7 +60,7 @@ RESUME_KEYS = {"seed": "--seed", "scene": "--scene", "backend": "--backend",
                "samples_per_photo": "--samples-per-photo",
                "samples_per_sequence": "--samples-per-sequence",
                "files": "camera or kernel file contents", "libraries": "library version",
-               "save": "--save"}
+               "save": "--save", "format": "--format", "shard_size": "--shard-size"}
 #: What each array of ``params/*.npz`` holds, stored beside it as ``<name>_convention`` (a text
 #: entry: ``str(np.load(path)["homographies_convention"])``).
 ARRAY_CONVENTIONS = {
@@ -141,13 +141,18 @@ def save_arrays(path: Path, arrays: dict) -> None:
 
     The file appears complete or not at all (written to a temporary name, then renamed).
     """
+    write_whole(path, arrays_bytes(arrays))
+
+
+def arrays_bytes(arrays: dict) -> bytes:
+    """The bytes of the ``.npz`` file :func:`save_arrays` writes."""
     encoded = io.BytesIO()
     with zipfile.ZipFile(encoded, "w", zipfile.ZIP_STORED) as z:
         for name, value in arrays.items():
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
             with z.open(info, "w", force_zip64=True) as f:
                 np.lib.format.write_array(f, np.asarray(value), allow_pickle=False)
-    write_whole(path, encoded.getvalue())
+    return encoded.getvalue()
 
 
 def library_versions(backend: str) -> dict[str, str]:
@@ -208,6 +213,15 @@ def _difference(name: str, old, new) -> str:
     return f"{name} = {shown[0]} (this run: {shown[1]})"
 
 
+def _stem(index: int, name: str) -> str:
+    """``NNNNNN_<name>``, the stem of sample ``index``'s files (:func:`_paths`)."""
+    flat = name.replace("/", "_")
+    if len(flat.encode()) > NAME_BYTES:
+        digest = hashlib.sha256(flat.encode()).hexdigest()[:16]
+        flat = flat.encode()[:NAME_BYTES - 17].decode(errors="ignore") + "~" + digest
+    return f"{index:06d}_{flat}"
+
+
 def _paths(index: int, name: str, bits: int) -> dict[str, str]:
     """The files of sample ``index`` named ``name``, relative to the set's folder.
 
@@ -215,11 +229,7 @@ def _paths(index: int, name: str, bits: int) -> dict[str, str]:
     keeps its first bytes and the first 16 hex digits of its sha256. ``bits``: the
     :class:`DatasetWriter`'s (0: TIFF images).
     """
-    flat = name.replace("/", "_")
-    if len(flat.encode()) > NAME_BYTES:
-        digest = hashlib.sha256(flat.encode()).hexdigest()[:16]
-        flat = flat.encode()[:NAME_BYTES - 17].decode(errors="ignore") + "~" + digest
-    stem = f"{index:06d}_{flat}"
+    stem = _stem(index, name)
     ext = ".png" if bits else ".tiff"
     return {"blurred": f"blur/{stem}{ext}", "sharp": f"sharp/{stem}{ext}",
             "arrays": f"params/{stem}.npz", "mask": f"mask/{stem}.png",
@@ -395,10 +405,10 @@ class DatasetWriter:
 
     def _open(self, run, overwrite, resume, specs, total) -> None:
         out = self.out
-        files = _sample_files(out, self._earlier)
+        files = self._stored()
         found = [str(p) for p in (self.manifest_path, out / RUN) if p.exists()]
         if files:
-            held = [sub for sub in SUBFOLDERS if any(p.parent.name == sub for p in files)]
+            held = list(dict.fromkeys(entry.split("/", 1)[0] for entry in files))
             found.append(f"{len(files)} sample file(s) in {', '.join(held)}")
         if files and not (self.manifest_path.exists() or (out / RUN).exists()):
             raise ValueError(f"--output {out}: {found[-1]} named like a set's, but no "
@@ -414,23 +424,19 @@ class DatasetWriter:
             _check_run(out, run or {})
             kept = self._read_manifest(total, files)
             self._check_inputs(specs or [])
-        listed = {out / line[k] for line in self.done.values() for k in PATHS if k in line}
+        listed = {line[k] for line in self.done.values() for k in PATHS if k in line}
         if kept is not None:
             self._check_unlisted([p for p in files if p not in listed], specs or [])
         # nothing is changed above this line
         self._make_folders()
         if kept is not None:
             write_text(self.manifest_path, "".join(kept))
-        for path in files:
-            if path not in listed:
-                path.unlink()  # of the set replaced, or of a sample this run makes again
+        # of the set replaced, or of a sample this run makes again
+        self._remove([entry for entry in files if entry not in listed], listed)
         if kept is None:  # a new set: its files are gone, now the state that listed them
             self.manifest_path.unlink(missing_ok=True)
             (out / RUN).unlink(missing_ok=True)
-        for folder in (out, *(out / sub for sub in SUBFOLDERS)):
-            for entry in folder.iterdir() if folder.is_dir() else ():
-                if _ours(entry, out, self._earlier):
-                    entry.unlink()  # left by a killed run (the lock keeps live runs out)
+        self._remove_temporaries()
         forget_earlier(self._lock)
         if kept is None and run is not None:
             write_text(out / RUN, json.dumps(run, indent=1) + "\n")
@@ -440,17 +446,17 @@ class DatasetWriter:
         self._last = max(self.done, default=-1)  # the highest index listed so far
         self._sorted = True  # whether the manifest's lines are in index order
 
-    def _check_unlisted(self, unlisted: list[Path], specs: list[SampleSpec]) -> None:
+    def _check_unlisted(self, unlisted: list[str], specs: list[SampleSpec]) -> None:
         """Refuse to resume over sample files no kept line lists that this run does not remake.
 
         Such a file is one of a sample a stopped run was writing, which this run makes again
         (and so removes first), or a finished sample whose line is gone (an emptied manifest)
         or that another input or ``--limit`` gave: that is not removed.
         """
-        again = {self.out / path for spec in specs if spec.index not in self.done
+        again = {entry for spec in specs if spec.index not in self.done
                  and not spec.problem and _text(spec.name)
-                 for path in _paths(spec.index, spec.name, self.bits).values()}
-        strays = [str(p.relative_to(self.out)) for p in unlisted if p not in again]
+                 for entry in self._entries_of(spec)}
+        strays = [entry for entry in unlisted if entry not in again]
         if not strays:
             return
         empty = "is empty (0 bytes, as a power loss may leave it) and " if (
@@ -482,6 +488,44 @@ class DatasetWriter:
         except OSError as e:  # LockHeld is a ValueError: it passes through
             raise self._unwritable(e) from None
 
+    # -- where the samples are: files in the set's folders here, containers in subclasses
+    # (gpu_blur.set_formats); an entry is a sample file's name as a manifest line gives it
+
+    def _names(self, index: int, name: str) -> dict[str, str]:
+        """The entries of sample ``index`` named ``name``, by :data:`PATHS` key."""
+        return _paths(index, name, self.bits)
+
+    def _entries_of(self, spec: SampleSpec) -> set[str]:
+        """What making ``spec`` again replaces (:meth:`_check_unlisted`)."""
+        return set(self._names(spec.index, spec.name).values())
+
+    def _stored(self) -> list[str]:
+        """The sample entries the set holds (:func:`_sample_files`, relative to the folder)."""
+        return [p.relative_to(self.out).as_posix() for p in _sample_files(self.out, self._earlier)]
+
+    def _whole(self, entry: str, size) -> bool:
+        """Whether ``entry`` holds ``size`` bytes (None: not empty) (:func:`_whole`)."""
+        return _whole(self.out / entry, size)
+
+    def _remove(self, entries: list[str], listed: set[str]) -> None:
+        """Remove ``entries`` (``listed``: the entries the set keeps)."""
+        for entry in entries:
+            (self.out / entry).unlink()
+
+    def _remove_temporaries(self) -> None:
+        """Remove the temporary files a killed run left (:func:`_ours`)."""
+        for folder in (self.out, *(self.out / sub for sub in SUBFOLDERS)):
+            for entry in folder.iterdir() if folder.is_dir() else ():
+                if _ours(entry, self.out, self._earlier):
+                    entry.unlink()  # left by a killed run (the lock keeps live runs out)
+
+    def _store(self, line: dict, data: dict[str, bytes]) -> None:
+        """Put a sample's encoded files where ``line`` names them (threads may call at once)."""
+        for key, blob in data.items():
+            path = self.out / line[key]
+            path.parent.mkdir(exist_ok=True)
+            write_whole(path, blob)
+
     def _make_folders(self) -> None:
         try:
             for sub in ("blur", "sharp"):
@@ -491,7 +535,7 @@ class DatasetWriter:
         except OSError as e:
             raise self._unwritable(e) from None
 
-    def _read_manifest(self, total: int | None, files: list[Path]) -> list[str]:
+    def _read_manifest(self, total: int | None, files: list[str]) -> list[str]:
         """The manifest lines to keep (finished samples whose files are whole), filling ``done``.
 
         A line is trusted only as far as it is checked: its index an int in ``[0, total)``,
@@ -553,11 +597,11 @@ class DatasetWriter:
 
     def _finished(self, line: dict) -> bool:
         """Whether an "ok" line's files are those :meth:`write` names, of the sizes it records."""
-        paths = _paths(line["index"], line["name"], self.bits)
+        paths = self._names(line["index"], line["name"])
         keys = [k for k in PATHS if k in line]
         sizes = line.get("bytes") if isinstance(line.get("bytes"), dict) else {}
         return keys[:2] == ["blurred", "sharp"] and all(
-            line[k] == paths[k] and _whole(self.out / paths[k], sizes.get(k)) for k in keys)
+            line[k] == paths[k] and self._whole(paths[k], sizes.get(k)) for k in keys)
 
     def _check_inputs(self, specs: list[SampleSpec]) -> None:
         for spec in specs:
@@ -619,11 +663,13 @@ class DatasetWriter:
         ``round(m * 65535)``) and RAW mosaic (``raw``: a 16-bit DNG, and ``raw_info``, its
         :func:`gpu_blur.outputs.raw_metadata`) are written too, cropped like the pair.
         Threads may save different samples at once (each file has its own temporary name);
-        only :meth:`add` and :meth:`fail` touch the manifest, from one thread.
+        only :meth:`add` and :meth:`fail` touch the manifest, from one thread. The files are
+        encoded first, then stored (:meth:`_store`: files here, a container in
+        :mod:`gpu_blur.set_formats`), so every format holds the same bytes.
         """
-        paths = _paths(spec.index, spec.name, self.bits)
-        write_image(self.out / paths["blurred"], result.blurred, self.bits)
-        write_image(self.out / paths["sharp"], result.sharp, self.bits)
+        paths = self._names(spec.index, spec.name)
+        data = {key: encode_image(image, self.bits, str(self.out / paths[key]))
+                for key, image in (("blurred", result.blurred), ("sharp", result.sharp))}
         arrays = {k: result.params[k] for k in SAVED_ARRAYS if k in result.params}
         line = {
             "index": spec.index,
@@ -641,21 +687,19 @@ class DatasetWriter:
             "skipped": {s.name: s.reason for s in result.plan.stages if not s.kept},
         }
         if arrays:
-            (self.out / "params").mkdir(exist_ok=True)
-            save_arrays(self.out / paths["arrays"], arrays | {
+            data["arrays"] = arrays_bytes(arrays | {
                 f"{k}_convention": ARRAY_CONVENTIONS[k] for k in arrays})
             line["arrays"] = paths["arrays"]
-        if "mask" in self.extras:
-            (self.out / "mask").mkdir(exist_ok=True)
-            write_mask(self.out / paths["mask"], result.mask)
+        if "mask" in self.extras:  # as gpu_blur.outputs.write_mask writes it
+            data["mask"] = encode_image(result.mask, 16, str(self.out / paths["mask"]))
             line["mask"] = paths["mask"]
         if "raw" in self.extras:
-            (self.out / "raw").mkdir(exist_ok=True)
-            write_dng(self.out / paths["raw"], result.raw, result.raw_info)
+            data["raw"] = dng_bytes(result.raw, result.raw_info)
             line["raw"] = paths["raw"]
             line["raw_info"] = result.raw_info
         # what a resume checks the files against (a file cut by a crash is made again)
-        line["bytes"] = {k: (self.out / line[k]).stat().st_size for k in PATHS if k in line}
+        line["bytes"] = {k: len(data[k]) for k in PATHS if k in line}
+        self._store(line, data)
         return line
 
     def add(self, line: dict) -> dict:
