@@ -44,6 +44,7 @@ from gpu_blur.discovery import (
     BLURRED_EXPECTED,
     BlurredSample,
     SampleSpec,
+    Window,
     find_blurred,
     find_realblur_pairs,
     find_samples,
@@ -167,8 +168,11 @@ class SharpSequences(_Augmented):
     ``<session>/<id>/*.png`` (the sharp frames of one real blurred image), found as
     ``gpu-blur generate`` finds them
     (:func:`gpu_blur.discovery.find_sequences`), windows as ``--samples-per-sequence`` takes
-    them. Item: ``(index, frames)``, frames F x H x W x 3 (F = ``frames``), the stored codes
-    (uint8 for 8-bit PNGs), for blur mode average. GOPRO_Large's ``sharp/`` frames are one per
+    them, or ``stride`` frames apart (``blur.stride``; 0: ``frames``, side by side). Item:
+    ``(index, frames)``, frames F x H x W x 3 (F = ``frames``), the stored codes (uint8 for
+    8-bit PNGs), for blur mode average; :meth:`window` says which sequence an item's frames
+    come from and where (its ``sequence_index`` is what a per-sequence scene's
+    ``Synthesizer`` takes as ``sequences``). GOPRO_Large's ``sharp/`` frames are one per
     blurred image, with gaps between them (``gpu-blur generate`` refuses to average them):
     give GOPRO_Large_all's frames for realistic blur.
 
@@ -178,18 +182,29 @@ class SharpSequences(_Augmented):
     """
 
     def __init__(self, root, frames: int = 9, *, samples_per_sequence: int | None = None,
-                 crop: int | None = None, flips: bool = False, seed: int = 0, epoch: int = 0):
+                 stride: int = 0, crop: int | None = None, flips: bool = False, seed: int = 0,
+                 epoch: int = 0):
         super().__init__(crop, flips, seed, epoch)
         root = _checked_root(root, "SharpSequences")
         if samples_per_sequence is not None and samples_per_sequence < 1:
             raise ValueError(f"samples_per_sequence = {samples_per_sequence}: must be >= 1")
+        if isinstance(stride, bool) or not isinstance(stride, int) or stride < 0:
+            raise ValueError(f"stride = {stride!r}: frames between windows' first frames, an "
+                             "int >= 0 (0: frames, windows side by side)")
+        if samples_per_sequence is not None and stride:
+            raise ValueError("samples_per_sequence and stride both place the windows: give "
+                             "one")
         sequences = find_sequences(root)
         if not sequences:
             raise ValueError(f"{root}: no sequence of sharp frames (GoPro's <seq>/sharp/*.png "
                              "or RSBlur's <session>/<id>/*.png) in it or its subfolders")
         self._items: list[SampleSpec] = list(sequence_samples(sequences, frames,
-                                                              samples_per_sequence))
+                                                              samples_per_sequence, stride))
         _refuse_problems(root, [s.problem for s in self._items if s.problem])
+
+    def window(self, index) -> Window:
+        """Item ``index``'s sequence (name and index) and its place there (window, first frame)."""
+        return self._items[self._index(index)].window
 
     def __getitem__(self, index) -> tuple[int, np.ndarray]:
         index = self._index(index)

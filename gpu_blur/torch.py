@@ -132,7 +132,7 @@ class RealisticBlur(torch.nn.Module):
 
     def forward(self, batch: torch.Tensor, mask: torch.Tensor | None = None,
                 sharp: torch.Tensor | None = None, *, indices: Sequence[int] | None = None,
-                epoch: int = 0):
+                epoch: int = 0, sequences: Sequence[int] | None = None):
         """(blurred, sharp), or (blurred, sharp, mask) with ``with_mask``.
 
         Args:
@@ -144,6 +144,10 @@ class RealisticBlur(torch.nn.Module):
             indices: each sample's index in the data set (an integer tensor or a sequence of
                 ints); without them samples are numbered in call order from 0.
             epoch: the training epoch (>= 0).
+            sequences: each sample's frame sequence index (an integer tensor or a sequence of
+                ints; :meth:`gpu_blur.datasets.SharpSequences.window`), which a scene with
+                ``blur.draws = "per-sequence"`` needs: the windows of one sequence then share
+                their camera settings.
 
         Returns:
             Float tensors in [0, 1] (float32 with the default ``output.precision``) on the
@@ -157,8 +161,10 @@ class RealisticBlur(torch.nn.Module):
             self._counted += batch.shape[0]
         elif isinstance(indices, torch.Tensor):
             indices = indices.tolist()
+        if isinstance(sequences, torch.Tensor):
+            sequences = sequences.tolist()
         first = batch_layout(batch, self.channels_first)
         out = self.synthesizer(batch.device, epoch, first)(batch, mask=mask, sharp=sharp,
-                                                           indices=indices)
+                                                           indices=indices, sequences=sequences)
         return (out.blurred, out.sharp, out.mask) if self.with_mask else (out.blurred,
                                                                             out.sharp)
