@@ -28,7 +28,8 @@ from gpu_blur.reference.flow import INTERPOLATION_AUTO
 from gpu_blur.version import __version__
 
 __all__ = ["ARRAY_CONVENTIONS", "DatasetWriter", "EXTRAS", "LOCK", "NAME_BYTES", "PATHS",
-           "RESUME_KEYS", "SAVED_ARRAYS", "SUBFOLDERS", "library_versions", "save_arrays"]
+           "RESUME_KEYS", "SAVED_ARRAYS", "SUBFOLDERS", "arrays_bytes", "library_versions",
+           "save_arrays"]
 
 #: The lock file a run holds (:mod:`gpu_blur.locking`) while it writes its output folder; a run
 #: that closes its set removes it (:meth:`DatasetWriter.close`).

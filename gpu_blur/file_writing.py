@@ -16,7 +16,8 @@ import numpy as np
 from gpu_blur.image_arrays import swap_red_blue
 from gpu_blur.reference.output import code_dtype, to_integers
 
-__all__ = ["temporary_path", "write_image", "write_new", "write_text", "write_whole"]
+__all__ = ["encode_image", "temporary_path", "write_image", "write_new", "write_text",
+           "write_whole"]
 
 
 def temporary_path(path: Path) -> Path:

@@ -220,7 +220,9 @@ def check_setup(o, scene) -> None:
     from gpu_blur.kernel_files import read_kernel
     from gpu_blur.plan import raw_round_trip
     from gpu_blur.scheduler import check_tile
+    from gpu_blur.set_formats import check_format
 
+    check_format(getattr(o, "format", "png"), getattr(o, "shard_size", None), scene.output.bits)
     if not 0 <= o.seed < 2**64:
         raise ValueError(f"--seed {o.seed}: must lie in [0, 2**64)")
     if o.tile:
@@ -280,8 +282,9 @@ def generate_set(
     tile: Sequence[int] | None = None, max_device_memory: str | int | None = None,
     verify: float = 0.0, strict: bool = False, samples_per_photo: int | None = None,
     samples_per_sequence: int | None = None, limit: int | None = None,
-    save: str | Iterable[str] = "", overwrite: bool = False, resume: bool = False,
-    average_gopro_large_sharp: bool = False, frames_as_photos: bool = False,
+    save: str | Iterable[str] = "", format: str = "png", shard_size: int | None = None,
+    overwrite: bool = False, resume: bool = False, average_gopro_large_sharp: bool = False,
+    frames_as_photos: bool = False,
     progress: Progress = False, on_device: Callable[[str], None] | None = None,
     on_resume: Callable[[ResumeState], None] | None = None,
     on_input: Callable[[InputFound], None] | None = None,
@@ -311,6 +314,9 @@ def generate_set(
         samples_per_sequence: blur.mode average: windows per sequence.
         limit: make at most this many samples.
         save: further outputs, ``"mask,raw"`` or ``["mask", "raw"]``.
+        format: how the samples are stored: ``"png"`` (files), ``"lmdb"`` (BasicSR's
+            paired LMDB) or ``"webdataset"`` (tar shards); :mod:`gpu_blur.set_formats`.
+        shard_size: with ``format="webdataset"``, samples per shard (default 100).
         overwrite: replace an existing set in ``output``.
         resume: finish the set in ``output`` that a run with the same settings started.
         average_gopro_large_sharp: blur.mode average over GOPRO_Large's ``<seq>/sharp/``
@@ -345,9 +351,9 @@ def generate_set(
         retries=retries, ray_batch=ray_batch, io_threads=io_threads,
         tile=None if tile is None else list(tile), max_device_memory=max_device_memory,
         verify=verify, strict=strict, samples_per_photo=samples_per_photo,
-        samples_per_sequence=samples_per_sequence, limit=limit, save=save,
-        overwrite=overwrite, resume=resume, average_gopro_large_sharp=average_gopro_large_sharp,
-        frames_as_photos=frames_as_photos)
+        samples_per_sequence=samples_per_sequence, limit=limit, save=save, format=format,
+        shard_size=shard_size, overwrite=overwrite, resume=resume,
+        average_gopro_large_sharp=average_gopro_large_sharp, frames_as_photos=frames_as_photos)
     return _Run(o, progress, on_device, on_resume, on_input).run()
 
 
@@ -356,11 +362,12 @@ class _Run:
 
     def __init__(self, o, progress: Progress, on_device, on_resume, on_input=None):
         from gpu_blur.backends import get_backend
-        from gpu_blur.dataset import DatasetWriter, library_versions
+        from gpu_blur.dataset import library_versions
         from gpu_blur.discovery import BUILT_IN_INPUT, check_layout, find_samples
         from gpu_blur.distributed import pick_executor
         from gpu_blur.scene import load_scene
         from gpu_blur.scheduler import Schedule
+        from gpu_blur.set_formats import format_record, writer
 
         self.o, self.progress = o, progress
         scene = self.scene = load_scene(o.scene)
@@ -403,9 +410,10 @@ class _Run:
         self.extras = extras(o.save)
         if self.extras:  # absent without save, as sets made before it record it
             run["save"] = list(self.extras)
-        self.writer = DatasetWriter(o.output, scene.output.bits, run, overwrite=o.overwrite,
-                                    resume=o.resume, specs=specs, total=found.total,
-                                    extras=self.extras)
+        run.update(format_record(o.format, o.shard_size))  # absent for PNG, as sets before
+        self.writer = writer(o.format, o.shard_size)(
+            o.output, scene.output.bits, run, overwrite=o.overwrite, resume=o.resume,
+            specs=specs, total=found.total, extras=self.extras)
         self.todo = [s for s in specs if s.index not in self.writer.done]
         self.done = len(specs) - len(self.todo)
         if o.resume and on_resume is not None:

@@ -16,8 +16,8 @@ import numpy as np
 
 from gpu_blur.image_arrays import swap_red_blue
 
-__all__ = ["RAW_BLACK_LEVEL", "RAW_WHITE_LEVEL", "jpeg_round_trip", "raw_codes", "raw_metadata",
-           "write_dng", "write_mask"]
+__all__ = ["RAW_BLACK_LEVEL", "RAW_WHITE_LEVEL", "dng_bytes", "jpeg_round_trip", "raw_codes",
+           "raw_metadata", "write_dng", "write_mask"]
 
 #: float32(c / 255) for every 8-bit code c, as quantization gives them (a gather, not a divide).
 _CODE_VALUES = (np.arange(256) / 255.0).astype(np.float32)

@@ -36,7 +36,7 @@ def add_parser(sub) -> None:
                    "centroid_blurred_img/). generate prints the layout it found and the blur "
                    "mode before it starts")
     g.add_argument("--output", type=Path, required=True, help="folder for blur/, sharp/, "
-                   "params/, manifest.jsonl and run.json")
+                   "params/ (or the --format's containers), manifest.jsonl and run.json")
     g.add_argument("--scene", type=Path, help="scene TOML, or a built-in scene's name "
                    "(realblur_j, rsblur, minimal; a file of that name wins); default: the "
                    "default scene (`gpu-blur scene` prints it as TOML to start from)")
@@ -101,6 +101,15 @@ def add_parser(sub) -> None:
                    "noisy Bayer mosaic before demosaicing, 16-bit DNG in raw/, its CFA pattern, "
                    "levels, gains and matrix also in the manifest's raw_info; needs the RAW "
                    "round trip); default: the pair only")
+    g.add_argument("--format", default="png", metavar="FORMAT", help="how the pairs are "
+                   "stored: png (files in blur/, sharp/, params/), lmdb (BasicSR's paired "
+                   "LMDB: blur.lmdb and sharp.lmdb with meta_info.txt, for dataroot_lq and "
+                   "dataroot_gt; pip install 'gpu_blur[lmdb]'), webdataset (tar shards "
+                   "shard-NNNNNN.tar, per sample <key>.blur.png, <key>.sharp.png, "
+                   "<key>.json); the same image bytes in each (default png)")
+    g.add_argument("--shard-size", type=int, metavar="N", help="with --format webdataset: "
+                   "samples per shard (default 100); a shard is renamed into place when "
+                   "complete, and --resume makes the samples of unfinished shards again")
     again = g.add_mutually_exclusive_group()
     again.add_argument("--overwrite", action="store_true",
                        help="replace an existing set in --output")
@@ -192,6 +201,7 @@ def _generate(args) -> int:
             io_threads=args.io_threads, tile=args.tile, max_device_memory=args.max_device_memory,
             verify=args.verify, strict=args.strict, samples_per_photo=args.samples_per_photo,
             samples_per_sequence=args.samples_per_sequence, limit=args.limit, save=args.save,
+            format=args.format, shard_size=args.shard_size,
             overwrite=args.overwrite, resume=args.resume,
             average_gopro_large_sharp=args.average_gopro_large_sharp,
             frames_as_photos=args.frames_as_photos, progress=not args.quiet,
