@@ -6,7 +6,8 @@ Layers (ARCHITECTURE.md, "Layers"), lowest first:
   (and itself);
 - ``gpu_blur.backends``: devices and passes; never the synthesis layer;
 - the synthesis layer (``gpu_blur.synthesis``, ``gpu_blur.generate``, ``gpu_blur.generation``,
-  ``gpu_blur.dataset``, ``gpu_blur.discovery``): samples and data sets from the backends;
+  ``gpu_blur.dataset``, ``gpu_blur.set_formats``, ``gpu_blur.discovery``): samples and data
+  sets from the backends;
 - ``gpu_blur.cli``: the command, which nothing else imports.
 
 The synthesis layer reaches a backend only through ``gpu_blur.backends`` itself (its Protocols,
@@ -44,7 +45,7 @@ REFERENCE_MAY_IMPORT = ("gpu_blur.constants",)
 KNOWN_REFERENCE_EXCEPTIONS: tuple[str, ...] = ()
 BACKENDS = ("gpu_blur.backends",)
 SYNTHESIS = ("gpu_blur.synthesis", "gpu_blur.generate", "gpu_blur.generation",
-             "gpu_blur.dataset", "gpu_blur.discovery")
+             "gpu_blur.dataset", "gpu_blur.set_formats", "gpu_blur.discovery")
 CLI = ("gpu_blur.cli",)
 TESTING = ("gpu_blur.testing",)
 #: Concrete backends and device libraries, which the synthesis layer never imports directly: it
