@@ -18,6 +18,7 @@ import numpy as np
 
 from gpu_blur import limits
 from gpu_blur.image_arrays import swap_red_blue
+from gpu_blur.png_codecs import decode_png
 
 __all__ = ["READ_FORMATS", "decode_file", "opencv_reason", "read_image", "too_many_pixels"]
 
@@ -355,9 +356,12 @@ def too_many_pixels(width: int, height: int) -> str | None:
 
 
 def decode_file(path: Path, where: str, fix: str,
-                refuse: Callable[[int, int], str | None] = too_many_pixels) -> np.ndarray:
+                refuse: Callable[[int, int], str | None] = too_many_pixels,
+                rgb: bool = False) -> np.ndarray:
     """An image file decoded by OpenCV as stored (IMREAD_UNCHANGED), after :func:`_damage`.
 
+    With ``rgb``, colour comes in RGB(A) order, and 8-bit PNG files libspng decodes as
+    OpenCV would go through libspng, faster (:func:`gpu_blur.png_codecs.decode_png`).
     Its width and height are checked with ``refuse`` first, from the header
     (:func:`_header_size`), before anything is decoded, so a small file that claims a huge
     image costs no memory; a file whose header gives no size (another format, or damaged)
@@ -383,13 +387,18 @@ def decode_file(path: Path, where: str, fix: str,
     if size is None:
         raise ValueError(f"{where}: not a readable image (no width and height in its header: "
                          f"gpu_blur reads {READ_FORMATS}); convert it to PNG{fix}")
-    try:
-        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error:
-        image = None
+    image = decode_png(data) if rgb else None
     if image is None:
-        raise ValueError(f"{where}: not a readable image (corrupt, truncated or a format OpenCV "
-                         f"does not read){fix}")
+        try:
+            image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        except cv2.error:
+            image = None
+        if image is None:
+            raise ValueError(f"{where}: not a readable image (corrupt, truncated or a format "
+                             f"OpenCV does not read){fix}")
+        if rgb and image.ndim == 3 and image.shape[2] in (3, 4):
+            image = (swap_red_blue(image) if image.shape[2] == 3
+                     else image[:, :, [2, 1, 0, 3]])
     problem = refuse(image.shape[1], image.shape[0])  # as the header said, or refused now
     if problem:
         raise ValueError(f"{where}: {problem}")
@@ -419,7 +428,7 @@ def read_image(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.exists():  # anything else there is refused by its kind (files.open_regular)
         raise ValueError(f"{path}: no such file")
-    image = decode_file(path, str(path), f"; {_WAY_OUT}")
+    image = decode_file(path, str(path), f"; {_WAY_OUT}", rgb=True)
     if image.ndim == 2:
         image = image[:, :, None]
     channels = image.shape[2]
@@ -441,7 +450,7 @@ def read_image(path: str | Path) -> np.ndarray:
     if channels != 3:
         raise ValueError(f"{path}: has {channels} channels; gpu_blur reads grayscale, RGB and "
                          "opaque RGBA images: convert it to RGB first")
-    return swap_red_blue(image)
+    return np.ascontiguousarray(image)
 
 
 
