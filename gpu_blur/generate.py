@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 
 from gpu_blur.discovery import SampleSpec
+from gpu_blur.frame_cache import FrameCache
 from gpu_blur.image_arrays import check_image
 from gpu_blur.image_reading import opencv_reason, read_image
 from gpu_blur.reference.output import to_integers
@@ -128,13 +129,17 @@ def make_sample(job: Job, spec: SampleSpec, inputs: tuple[np.ndarray, ...] | Non
     return spec, result, None
 
 
-def run_serial(job: Job, specs: Iterable[SampleSpec]) -> Iterator[tuple]:
-    """Make the samples one after another in this process."""
+def run_serial(job: Job, specs: Iterable[SampleSpec], cache: FrameCache | None = None
+               ) -> Iterator[tuple]:
+    """Make the samples one after another in this process.
+
+    ``cache``: their input files are decoded through it (:func:`decode`).
+    """
     for spec in specs:
-        yield make_sample(job, spec)
+        yield make_sample(job, spec, None if cache is None else decode(spec, cache))
 
 
-def decode(spec: SampleSpec) -> tuple[np.ndarray, ...] | None:
+def decode(spec: SampleSpec, cache: FrameCache | None = None) -> tuple[np.ndarray, ...] | None:
     """A sample's input files as ``synthesize`` reads them, or None when one fails a check.
 
     Each file goes through :func:`~gpu_blur.image_reading.read_image` and
@@ -143,12 +148,14 @@ def decode(spec: SampleSpec) -> tuple[np.ndarray, ...] | None:
     codes, like its image's, become value / 255 there, as the RSBlur authors read them). When
     anything fails, the sample is made from its paths instead, so ``synthesize`` reads them
     again and refuses them in its own words, naming the file: a bad sample is read twice, a
-    good one once.
+    good one once. With ``cache`` a file that other samples read too is decoded once while it
+    stays in the cache (its arrays read-only).
     """
     if spec.problem:
         return None
     try:
-        images = tuple(read_image(path) for path in spec.inputs)
+        images = tuple(read_image(path) if cache is None else cache.read(path, read_image)
+                       for path in spec.inputs)
         for path, image in zip(spec.inputs, images, strict=True):
             check_image(image, str(path))
     except Exception:  # synthesize meets it again, and says what it is
@@ -159,7 +166,7 @@ def decode(spec: SampleSpec) -> tuple[np.ndarray, ...] | None:
 
 
 def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: PoolTimes,
-                  depth: int) -> Iterator[tuple]:
+                  depth: int, cache: FrameCache | None = None) -> Iterator[tuple]:
     """Make the samples in this thread, in order, while ``pool`` decodes the next ones' inputs.
 
     At most ``depth`` samples are decoded or being decoded ahead of the one being made. The
@@ -171,7 +178,7 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
     try:
         while True:
             for spec in itertools.islice(rest, depth - len(ahead)):
-                ahead.append((spec, pool.submit(times.run, "decode", decode, spec)))
+                ahead.append((spec, pool.submit(times.run, "decode", decode, spec, cache)))
             if not ahead:
                 return
             spec, decoding = ahead[0]

@@ -19,6 +19,7 @@ Example::
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import dataclasses
 import hashlib
@@ -214,6 +215,18 @@ def scene_files(scene) -> dict[str, Path]:
             for key, path in named.items()}
 
 
+def frame_cache_bytes(value: str | int | None) -> int | None:
+    """``--frame-cache``'s bytes: None for the default, 0 for none, else a memory size."""
+    from gpu_blur.scheduler import parse_bytes
+
+    if value is None or str(value).strip() == "0":
+        return None if value is None else 0
+    try:
+        return parse_bytes(value)
+    except ValueError as e:
+        raise ValueError(f"--frame-cache: {e}; 0 keeps no frames") from None
+
+
 def check_setup(o, scene) -> None:
     """Fail before any sample for what every sample would fail on (``o``: the options)."""
     from gpu_blur.cameras import scene_camera
@@ -239,6 +252,7 @@ def check_setup(o, scene) -> None:
                          "input)")
     if o.io_threads is not None and o.io_threads < 1:
         raise ValueError(f"--io-threads {o.io_threads}: must be >= 1 (1: no I/O threads)")
+    frame_cache_bytes(getattr(o, "frame_cache", None))
     if not 0.0 <= o.verify <= 1.0:
         raise ValueError(f"--verify {o.verify}: the fraction of tiles to check, 0 to 1")
     if "raw" in extras(o.save) and not raw_round_trip(scene):
@@ -280,7 +294,8 @@ def generate_set(
     devices: str | None = None, ray: str | None = None, gpus_per_task: float | None = None,
     retries: int | None = None, ray_batch: int | None = None, io_threads: int | None = None,
     tile: Sequence[int] | None = None, max_device_memory: str | int | None = None,
-    verify: float = 0.0, strict: bool = False, samples_per_photo: int | None = None,
+    frame_cache: str | int | None = None, verify: float = 0.0, strict: bool = False,
+    samples_per_photo: int | None = None,
     samples_per_sequence: int | None = None, limit: int | None = None,
     save: str | Iterable[str] = "", format: str = "png", shard_size: int | None = None,
     overwrite: bool = False, resume: bool = False, average_gopro_large_sharp: bool = False,
@@ -308,6 +323,8 @@ def generate_set(
         io_threads: threads that decode and write beside synthesis (1: none).
         tile: (rows, cols): run each image in tiles of at most that size.
         max_device_memory: device memory one tile's passes may hold ("2G", bytes).
+        frame_cache: host memory for decoded frames that several samples read ("2G", bytes;
+            0: none; default 1/8 of physical memory, at most 1 GiB), used where they do.
         verify: fraction of tiles recomputed by the numpy reference and compared.
         strict: stop at the first spot-check mismatch (raises :class:`StrictStop`).
         samples_per_photo: samples drawn from each photo (default 1; 4 for the built-in one).
@@ -350,7 +367,7 @@ def generate_set(
         seed=seed, backend=backend, devices=devices, ray=ray, gpus_per_task=gpus_per_task,
         retries=retries, ray_batch=ray_batch, io_threads=io_threads,
         tile=None if tile is None else list(tile), max_device_memory=max_device_memory,
-        verify=verify, strict=strict, samples_per_photo=samples_per_photo,
+        frame_cache=frame_cache, verify=verify, strict=strict, samples_per_photo=samples_per_photo,
         samples_per_sequence=samples_per_sequence, limit=limit, save=save, format=format,
         shard_size=shard_size, overwrite=overwrite, resume=resume,
         average_gopro_large_sharp=average_gopro_large_sharp, frames_as_photos=frames_as_photos)
@@ -488,8 +505,11 @@ class _Run:
                       bits=scene.output.bits, with_mask="mask" in self.extras)
             # one device: the pool also decodes ahead; devices and ray workers decode their
             # own inputs, and the pool encodes and writes what they make
-            samples = (run_pipelined(job, self.todo, pool, io, QUEUE_PER_THREAD * threads)
-                       if io and self.executor is run_serial else self.executor(job, self.todo))
+            cache = self.frame_cache() if self.executor is run_serial else None
+            samples = (run_pipelined(job, self.todo, pool, io, QUEUE_PER_THREAD * threads, cache)
+                       if io and self.executor is run_serial else
+                       run_serial(job, self.todo, cache) if self.executor is run_serial else
+                       self.executor(job, self.todo))
             # kept in a name: after a strict stop the progress bar closes once the stop is
             # dropped (its message is then on the screen above it)
             watched = self._watched(samples)
@@ -531,7 +551,21 @@ class _Run:
         took = time.perf_counter() - start
         totals.add({"writing": current().seconds["writing"] - writing,
                     "reading": io.waited_for_inputs if io else 0.0})
-        return self._report(took, totals, io, run_serial)
+        return self._report(took, totals, io, run_serial, cache)
+
+    def frame_cache(self):
+        """A frame cache where samples share input files, else None.
+
+        Samples share files where windows of a sequence overlap or a photo is drawn several
+        times (:class:`~gpu_blur.frame_cache.FrameCache`).
+        """
+        from gpu_blur.frame_cache import FrameCache, default_budget
+
+        budget = frame_cache_bytes(self.o.frame_cache)
+        uses = collections.Counter(path for spec in self.todo for path in spec.inputs)
+        if budget == 0 or not any(count > 1 for count in uses.values()):
+            return None
+        return FrameCache(default_budget() if budget is None else budget)
 
     def _close(self, stop) -> None:
         """Close the writer; a failing close after a stop names the stop as its cause."""
@@ -542,7 +576,7 @@ class _Run:
                 raise
             raise e from stop
 
-    def _report(self, took: float, totals, io, run_serial) -> SetReport:
+    def _report(self, took: float, totals, io, run_serial, cache=None) -> SetReport:
         o, writer = self.o, self.writer
         before = f", {self.done} were done before" if self.done else ""
         lines = [f"wrote {self.made} samples ({len(self.failed)} failed) to {o.output} in "
@@ -551,6 +585,8 @@ class _Run:
         lines += totals.summary(took, on_host=self.backend.name == "numpy")
         if io is not None:
             lines.append(io.summary(took))
+        if cache is not None:
+            lines.append(cache.counts().summary())
         bound = totals.bound(took, io) if self.executor is run_serial else None
         if bound is not None:  # the device's time is this thread's
             lines.append(bound)

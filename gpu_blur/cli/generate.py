@@ -75,6 +75,10 @@ def add_parser(sub) -> None:
                    "passes may hold (e.g. 512M, 2G; K/M/G binary): images that need more run "
                    "in the largest tiles that fit, halos included (--tile wins); the output "
                    "does not change")
+    g.add_argument("--frame-cache", metavar="BYTES", help="host memory for decoded input "
+                   "frames that several samples read (overlapping windows, a photo drawn "
+                   "several times), each decoded once while it fits (e.g. 512M, 2G; 0: none; "
+                   "default 1/8 of the host's memory, at most 1G); the output does not change")
     g.add_argument("--verify", type=float, default=0.0, metavar="FRACTION",
                    help="recompute this fraction of tiles (0 to 1, chosen from seed and sample "
                    "index) with the numpy reference and compare under the tolerance table; a "
@@ -199,6 +203,7 @@ def _generate(args) -> int:
             backend=args.backend, devices=args.devices, ray=args.ray,
             gpus_per_task=args.gpus_per_task, retries=args.retries, ray_batch=args.ray_batch,
             io_threads=args.io_threads, tile=args.tile, max_device_memory=args.max_device_memory,
+            frame_cache=args.frame_cache,
             verify=args.verify, strict=args.strict, samples_per_photo=args.samples_per_photo,
             samples_per_sequence=args.samples_per_sequence, limit=args.limit, save=args.save,
             format=args.format, shard_size=args.shard_size,

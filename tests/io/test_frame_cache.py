@@ -119,3 +119,47 @@ def test_a_frame_larger_than_the_budget_is_served_but_not_kept(tmp_path):
     cache.read(path, reader)
     cache.read(path, reader)
     assert len(reader.calls) == 2
+
+
+def sequence(folder, count):
+    """One sequence of ``count`` small noisy frames (GoPro-style ``<seq>/sharp/``)."""
+    import cv2
+
+    rng = np.random.default_rng(3)
+    (folder / "seq" / "sharp").mkdir(parents=True)
+    for i in range(count):
+        frame = rng.integers(0, 256, (24, 32, 3), dtype=np.uint8)
+        cv2.imwrite(str(folder / "seq" / "sharp" / f"{i:03d}.png"), frame)
+    return folder
+
+
+def set_bytes(folder):
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name not in ("run.json",)}
+
+
+@pytest.mark.parametrize("io_threads", [1, 2])
+def test_overlapping_windows_decode_each_frame_once_and_write_the_same_set(tmp_path,
+                                                                          io_threads):
+    import gpu_blur
+
+    source = sequence(tmp_path / "in", 6)
+    scene = {"blur": {"mode": "average", "frames": 3}}
+    made = {}
+    for cache in ("0", None):  # none, then the default
+        out = tmp_path / f"out_{cache}"
+        report = gpu_blur.generate_set(out, input=source, scene=scene, seed=5,
+                                       samples_per_sequence=4, io_threads=io_threads,
+                                       frame_cache=cache)
+        made[cache] = set_bytes(out), report.summary
+    assert made["0"][0] == made[None][0]
+    assert not any(line.startswith("frame cache") for line in made["0"][1])
+    # 4 windows of 3 frames spread over 6 frames: 12 reads of 6 files
+    assert "frame cache: 6 decoded, 6 served decoded (50 % of 12 reads), 0 evicted" in made[None][1]
+
+
+def test_a_bad_frame_cache_size_names_the_option(tmp_path):
+    import gpu_blur
+
+    with pytest.raises(ValueError, match="--frame-cache: 'lots' is not a memory size"):
+        gpu_blur.generate_set(tmp_path / "out", frame_cache="lots")
