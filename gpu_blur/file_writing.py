@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from gpu_blur.image_arrays import swap_red_blue
+from gpu_blur.png_codecs import DEFAULT_PNG_MODE, PNG_MODES, encode_png
 from gpu_blur.reference.output import code_dtype, to_integers
 
 __all__ = ["encode_image", "temporary_path", "write_image", "write_new", "write_text",
@@ -65,8 +66,12 @@ def write_whole(path: Path, data: bytes, check: Callable[[Path], None] | None = 
         tmp.unlink(missing_ok=True)
 
 
-def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
+def write_image(path: str | Path, image: np.ndarray, bits: int,
+                png: str = DEFAULT_PNG_MODE) -> None:
     """Write an H x W x 3 RGB image in [0, 1]: PNG with 8/16 bits, or float32 TIFF for bits 0.
+
+    ``png``: how a PNG is compressed, one of :data:`gpu_blur.png_codecs.PNG_MODES` (the
+    scene's ``output.png``); every mode holds the same pixels.
 
     ``image`` may also be its codes already (:func:`to_integers`: uint8 for 8 bits, uint16
     for 16), as a worker process sends them (:func:`gpu_blur.generate.for_driver`).
@@ -74,14 +79,16 @@ def write_image(path: str | Path, image: np.ndarray, bits: int) -> None:
     renamed; the temporary file is removed on failure).
     """
     path = Path(path)
-    write_whole(path, encode_image(image, bits, str(path)))
+    write_whole(path, encode_image(image, bits, str(path), png))
 
 
-def encode_image(image: np.ndarray, bits: int, what: str = "image") -> bytes:
+def encode_image(image: np.ndarray, bits: int, what: str = "image",
+                 png: str = DEFAULT_PNG_MODE) -> bytes:
     """The bytes :func:`write_image` writes for ``image``: its PNG (8/16 bits) or TIFF (0).
 
     Raises:
         OSError: ``what``: could not encode the image.
+        ValueError: ``png`` is not one of :data:`gpu_blur.png_codecs.PNG_MODES`.
     """
     if bits == 0:
         data = np.asarray(image, dtype=np.float32)
@@ -89,8 +96,15 @@ def encode_image(image: np.ndarray, bits: int, what: str = "image") -> bytes:
         data = np.asarray(image)
     else:
         data = to_integers(image, bits)
+    if bits:
+        if png not in PNG_MODES:
+            raise ValueError(f"PNG mode {png!r}: expected one of {', '.join(PNG_MODES)}")
+        try:
+            return encode_png(data, png)
+        except ValueError:
+            raise OSError(f"{what}: could not encode the image") from None
     try:
-        ok, encoded = cv2.imencode(".tiff" if bits == 0 else ".png", swap_red_blue(data))
+        ok, encoded = cv2.imencode(".tiff", swap_red_blue(data))
     except cv2.error:
         ok = False
     if not ok:
