@@ -86,7 +86,7 @@ def test_io_threads_write_the_bytes_of_one_thread_and_fail_only_bad_photos(
     run = ["--backend", backend.split("/")[0]]
     assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
     readers, writers = set(), set()
-    read, write = gpu_blur.generate.read_image, gpu_blur.dataset.write_image
+    read, write = gpu_blur.generate.read_image, gpu_blur.dataset.encode_image
 
     def reading(path):
         readers.add(threading.current_thread().name.startswith(IO_THREAD))
@@ -97,7 +97,7 @@ def test_io_threads_write_the_bytes_of_one_thread_and_fail_only_bad_photos(
         return write(*a)
 
     monkeypatch.setattr(gpu_blur.generate, "read_image", reading)
-    monkeypatch.setattr(gpu_blur.dataset, "write_image", writing)
+    monkeypatch.setattr(gpu_blur.dataset, "encode_image", writing)
     assert main(args(folder, scene, tmp_path / "three", *run, "--io-threads", "3")) == 1
     assert readers == {True} and writers == {True}  # decoded and written in the pool
     assert_same_set(tmp_path / "three", tmp_path / "one")
@@ -157,7 +157,7 @@ def test_ctrl_c_writes_the_samples_made_and_resume_finishes_the_set(tmp_path, ph
     folder, scene = photos
     reference = tmp_path / "reference"
     assert main(args(folder, scene, reference, "--samples-per-photo", "4")) == 0
-    write = gpu_blur.dataset.write_image
+    write = gpu_blur.dataset.encode_image
 
     def slowly(*a):  # writes lag behind synthesis, so made samples queue up
         time.sleep(0.05)
@@ -167,7 +167,7 @@ def test_ctrl_c_writes_the_samples_made_and_resume_finishes_the_set(tmp_path, ph
         if index == 1:
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(gpu_blur.dataset, "write_image", slowly)
+    monkeypatch.setattr(gpu_blur.dataset, "encode_image", slowly)
     monkeypatch.setattr(gpu_blur.testhooks, "sleep_after", ctrl_c_after)
     out = tmp_path / "out"
     run = args(folder, scene, out, "--samples-per-photo", "4", "--io-threads", "3")
@@ -185,7 +185,7 @@ def test_ctrl_c_writes_the_samples_made_and_resume_finishes_the_set(tmp_path, ph
 
 @pytest.mark.parametrize("slow, threads, bound", [
     ("read_image", "2", "bound by: decode (synthesis waited"),
-    ("write_image", "2", "bound by: encode/write (synthesis waited"),
+    ("encode_image", "2", "bound by: encode/write (synthesis waited"),
     (None, "2", "bound by: synthesis (synthesizing"),
     ("read_image", "1", "bound by: decode ("),
 ])
@@ -193,7 +193,7 @@ def test_the_summary_says_which_stage_bounded_the_run(tmp_path, photos, monkeypa
                                                       slow, threads, bound):
     folder, scene = photos
     users = {"read_image": [gpu_blur.generate, gpu_blur.synthesis.inputs],  # pipelined, serial
-             "write_image": [gpu_blur.dataset]}.get(slow, [])
+             "encode_image": [gpu_blur.dataset]}.get(slow, [])
     for module in users:
         work = getattr(module, slow)
 
