@@ -24,6 +24,7 @@ from gpu_blur.file_writing import encode_image, temporary_path, write_new, write
 from gpu_blur.locking import earlier_pids, forget_earlier, release_lock, take_lock
 from gpu_blur.outputs import dng_bytes
 from gpu_blur.params import ARRAY_PARAMS
+from gpu_blur.png_codecs import DEFAULT_PNG_MODE
 from gpu_blur.reference.flow import INTERPOLATION_AUTO
 from gpu_blur.version import __version__
 
@@ -188,7 +189,8 @@ def _set_keys(scene):
     None means the same (a stage off, or the camera's level); so do ``blur.draws =
     "per-sample"`` and ``blur.stride = 0``, what sets made before them did.
     ``blur.interpolation_region`` counts only under ``blur.interpolation = "auto"``, where a
-    set made before it had one factor per gap: 0.
+    set made before it had one factor per gap: 0. ``output.png`` changes no pixel, only how
+    the files are compressed, so a set resumes under either mode.
     """
     if not isinstance(scene, dict):
         return scene
@@ -201,6 +203,8 @@ def _set_keys(scene):
                          else {k: v for k, v in blur.items() if k != "interpolation_region"})
         scene["blur"] = {k: v for k, v in scene["blur"].items()
                          if k not in _BEFORE_THEM or v != _BEFORE_THEM[k]}
+    if isinstance(scene.get("output"), dict):
+        scene["output"] = {k: v for k, v in scene["output"].items() if k != "png"}
     return scene
 
 
@@ -370,6 +374,8 @@ class DatasetWriter:
         total: how many samples the input gives (before ``--limit``); default ``len(specs)``.
         extras: what else to write per sample, of :data:`EXTRAS` (results made
             ``with_raw`` for ``raw``).
+        png: how PNG files are compressed (the scene's ``output.png``,
+            :data:`gpu_blur.png_codecs.PNG_MODES`).
 
     Raises:
         ValueError: an existing set without ``overwrite``/``resume``, a folder another run
@@ -381,7 +387,7 @@ class DatasetWriter:
     def __init__(self, out: Path, bits: int, run: dict | None = None, *,
                  overwrite: bool = False, resume: bool = False,
                  specs: list[SampleSpec] | None = None, total: int | None = None,
-                 extras: tuple[str, ...] = ()):
+                 extras: tuple[str, ...] = (), png: str = DEFAULT_PNG_MODE):
         unknown = sorted(set(extras) - set(EXTRAS))
         if unknown:
             raise ValueError(f"--save {unknown[0]!r}: unknown; allowed: {', '.join(EXTRAS)} "
@@ -390,7 +396,7 @@ class DatasetWriter:
         if overwrite and resume:
             raise ValueError("--overwrite and --resume exclude each other: --resume finishes "
                              "an interrupted set, --overwrite starts it again")
-        self.out, self.bits = out, bits
+        self.out, self.bits, self.png = out, bits, png
         self.manifest_path = out / MANIFEST
         self.done: dict[int, dict] = {}
         self.retry = 0  # failed samples whose lines were dropped, to be tried again
@@ -669,7 +675,7 @@ class DatasetWriter:
         :mod:`gpu_blur.set_formats`), so every format holds the same bytes.
         """
         paths = self._names(spec.index, spec.name)
-        data = {key: encode_image(image, self.bits, str(self.out / paths[key]))
+        data = {key: encode_image(image, self.bits, str(self.out / paths[key]), self.png)
                 for key, image in (("blurred", result.blurred), ("sharp", result.sharp))}
         arrays = {k: result.params[k] for k in SAVED_ARRAYS if k in result.params}
         line = {
@@ -692,7 +698,8 @@ class DatasetWriter:
                 f"{k}_convention": ARRAY_CONVENTIONS[k] for k in arrays})
             line["arrays"] = paths["arrays"]
         if "mask" in self.extras:  # as gpu_blur.outputs.write_mask writes it
-            data["mask"] = encode_image(result.mask, 16, str(self.out / paths["mask"]))
+            data["mask"] = encode_image(result.mask, 16, str(self.out / paths["mask"]),
+                                         self.png)
             line["mask"] = paths["mask"]
         if "raw" in self.extras:
             data["raw"] = dng_bytes(result.raw, result.raw_info)

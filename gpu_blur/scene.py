@@ -182,6 +182,11 @@ FIELDS: dict[str, dict[str, Field]] = {
                            "native_ functions, Warp's CUDA fast math) for the sRGB curves and "
                            "the Gaussian normals; Poisson counts stay exact (accuracy knob)",
                            kind=bool),
+        "png": Field("fast", "how PNG outputs are compressed, the same pixels either way: "
+                     "'fast' (numpy's Sub filter, ISA-L deflate at level 1), 'small' (OpenCV's "
+                     "libpng, a filter per row; slower, a few % smaller); see the "
+                     "performance page for ms and MB an image",
+                     choices=("fast", "small")),
         "jpeg_quality": Field(None, "[low, high]: a JPEG round trip of the blurred output as "
                               "the last stage (OpenCV, 4:2:0 chroma), at a quality drawn per "
                               "sample in the range; needs output.bits = 8; absent: no JPEG",
