@@ -1,0 +1,202 @@
+"""PNG codecs (issue 39): every write mode and every decoder give back the source's codes.
+
+Writing: ``output.png`` = fast (numpy's Sub filter + ISA-L, or OpenCV's default without
+isal) or small (OpenCV's libpng). Reading: libspng (pyspng) for 8-bit grey/RGB/RGBA files,
+OpenCV for the rest and for anything libspng refuses. Each test runs with the optional
+libraries present and, patched away, without them, so it passes either way.
+"""
+
+import struct
+import zlib
+
+import cv2
+import numpy as np
+import pytest
+
+from gpu_blur import png_codecs
+from gpu_blur.dataset import _set_keys
+from gpu_blur.file_writing import encode_image, write_image
+from gpu_blur.image_reading import read_image
+from gpu_blur.scene import SceneError, scene_from_dict
+
+
+@pytest.fixture(params=["present", "absent"])
+def libraries(request, monkeypatch):
+    """isal and pyspng as installed, or both treated as missing (the OpenCV fallbacks)."""
+    if request.param == "absent":
+        monkeypatch.setattr(png_codecs, "_isal", lambda: None)
+        monkeypatch.setattr(png_codecs, "_spng", lambda: None)
+    elif png_codecs._isal() is None or png_codecs._spng() is None:
+        pytest.skip("isal or pyspng is not installed")
+    return request.param
+
+
+def codes(bits, shape=(37, 53, 3), seed=0):
+    """Random codes with a smooth part, so that matches and filters both get exercised."""
+    dtype = np.uint8 if bits == 8 else np.uint16
+    top = np.iinfo(dtype).max
+    rng = np.random.default_rng(seed)
+    noise = rng.integers(0, top + 1, shape, dtype=np.uint64)
+    ramp = np.linspace(0, top, shape[1]).reshape(1, -1, *[1] * (len(shape) - 2))
+    ramp = (ramp * np.ones(shape)).astype(np.uint64)
+    half = shape[0] // 2
+    noise[:half] = ramp[:half]
+    return noise.astype(dtype)
+
+
+def opencv_rgb(data):
+    """OpenCV's decode (IMREAD_UNCHANGED), colour in RGB(A) order."""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image.ndim == 3:
+        image = image[:, :, [2, 1, 0, 3][:image.shape[2]]]
+    return image
+
+
+def spng_rgb(data):
+    """pyspng's decode with the alpha it adds to 16-bit RGB and grey dropped (not used)."""
+    import pyspng
+
+    image = pyspng.load(data)
+    if data[24] == 16 and data[25] in (0, 2):
+        image = image[:, :, 0] if data[25] == 0 else image[:, :, :3]
+    return image
+
+
+def decoders():
+    found = {"opencv": opencv_rgb, "png_codecs": lambda d: png_codecs.decode_png(d)}
+    try:
+        import pyspng  # noqa: F401
+    except ImportError:
+        pass
+    else:
+        found["pyspng"] = spng_rgb
+    return found
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize("shape", [(37, 53, 3), (37, 53, 4), (37, 53), (1, 1, 3), (5, 1)],
+                         ids=["rgb", "rgba", "grey", "one-pixel", "one-column"])
+@pytest.mark.parametrize("mode", list(png_codecs.PNG_MODES))
+def test_every_mode_decodes_to_the_source_with_every_decoder(libraries, bits, shape, mode):
+    source = codes(bits, shape)
+    data = png_codecs.encode_png(source, mode)
+    assert data.startswith(png_codecs.PNG_SIGNATURE)
+    for name, decode in decoders().items():
+        image = decode(data)
+        if image is None:  # png_codecs.decode_png: a file it leaves to OpenCV
+            assert name == "png_codecs" and (bits == 16 or libraries == "absent")
+            continue
+        assert image.dtype == source.dtype and np.array_equal(image, source), name
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize("mode", list(png_codecs.PNG_MODES))
+def test_written_outputs_read_back_as_the_codes_written(libraries, tmp_path, bits, mode):
+    source = codes(bits, seed=bits)
+    path = tmp_path / f"out_{mode}.png"
+    write_image(path, source, bits, png=mode)
+    assert np.array_equal(read_image(path), source)
+    assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no temporary file left
+    assert encode_image(source, bits, png=mode) == path.read_bytes()
+
+
+def test_fast_is_the_default_and_small_is_the_smaller_on_a_smooth_16_bit_image():
+    source = codes(16, (64, 96, 3))
+    source[:] = source[:32][:1]  # every row the ramp
+    assert encode_image(source, 16) == encode_image(source, 16, png="fast")
+    assert len(png_codecs.encode_png(source, "small")) < len(png_codecs.encode_png(source,
+                                                                                   "fast"))
+
+
+def test_an_unknown_png_mode_is_refused_naming_the_modes():
+    with pytest.raises(ValueError, match="PNG mode 'tiny': expected one of fast, small"):
+        encode_image(codes(8), 8, png="tiny")
+    with pytest.raises(SceneError, match="output.png"):
+        scene_from_dict({"output": {"png": "tiny"}})
+    assert scene_from_dict({"output": {"png": "small"}}).output.png == "small"
+    assert scene_from_dict({}).output.png == png_codecs.DEFAULT_PNG_MODE == "fast"
+
+
+def test_a_resume_takes_either_png_mode():
+    old = {"output": {"bits": 8}}  # a set made before output.png
+    assert _set_keys(old) == _set_keys({"output": {"bits": 8, "png": "small"}})
+    assert _set_keys(old) == _set_keys({"output": {"bits": 8, "png": "fast"}})
+
+
+@pytest.mark.parametrize("shape", [(21, 30, 3), (21, 30, 4), (21, 30)],
+                         ids=["rgb", "rgba", "grey"])
+@pytest.mark.parametrize("bits", [8, 16])
+def test_read_image_gives_opencvs_pixels_through_either_decoder(libraries, tmp_path, shape,
+                                                                 bits):
+    source = codes(bits, shape, seed=3)
+    if len(shape) == 3 and shape[2] == 4:
+        source[:, :, 3] = np.iinfo(source.dtype).max  # opaque: read_image drops it
+    path = tmp_path / "in.png"
+    path.write_bytes(png_codecs.encode_png(source, "small"))
+    want = source[:, :, :3] if source.ndim == 3 else np.repeat(source[:, :, None], 3, axis=2)
+    image = read_image(path)
+    assert image.dtype == source.dtype and image.flags.c_contiguous
+    assert np.array_equal(image, want)
+
+
+def chunks(data):
+    """(type, start, length) of each chunk."""
+    pos, found = 8, []
+    while pos < len(data):
+        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        found.append((kind, pos, length))
+        pos += 12 + length
+    return found
+
+
+def with_chunk_before_idat(data, kind, body):
+    idat = next(start for k, start, _ in chunks(data) if k == b"IDAT")
+    new = struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+    return data[:idat] + new + data[idat:]
+
+
+def test_a_damaged_idat_is_refused_though_pyspng_skips_checksums(libraries, tmp_path):
+    data = bytearray(png_codecs.encode_png(codes(8), "fast"))
+    kind, start, length = next(c for c in chunks(data) if c[0] == b"IDAT")
+    data[start + 8 + length // 2] ^= 0xFF  # inside the compressed pixels; its CRC is now wrong
+    assert png_codecs.decode_png(bytes(data)) is None  # left to OpenCV, which refuses it
+    path = tmp_path / "bad.png"
+    path.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="not a readable image") as e:
+        read_image(path)
+    assert str(path) in str(e.value) and "re-export or re-copy the file" in str(e.value)
+
+
+def test_files_libspng_would_read_otherwise_go_through_opencv(tmp_path):
+    """tRNS (OpenCV makes it an alpha channel), 16 bits, interlacing, 1-bit grey: OpenCV's."""
+    eight = png_codecs.encode_png(codes(8), "fast")
+    assert png_codecs.decode_png(with_chunk_before_idat(eight, b"tRNS", bytes(6))) is None
+    assert png_codecs.decode_png(png_codecs.encode_png(codes(16), "fast")) is None
+    interlaced = bytearray(eight)
+    interlaced[28] = 1
+    struct.pack_into(">I", interlaced, 29, zlib.crc32(bytes(interlaced[12:29])))
+    assert png_codecs.decode_png(bytes(interlaced)) is None
+    ok, palette = cv2.imencode(".png", codes(8, (8, 8)), [cv2.IMWRITE_PNG_BILEVEL, 1])
+    assert png_codecs.decode_png(palette.tobytes()) is None  # a 1-bit grey file
+    assert png_codecs.decode_png(b"\xff\xd8" + eight[2:]) is None  # not a PNG signature
+
+
+def test_transparent_pixels_are_refused_through_libspng_too(tmp_path):
+    rgba = codes(8, (9, 11, 4))
+    rgba[:, :, 3] = 255
+    rgba[4, 7, 3] = 0
+    path = tmp_path / "cutout.png"
+    path.write_bytes(png_codecs.encode_png(rgba, "fast"))
+    with pytest.raises(ValueError, match=r"1 of 99 pixels are not fully opaque .*row 4, "
+                                         r"column 7"):
+        read_image(path)
+
+
+def test_filters_give_valid_files():
+    """The other filters of png_codecs.filtered_rows (the bench compares them) decode too."""
+    for bits in (8, 16):
+        source = codes(bits)
+        for kind in ("none", "sub", "up", "paeth"):
+            rows = png_codecs.filtered_rows(source, kind)
+            data = png_codecs.png_file(source, zlib.compress(rows.tobytes(), 1))
+            assert np.array_equal(opencv_rgb(data), source), (bits, kind)
