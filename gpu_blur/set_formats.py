@@ -59,7 +59,7 @@ from gpu_blur.file_writing import temporary_path, write_new, write_text
 
 __all__ = ["DEFAULT_FORMAT", "DEFAULT_SHARD_SIZE", "FORMATS", "LMDB_FOLDERS", "META_INFO",
            "LmdbWriter", "PngWriter", "SetWriter", "ShardWriter", "check_format", "format_record",
-           "png_meta", "sample_key", "shard_name", "writer"]
+           "png_level", "png_shape", "sample_key", "shard_name", "writer"]
 
 #: ``--format``: how a set stores its samples.
 FORMATS = {
@@ -173,25 +173,22 @@ _LMDB_FILES = ("data.mdb", "lock.mdb", META_INFO)
 _MAP_SIZE = 1 << 28
 #: PNG colour type -> channels (PNG specification, 11.2.1).
 _CHANNELS = {0: 1, 2: 3, 4: 2, 6: 4}
-#: The zlib stream's FLEVEL (RFC 1950, 2.2) -> the compression level it stands for: zlib
-#: writes 0 for levels below 2 (and any run-length or Huffman-only stream, OpenCV's
-#: default), 1 for 2 to 5, 2 for its default 6, 3 for 7 to 9.
-_LEVELS = {0: 1, 1: 5, 2: 6, 3: 9}
 
 
-def png_meta(png) -> tuple[int, int, int, int]:
-    """(height, width, channels, compression level) of a PNG's bytes, for meta_info.txt."""
-    data = bytes(png[:33])
+def png_shape(png) -> tuple[int, int, int]:
+    """(height, width, channels) of a PNG's bytes, from its IHDR chunk (PNG spec, 11.2.2)."""
+    data = bytes(png[:26])
     width, height = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
-    channels = _CHANNELS.get(data[25], 3)
-    at, level = 8, 1
-    while at + 8 <= len(png):  # the chunks, to the first IDAT's zlib header
-        size = int.from_bytes(bytes(png[at:at + 4]), "big")
-        if bytes(png[at + 4:at + 8]) == b"IDAT":
-            level = _LEVELS[bytes(png[at + 9:at + 10])[0] >> 6] if size >= 2 else 1
-            break
-        at += 12 + size
-    return height, width, channels, level
+    return height, width, _CHANNELS.get(data[25], 3)
+
+
+def png_level(mode: str, bits: int) -> int:
+    """The zlib level of a ``bits``-bit PNG written in ``mode`` (``png_codecs.PNG_MODES``).
+
+    meta_info.txt's last column, as BasicSR writes the ``compress_level`` it encoded with
+    (its readers do not read it): 6 for 16-bit ``small``, else 1.
+    """
+    return 6 if mode == "small" and bits == 16 else 1
 
 
 # -- WebDataset ----------------------------------------------------------------------------------
@@ -487,8 +484,9 @@ class LmdbWriter(SetWriter):
                 continue
             lines = []
             with self._env(folder).begin(buffers=True) as txn:
+                level = png_level(self.png, 16 if kind == "mask" else self.bits)
                 for key in keys:
-                    h, w, c, level = png_meta(txn.get(key.encode("ascii")))
+                    h, w, c = png_shape(txn.get(key.encode("ascii")))
                     lines.append(f"{key}.png ({h},{w},{c}) {level}\n")
             write_text(self.out / folder / META_INFO, "".join(lines))
 
