@@ -430,7 +430,7 @@ class _Run:
         run.update(format_record(o.format, o.shard_size))  # absent for PNG, as sets before
         self.writer = writer(o.format, o.shard_size)(
             o.output, scene.output.bits, run, overwrite=o.overwrite, resume=o.resume,
-            specs=specs, total=found.total, extras=self.extras)
+            specs=specs, total=found.total, extras=self.extras, png=scene.output.png)
         self.todo = [s for s in specs if s.index not in self.writer.done]
         self.done = len(specs) - len(self.todo)
         if o.resume and on_resume is not None:

@@ -200,3 +200,29 @@ def test_filters_give_valid_files():
             rows = png_codecs.filtered_rows(source, kind)
             data = png_codecs.png_file(source, zlib.compress(rows.tobytes(), 1))
             assert np.array_equal(opencv_rgb(data), source), (bits, kind)
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+def test_generate_writes_the_same_pixels_in_either_mode(tmp_path, bits):
+    from gpu_blur.cli import main
+
+    photos = tmp_path / "in"
+    photos.mkdir()
+    for i in range(2):
+        (photos / f"p{i}.png").write_bytes(png_codecs.encode_png(codes(8, (24, 32, 3), i)))
+    made = {}
+    for mode in png_codecs.PNG_MODES:
+        scene = tmp_path / f"{mode}.toml"
+        scene.write_text(f"[blur]\nsteps = 3\n[output]\nbits = {bits}\npng = '{mode}'\n")
+        out = tmp_path / mode
+        assert main(["generate", "--input", str(photos), "--output", str(out), "--scene",
+                     str(scene), "--save", "mask", "--quiet"]) == 0
+        made[mode] = {p.relative_to(out).as_posix(): p.read_bytes()
+                      for p in sorted(out.rglob("*.png"))}
+    fast, small = made["fast"], made["small"]
+    assert sorted(fast) == sorted(small) and len(fast) == 6  # blur, sharp, mask of 2 samples
+    assert all(fast[name] == png_codecs.encode_png(opencv_rgb(fast[name]), "fast")
+               for name in fast)  # written by the fast mode
+    for name in fast:
+        assert np.array_equal(opencv_rgb(fast[name]), opencv_rgb(small[name])), name
+    assert any(fast[name] != small[name] for name in fast)
