@@ -382,3 +382,35 @@ def test_devices_write_the_serial_runs_samples(tmp_path, photos, format):
         assert shards(spread) == shards(serial)
     else:
         assert lmdb_contents(spread) == lmdb_contents(serial)
+
+
+def test_meta_info_gives_the_compression_level_of_the_png_mode(tmp_path, photos):
+    # output.png = 'small': OpenCV's libpng at level 1 for 8 bits, 6 for 16 (the masks)
+    photos[1].write_text('[blur]\nsteps = 3\n[output]\npng = "small"\n')
+    png, out = tmp_path / "png", tmp_path / "lmdb"
+    assert main(args(photos, png, "--limit", "2", "--save", "mask")) == 0
+    assert main(args(photos, out, "--limit", "2", "--save", "mask", "--format", "lmdb")) == 0
+    lines, stored = manifest_lines(png), lmdb_contents(out)
+    for line in lines:
+        key = sample_key(line["index"], line["name"]).encode("ascii")
+        assert stored["mask.lmdb"][key] == (png / line["mask"]).read_bytes()
+    keys = [sample_key(x["index"], x["name"]) for x in lines]
+    for folder, level in (("blur.lmdb", 1), ("sharp.lmdb", 1), ("mask.lmdb", 6)):
+        assert (out / folder / "meta_info.txt").read_text() == "".join(
+            f"{k}.png (24,32,3) {level}\n" for k in keys)
+
+
+@pytest.mark.parametrize("format", ["lmdb", "webdataset"])
+def test_a_larger_limit_grows_the_last_shard_and_the_environments(tmp_path, photos, format):
+    options = ("--format", format, *(("--shard-size", "3") if format == "webdataset" else ()))
+    out, reference = tmp_path / "out", tmp_path / "reference"
+    assert main(args(photos, out, *options, "--limit", "4")) == 0  # shard 1 holds sample 3
+    assert main(args(photos, out, *options, "--resume")) == 0
+    assert main(args(photos, reference, *options)) == 0
+    assert (out / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
+    if format == "webdataset":
+        assert shards(out) == shards(reference)
+    else:
+        assert lmdb_contents(out) == lmdb_contents(reference)
+        assert (out / "sharp.lmdb" / "meta_info.txt").read_bytes() == (
+            reference / "sharp.lmdb" / "meta_info.txt").read_bytes()
