@@ -11,7 +11,8 @@ Chosen by bench/png_codecs.py on one core (its table: docs/performance.md, "PNG 
   - ``small``: OpenCV's libpng with its own filter choice per row, at level 1 with
     run-length matches for 8 bits (smaller than any level with the default strategy on noisy
     images) and at level 6 with the default strategy for 16 bits (where the high bytes
-    repeat, so longer matches pay).
+    repeat, so longer matches pay); or the ``fast`` file where that is smaller (16-bit noise,
+    where neither setting finds much), so ``small`` is never the larger.
 
 * reading (:func:`decode_png`): 8-bit files through libspng (``pyspng``), which decoded them
   fastest; 16-bit ones through OpenCV, as libspng gives 16-bit RGB only as RGBA and the
@@ -42,7 +43,7 @@ PNG_MODES = {
     "fast": "numpy's Sub filter and ISA-L's deflate at level 1 (isal; without it OpenCV's "
             "default)",
     "small": "OpenCV's libpng, a filter chosen per row; 8-bit: level 1 with run-length "
-             "matches, 16-bit: level 6",
+             "matches, 16-bit: level 6; or the fast file where that is smaller",
 }
 DEFAULT_PNG_MODE = "fast"
 
@@ -142,8 +143,8 @@ def encode_png(codes: np.ndarray, mode: str = DEFAULT_PNG_MODE) -> bytes:
             codes.ndim == 3 and codes.shape[2] not in _COLOUR_TYPES) or 0 in codes.shape:
         raise ValueError(f"a {' x '.join(map(str, codes.shape))} {codes.dtype} array is no "
                          "PNG image (uint8 or uint16, 1 to 4 channels)")
-    isal = _isal() if mode == "fast" else None
-    if isal is not None:
+    isal = _isal()
+    if mode == "fast" and isal is not None:
         return png_file(codes, isal.compress(filtered_rows(codes, "sub"), 1))
     import cv2
 
@@ -154,6 +155,7 @@ def encode_png(codes: np.ndarray, mode: str = DEFAULT_PNG_MODE) -> bytes:
                   cv2.IMWRITE_PNG_STRATEGY_RLE]
     else:
         params = [cv2.IMWRITE_PNG_COMPRESSION, 6]
+    original = codes
     if codes.ndim == 3 and codes.shape[2] >= 3:
         codes = cv2.cvtColor(codes, cv2.COLOR_RGB2BGR if codes.shape[2] == 3
                              else cv2.COLOR_RGBA2BGRA)
@@ -161,9 +163,15 @@ def encode_png(codes: np.ndarray, mode: str = DEFAULT_PNG_MODE) -> bytes:
         ok, data = cv2.imencode(".png", codes, params)
     except cv2.error:
         ok = False
+    if not ok and mode == "small" and isal is not None:  # grey + alpha: OpenCV writes none
+        return encode_png(original, "fast")
     if not ok:
         raise ValueError(f"OpenCV could not encode a {' x '.join(map(str, codes.shape))} "
                          f"{codes.dtype} image as PNG")
+    if mode == "small" and isal is not None:
+        fast = encode_png(original, "fast")
+        if len(fast) < len(data):
+            return fast
     return data.tobytes()
 
 

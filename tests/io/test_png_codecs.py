@@ -108,6 +108,19 @@ def test_fast_is_the_default_and_small_is_the_smaller_on_a_smooth_16_bit_image()
                                                                                    "fast"))
 
 
+@pytest.mark.parametrize("bits", [8, 16])
+def test_small_is_never_larger_than_fast(bits):
+    if png_codecs._isal() is None:
+        pytest.skip("isal is not installed: fast is OpenCV's default, small another setting")
+    noise = codes(bits, (64, 96, 3), seed=5)  # all noise: libpng's level 6 finds little
+    noise[:] = np.random.default_rng(5).integers(0, 2**bits, noise.shape)
+    for source in (noise, codes(bits, (64, 96, 3))):
+        small, fast = (png_codecs.encode_png(source, m) for m in ("small", "fast"))
+        assert len(small) <= len(fast)
+    grey_alpha = codes(bits, (8, 9, 2))  # OpenCV writes no grey + alpha: small is fast's file
+    assert png_codecs.encode_png(grey_alpha, "small") == png_codecs.encode_png(grey_alpha)
+
+
 def test_an_unknown_png_mode_is_refused_naming_the_modes():
     with pytest.raises(ValueError, match="PNG mode 'tiny': expected one of fast, small"):
         encode_image(codes(8), 8, png="tiny")
