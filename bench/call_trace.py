@@ -59,7 +59,8 @@ from pathlib import Path
 #: backend reading its plan as a call up (docs/architecture-trace.md gives both).
 LAYERS = (
     (0, ("cli",)),
-    (1, ("generation", "generate", "dataset", "datasets", "discovery", "distributed")),
+    (1, ("generation", "generate", "dataset", "datasets", "discovery", "blurred_inputs",
+         "input_folders", "distributed", "set_formats")),
     (2, ("synthesis", "pipeline")),
     (3, ("scheduler", "params")),
     (4, ("backends", "warp_kernels")),

@@ -17,6 +17,7 @@ One sample, module by module:
                     batch API as a training transform
     backends/       numpy (reference/), OpenCL (kernels/opencl/), Warp (warp_kernels/)
     discovery.py    inputs: sequences, photos and already-blurred images, as samples
+                    (blurred_inputs.py, input_folders.py)
     dataset.py      outputs: blurred and sharp images, parameters, the manifest
                     (generation.py: generate_set, a whole set; generate.py and
                     distributed.py make its samples)

@@ -19,8 +19,9 @@ import numpy as np
 
 from gpu_blur import files
 from gpu_blur.backends.flows import REGIONS_KEY
-from gpu_blur.discovery import MANIFEST, RUN, SampleSpec, _text, input_label
+from gpu_blur.discovery import SampleSpec, _text, input_label
 from gpu_blur.file_writing import encode_image, temporary_path, write_new, write_text, write_whole
+from gpu_blur.input_folders import MANIFEST, RUN
 from gpu_blur.locking import earlier_pids, forget_earlier, release_lock, take_lock
 from gpu_blur.outputs import dng_bytes
 from gpu_blur.params import ARRAY_PARAMS

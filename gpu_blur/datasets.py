@@ -40,16 +40,18 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur.discovery import (
+from gpu_blur.blurred_inputs import (
     BLURRED_EXPECTED,
     BlurredSample,
-    SampleSpec,
-    Window,
     find_blurred,
     find_realblur_pairs,
+    read_datalist,
+)
+from gpu_blur.discovery import (
+    SampleSpec,
+    Window,
     find_samples,
     find_sequences,
-    read_datalist,
     sequence_samples,
 )
 from gpu_blur.image_reading import read_image
@@ -260,7 +262,7 @@ class _Pairs(_Augmented):
 class BlurredImages(_Pairs):
     """Already-blurred images with their saturation masks, for blur mode none.
 
-    The RSBlur authors' layouts (:data:`gpu_blur.discovery.BLURRED_LAYOUTS`): GoPro_INTER_ABME
+    The RSBlur authors' layouts (:data:`gpu_blur.blurred_inputs.BLURRED_LAYOUTS`): GoPro_INTER_ABME
     ``<seq>/<id>/avg_inter_img/``, RSBlur ``<session>/<id>/avg65_img/`` and GoPro_U
     ``centroid_blurred_img/``, each image's mask under the same name in the ``*_mask_100/``
     folder beside it (8-bit codes: value / 255, as the authors read them) and its sharp

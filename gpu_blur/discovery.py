@@ -9,26 +9,25 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import os
 import re
 from collections.abc import Callable, Iterator, Sequence
 from importlib import resources
 from pathlib import Path
 
-from gpu_blur import files
+from gpu_blur import input_folders
+from gpu_blur.blurred_inputs import (
+    BLURRED_EXPECTED,
+    BlurredSample,
+    blurred_layout,
+    find_blurred,
+)
 from gpu_blur.scene import FROM_NAME
 
-__all__ = ["BLURRED_EXPECTED", "BLURRED_LAYOUTS", "BUILT_IN_INPUT", "BlurredLayout",
-           "BlurredSample", "FoundSequence", "GOPRO_NAME", "IMAGE_SUFFIXES", "LAYOUT_NAMES",
-           "MANIFEST", "MAX_SAMPLES", "RUN", "SampleSpec", "Samples", "Window", "check_layout",
-           "default_photo", "find_blurred", "find_realblur_pairs", "find_samples", "find_sequences",
-           "frames_from_name", "input_label", "read_datalist", "sequence_folder", "sequence_layout",
-           "sequence_samples", "shown"]
+__all__ = ["BUILT_IN_INPUT", "FoundSequence", "GOPRO_NAME", "LAYOUT_NAMES", "MAX_SAMPLES",
+           "SampleSpec", "Samples", "Window", "check_layout", "default_photo", "find_samples",
+           "find_sequences", "frames_from_name", "input_label", "sequence_folder",
+           "sequence_layout", "sequence_samples", "shown"]
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
-#: The files that mark a folder as a set gpu-blur wrote (:class:`gpu_blur.dataset.DatasetWriter`).
-MANIFEST = "manifest.jsonl"
-RUN = "run.json"
 #: The most samples one run makes. Each waits in memory until made (a SampleSpec with its
 #: input paths, about 0.3 KB) and adds a manifest line (about 1 KB): 10 million samples hold
 #: some 3 GB of list and write 10 GB of manifest, and take days on a fast GPU.
@@ -125,65 +124,6 @@ def shown(text: str) -> str:
         return text.encode("utf-8", "backslashreplace").decode()
 
 
-def _natural(name: str) -> tuple:
-    """Sort key comparing runs of digits as numbers: ``2.png`` before ``10.png``.
-
-    Names that tie as numbers (``01.png``, ``1.png``) fall back to the plain text.
-    """
-    parts = re.split(r"(\d+)", name)
-    return tuple(int(p) if i % 2 else p for i, p in enumerate(parts)), name
-
-
-def _identity(path: Path | None) -> tuple[int, int] | None:
-    """(device, inode) of an existing folder, else None."""
-    try:
-        st = os.stat(path) if path is not None else None
-    except OSError:
-        return None
-    return (st.st_dev, st.st_ino) if st is not None else None
-
-
-def _walk(folder: Path, skip: tuple[int, int] | None) -> Iterator[tuple[Path, bool]]:
-    """(path, is a folder) of every entry under ``folder``, depth first, in natural order.
-
-    The folder whose :func:`_identity` is ``skip`` is left out with all it holds, and so is
-    every folder holding a set ``gpu-blur generate`` wrote (its :data:`MANIFEST` and
-    :data:`RUN`): a set made inside the input is never read back as input. Linked folders are
-    listed but not entered, and unreadable ones skipped, as ``Path.rglob`` does; a link that
-    leads nowhere or into a loop of links is no folder.
-    """
-    try:
-        with os.scandir(folder) as it:
-            entries = sorted(it, key=lambda e: _natural(e.name))
-    except OSError:  # unreadable, or gone since it was listed
-        return
-    for entry in entries:
-        try:
-            is_dir = entry.is_dir()
-        except OSError:  # a loop of links (ELOOP): no folder, and an image fails when read
-            is_dir = False
-        if is_dir and ((skip is not None and _identity(Path(entry.path)) == skip)
-                       or _holds_a_set(Path(entry.path))):
-            continue
-        yield Path(entry.path), is_dir
-        if is_dir and not entry.is_symlink():
-            yield from _walk(Path(entry.path), skip)
-
-
-def _holds_a_set(folder: Path) -> bool:
-    """Whether ``folder`` holds a set ``gpu-blur generate`` wrote (a manifest and run.json)."""
-    return (folder / MANIFEST).is_file() and (folder / RUN).is_file()
-
-
-def _images(folder: Path) -> list[Path]:
-    """The images directly in ``folder``, in natural order (none when it cannot be read)."""
-    try:
-        paths = [p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
-    except OSError:
-        return []
-    return sorted(paths, key=lambda p: _natural(p.name))
-
-
 def _sequence_name(folder: Path, root: Path) -> str:
     """A sequence's name: its folder relative to ``root``, or ``root``'s name when it is root."""
     return root.name if folder == root else folder.relative_to(root).as_posix()
@@ -223,13 +163,13 @@ def find_sequences(root: Path, exclude: Path | None = None) -> list[tuple[str, l
     Returns:
         (sequence name relative to root, its frames) pairs.
     """
-    return _sequences(root, list(_walk(root, _identity(exclude))))
+    return _sequences(root, list(input_folders.walk(root, input_folders.identity(exclude))))
 
 
 def _sequences(root: Path, walked: list[tuple[Path, bool]]) -> list[tuple[str, list[Path]]]:
-    """:func:`find_sequences` of ``root`` from its :func:`_walk` (``walked``)."""
+    """:func:`find_sequences` of ``root`` from its :func:`input_folders.walk` (``walked``)."""
     folders = [root] + [p for p, is_dir in walked if is_dir]
-    sharp = {f: _images(f) for f in folders[1:] if f.name == "sharp"}
+    sharp = {f: input_folders.images(f) for f in folders[1:] if f.name == "sharp"}
     named = {f.parent for f, frames in sharp.items() if frames}
     seqs = []
     for folder in folders:
@@ -237,7 +177,7 @@ def _sequences(root: Path, walked: list[tuple[Path, bool]]) -> list[tuple[str, l
             seqs.append((_sequence_name(folder.parent, root), sharp[folder]))
         elif folder not in named and (_is_rsblur_sample(folder)
                                       or _is_gopro_all_sequence(folder)):
-            frames = _images(folder)
+            frames = input_folders.images(folder)
             if frames:
                 seqs.append((_sequence_name(folder, root), frames))
     return seqs
@@ -280,120 +220,6 @@ def frames_from_name(frames: list[Path], where: str = "the scene") -> int:
     return int(match[2])
 
 
-@dataclasses.dataclass(frozen=True)
-class BlurredLayout:
-    """Where a published layout of already-blurred images keeps each sample's files.
-
-    Every ``.../<blurred>/`` folder holds blurred images; each image's saturation mask has the
-    same file name in the folder beside it named as :attr:`mask` says, and its sharp reference
-    is in the ``<sharp>/`` folder beside both (RSBlur authors' README and datalists; layouts in
-    ``RSBLUR_PIPELINE.md`` Sec. 2).
-    """
-
-    dataset: str
-    blurred: str
-    sharp: str
-    #: (end of a blurred file's stem, end of its sharp file's stem): the sharp file's name;
-    #: None: the sharp folder holds the one sharp image of its sample.
-    sharp_stem: tuple[str, str] | None = None
-
-    @property
-    def mask(self) -> str:
-        """The mask folder: the authors' loaders replace ``_img`` by ``_mask_100``."""
-        return self.blurred.removesuffix("_img") + "_mask_100"
-
-
-#: The already-blurred layouts blur mode none reads: GoPro_INTER_ABME's
-#: ``<seq>/<id>/avg_inter_img/avg_blur.png`` (sharp ``<id>/gt/gt_sharp.png``), RSBlur's
-#: ``<session>/<id>/avg65_img/avg_blur.png`` (sharp in ``gt/`` too) and GoPro_U's
-#: ``centroid_blurred_img/<name>_blurred.png`` (sharp ``target_img/<name>_gt.png``).
-BLURRED_LAYOUTS = (
-    BlurredLayout("GoPro_INTER_ABME", "avg_inter_img", "gt"),
-    BlurredLayout("RSBlur", "avg65_img", "gt"),
-    BlurredLayout("GoPro_U", "centroid_blurred_img", "target_img", ("_blurred", "_gt")),
-)
-#: What blur mode none looks for, for messages.
-BLURRED_EXPECTED = ("already-blurred images in " + ", ".join(
-    f"{lay.blurred}/ (masks in {lay.mask}/, {lay.dataset})" for lay in BLURRED_LAYOUTS))
-
-
-@dataclasses.dataclass(frozen=True)
-class BlurredSample:
-    """One already-blurred image with its saturation mask and sharp reference (when found).
-
-    ``problem`` says why it cannot be used (no mask; a sharp folder without its image).
-    """
-
-    name: str
-    blurred: Path
-    mask: Path | None
-    sharp: Path | None
-    problem: str | None = None
-
-
-def _sharp_of(blurred: Path, layout: BlurredLayout) -> tuple[Path | None, str | None]:
-    """(sharp reference, problem) of a blurred image: (None, None) without a sharp folder."""
-    folder = blurred.parent.parent / layout.sharp
-    if not folder.is_dir():
-        return None, None
-    if layout.sharp_stem is not None:
-        end, sharp_end = layout.sharp_stem
-        stem = blurred.stem.removesuffix(end) + sharp_end if blurred.stem.endswith(end) \
-            else blurred.stem
-        path = folder / (stem + blurred.suffix)
-        if path.is_file():
-            return path, None
-        return None, (f"{blurred}: its sharp reference {path} is missing ({layout.dataset} "
-                      f"names it <name>{sharp_end}{blurred.suffix} in {layout.sharp}/); add "
-                      f"it, or move {folder} away to use the blurred image as the reference")
-    images = _images(folder)
-    if len(images) == 1:
-        return images[0], None
-    return None, (f"{blurred}: {folder} holds {len(images)} images where {layout.dataset} "
-                  f"keeps the one sharp reference of this sample (gt_sharp.png); leave one "
-                  f"there, or move {folder} away to use the blurred image as the reference")
-
-
-def find_blurred(root: Path, masks: bool = True,
-                 exclude: Path | None = None) -> list[BlurredSample]:
-    """Already-blurred images under ``root`` in the layouts of :data:`BLURRED_LAYOUTS`.
-
-    Every image directly in a ``<blurred>/`` folder is a sample, in natural order, named by
-    its path relative to ``root`` without the ``<blurred>/`` folder and the suffix
-    (``GOPR0372_07_00/000001/avg_blur``). Its mask is the file of the same name in the mask
-    folder beside it (``avg65_mask_100/avg_blur.png``), read as the authors do (8-bit value /
-    255). A sharp folder beside them (``gt/``, ``target_img/``) must hold the sample's sharp
-    reference; without that folder the sample has none (blur mode none then uses the blurred
-    image as the reference).
-
-    Args:
-        root: the input folder.
-        masks: look for masks; a blurred image without its mask is a sample with its
-            ``problem`` set. False: masks are not read (no saturation synthesis).
-        exclude: a folder under ``root`` left out with all it holds (the output folder).
-    """
-    by_folder = {lay.blurred: lay for lay in BLURRED_LAYOUTS}
-    samples = []
-    for folder, is_dir in _walk(root, _identity(exclude)):
-        layout = by_folder.get(folder.name) if is_dir else None
-        if layout is None:
-            continue
-        base = folder.parent
-        prefix = "" if base == root else base.relative_to(root).as_posix() + "/"
-        for blurred in _images(folder):
-            name = prefix + blurred.stem
-            mask = base / layout.mask / blurred.name if masks else None
-            sharp, problem = _sharp_of(blurred, layout)
-            if mask is not None and not mask.is_file():
-                problem = (f"{blurred}: no saturation mask {mask} ({layout.dataset} keeps it "
-                           f"under the same name in {layout.mask}/); add it, or run "
-                           "without masks: saturation.mode = off for gpu-blur generate, "
-                           "masks=False for gpu_blur.datasets")
-                mask = None
-            samples.append(BlurredSample(name, blurred, mask, sharp, problem))
-    return samples
-
-
 def _windows(count: int, size: int, per_sequence: int | None, stride: int = 0
              ) -> Iterator[int]:
     """First frames of a sequence's windows, in order (see :func:`find_samples`).
@@ -407,73 +233,6 @@ def _windows(count: int, size: int, per_sequence: int | None, stride: int = 0
         return iter([0])
     last = count - size
     return (round(j * last / (per_sequence - 1)) for j in range(per_sequence))
-
-
-def find_realblur_pairs(root: Path) -> list[BlurredSample]:
-    """RealBlur's evaluation pairs under ``root``, in natural order.
-
-    ``<scene>/blur/blur_<n>.png`` with ``<scene>/gt/gt_<n>.png`` (RealBlur_J and RealBlur_R,
-    Rim et al. ECCV 2020), named ``<scene>/blur_<n>``; a blurred image without its ground
-    truth has ``problem`` set, naming the file expected.
-    """
-    pairs = []
-    for folder, is_dir in _walk(root, None):
-        if not (is_dir and folder.name == "blur"):
-            continue
-        prefix = "" if folder.parent == root else folder.parent.relative_to(root).as_posix() + "/"
-        for blurred in _images(folder):
-            if not blurred.stem.startswith("blur_"):
-                continue
-            sharp = folder.parent / "gt" / ("gt_" + blurred.stem[5:] + blurred.suffix)
-            problem = None if sharp.is_file() else (
-                f"{blurred}: its ground truth {sharp} is missing (RealBlur pairs "
-                "<scene>/blur/blur_<n> with <scene>/gt/gt_<n>)")
-            pairs.append(BlurredSample(prefix + blurred.stem, blurred, None,
-                                       sharp if problem is None else None, problem))
-    return pairs
-
-
-def read_datalist(path: Path, root: Path) -> list[BlurredSample]:
-    """The pairs of a datalist as the RSBlur authors ship them (``datalist/*.txt``).
-
-    One ``<sharp> <blurred>`` line each, paths relative to ``root``; named by the blurred path
-    without its suffix. A pair whose file is missing has ``problem`` set. Each path must lie
-    inside ``root`` once resolved: a list must not read files elsewhere (an absolute path, a
-    ``..`` out of ``root``, or a link under ``root`` that points out of it).
-
-    Raises:
-        ValueError: naming the file and line when a line is not two paths, or a path lies
-            outside ``root``.
-    """
-    inside = root.resolve()
-    pairs = []
-    for number, line in enumerate(files.read_text(path, f"datalist {path}").splitlines(), 1):
-        fields = line.split()
-        if not fields:
-            continue
-        if len(fields) != 2:
-            raise ValueError(f"{path}, line {number}: {len(fields)} field(s) in {line!r}; a "
-                             "datalist line is '<sharp path> <blurred path>', relative to the "
-                             "data folder")
-        for field in fields:
-            try:
-                resolved = (root / field).resolve()
-                leads = None if resolved.is_relative_to(inside) else f"to {resolved}"
-            except (OSError, RuntimeError):
-                leads = "through a loop of links"
-            if leads:
-                raise ValueError(
-                    f"{path}, line {number}: {field} leads outside the data folder {inside} "
-                    f"({leads}); datalist paths are relative to the data folder and stay in "
-                    "it: fix the line, or pass the folder that holds the files as the data "
-                    "folder")
-        sharp, blurred = root / fields[0], root / fields[1]
-        missing = [str(p) for p in (blurred, sharp) if not p.is_file()]
-        problem = (f"{path}, line {number}: {' and '.join(missing)} not found (paths are "
-                   f"relative to {root})") if missing else None
-        pairs.append(BlurredSample(Path(fields[1]).with_suffix("").as_posix(), blurred, None,
-                                   sharp, problem))
-    return pairs
 
 
 def sequence_samples(sequences, size: int | Sequence[int], per_sequence: int | None,
@@ -715,15 +474,16 @@ def find_samples(root: Path | None, mode: str, frames_per_sample: int | str,
             return Samples(len(found) * samples_per_photo,
                            lambda: _in_utf8(_blurred_samples(found, samples_per_photo)),
                            "already-blurred images (" + ", ".join(
-                               dict.fromkeys(_blurred_layout(b) for b in found)) + ")",
+                               dict.fromkeys(blurred_layout(b) for b in found)) + ")",
                            len(found))
-        walked = list(_walk(root, _identity(exclude)))
+        walked = list(input_folders.walk(root, input_folders.identity(exclude)))
         photos = [(p.relative_to(root).with_suffix("").as_posix(), p)
                   for p, is_dir in walked
-                  if not is_dir and p.suffix.lower() in IMAGE_SUFFIXES]
+                  if not is_dir and p.suffix.lower() in input_folders.IMAGE_SUFFIXES]
         if not photos:
-            raise ValueError(f"--input {root}: no images ({', '.join(IMAGE_SUFFIXES)}) found "
-                             "in it or its subfolders")
+            suffixes = ", ".join(input_folders.IMAGE_SUFFIXES)
+            raise ValueError(f"--input {root}: no images ({suffixes}) found in it or its "
+                             "subfolders")
         sequences = _found(root, _sequences(root, walked))
         layout = f"photos, {_layouts(sequences)} among them" if sequences else "photos"
     return Samples(len(photos) * samples_per_photo,
@@ -780,12 +540,6 @@ def check_layout(found: Samples, root: Path | None, mode: str, where: str, *,
                 + ("; for GoPro, over GOPRO_Large_all with blur.frames = "
                    f"\"{FROM_NAME}\"" if large else "")
                 + "), or pass --frames-as-photos to blur each frame as a photo")
-
-
-def _blurred_layout(sample: BlurredSample) -> str:
-    """The data set a blurred image's folder is named after (:data:`BLURRED_LAYOUTS`)."""
-    folder = sample.blurred.parent.name
-    return next(lay.dataset for lay in BLURRED_LAYOUTS if lay.blurred == folder)
 
 
 def _text(value) -> bool:

@@ -45,7 +45,8 @@ REFERENCE_MAY_IMPORT = ("gpu_blur.constants",)
 KNOWN_REFERENCE_EXCEPTIONS: tuple[str, ...] = ()
 BACKENDS = ("gpu_blur.backends",)
 SYNTHESIS = ("gpu_blur.synthesis", "gpu_blur.generate", "gpu_blur.generation",
-             "gpu_blur.dataset", "gpu_blur.set_formats", "gpu_blur.discovery")
+             "gpu_blur.dataset", "gpu_blur.set_formats", "gpu_blur.discovery",
+             "gpu_blur.blurred_inputs", "gpu_blur.input_folders")
 CLI = ("gpu_blur.cli",)
 TESTING = ("gpu_blur.testing",)
 #: Concrete backends and device libraries, which the synthesis layer never imports directly: it

@@ -6,8 +6,9 @@ import pytest
 from conftest import KERNEL_BACKEND_SPECS, manifest_lines
 
 import gpu_blur
+from gpu_blur.blurred_inputs import find_blurred
 from gpu_blur.cli import main
-from gpu_blur.discovery import find_blurred, find_samples
+from gpu_blur.discovery import find_samples
 from gpu_blur.image_reading import read_image
 
 SCENE = '[blur]\nmode = "none"\n[saturation]\nmode = "on"\n'
