@@ -60,7 +60,7 @@ from pathlib import Path
 LAYERS = (
     (0, ("cli",)),
     (1, ("generation", "generate", "dataset", "datasets", "discovery", "blurred_inputs",
-         "input_folders", "distributed", "set_formats")),
+         "input_folders", "distributed", "set_formats", "run_record")),
     (2, ("synthesis", "pipeline")),
     (3, ("scheduler", "params")),
     (4, ("backends", "warp_kernels")),

@@ -9,7 +9,6 @@ import hashlib
 import io
 import json
 import math
-import os
 import re
 import stat
 import zipfile
@@ -17,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-from gpu_blur import files
 from gpu_blur.backends.flows import REGIONS_KEY
 from gpu_blur.discovery import SampleSpec, _text, input_label
 from gpu_blur.file_writing import encode_image, temporary_path, write_new, write_text, write_whole
@@ -26,12 +24,10 @@ from gpu_blur.locking import earlier_pids, forget_earlier, release_lock, take_lo
 from gpu_blur.outputs import dng_bytes
 from gpu_blur.params import ARRAY_PARAMS
 from gpu_blur.png_codecs import DEFAULT_PNG_MODE
-from gpu_blur.reference.flow import INTERPOLATION_AUTO
-from gpu_blur.version import __version__
+from gpu_blur.run_record import check_run, jsonable
 
 __all__ = ["ARRAY_CONVENTIONS", "DatasetWriter", "EXTRAS", "LOCK", "NAME_BYTES", "PATHS",
-           "RESUME_KEYS", "SAVED_ARRAYS", "SUBFOLDERS", "arrays_bytes", "library_versions",
-           "save_arrays"]
+           "SAVED_ARRAYS", "SUBFOLDERS", "arrays_bytes", "save_arrays"]
 
 #: The lock file a run holds (:mod:`gpu_blur.locking`) while it writes its output folder; a run
 #: that closes its set removes it (:meth:`DatasetWriter.close`).
@@ -52,18 +48,6 @@ _TEMPORARY = re.compile(r"\.(.+)\.(\d+)\.part(\.[^.]*)?", re.DOTALL)
 #: the index, the temporary name's dots, pid and suffixes, a name stays under the 255 bytes a
 #: file name may have; a longer name keeps its first bytes and a hash of the whole.
 NAME_BYTES = 180
-#: run.json keys a resumed run must share with the set it finishes, with what sets each:
-#: everything that decides a sample's inputs, draws or pixels (not --tile or --limit). "files"
-#: holds the sha256 of each file the scene names (camera.name, blur.kernel), "device" the
-#: backend's device (OpenCL platform numbers change when a runtime is installed),
-#: "libraries" the versions of the libraries that compute the pixels (library_versions),
-#: "save" the extra outputs of --save (absent without it).
-RESUME_KEYS = {"seed": "--seed", "scene": "--scene", "backend": "--backend",
-               "device": "device behind --backend", "input": "--input",
-               "samples_per_photo": "--samples-per-photo",
-               "samples_per_sequence": "--samples-per-sequence",
-               "files": "camera or kernel file contents", "libraries": "library version",
-               "save": "--save", "format": "--format", "shard_size": "--shard-size"}
 #: What each array of ``params/*.npz`` holds, stored beside it as ``<name>_convention`` (a text
 #: entry: ``str(np.load(path)["homographies_convention"])``).
 ARRAY_CONVENTIONS = {
@@ -109,17 +93,6 @@ def _inputs(spec: SampleSpec) -> dict:
     return line
 
 
-def _jsonable(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
-def _plain(value):
-    """``value`` as it reads back from JSON (tuples become lists, numpy scalars numbers)."""
-    return json.loads(json.dumps(value, default=_jsonable))
-
-
 def _json_object(text: bytes) -> dict | None:
     """A manifest line as the object it holds, or None when it is not one (not UTF-8 JSON)."""
     try:
@@ -156,67 +129,6 @@ def arrays_bytes(arrays: dict) -> bytes:
             with z.open(info, "w", force_zip64=True) as f:
                 np.lib.format.write_array(f, np.asarray(value), allow_pickle=False)
     return encoded.getvalue()
-
-
-def library_versions(backend: str) -> dict[str, str]:
-    """The versions of the libraries a sample's pixels depend on with ``backend``.
-
-    gpu_blur, numpy and OpenCV (image decoding and encoding, resampling) always; pyopencl or
-    Warp with their backends.
-    """
-    import cv2
-
-    versions = {"gpu_blur": __version__, "numpy": np.__version__, "opencv": cv2.__version__}
-    family = backend.split(":", 1)[0]
-    if family == "opencl":
-        import pyopencl
-
-        versions["pyopencl"] = pyopencl.VERSION_TEXT
-    elif family == "warp":
-        import warp
-
-        versions["warp"] = warp.config.version
-    return versions
-
-
-#: Scene keys of [blur] added since sets were made, with the value those sets had.
-_BEFORE_THEM = {"draws": "per-sample", "stride": 0}
-
-
-def _set_keys(scene):
-    """A recorded scene without its None-valued keys, as resume compares it.
-
-    A key added to the scene format since a set was made is absent from its run.json, and
-    None means the same (a stage off, or the camera's level); so do ``blur.draws =
-    "per-sample"`` and ``blur.stride = 0``, what sets made before them did.
-    ``blur.interpolation_region`` counts only under ``blur.interpolation = "auto"``, where a
-    set made before it had one factor per gap: 0. ``output.png`` changes no pixel, only how
-    the files are compressed, so a set resumes under either mode.
-    """
-    if not isinstance(scene, dict):
-        return scene
-    scene = {section: ({k: v for k, v in keys.items() if v is not None}
-                       if isinstance(keys, dict) else keys) for section, keys in scene.items()}
-    blur = scene.get("blur")
-    if isinstance(blur, dict):
-        scene["blur"] = ({"interpolation_region": 0, **blur}
-                         if blur.get("interpolation") == INTERPOLATION_AUTO
-                         else {k: v for k, v in blur.items() if k != "interpolation_region"})
-        scene["blur"] = {k: v for k, v in scene["blur"].items()
-                         if k not in _BEFORE_THEM or v != _BEFORE_THEM[k]}
-    if isinstance(scene.get("output"), dict):
-        scene["output"] = {k: v for k, v in scene["output"].items() if k != "png"}
-    return scene
-
-
-def _difference(name: str, old, new) -> str:
-    """Where two JSON values first differ, as ``name.key = old (this run: new)``."""
-    if isinstance(old, dict) and isinstance(new, dict):
-        for key in sorted(set(old) | set(new)):
-            if old.get(key) != new.get(key):
-                return _difference(f"{name}.{key}", old.get(key), new.get(key))
-    shown = [repr(v) if len(repr(v)) <= 80 else repr(v)[:77] + "..." for v in (old, new)]
-    return f"{name} = {shown[0]} (this run: {shown[1]})"
 
 
 def _stem(index: int, name: str) -> str:
@@ -296,36 +208,6 @@ def _sample_files(out: Path, earlier) -> list[Path]:
     return ours
 
 
-def _check_run(out: Path, run: dict) -> None:
-    """Refuse to resume the set in ``out`` unless ``run`` matches its run.json (RESUME_KEYS)."""
-    path = out / RUN
-    try:
-        if not os.path.lexists(path):
-            raise FileNotFoundError(path)
-        old = json.loads(files.read_text(path, str(path)))  # a regular file: no FIFO wait
-    except FileNotFoundError:
-        raise ValueError(f"--resume: {path} is missing, so the settings the set in "
-                         f"{out} was made with are unknown; start it again with "
-                         "--overwrite, or use another --output") from None
-    except (OSError, ValueError) as e:
-        raise ValueError(f"--resume: cannot read {path} ({e}); start the set again with "
-                         "--overwrite, or use another --output") from None
-    if not isinstance(old, dict):
-        raise ValueError(f"--resume: {path} holds a JSON {type(old).__name__}, not the "
-                         "object gpu-blur writes; start the set again with --overwrite, or "
-                         "use another --output")
-    for key, option in RESUME_KEYS.items():
-        was, now = _plain(old.get(key)), _plain(run.get(key))
-        if key == "scene":  # a key added since (output.jpeg_quality) is absent there
-            was, now = _set_keys(was), _set_keys(now)
-        if was != now:
-            raise ValueError(
-                f"--resume: the set in {out} was made with another {option}: "
-                f"{_difference(key, was, now)}; resume with what {path} records (options, "
-                "device, library versions, camera and kernel files), or start a new set "
-                "with --overwrite or another --output")
-
-
 class DatasetWriter:
     """Writes ``blur/`` and ``sharp/`` PNGs, array parameters, ``manifest.jsonl`` and ``run.json``.
 
@@ -356,10 +238,10 @@ class DatasetWriter:
     run.json, then start again), or ``resume``: finish the set a previous run started.
     Sample files with neither a manifest nor run.json beside them are no set gpu-blur made:
     refused in every way, never removed. Resuming checks that ``run`` matches the folder's
-    ``run.json`` in every key of :data:`RESUME_KEYS` (options, device, library versions,
-    camera and kernel file contents) and that each finished sample's index still names the
-    same inputs, keeps the finished samples (``done``; their files are not touched), and drops
-    the other lines: failed samples (to be tried again), a line torn by a kill, and any line
+    ``run.json`` in every key of :data:`~gpu_blur.run_record.RESUME_KEYS` (options, device,
+    library versions, camera and kernel file contents) and that each finished sample's index
+    still names the same inputs, keeps the finished samples (``done``; their files are not
+    touched), and drops the other lines: failed samples (to be tried again), a line torn by a kill, and any line
     it cannot verify (an index that is not an int in ``[0, total)``, files not named as this
     writer names them, missing, or not of the sizes the line records). A missing, unreadable
     or damaged manifest (NUL bytes, a line that is not JSON but a last one cut before its
@@ -429,7 +311,7 @@ class DatasetWriter:
                              "failed samples), or --overwrite to replace it")
         kept = None
         if resume and found:
-            _check_run(out, run or {})
+            check_run(out, run or {})
             kept = self._read_manifest(total, files)
             self._check_inputs(specs or [])
         listed = {line[k] for line in self.done.values() for k in PATHS if k in line}
@@ -690,7 +572,7 @@ class DatasetWriter:
             "spot_checked_tiles": result.spot_checks,
             "spot_check": "passed" if result.spot_checks else "none",
             "status": "ok",
-            "params": {k: _jsonable(v) for k, v in result.params.items() if k not in arrays},
+            "params": {k: jsonable(v) for k, v in result.params.items() if k not in arrays},
             "stages": [s.name for s in result.plan.stages if s.kept],
             "skipped": {s.name: s.reason for s in result.plan.stages if not s.kept},
         }

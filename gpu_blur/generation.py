@@ -379,9 +379,9 @@ class _Run:
 
     def __init__(self, o, progress: Progress, on_device, on_resume, on_input=None):
         from gpu_blur.backends import get_backend
-        from gpu_blur.dataset import library_versions
         from gpu_blur.discovery import BUILT_IN_INPUT, check_layout, find_samples
         from gpu_blur.distributed import pick_executor
+        from gpu_blur.run_record import library_versions
         from gpu_blur.scene import load_scene
         from gpu_blur.scheduler import Schedule
         from gpu_blur.set_formats import format_record, writer

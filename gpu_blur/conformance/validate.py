@@ -37,7 +37,7 @@ def kernel_devices() -> list[str]:
 
 def device_info(backend) -> dict:
     """The device's name, its driver and the versions of the libraries its results depend on."""
-    from gpu_blur.dataset import library_versions
+    from gpu_blur.run_record import library_versions
 
     if backend.name == "opencl":
         dev = backend.cl_device

@@ -46,7 +46,7 @@ KNOWN_REFERENCE_EXCEPTIONS: tuple[str, ...] = ()
 BACKENDS = ("gpu_blur.backends",)
 SYNTHESIS = ("gpu_blur.synthesis", "gpu_blur.generate", "gpu_blur.generation",
              "gpu_blur.dataset", "gpu_blur.set_formats", "gpu_blur.discovery",
-             "gpu_blur.blurred_inputs", "gpu_blur.input_folders")
+             "gpu_blur.blurred_inputs", "gpu_blur.input_folders", "gpu_blur.run_record")
 CLI = ("gpu_blur.cli",)
 TESTING = ("gpu_blur.testing",)
 #: Concrete backends and device libraries, which the synthesis layer never imports directly: it
@@ -56,9 +56,10 @@ CONCRETE_BACKENDS = ("gpu_blur.backends.kernel", "gpu_blur.backends.opencl",
 #: Allowed all the same: the host path renders the numpy backend's sharp reference with its
 #: float64 re-toning (``gpu_blur.backends.numpy.retone``, a host function with no device).
 SYNTHESIS_MAY_IMPORT = ("gpu_blur.backends.numpy",)
-#: Known exceptions, module -> what it imports: ``gpu_blur.dataset`` records the device
-#: libraries' versions in a set's run.json (``_versions``), to be taken behind gpu_blur.backends.
-KNOWN_SYNTHESIS_EXCEPTIONS = {"gpu_blur.dataset": ("warp", "pyopencl")}
+#: Known exceptions, module -> what it imports: ``gpu_blur.run_record`` records the device
+#: libraries' versions in a set's run.json (``library_versions``), to be taken behind
+#: gpu_blur.backends.
+KNOWN_SYNTHESIS_EXCEPTIONS = {"gpu_blur.run_record": ("warp", "pyopencl")}
 
 
 def within(name: str, prefixes: tuple[str, ...]) -> bool:

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from gpu_blur import png_codecs
-from gpu_blur.dataset import _set_keys
 from gpu_blur.file_writing import encode_image, write_image
 from gpu_blur.image_reading import read_image
+from gpu_blur.run_record import set_keys
 from gpu_blur.scene import SceneError, scene_from_dict
 
 
@@ -132,8 +132,8 @@ def test_an_unknown_png_mode_is_refused_naming_the_modes():
 
 def test_a_resume_takes_either_png_mode():
     old = {"output": {"bits": 8}}  # a set made before output.png
-    assert _set_keys(old) == _set_keys({"output": {"bits": 8, "png": "small"}})
-    assert _set_keys(old) == _set_keys({"output": {"bits": 8, "png": "fast"}})
+    assert set_keys(old) == set_keys({"output": {"bits": 8, "png": "small"}})
+    assert set_keys(old) == set_keys({"output": {"bits": 8, "png": "fast"}})
 
 
 @pytest.mark.parametrize("shape", [(21, 30, 3), (21, 30, 4), (21, 30)],

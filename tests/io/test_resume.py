@@ -322,14 +322,14 @@ def test_a_set_made_before_interpolation_regions_resumes_where_they_do_not_apply
 
 
 def test_an_auto_interpolation_set_made_before_regions_resumes_only_without_them():
-    from gpu_blur.dataset import _set_keys
+    from gpu_blur.run_record import set_keys
 
     old = {"blur": {"mode": "average", "interpolation": "auto"}}
     with_regions = {"blur": {"mode": "average", "interpolation": "auto",
                              "interpolation_region": 64}}
     without = {"blur": {"mode": "average", "interpolation": "auto", "interpolation_region": 0}}
-    assert _set_keys(old) != _set_keys(with_regions)  # the old set had one factor per gap
-    assert _set_keys(old) == _set_keys(without)
+    assert set_keys(old) != set_keys(with_regions)  # the old set had one factor per gap
+    assert set_keys(old) == set_keys(without)
 
 
 def backend_args(photos, out, *extra):
