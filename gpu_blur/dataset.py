@@ -236,18 +236,17 @@ class DatasetWriter:
     Three ways to open a folder: a new set (refused if the folder holds a manifest, run.json
     or sample files), ``overwrite`` (remove the old set's sample files, then its manifest and
     run.json, then start again), or ``resume``: finish the set a previous run started.
-    Sample files with neither a manifest nor run.json beside them are no set gpu-blur made:
-    refused in every way, never removed. Resuming checks that ``run`` matches the folder's
-    ``run.json`` in every key of :data:`~gpu_blur.run_record.RESUME_KEYS` (options, device,
-    library versions, camera and kernel file contents) and that each finished sample's index
-    still names the same inputs, keeps the finished samples (``done``; their files are not
-    touched), and drops the other lines: failed samples (to be tried again), a line torn by a kill, and any line
-    it cannot verify (an index that is not an int in ``[0, total)``, files not named as this
-    writer names them, missing, or not of the sizes the line records). A missing, unreadable
-    or damaged manifest (NUL bytes, a line that is not JSON but a last one cut before its
-    newline), and sample files no kept line lists that this run would not make again (an
-    emptied manifest, an input that changed), are refused while sample files are there,
-    changing nothing: resuming would remove finished samples.
+    Sample files with neither a manifest nor run.json beside them are no set gpu-blur made: refused
+    in every way, never removed. Resuming checks that ``run`` matches the folder's ``run.json`` in
+    every key of :data:`~gpu_blur.run_record.RESUME_KEYS` (options, device, library versions, camera
+    and kernel file contents) and that each finished sample's index still names the same inputs,
+    keeps the finished samples (``done``; their files are not touched), and drops the other lines:
+    failed samples (to be tried again), a line torn by a kill, and any line it cannot verify (an
+    index that is not an int in ``[0, total)``, files not named as this writer names them, missing,
+    or not of the sizes the line records). A missing, unreadable or damaged manifest (NUL bytes, a
+    line that is not JSON but a last one cut before its newline), and sample files no kept line
+    lists that this run would not make again (an emptied manifest, an input that changed), are
+    refused while sample files are there, changing nothing: resuming would remove finished samples.
 
     Args:
         out: the set's folder (created if needed).
