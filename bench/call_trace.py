@@ -17,13 +17,13 @@ code lies in the ``gpu_blur`` package that is imported. It reports:
 - ``entered``: how many times each group is entered from outside it (``synthesis`` is
   ``gpu_blur/synthesis/`` or the older ``gpu_blur/pipeline.py``).
 
-Layers, by module path (first match): 0 ``cli``; 1 ``generation``, ``generate``, ``dataset``,
-``datasets``, ``discovery``, ``distributed``; 2 ``synthesis``, ``pipeline``; 3 ``scheduler``,
-``params``; 4 ``backends``, ``warp_kernels``; 5 ``plan``, ``stages``; 6 ``reference``. Every
-other module (``arrays``, ``imageio``, ``scene``, ``timings``, ``tiling``, ...) is *shared*:
-a helper any layer may call, in no layer, so its calls and returns are no layer crossing; they
-are counted as ``shared_calls``, and ``returns_up_with_shared`` counts the returns up with the
-shared modules as a layer 7 below all others.
+Layers, by module path (first match, :data:`LAYERS`): 0 the command; 1 the sets (``generation``,
+``generate``, ``dataset``, ``discovery`` and their helpers); 2 ``synthesis``; 3 ``scheduler``,
+``params``; 4 ``backends``, ``warp_kernels``; 5 ``planning`` (``plan`` in older trees), ``stages``;
+6 ``reference``. Every other module (``arrays``, ``imageio``, ``scene``, ``timings``, ``tiling``,
+...) is *shared*: a helper any layer may call, in no layer, so its calls and returns are no layer
+crossing; they are counted as ``shared_calls``, and ``returns_up_with_shared`` counts the returns up
+with the shared modules as a layer 7 below all others.
 
 The traced sample is the second of the set (index 1) after the first was made untraced, as a
 set's samples after its first run (kernels built, caches filled); ``--cold`` traces the
@@ -52,9 +52,9 @@ from pathlib import Path
 
 #: (layer, module path prefixes), first match wins; a prefix matches a module or a package.
 #: They follow the package's import graph (tests/architecture/test_layers.py checks that
-#: no module imports one of a higher layer): the backends import the plan (``plan``, ``stages``),
-#: which the scheduler and the draws (``params``) read, so the plan lies below the backends;
-#: the Warp kernels are the Warp backend's.
+#: no module imports one of a higher layer): the backends import the plan (``planning``,
+#: ``stages``), which the scheduler and the draws (``params``) read, so the plan lies below the
+#: backends; the Warp kernels are the Warp backend's.
 #: Before 2026-11-27 the plan was put with the scheduler above the backends, which counted a
 #: backend reading its plan as a call up (docs/architecture-trace.md gives both).
 LAYERS = (
@@ -64,7 +64,7 @@ LAYERS = (
     (2, ("synthesis", "pipeline")),
     (3, ("scheduler", "params")),
     (4, ("backends", "warp_kernels")),
-    (5, ("plan", "stages")),
+    (5, ("plan", "planning", "stages")),
     (6, ("reference",)),
 )
 #: The name runs record their layering under (runs before it have none: "plan above backends").

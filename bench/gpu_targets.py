@@ -44,7 +44,7 @@ import gpu_blur
 from gpu_blur.cameras import get_camera
 from gpu_blur.discovery import default_photo
 from gpu_blur.params import draw_params
-from gpu_blur.plan import plan
+from gpu_blur.planning import plan
 from gpu_blur.scene import load_scene, scene_from_dict
 from gpu_blur.tiling import Region
 

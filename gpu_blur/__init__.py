@@ -8,7 +8,7 @@ reference of every stage is :mod:`gpu_blur.reference`.
 One sample, module by module:
 
     scene.py        the scene: validated settings (limits.py: every number's range)
-    plan.py         scene -> the ordered stages it calls for, each kept or skipped
+    planning.py     scene -> the ordered stages it calls for, each kept or skipped
     params.py       the sample's random draws (rng: reference/rng.py), or given values
     synthesis/      Synthesizer (synthesize(): a batch of one): the three passes on a
                     backend, resident on its device or from the host, where scheduler.py runs
@@ -28,7 +28,7 @@ the tolerance table: :mod:`gpu_blur.tolerances` (the tests' helpers: :mod:`gpu_b
 """
 
 from gpu_blur.generation import SetReport, generate_set
-from gpu_blur.plan import Plan, Stage, plan
+from gpu_blur.planning import Plan, Stage, plan
 from gpu_blur.scene import Scene, SceneError, load_scene
 from gpu_blur.synthesis import Batch, Synthesis, Synthesizer, synthesize
 from gpu_blur.version import __version__

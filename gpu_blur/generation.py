@@ -231,7 +231,7 @@ def check_setup(o, scene) -> None:
     """Fail before any sample for what every sample would fail on (``o``: the options)."""
     from gpu_blur.cameras import scene_camera
     from gpu_blur.kernel_files import read_kernel
-    from gpu_blur.plan import raw_round_trip
+    from gpu_blur.planning import raw_round_trip
     from gpu_blur.scheduler import check_tile
     from gpu_blur.set_formats import check_format
 
@@ -265,7 +265,7 @@ def check_setup(o, scene) -> None:
         raise ValueError("--strict stops the run at the first spot-check mismatch; give "
                          "--verify FRACTION too")
     if o.max_device_memory is not None:
-        from gpu_blur.plan import plan
+        from gpu_blur.planning import plan
         from gpu_blur.scheduler import check_budget
 
         numpy = o.backend.split(":")[0] == "numpy"

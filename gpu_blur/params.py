@@ -18,7 +18,7 @@ import numpy as np
 from gpu_blur import limits
 from gpu_blur.cameras import Camera
 from gpu_blur.kernel_files import check_kernel, kernel_weights, read_kernel
-from gpu_blur.plan import Plan
+from gpu_blur.planning import Plan
 from gpu_blur.reference import motion_kernel, rng, shake
 from gpu_blur.reference.bayer import BayerPattern
 from gpu_blur.reference.noise import draw_noise_levels

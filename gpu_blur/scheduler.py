@@ -95,7 +95,7 @@ import numpy as np
 
 from gpu_blur.backends import FRAMES_PER_LAUNCH, Backend, OnDevice, to_host
 from gpu_blur.backends.flows import interpolation_factor, with_flows
-from gpu_blur.plan import Plan, StageName
+from gpu_blur.planning import Plan, StageName
 from gpu_blur.reference import blur, rng
 from gpu_blur.reference.demosaic import halo as demosaic_halo
 from gpu_blur.reference.output import quantize
@@ -346,7 +346,7 @@ def check_budget(budget, scene_plan: Plan, precision: str) -> int:
 
     Args:
         budget: bytes, or a size such as ``"512M"``.
-        scene_plan: the scene's plan (:func:`gpu_blur.plan.plan`).
+        scene_plan: the scene's plan (:func:`gpu_blur.planning.plan`).
         precision: the backend's precision (float32, float64).
 
     Returns:

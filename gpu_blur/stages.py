@@ -1,7 +1,7 @@
 """The stages, declared once: their names, passes, reference functions and cost switches.
 
 :data:`STAGES` holds one :class:`StageSpec` per :class:`StageName`, in data-flow order. What a
-stage is, as opposed to whether a scene runs it, is read from here: :func:`gpu_blur.plan.plan`
+stage is, as opposed to whether a scene runs it, is read from here: :func:`gpu_blur.planning.plan`
 takes each stage's pass, its place in the plan and its kernel values from its row (and decides
 only kept or skipped, why, the variant and the options), and
 :data:`gpu_blur.analysis.stage_cost.SWITCHES` groups the stages by their cost switch.
@@ -76,7 +76,7 @@ class StageSpec:
         switch: its cost switch (:data:`gpu_blur.analysis.stage_cost.SWITCHES`; stages that
             only run together share one), or None for a stage not timed on its own: the
             accumulate pass is timed whole, host stages are no kernel work.
-        values: where its kernel values (:attr:`gpu_blur.plan.Stage.values`) come from, in
+        values: where its kernel values (:attr:`gpu_blur.planning.Stage.values`) come from, in
             order: scene keys (``"section.key"``, each one number) and :data:`SIZE` (two).
     """
 

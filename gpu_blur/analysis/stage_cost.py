@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from gpu_blur.plan import Plan, Stage, StageName, plan
+from gpu_blur.planning import Plan, Stage, StageName, plan
 from gpu_blur.stages import STAGES
 
 __all__ = ["CONFIDENCE", "FORCED_OPTIONS", "NEEDS", "S", "SWITCHES", "StageCosts", "bench_inputs",

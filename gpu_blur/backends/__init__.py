@@ -30,7 +30,7 @@ from gpu_blur.reference.bayer import BayerPattern
 
 if TYPE_CHECKING:
     from gpu_blur.cameras import Camera
-    from gpu_blur.plan import Plan
+    from gpu_blur.planning import Plan
     from gpu_blur.tiling import Region
 
 __all__ = ["Backend", "COPY_THREADS", "Drawn", "FRAMES_PER_LAUNCH", "OnDevice",

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from gpu_blur.image_arrays import unit_values
-from gpu_blur.plan import Plan
+from gpu_blur.planning import Plan
 from gpu_blur.reference.flow import (
     INTERPOLATION_AUTO,
     INTERPOLATION_FACTORS,
@@ -70,7 +70,7 @@ def with_factors(plan: Plan, params: dict, frames: Sequence[np.ndarray],
     """``params`` with the gaps' factors under interpolation auto.
 
     ``interpolation_factors`` (each gap's) and, with regions, ``interpolation_regions``:
-    ``measured``'s, else without regions the plan's (:func:`gpu_blur.plan.plan`
+    ``measured``'s, else without regions the plan's (:func:`gpu_blur.planning.plan`
     ``interpolation_factors``), else measured here from the host frames as
     :func:`scene_factors` does. ``params`` as they are for a fixed factor or when they hold
     the factors already.

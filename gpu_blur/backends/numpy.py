@@ -13,7 +13,7 @@ import numpy as np
 
 from gpu_blur.backends.flows import UnitFrames, gap_regions, interpolation_factor, with_flows
 from gpu_blur.cameras import Camera
-from gpu_blur.plan import Plan, StageName
+from gpu_blur.planning import Plan, StageName
 from gpu_blur.reference import bayer, blur, demosaic, noise, transfer
 from gpu_blur.reference.color import apply_matrix
 from gpu_blur.reference.interpolate import interpolated_average

@@ -33,7 +33,7 @@ from gpu_blur import caches, notices
 from gpu_blur.backends import OnDevice, copy_values, fill_stack
 from gpu_blur.backends.kernel import Arg, KernelBackend, PassConfig, source_dtype
 from gpu_blur.kernel_constants import opencl_header
-from gpu_blur.plan import Pass
+from gpu_blur.planning import Pass
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
 

@@ -32,7 +32,7 @@ from gpu_blur.backends.kernel import (
     PassConfig,
     source_dtype,
 )
-from gpu_blur.plan import Pass, Plan, StageName
+from gpu_blur.planning import Pass, Plan, StageName
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
 

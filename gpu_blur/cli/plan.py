@@ -26,7 +26,7 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     """Print the plan, and with --cost what each stage costs."""
     from gpu_blur.cameras import scene_camera
-    from gpu_blur.plan import plan
+    from gpu_blur.planning import plan
     from gpu_blur.scene import load_scene
 
     scene = load_scene(args.scene)

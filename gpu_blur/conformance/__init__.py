@@ -23,7 +23,7 @@ import numpy as np
 from gpu_blur.backends import to_host
 from gpu_blur.cameras import get_camera
 from gpu_blur.params import draw_params
-from gpu_blur.plan import plan
+from gpu_blur.planning import plan
 from gpu_blur.reference import transfer
 from gpu_blur.scene import scene_from_dict
 from gpu_blur.tiling import Region

@@ -33,7 +33,7 @@ from gpu_blur.conformance.checks import (
     within,
 )
 from gpu_blur.params import draw_params
-from gpu_blur.plan import plan
+from gpu_blur.planning import plan
 from gpu_blur.reference import bayer
 from gpu_blur.tiling import Region
 

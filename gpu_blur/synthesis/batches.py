@@ -14,7 +14,7 @@ import numpy as np
 from gpu_blur import arrays
 from gpu_blur.backends import Backend
 from gpu_blur.outputs import jpeg_round_trip
-from gpu_blur.plan import Plan, StageName
+from gpu_blur.planning import Plan, StageName
 from gpu_blur.reference.output import code_dtype, to_integers
 from gpu_blur.scene import Scene
 from gpu_blur.synthesis.inputs import Inputs, frame_count, kept_size

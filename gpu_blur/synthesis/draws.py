@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from gpu_blur.backends.flows import with_factors
 from gpu_blur.cameras import Camera
 from gpu_blur.params import draw_params
-from gpu_blur.plan import Plan, StageName, plan
+from gpu_blur.planning import Plan, StageName, plan
 from gpu_blur.reference.flow import RegionFactors
 from gpu_blur.scene import Scene
 from gpu_blur.synthesis.inputs import Inputs

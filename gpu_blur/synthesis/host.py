@@ -15,7 +15,7 @@ from gpu_blur.backends.flows import scene_factors
 from gpu_blur.backends.numpy import retone
 from gpu_blur.cameras import Camera
 from gpu_blur.image_arrays import unit_values
-from gpu_blur.plan import Plan, StageName
+from gpu_blur.planning import Plan, StageName
 from gpu_blur.reference import transfer
 from gpu_blur.reference.output import crop_border, quantize
 from gpu_blur.scene import Scene

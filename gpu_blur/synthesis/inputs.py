@@ -18,7 +18,7 @@ from gpu_blur import arrays
 from gpu_blur.backends import OnDevice
 from gpu_blur.image_arrays import check_image, check_layout, unit_values
 from gpu_blur.image_reading import read_image
-from gpu_blur.plan import raw_round_trip
+from gpu_blur.planning import raw_round_trip
 from gpu_blur.scene import FROM_NAME, Scene
 
 __all__ = ["Inputs", "bad_values", "check_codes", "checked", "checked_on_host", "codes_only",

@@ -17,7 +17,7 @@ import numpy as np
 from gpu_blur.backends import Drawn, OnDevice, ResidentBackend, Slots, pinned_owner
 from gpu_blur.cameras import Camera
 from gpu_blur.params import batch_uniforms
-from gpu_blur.plan import StageName, raw_round_trip
+from gpu_blur.planning import StageName, raw_round_trip
 from gpu_blur.reference.output import code_dtype
 from gpu_blur.scene import Scene
 from gpu_blur.synthesis.batches import BatchIO

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 
 from gpu_blur.backends import to_host
-from gpu_blur.plan import Plan
+from gpu_blur.planning import Plan
 from gpu_blur.reference.output import crop_border
 from gpu_blur.tiling import Region
 

@@ -20,7 +20,7 @@ from gpu_blur.backends.flows import interpolation_factor
 from gpu_blur.cameras import scene_camera
 from gpu_blur.outputs import jpeg_round_trip, raw_metadata
 from gpu_blur.params import check_overrides
-from gpu_blur.plan import StageName, plan, raw_round_trip
+from gpu_blur.planning import StageName, plan, raw_round_trip
 from gpu_blur.reference.output import code_dtype, crop_border, to_integers
 from gpu_blur.scene import Scene, load_scene
 from gpu_blur.scheduler import Schedule

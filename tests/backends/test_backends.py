@@ -13,8 +13,8 @@ from gpu_blur.backends.numpy import NumpyBackend
 from gpu_blur.cameras import get_camera
 from gpu_blur.distributed import uses_cuda
 from gpu_blur.params import draw_params
-from gpu_blur.plan import Pass, plan
-from gpu_blur.plan import StageName as S
+from gpu_blur.planning import Pass, plan
+from gpu_blur.planning import StageName as S
 from gpu_blur.reference.optics import vignette, vignetting_gain
 from gpu_blur.scene import SceneError, scene_from_dict
 from gpu_blur.scheduler import Footprint

@@ -16,8 +16,8 @@ from gpu_blur.backends.kernel import INSPECT_COLUMNS, INSPECT_ITEMS, Arg
 from gpu_blur.cameras import scene_camera
 from gpu_blur.image_arrays import unit_values
 from gpu_blur.kernel_constants import INSPECT_LOADS
-from gpu_blur.plan import StageName as S
-from gpu_blur.plan import plan
+from gpu_blur.planning import StageName as S
+from gpu_blur.planning import plan
 from gpu_blur.reference.output import quantize
 from gpu_blur.scene import load_scene, scene_from_dict
 from gpu_blur.synthesis.host import _render_values, render_sharp

@@ -60,7 +60,7 @@ from gpu_blur.conformance import (
 )
 from gpu_blur.constants import A7R3_CRF_TABLE_X255
 from gpu_blur.kernel_constants import EXACT_FRAMES_MAX, EXACT_UNIT
-from gpu_blur.plan import Pass
+from gpu_blur.planning import Pass
 from gpu_blur.reference import bayer, transfer
 from gpu_blur.reference.color import apply_matrix
 from gpu_blur.scene import PATTERNS

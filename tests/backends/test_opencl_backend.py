@@ -11,7 +11,7 @@ from conftest import KERNEL_BACKEND_SPECS, ROOT
 opencl = pytest.importorskip("gpu_blur.backends.opencl")
 from gpu_blur.backends.kernel import pass_config  # noqa: E402
 from gpu_blur.cli import main  # noqa: E402
-from gpu_blur.plan import plan  # noqa: E402
+from gpu_blur.planning import plan  # noqa: E402
 from gpu_blur.scene import scene_from_dict  # noqa: E402
 
 needs_device = pytest.mark.skipif(not KERNEL_BACKEND_SPECS, reason="no usable OpenCL device")

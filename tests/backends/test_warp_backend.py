@@ -100,7 +100,7 @@ def test_a_wp_array_stack_of_frames_averages_like_a_list_of_frames(device, coffe
     from gpu_blur.backends import to_host
     from gpu_blur.cameras import get_camera
     from gpu_blur.params import draw_params
-    from gpu_blur.plan import plan
+    from gpu_blur.planning import plan
     from gpu_blur.tiling import Region
 
     codes = np.round(coffee_rgb[100:164, 200:296] * 255).astype(np.uint8)

@@ -23,7 +23,7 @@ from gpu_blur.analysis.stage_cost import (
     median_interval,
 )
 from gpu_blur.cli import main
-from gpu_blur.plan import plan
+from gpu_blur.planning import plan
 
 ROOT = Path(__file__).resolve().parents[2]
 

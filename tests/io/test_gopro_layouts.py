@@ -13,7 +13,7 @@ import gpu_blur
 from gpu_blur.cli import main
 from gpu_blur.datasets import SharpSequences
 from gpu_blur.discovery import find_samples
-from gpu_blur.plan import plan
+from gpu_blur.planning import plan
 from gpu_blur.scene import describe_fields, load_scene
 
 

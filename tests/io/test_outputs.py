@@ -15,7 +15,7 @@ from gpu_blur.cameras import scene_camera
 from gpu_blur.cli import main
 from gpu_blur.outputs import RAW_BLACK_LEVEL, RAW_WHITE_LEVEL, jpeg_round_trip, raw_codes
 from gpu_blur.params import DRAW_INDEX, draw_params
-from gpu_blur.plan import StageName, plan
+from gpu_blur.planning import StageName, plan
 from gpu_blur.reference import rng
 from gpu_blur.reference.bayer import BayerPattern
 from gpu_blur.reference.output import to_integers

@@ -13,7 +13,7 @@ from gpu_blur.cameras import get_camera, load_camera, preset_names
 from gpu_blur.cli import main
 from gpu_blur.constants import A7R3_CRF_POLYNOMIAL
 from gpu_blur.params import draw_params
-from gpu_blur.plan import plan
+from gpu_blur.planning import plan
 from gpu_blur.reference import transfer
 from gpu_blur.reference.output import quantize
 from gpu_blur.scene import scene_from_dict

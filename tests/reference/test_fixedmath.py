@@ -237,7 +237,7 @@ def sample_digests() -> dict[str, str]:
     from gpu_blur import synthesize
     from gpu_blur.cameras import scene_camera
     from gpu_blur.params import draw_params
-    from gpu_blur.plan import plan
+    from gpu_blur.planning import plan
     from gpu_blur.scene import scene_from_dict
 
     out = {}

@@ -22,7 +22,7 @@ from conftest import KERNEL_BACKEND_SPECS, ROOT, make_backend, spec_backend, spe
 
 import gpu_blur
 from gpu_blur.backends.flows import with_flows
-from gpu_blur.plan import plan
+from gpu_blur.planning import plan
 from gpu_blur.reference.average import FrameAccumulator, average_frames
 from gpu_blur.reference.blur import blur_halo
 from gpu_blur.reference.flow import optical_flow, sequence_flows

@@ -16,7 +16,7 @@ from conftest import KERNEL_BACKEND_SPECS
 from gpu_blur.discovery import default_photo
 from gpu_blur.image_arrays import unit_values
 from gpu_blur.image_reading import read_image
-from gpu_blur.plan import plan
+from gpu_blur.planning import plan
 from gpu_blur.reference import flow
 from gpu_blur.reference.flow import gap_factor, gap_motion, sequence_flows
 from gpu_blur.reference.interpolate import gap_weights, interpolated_average

@@ -14,7 +14,7 @@ import pytest
 from test_noise import poisson_gaussian_moments
 
 from gpu_blur.constants import A7R3_CRF_TABLE_X255
-from gpu_blur.plan import plan
+from gpu_blur.planning import plan
 from gpu_blur.reference import noise, poisson_counts, rng, transfer
 from gpu_blur.reference.rng import Stream
 from gpu_blur.scene import SceneError, scene_from_dict

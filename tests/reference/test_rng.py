@@ -563,7 +563,7 @@ def test_a_batch_of_image_uniforms_equals_each_sample_drawn_alone():
 def test_parameters_drawn_from_batch_uniforms_equal_those_drawn_alone(mode):
     from gpu_blur.cameras import get_camera
     from gpu_blur.params import batch_uniforms, draw_params
-    from gpu_blur.plan import plan
+    from gpu_blur.planning import plan
     from gpu_blur.scene import scene_from_dict
 
     scene = scene_from_dict({"blur": {"mode": mode}, "noise": {"model": "poisson-gaussian"},

@@ -12,7 +12,7 @@ import gpu_blur.synthesis.resident
 from gpu_blur.cameras import scene_camera
 from gpu_blur.datasets import epoch_seed
 from gpu_blur.params import draw_params
-from gpu_blur.plan import plan
+from gpu_blur.planning import plan
 from gpu_blur.reference import rng
 from gpu_blur.scene import SceneError, scene_from_dict
 from gpu_blur.scheduler import Schedule

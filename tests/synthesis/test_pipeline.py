@@ -7,7 +7,7 @@ from scipy.ndimage import correlate
 
 import gpu_blur
 from gpu_blur.constants import A7R3_CRF_POLYNOMIAL, SRGB_TO_XYZ, XYZ_TO_SRGB, rsblur_data
-from gpu_blur.plan import plan
+from gpu_blur.planning import plan
 from gpu_blur.scene import scene_from_dict, toml_loads
 from gpu_blur.testing import assert_close
 

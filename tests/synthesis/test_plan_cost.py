@@ -13,7 +13,7 @@ from gpu_blur.analysis.stage_cost import (
 )
 from gpu_blur.backends.kernel import pass_config
 from gpu_blur.cli import main
-from gpu_blur.plan import PASSES, StageName, plan
+from gpu_blur.planning import PASSES, StageName, plan
 
 
 def test_every_stage_on_keeps_every_switch_with_runnable_options():

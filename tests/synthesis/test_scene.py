@@ -3,7 +3,7 @@ from pathlib import Path
 import pytest
 
 import gpu_blur
-from gpu_blur.plan import plan
+from gpu_blur.planning import plan
 from gpu_blur.scene import FIELDS, SceneError, load_scene, scene_from_dict
 
 SCENES = sorted((Path(gpu_blur.__file__).parent / "data" / "scenes").glob("*.toml"))

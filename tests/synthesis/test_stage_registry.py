@@ -14,7 +14,7 @@ import importlib
 import pytest
 
 from gpu_blur.analysis.stage_cost import NEEDS, SWITCHES
-from gpu_blur.plan import plan
+from gpu_blur.planning import plan
 from gpu_blur.scene import FIELDS, builtin_scenes, load_scene
 from gpu_blur.stages import SIZE, STAGES, Pass, StageName, StageSpec, stage_values
 

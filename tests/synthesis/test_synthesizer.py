@@ -625,7 +625,7 @@ def test_a_batched_launch_whose_slots_are_too_small_is_refused_before_it_runs():
     from gpu_blur.backends import get_backend
     from gpu_blur.backends.kernel import Drawn
     from gpu_blur.cameras import get_camera
-    from gpu_blur.plan import plan
+    from gpu_blur.planning import plan
     from gpu_blur.tiling import Region
 
     backend = get_backend("warp:cpu")
@@ -873,7 +873,7 @@ def test_frame_stacks_lying_back_to_back_average_in_one_launch_with_the_same_bit
 
     from gpu_blur.backends import OnDevice, get_backend
     from gpu_blur.backends.kernel import Drawn
-    from gpu_blur.plan import plan
+    from gpu_blur.planning import plan
     from gpu_blur.tiling import Region
 
     runner = get_backend("warp:cpu", "float32")

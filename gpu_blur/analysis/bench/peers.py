@@ -60,7 +60,7 @@ def demosaic_side_by_side(frame: np.ndarray, backends: dict[str, dict], runs: in
     from gpu_blur.backends import get_backend, to_host
     from gpu_blur.cameras import get_camera
     from gpu_blur.image_arrays import unit_values
-    from gpu_blur.plan import plan
+    from gpu_blur.planning import plan
     from gpu_blur.reference import bayer, demosaic, transfer
     from gpu_blur.scene import scene_from_dict
     from gpu_blur.tiling import Region
@@ -124,7 +124,7 @@ def kernel_blur_side_by_side(frame: np.ndarray, backends: dict[str, dict],
 
     from gpu_blur.backends import get_backend, to_host
     from gpu_blur.image_arrays import unit_values
-    from gpu_blur.plan import plan
+    from gpu_blur.planning import plan
     from gpu_blur.reference import motion_kernel, rng, transfer
     from gpu_blur.scene import scene_from_dict
     from gpu_blur.tiling import Region

@@ -44,7 +44,7 @@ from gpu_blur.backends.kernel.config import (
 )
 from gpu_blur.backends.kernel.inputs import INSPECT_COLUMNS, INSPECT_ITEMS, Inputs, inspect_items
 from gpu_blur.cameras import Camera
-from gpu_blur.plan import Pass, Plan
+from gpu_blur.planning import Pass, Plan
 from gpu_blur.tiling import Region
 
 __all__ = [

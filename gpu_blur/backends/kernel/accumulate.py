@@ -32,7 +32,7 @@ from gpu_blur.kernel_constants import (
     KERNEL_WORDS,
     SATURATION_LEVEL,
 )
-from gpu_blur.plan import Pass, Plan, StageName
+from gpu_blur.planning import Pass, Plan, StageName
 from gpu_blur.reference import blur, fixedmath
 from gpu_blur.reference.interpolate import (
     CONSISTENCY_ABSOLUTE_PX2,

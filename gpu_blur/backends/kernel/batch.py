@@ -25,7 +25,7 @@ from gpu_blur.backends.kernel.config import (
 )
 from gpu_blur.cameras import Camera
 from gpu_blur.kernel_constants import EXACT_FRAMES_MAX
-from gpu_blur.plan import Pass, Plan, StageName
+from gpu_blur.planning import Pass, Plan, StageName
 from gpu_blur.tiling import Region
 
 __all__ = ["Batch", "S"]

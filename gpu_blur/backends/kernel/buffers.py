@@ -21,7 +21,7 @@ from gpu_blur.backends import (
     pinned_owner,
 )
 from gpu_blur.backends.kernel.config import Arg, Drawn, sample_tables, source_dtype
-from gpu_blur.plan import Pass
+from gpu_blur.planning import Pass
 from gpu_blur.testhooks import fault_planted, planted_fault
 from gpu_blur.tiling import Region
 

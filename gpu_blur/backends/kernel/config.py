@@ -22,7 +22,7 @@ import numpy as np
 from gpu_blur.backends import Drawn, cfa_bits
 from gpu_blur.cameras import Camera
 from gpu_blur.kernel_constants import SAMPLE_REALS, SAMPLE_WORDS
-from gpu_blur.plan import Pass, Plan, StageName
+from gpu_blur.planning import Pass, Plan, StageName
 from gpu_blur.reference.rng import key_from_seed
 from gpu_blur.reference.transfer import a7r3_lookup_table
 from gpu_blur.tiling import Region
@@ -150,7 +150,7 @@ def _view_geometry(view: Region) -> tuple[Arg, ...]:
 
 
 def stage_values(plan: Plan, pass_: Pass) -> tuple[Arg, ...]:
-    """The pass's stages' :attr:`~gpu_blur.plan.Stage.values`, in plan order, as reals.
+    """The pass's stages' :attr:`~gpu_blur.planning.Stage.values`, in plan order, as reals.
 
     They close the to_raw and finish kernels' argument lists.
     """

@@ -17,7 +17,7 @@ from gpu_blur.backends import OnDevice
 from gpu_blur.backends.kernel.buffers import Slots
 from gpu_blur.backends.kernel.config import Arg, PassConfig, _index, _out_geometry
 from gpu_blur.cameras import Camera
-from gpu_blur.plan import Plan
+from gpu_blur.planning import Plan
 from gpu_blur.reference.output import code_dtype
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
