@@ -77,7 +77,7 @@ GROUPS = {
     "backends": ("backends",),
     "reference": ("reference",),
     "warp_kernels": ("warp_kernels",),
-    "scheduler/plan/params": ("scheduler", "plan", "params"),
+    "scheduler/plan/params": ("scheduler", "plan", "planning", "params"),
 }
 #: Module pairs shown per list (those with the most calls).
 TOP_PAIRS = 8
