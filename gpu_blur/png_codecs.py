@@ -8,11 +8,11 @@ Chosen by bench/png_codecs.py on one core (its table: docs/performance.md, "PNG 
     its left, the filter OpenCV's default also uses) in numpy, compressed by ISA-L's deflate
     at level 1 (``isal``), the file put together here (IHDR, IDAT, IEND). Without ``isal``:
     OpenCV's default (libpng, level 1, run-length matches, Sub).
-  - ``small``: OpenCV's libpng with its own filter choice per row, at level 1 with
-    run-length matches for 8 bits (smaller than any level with the default strategy on noisy
-    images) and at level 6 with the default strategy for 16 bits (where the high bytes
-    repeat, so longer matches pay); or the ``fast`` file where that is smaller (16-bit noise,
-    where neither setting finds much), so ``small`` is never the larger.
+  - ``small``: the smallest of a few files: OpenCV's libpng with its own filter choice per
+    row at level 1 with run-length matches (on noisy images smaller than any level with the
+    default strategy, whose longer matches rarely pay), for 16 bits also at level 6 (which
+    wins where the high bytes repeat, as in 8-bit content stored as 16 bits), and the
+    ``fast`` file (16-bit noise, where libpng finds little more); so never the larger.
 
 * reading (:func:`decode_png`): 8-bit files through libspng (``pyspng``), which decoded them
   fastest; 16-bit ones through OpenCV, as libspng gives 16-bit RGB only as RGBA and the
@@ -42,8 +42,8 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 PNG_MODES = {
     "fast": "numpy's Sub filter and ISA-L's deflate at level 1 (isal; without it OpenCV's "
             "default)",
-    "small": "OpenCV's libpng, a filter chosen per row; 8-bit: level 1 with run-length "
-             "matches, 16-bit: level 6; or the fast file where that is smaller",
+    "small": "the smallest of OpenCV's libpng (a filter chosen per row, level 1 with "
+             "run-length matches; 16-bit also level 6) and the fast file",
 }
 DEFAULT_PNG_MODE = "fast"
 
@@ -149,30 +149,30 @@ def encode_png(codes: np.ndarray, mode: str = DEFAULT_PNG_MODE) -> bytes:
     import cv2
 
     if mode == "fast":
-        params = []  # OpenCV's own default: level 1, Z_RLE, Sub
-    elif codes.dtype == np.uint8:
-        params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY,
-                  cv2.IMWRITE_PNG_STRATEGY_RLE]
+        settings = [[]]  # OpenCV's own default: level 1, Z_RLE, Sub
     else:
-        params = [cv2.IMWRITE_PNG_COMPRESSION, 6]
-    original = codes
+        settings = [[cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY,
+                     cv2.IMWRITE_PNG_STRATEGY_RLE]]
+        if codes.dtype == np.uint16:
+            settings.append([cv2.IMWRITE_PNG_COMPRESSION, 6])
+    bgr = codes
     if codes.ndim == 3 and codes.shape[2] >= 3:
-        codes = cv2.cvtColor(codes, cv2.COLOR_RGB2BGR if codes.shape[2] == 3
-                             else cv2.COLOR_RGBA2BGRA)
-    try:
-        ok, data = cv2.imencode(".png", codes, params)
-    except cv2.error:
-        ok = False
-    if not ok and mode == "small" and isal is not None:  # grey + alpha: OpenCV writes none
-        return encode_png(original, "fast")
-    if not ok:
+        bgr = cv2.cvtColor(codes, cv2.COLOR_RGB2BGR if codes.shape[2] == 3
+                           else cv2.COLOR_RGBA2BGRA)
+    made = []
+    for params in settings:
+        try:
+            ok, data = cv2.imencode(".png", bgr, params)
+        except cv2.error:
+            ok = False
+        if ok:
+            made.append(data.tobytes())
+    if mode == "small" and isal is not None:
+        made.append(encode_png(codes, "fast"))  # also grey + alpha, which OpenCV cannot write
+    if not made:
         raise ValueError(f"OpenCV could not encode a {' x '.join(map(str, codes.shape))} "
                          f"{codes.dtype} image as PNG")
-    if mode == "small" and isal is not None:
-        fast = encode_png(original, "fast")
-        if len(fast) < len(data):
-            return fast
-    return data.tobytes()
+    return min(made, key=len)
 
 
 def encoder_name(mode: str) -> str:

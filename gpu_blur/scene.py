@@ -183,9 +183,9 @@ FIELDS: dict[str, dict[str, Field]] = {
                            "the Gaussian normals; Poisson counts stay exact (accuracy knob)",
                            kind=bool),
         "png": Field("fast", "how PNG outputs are compressed, the same pixels either way: "
-                     "'fast' (numpy's Sub filter, ISA-L deflate at level 1), 'small' (OpenCV's "
-                     "libpng, a filter per row; slower, a few % smaller); see the "
-                     "performance page for ms and MB an image",
+                     "'fast' (numpy's Sub filter, ISA-L deflate at level 1), 'small' (the "
+                     "smallest of OpenCV's libpng files and the fast one: slower, a few % "
+                     "smaller); the performance page gives ms and MB an image",
                      choices=("fast", "small")),
         "jpeg_quality": Field(None, "[low, high]: a JPEG round trip of the blurred output as "
                               "the last stage (OpenCV, 4:2:0 chroma), at a quality drawn per "
