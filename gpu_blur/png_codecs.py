@@ -14,13 +14,12 @@ Chosen by bench/png_codecs.py on one core (its table: docs/performance.md, "PNG 
     wins where the high bytes repeat, as in 8-bit content stored as 16 bits), and the
     ``fast`` file (16-bit noise, where libpng finds little more); so never the larger.
 
-* reading (:func:`decode_png`): 8-bit files through libspng (``pyspng``), which decoded them
-  fastest; 16-bit ones through OpenCV, as libspng gives 16-bit RGB only as RGBA and the
-  alpha dropped costs more than it saves. libspng takes the files whose pixels it gives as
-  OpenCV does: 8-bit grey, RGB or RGBA, not interlaced, without a transparency chunk; any
-  other file, and any it refuses, is left to OpenCV, whose errors the caller reports.
-  ``pyspng`` skips the chunk checksums, so those of IHDR and IDAT are checked here first
-  (libpng refuses a file when they fail; it only warns for the other chunks).
+* reading (:func:`decode_png`): files whose rows are filtered with None, Sub or Up only (as
+  OpenCV's default and ``fast`` write them) are inflated by ISA-L and unfiltered in numpy,
+  both without holding the GIL, so I/O threads decode in parallel; every other file goes
+  through OpenCV, as before. libspng (``pyspng``) decoded 8-bit files faster than OpenCV on
+  one core, but holds the GIL while it decodes, so a pool of I/O threads would decode one
+  file at a time; it is not used.
 
 Every mode and decoder gives the same pixels (tests/io/test_png_codecs.py); only the size of
 the file and the time differ.
@@ -187,67 +186,118 @@ def encoder_name(mode: str) -> str:
     return f"OpenCV {cv2.__version__} (libpng)"
 
 
-def _spng():
-    try:
-        import pyspng
-    except ImportError:
-        return None
-    return pyspng
-
-
-def decoder_name(bits: int) -> str:
-    """Which library decodes the simple PNG files (see the module) of ``bits`` here."""
-    if bits == 8 and _spng() is not None:
+def decoder_name() -> str:
+    """Which library decodes the PNG files :func:`decode_png` takes here."""
+    isal = _isal()
+    if isal is not None:
         from importlib.metadata import version
 
-        return f"pyspng {version('pyspng')} (libspng)"
+        return f"isal {version('isal')} (ISA-L inflate, numpy's unfiltering)"
     import cv2
 
     return f"OpenCV {cv2.__version__} (libpng)"
 
 
-def _spng_takes(data: bytes) -> bool:
-    """Whether ``data`` is a PNG file libspng decodes to OpenCV's pixels, checksums right.
+#: Rows decompressed first, whose filter types say whether the file is one to go on with.
+_FIRST_ROWS = 16
 
-    8-bit grey, RGB or RGBA (colour types 0, 2, 6), not interlaced, no tRNS chunk; the
-    CRC-32 of IHDR and of every IDAT chunk as stored. The chunks are walked to IEND (a
-    file without one was refused before, :func:`gpu_blur.image_reading.decode_file`).
+
+def _idat(data: bytes) -> tuple[int, int, int, int, bytes] | None:
+    """(width, height, bits, channels, zlib stream) of a PNG file :func:`decode_png` takes.
+
+    8- or 16-bit grey, RGB or RGBA (colour types 0, 2, 6), not interlaced, no tRNS chunk,
+    IHDR and every IDAT chunk with the CRC-32 it stores, the chunks walked to IEND; else
+    None.
     """
     if not data.startswith(PNG_SIGNATURE) or len(data) < 33 or data[12:16] != b"IHDR":
-        return False
-    depth, colour, interlace = data[24], data[25], data[28]
-    if depth != 8 or colour not in (0, 2, 6) or interlace != 0:
-        return False
-    crc, view, pos = _crc32(), memoryview(data), 8
+        return None
+    width, height, depth, colour, _, _, interlace = struct.unpack_from(">IIBBBBB", data, 16)
+    if depth not in (8, 16) or colour not in (0, 2, 6) or interlace or not width * height:
+        return None
+    crc, view, pos, parts = _crc32(), memoryview(data), 8, []
     while pos + 12 <= len(data):
         length, kind = struct.unpack_from(">I4s", data, pos)
         end = pos + 8 + length
         if end + 4 > len(data) or kind == b"tRNS":
-            return False
+            return None
         if kind in (b"IHDR", b"IDAT") and (crc(view[pos + 4:end])
                                            != struct.unpack_from(">I", data, end)[0]):
-            return False
+            return None
+        if kind == b"IDAT":
+            parts.append(view[pos + 8:end])
         if kind == b"IEND":
-            return True
+            channels = {0: 1, 2: 3, 6: 4}[colour]
+            return width, height, depth, channels, b"".join(parts)
         pos = end + 4
-    return False
+    return None
+
+
+def _unfilter(kinds: np.ndarray, body: np.ndarray, step: int) -> np.ndarray | None:
+    """Rows filtered with None, Sub or Up (9.2) undone: H x (W * step) uint8, or None.
+
+    Vectorised where every row has the same filter (Sub: a running sum along the row,
+    modulo 256, per byte of a pixel; Up: along the columns), else one row at a time. None
+    for Average and Paeth rows, whose predictions depend on the bytes just decoded.
+    """
+    height = body.shape[0]
+    if np.all(kinds == 1):
+        return np.cumsum(body.reshape(height, -1, step), axis=1, dtype=np.uint8)
+    if np.all(kinds == 2):
+        return np.cumsum(body, axis=0, dtype=np.uint8)
+    if np.all(kinds == 0):
+        return body.copy()
+    if np.any(kinds > 2):
+        return None
+    out = np.empty(body.shape, np.uint8)
+    above = np.zeros(body.shape[1], np.uint8)
+    for row, kind in enumerate(kinds.tolist()):
+        if kind == 1:
+            np.cumsum(body[row].reshape(-1, step), axis=0, dtype=np.uint8,
+                      out=out[row].reshape(-1, step))
+        elif kind == 2:
+            np.add(body[row], above, out=out[row])
+        else:
+            out[row] = body[row]
+        above = out[row]
+    return out
 
 
 def decode_png(data: bytes) -> np.ndarray | None:
-    """The pixels of a PNG file through libspng, in RGB(A) order, or None.
+    """A PNG file's codes through ISA-L's inflate and numpy, in RGB(A) order, or None.
 
-    None when ``pyspng`` is not installed, or the file is not one libspng decodes as OpenCV
-    would (see :func:`_spng_takes`), or libspng refuses it: the caller decodes those with
+    Taken: the files of :func:`_idat` whose rows are filtered with None, Sub or Up only, as
+    OpenCV's default and ``output.png = "fast"`` write them (every row Sub). The zlib
+    stream's Adler-32 is checked by ISA-L, its length against the header here; the filter
+    types of the first rows are read before the rest is inflated, so a file of Average or
+    Paeth rows (libpng's per-row choice) costs little before OpenCV takes it. None without
+    ``isal`` and for every other file, damaged ones included: the caller decodes those with
     OpenCV, which says what is wrong.
 
     Returns:
-        H x W x 3 (RGB) or H x W x 4 (RGBA) or H x W (grey) uint8, as OpenCV's
+        H x W x 3 (RGB), H x W x 4 (RGBA) or H x W (grey), uint8 or uint16: OpenCV's
         IMREAD_UNCHANGED with red and blue in RGB order.
     """
-    spng = _spng()
-    if spng is None or not _spng_takes(data):
+    isal = _isal()
+    found = _idat(data) if isal is not None else None
+    if found is None:
         return None
-    try:
-        return spng.load(data)
-    except Exception:  # pyspng raises RuntimeError, and more for odd files: OpenCV decides
+    width, height, depth, channels, stream = found
+    step = channels * depth // 8
+    stride = 1 + width * step
+    try:  # the first rows' filter types first: a file of Paeth rows goes to OpenCV at once
+        head = isal.decompressobj().decompress(stream, min(height, _FIRST_ROWS) * stride)
+        if np.any(np.frombuffer(head, np.uint8)[::stride] > 2):
+            return None
+        raw = isal.decompress(stream)
+    except isal.error:
         return None
+    if len(raw) != height * stride:
+        return None
+    rows = np.frombuffer(raw, np.uint8).reshape(height, stride)
+    codes = _unfilter(rows[:, 0], rows[:, 1:], step)
+    if codes is None:
+        return None
+    if depth == 16:
+        codes = codes.view(">u2").astype(np.uint16)
+    shape = (height, width) if channels == 1 else (height, width, channels)
+    return codes.reshape(shape)

@@ -1,9 +1,9 @@
 """PNG codecs (issue 39): every write mode and every decoder give back the source's codes.
 
 Writing: ``output.png`` = fast (numpy's Sub filter + ISA-L, or OpenCV's default without
-isal) or small (OpenCV's libpng). Reading: libspng (pyspng) for 8-bit grey/RGB/RGBA files,
-OpenCV for the rest and for anything libspng refuses. Each test runs with the optional
-libraries present and, patched away, without them, so it passes either way.
+isal) or small (the smallest of OpenCV's libpng files and the fast one). Reading: ISA-L and
+numpy for files of None/Sub/Up rows, OpenCV for the rest and for anything they refuse. Each
+test runs with isal present and, patched away, without it, so it passes either way.
 """
 
 import struct
@@ -22,12 +22,11 @@ from gpu_blur.scene import SceneError, scene_from_dict
 
 @pytest.fixture(params=["present", "absent"])
 def libraries(request, monkeypatch):
-    """isal and pyspng as installed, or both treated as missing (the OpenCV fallbacks)."""
+    """isal as installed, or treated as missing (the OpenCV fallbacks)."""
     if request.param == "absent":
         monkeypatch.setattr(png_codecs, "_isal", lambda: None)
-        monkeypatch.setattr(png_codecs, "_spng", lambda: None)
-    elif png_codecs._isal() is None or png_codecs._spng() is None:
-        pytest.skip("isal or pyspng is not installed")
+    elif png_codecs._isal() is None:
+        pytest.skip("isal is not installed")
     return request.param
 
 
@@ -53,7 +52,7 @@ def opencv_rgb(data):
 
 
 def spng_rgb(data):
-    """pyspng's decode with the alpha it adds to 16-bit RGB and grey dropped (not used)."""
+    """pyspng's decode (when installed) with the alpha it adds to 16-bit RGB and grey dropped."""
     import pyspng
 
     image = pyspng.load(data)
@@ -84,7 +83,7 @@ def test_every_mode_decodes_to_the_source_with_every_decoder(libraries, bits, sh
     for name, decode in decoders().items():
         image = decode(data)
         if image is None:  # png_codecs.decode_png: a file it leaves to OpenCV
-            assert name == "png_codecs" and (bits == 16 or libraries == "absent")
+            assert name == "png_codecs" and (mode == "small" or libraries == "absent")
             continue
         assert image.dtype == source.dtype and np.array_equal(image, source), name
 
@@ -168,7 +167,7 @@ def with_chunk_before_idat(data, kind, body):
     return data[:idat] + new + data[idat:]
 
 
-def test_a_damaged_idat_is_refused_though_pyspng_skips_checksums(libraries, tmp_path):
+def test_a_damaged_idat_is_refused_naming_the_file(libraries, tmp_path):
     data = bytearray(png_codecs.encode_png(codes(8), "fast"))
     kind, start, length = next(c for c in chunks(data) if c[0] == b"IDAT")
     data[start + 8 + length // 2] ^= 0xFF  # inside the compressed pixels; its CRC is now wrong
@@ -180,11 +179,16 @@ def test_a_damaged_idat_is_refused_though_pyspng_skips_checksums(libraries, tmp_
     assert str(path) in str(e.value) and "re-export or re-copy the file" in str(e.value)
 
 
-def test_files_libspng_would_read_otherwise_go_through_opencv(tmp_path):
-    """tRNS (OpenCV makes it an alpha channel), 16 bits, interlacing, 1-bit grey: OpenCV's."""
+def test_other_files_go_through_opencv():
+    """tRNS (OpenCV makes it an alpha channel), interlacing, 1-bit grey, Paeth rows."""
     eight = png_codecs.encode_png(codes(8), "fast")
     assert png_codecs.decode_png(with_chunk_before_idat(eight, b"tRNS", bytes(6))) is None
-    assert png_codecs.decode_png(png_codecs.encode_png(codes(16), "fast")) is None
+    for bits in (8, 16):
+        source = codes(bits)
+        paeth = png_codecs.png_file(source, zlib.compress(
+            png_codecs.filtered_rows(source, "paeth").tobytes()))
+        assert png_codecs.decode_png(paeth) is None
+        assert np.array_equal(opencv_rgb(paeth), source)
     interlaced = bytearray(eight)
     interlaced[28] = 1
     struct.pack_into(">I", interlaced, 29, zlib.crc32(bytes(interlaced[12:29])))
@@ -194,7 +198,7 @@ def test_files_libspng_would_read_otherwise_go_through_opencv(tmp_path):
     assert png_codecs.decode_png(b"\xff\xd8" + eight[2:]) is None  # not a PNG signature
 
 
-def test_transparent_pixels_are_refused_through_libspng_too(tmp_path):
+def test_transparent_pixels_are_refused_through_isal_too(tmp_path):
     rgba = codes(8, (9, 11, 4))
     rgba[:, :, 3] = 255
     rgba[4, 7, 3] = 0
@@ -205,14 +209,30 @@ def test_transparent_pixels_are_refused_through_libspng_too(tmp_path):
         read_image(path)
 
 
-def test_filters_give_valid_files():
-    """The other filters of png_codecs.filtered_rows (the bench compares them) decode too."""
-    for bits in (8, 16):
-        source = codes(bits)
-        for kind in ("none", "sub", "up", "paeth"):
-            rows = png_codecs.filtered_rows(source, kind)
-            data = png_codecs.png_file(source, zlib.compress(rows.tobytes(), 1))
-            assert np.array_equal(opencv_rgb(data), source), (bits, kind)
+@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize("shape", [(37, 53, 3), (37, 53, 4), (37, 53), (1, 1, 3)],
+                         ids=["rgb", "rgba", "grey", "one-pixel"])
+def test_each_filter_and_rows_of_mixed_filters_decode_to_the_source(libraries, bits, shape):
+    source = codes(bits, shape, seed=7)
+    rows = {kind: png_codecs.filtered_rows(source, kind) for kind in ("none", "sub", "up")}
+    mixed = rows["sub"].copy()
+    mixed[1::3], mixed[2::3] = rows["up"][1::3], rows["none"][2::3]
+    for kind, filtered in [*rows.items(), ("mixed", mixed)]:
+        data = png_codecs.png_file(source, zlib.compress(filtered.tobytes(), 1))
+        assert np.array_equal(opencv_rgb(data), source), (bits, kind)
+        image = png_codecs.decode_png(data)
+        if libraries == "present":
+            assert image.dtype == source.dtype and np.array_equal(image, source), kind
+        else:
+            assert image is None
+
+
+def test_a_stream_of_the_wrong_length_or_checksum_goes_to_opencv():
+    source = codes(8)
+    rows = png_codecs.filtered_rows(source).tobytes()
+    for stream in (zlib.compress(rows[:-5]), zlib.compress(rows + bytes(5)),
+                   zlib.compress(rows)[:-1] + bytes([zlib.compress(rows)[-1] ^ 1])):
+        assert png_codecs.decode_png(png_codecs.png_file(source, stream)) is None
 
 
 @pytest.mark.parametrize("bits", [8, 16])
