@@ -259,3 +259,16 @@ def test_generate_writes_the_same_pixels_in_either_mode(tmp_path, bits):
     for name in fast:
         assert np.array_equal(opencv_rgb(fast[name]), opencv_rgb(small[name])), name
     assert any(fast[name] != small[name] for name in fast)
+
+
+def test_only_a_stored_idat_crc_damaged_decodes_to_the_intact_pixels():
+    """png_codecs._idat checks the zlib stream's Adler-32, not each IDAT chunk's CRC."""
+    if png_codecs._isal() is None:
+        pytest.skip("isal is not installed")
+    source = codes(8)
+    data = bytearray(png_codecs.encode_png(source, "fast"))
+    kind, start, length = next(c for c in chunks(data) if c[0] == b"IDAT")
+    data[start + 8 + length] ^= 0xFF  # the CRC's first byte; the pixels' bytes untouched
+    assert np.array_equal(png_codecs.decode_png(bytes(data)), source)
+    data[start + 12] ^= 0x01  # and now one byte of the stream itself
+    assert png_codecs.decode_png(bytes(data)) is None
