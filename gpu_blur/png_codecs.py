@@ -1,6 +1,7 @@
 """PNG files written and read by the fastest codec present that keeps every pixel.
 
-Chosen by bench/png_codecs.py on one core (its table: docs/performance.md, "PNG codecs"):
+Chosen by bench/png_codecs.py, on one core and through pools of threads (its tables:
+docs/performance.md, "PNG codecs"):
 
 * writing (:func:`encode_png`), ``output.png`` in the scene (:data:`PNG_MODES`):
 
@@ -297,12 +298,14 @@ def decode_png(data: bytes) -> np.ndarray | None:
         head = isal.decompressobj().decompress(stream, min(height, _FIRST_ROWS) * stride)
         if np.any(np.frombuffer(head, np.uint8)[::stride] > 2):
             return None
-        # room for all the rows at once: one inflate call, no buffer grown and copied with
-        # the GIL held (ISA-L starts at 16 KiB and doubles)
-        raw = isal.decompress(stream, bufsize=height * stride + 1)
+        # at most one byte more than the rows: a small file whose stream inflates past its
+        # header's size (a decompression bomb) costs no more memory than its image, and goes
+        # to OpenCV, which refuses it
+        inflate = isal.decompressobj()
+        raw = inflate.decompress(stream, height * stride + 1)
     except isal.error:
         return None
-    if len(raw) != height * stride:
+    if len(raw) != height * stride or not inflate.eof:  # eof: the Adler-32 was checked
         return None
     rows = np.frombuffer(raw, np.uint8).reshape(height, stride)
     codes = _unfilter(rows[:, 0], rows[:, 1:], step)

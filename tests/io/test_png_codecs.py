@@ -235,6 +235,23 @@ def test_a_stream_of_the_wrong_length_or_checksum_goes_to_opencv():
         assert png_codecs.decode_png(png_codecs.png_file(source, stream)) is None
 
 
+def test_a_stream_inflating_past_its_header_is_never_inflated_whole():
+    import tracemalloc
+
+    pytest.importorskip("isal")
+    source = codes(8, shape=(4, 4, 3))
+    rows = png_codecs.filtered_rows(source).tobytes()
+    bomb = png_codecs.png_file(source, zlib.compress(rows + bytes(64 << 20), 9))  # 64 MiB more
+    assert len(bomb) < 100_000
+    tracemalloc.start()
+    try:
+        assert png_codecs.decode_png(bomb) is None
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20  # the rows and one byte, not 64 MiB
+
+
 @pytest.mark.parametrize("bits", [8, 16])
 def test_generate_writes_the_same_pixels_in_either_mode(tmp_path, bits):
     from gpu_blur.cli import main
