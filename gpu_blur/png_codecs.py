@@ -205,8 +205,10 @@ def decoder_name() -> str:
 _FIRST_ROWS = 16
 
 
-def _idat(data: bytes) -> tuple[int, int, int, int, bytes | memoryview] | None:
-    """(width, height, bits, channels, zlib stream) of a PNG file :func:`decode_png` takes.
+def _idat(data: bytes) -> tuple[int, int, int, int, list[memoryview]] | None:
+    """(width, height, bits, channels, IDAT data) of a PNG file :func:`decode_png` takes.
+
+    The IDAT data: each IDAT chunk's, in order; together the zlib stream of the rows.
 
     8- or 16-bit grey, RGB or RGBA (colour types 0, 2, 6), not interlaced, no tRNS chunk,
     an IHDR with the CRC-32 it stores, the chunks walked to IEND; else None.
@@ -235,8 +237,7 @@ def _idat(data: bytes) -> tuple[int, int, int, int, bytes | memoryview] | None:
             parts.append(view[pos + 8:end])
         elif kind == b"IEND":
             channels = {0: 1, 2: 3, 6: 4}[colour]
-            return width, height, depth, channels, (parts[0] if len(parts) == 1
-                                                    else b"".join(parts))
+            return width, height, depth, channels, parts
         pos = end + 4
     return None
 
@@ -291,13 +292,19 @@ def decode_png(data: bytes) -> np.ndarray | None:
     found = _idat(data) if isal is not None else None
     if found is None:
         return None
-    width, height, depth, channels, stream = found
+    width, height, depth, channels, parts = found
     step = channels * depth // 8
     stride = 1 + width * step
     try:  # the first rows' filter types first: a file of Paeth rows goes to OpenCV at once
-        head = isal.decompressobj().decompress(stream, min(height, _FIRST_ROWS) * stride)
+        inflate, wanted, head = isal.decompressobj(), min(height, _FIRST_ROWS) * stride, b""
+        for part in parts:
+            tail = inflate.unconsumed_tail
+            head += inflate.decompress(tail + part if tail else part, wanted - len(head))
+            if len(head) >= wanted or inflate.eof:
+                break
         if np.any(np.frombuffer(head, np.uint8)[::stride] > 2):
             return None
+        stream = parts[0] if len(parts) == 1 else b"".join(parts)
         # at most one byte more than the rows: a small file whose stream inflates past its
         # header's size (a decompression bomb) costs no more memory than its image, and goes
         # to OpenCV, which refuses it
