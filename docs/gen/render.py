@@ -563,6 +563,118 @@ def bench_history(name: str) -> str:
             + provenance(path, data["device"] + "; ms a sample, medians of the rounds", None))
 
 
+PNG_IMAGES = {"noisy": "noisy 1920 x 1200", "smooth": "smooth 1920 x 1200",
+              "coffee": "coffee.png, 600 x 400"}
+
+
+def _png_cells(rows: list[dict], image: str, pick) -> list:
+    """The ms and MB (ms alone for decoders) at 8 and 16 bits of the row ``pick`` selects."""
+    cells = []
+    for bits in (8, 16):
+        row = next((r for r in rows if r["image"] == image and r["bits"] == bits and pick(r)
+                    and r.get("ms") is not None), None)
+        cells += [row and row["ms"]] + ([row and row["mb"]] if rows and "mb" in rows[0] else [])
+    return cells
+
+
+def bench_png_codecs(name: str = "png_codecs_intel-xeon", part: str = "picks",
+                     image: str = "noisy") -> str:
+    """PNG codecs (bench/png_codecs.py): ``part`` picks, encode, decode (one core) or threads.
+
+    encode and decode show ``image``; picks every image; threads reads a ``--threads`` file.
+    """
+    data, path = load(name)
+    if part == "threads":
+        return _png_threads(data, path)
+    enc, dec = data["encode"], data["decode"]
+    default = "opencv: no parameters"
+    if part == "picks":
+        rows = []
+        for image in data["images"]:
+            for label, pick in ((f"write `output.png = \"{m}\"`",
+                                 lambda r, m=m: r["encoder"].endswith(f"output.png = {m}"))
+                                for m in ("fast", "small")):
+                rows.append([PNG_IMAGES.get(image, image), label, *_png_cells(enc, image, pick)])
+            rows.append([PNG_IMAGES.get(image, image), "write: OpenCV's default (before)",
+                         *_png_cells(enc, image, lambda r: r["encoder"].startswith(default))])
+            for label, decoder in (("read: `read_image`", "read_image"),
+                                   ("read: OpenCV `imdecode`", "opencv")):
+                cells = _png_cells(dec, image, lambda r, d=decoder: d in r["decoder"]
+                                   and r["file"].startswith(default))
+                rows.append([PNG_IMAGES.get(image, image), label, cells[0], None, cells[1],
+                             None])
+        header = ["image", "what", "8-bit ms", "8-bit MB", "16-bit ms", "16-bit MB"]
+        table = _table(header, rows, 2)
+    elif part == "encode":
+        names = list(dict.fromkeys(r["encoder"] for r in enc if "ms" in r))
+        rows = []
+        for encoder in names:
+            mine = [r for r in enc if r["encoder"] == encoder]
+            first = mine[0]
+            rows.append([first["codec"] + _apart(encoder), first["setting"],
+                         *_png_cells(enc, image, lambda r, e=encoder: r["encoder"] == e),
+                         all(r.get("same") for r in mine if "ms" in r)])
+        table = _table([f"encoder ({PNG_IMAGES.get(image, image)})", "setting", "8-bit ms",
+                        "8-bit MB", "16-bit ms",
+                        "16-bit MB", "same pixels, every image"], rows, 2)
+    elif part == "decode":
+        rows = []
+        for decoder in dict.fromkeys(r["decoder"] for r in dec):
+            mine = [r for r in dec if r["decoder"] == decoder and "same" in r]
+            cells = []
+            for file in (default, "opencv: level 6,"):
+                cells += _png_cells(dec, image, lambda r, d=decoder, f=file:
+                                    r["decoder"] == d and r["file"].startswith(f))
+            same = {bits: all(r["same"] for r in mine if r["bits"] == bits)
+                    for bits in (8, 16) if any(r["bits"] == bits for r in mine)}
+            said = ", ".join(f"{b}-bit: {'yes' if ok else 'no'}" for b, ok in same.items())
+            rows.append([decoder + _apart(decoder), *cells, said])
+        table = _table([f"decoder ({PNG_IMAGES.get(image, image)})",
+                        "OpenCV-default file, 8-bit ms", "16-bit ms",
+                        "libpng level-6 file, 8-bit ms", "16-bit ms",
+                        "same pixels, every file"], rows)
+    else:
+        raise GenError(f"bench png-codecs: part picks, encode, decode or threads; got "
+                       f"{part!r}")
+    machine = data["machine"]
+    libraries = ", ".join(f"{k} {v}" for k, v in data["libraries"].items())
+    return table + "\n\n" + provenance(
+        path, f"{machine['cpu']} (family {machine.get('family')}, model {machine.get('model')})"
+        f", {machine['cores']} cores, one of them pinned, OpenCV on one thread; medians of "
+        f"{_runs(data)} rounds; {libraries}", _named_commit(data.get("commit")))
+
+
+def _png_threads(data: dict, path: Path) -> str:
+    """Images a second through pools of threads (bench/png_codecs.py --threads)."""
+    counts = sorted({r["threads"] for r in data["rows"]})
+    rows = []
+    for bits in (8, 16):
+        for codec in dict.fromkeys(r["codec"] for r in data["rows"]):
+            rate = {r["threads"]: r["images_per_s"] for r in data["rows"]
+                    if r["bits"] == bits and r["codec"] == codec}
+            if rate:
+                rows.append([f"{bits}-bit", codec, *(rate.get(n) for n in counts)])
+    table = _table(["", "codec, images a second", *(f"{n} threads" if n > 1 else "1 thread"
+                                                     for n in counts)], rows, 2)
+    machine = data["machine"]
+    return table + "\n\n" + provenance(
+        path, f"{machine['cpu']} (family {machine.get('family')}, model "
+        f"{machine.get('model')}), {machine['cores']} cores, the host of an H200; the noisy "
+        f"1920 x 1200 image; best of 3 pool runs; isal {data['libraries'].get('isal')}, "
+        f"opencv-python-headless {data['libraries'].get('opencv-python-headless')}",
+        _named_commit(data.get("commit")))
+
+
+def _apart(name: str) -> str:
+    """pyspng-seunglab runs in a child process (its module clashes with pyspng's)."""
+    return " (timed in a process of its own)" if "seunglab" in name else ""
+
+
+def _runs(data: dict) -> str:
+    match = re.search(r"median of (\d+)", data["what"])
+    return match.group(1) if match else "several"
+
+
 #: ``bench NAME [ARG]``: the tables a page may ask for.
 BENCH = {
     "per-sample": bench_per_sample,
@@ -582,6 +694,7 @@ BENCH = {
     "plan-cost": bench_plan_cost,
     "interpolation": bench_interpolation,
     "history": bench_history,
+    "png-codecs": bench_png_codecs,
 }
 
 
