@@ -289,3 +289,19 @@ def test_only_a_stored_idat_crc_damaged_decodes_to_the_intact_pixels():
     assert np.array_equal(png_codecs.decode_png(bytes(data)), source)
     data[start + 12] ^= 0x01  # and now one byte of the stream itself
     assert png_codecs.decode_png(bytes(data)) is None
+
+
+def test_beyond_its_slots_decoding_goes_to_opencv(tmp_path):
+    """decode_png decodes a few files at a time; read_image gives the rest to OpenCV."""
+    source = codes(8)
+    path = tmp_path / "in.png"
+    path.write_bytes(png_codecs.encode_png(source, "fast"))
+    taken = 0
+    while png_codecs._SLOTS.acquire(blocking=False):
+        taken += 1
+    try:
+        assert taken >= 1 and png_codecs.decode_png(path.read_bytes()) is None
+        assert np.array_equal(read_image(path), source)
+    finally:
+        for _ in range(taken):
+            png_codecs._SLOTS.release()
