@@ -13,6 +13,14 @@ measured here on the same images).
 
 ``--workers 1,2,4`` adds runs of ``--devices`` with that many worker processes sharing
 ``--backend``'s device, and checks that every set holds the same bytes.
+
+``--windows overlapping,distinct`` runs both kinds of windows: ``overlapping`` (the default:
+``--samples`` windows of one 36-frame sequence, each frame read by up to 16 samples, where a
+frame cache helps) and ``distinct`` (a sequence of ``9 x --samples`` frames, each frame read by
+one sample: only faster codecs and the pipeline help). ``--against TREE`` runs each case with
+another checkout's ``gpu_blur`` too (e.g. ``git archive 1d3f510 gpu_blur kernels | tar -x -C
+old``), interleaved, one I/O thread per core, and compares the sets by their decoded pixels
+(a digest of every output image's pixels: PNG bytes differ between encoders).
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -43,14 +52,16 @@ def panned_frames(count: int) -> list[np.ndarray]:
 
 
 def write_sequence(folder: Path, count: int) -> list[Path]:
-    """:func:`panned_frames` as PNG files ``seq/sharp/000000.png ...`` under ``folder``."""
+    """:func:`panned_frames` as PNG files ``seq/sharp/000000.png ...`` under ``folder``.
+
+    Written by OpenCV with its default settings, as a user's frames most often are.
+    """
     sharp = folder / "seq" / "sharp"
     sharp.mkdir(parents=True)
-    paths = []
-    for i, frame in enumerate(panned_frames(count)):
-        path = sharp / f"{i:06d}.png"
-        cv2.imwrite(str(path), frame)
-        paths.append(path)
+    paths = [sharp / f"{i:06d}.png" for i in range(count)]
+    with ThreadPoolExecutor(os.cpu_count()) as pool:
+        list(pool.map(lambda pf: cv2.imwrite(str(pf[0]), pf[1]),
+                      zip(paths, panned_frames(count), strict=True)))
     return paths
 
 
@@ -71,38 +82,126 @@ def single_core_seconds(paths: list[Path]) -> dict:
     return {"decode": statistics.median(decode), "encode": statistics.median(encode)}
 
 
-def decode_encode_bound(per: dict, cores: int) -> float:
+def gpu_blur_codec_seconds(paths: list[Path]) -> dict:
+    """:func:`single_core_seconds` for this checkout's own read and write paths.
+
+    ``read_image`` (ISA-L and numpy for the Sub-filtered files OpenCV writes by default) and
+    ``encode_image`` with the default ``output.png``; one thread, OpenCV on one core.
+    """
+    from gpu_blur.file_writing import encode_image
+    from gpu_blur.image_reading import read_image
+
+    cv2.setNumThreads(1)
+    decode = []
+    for path in paths[:5]:
+        start = time.perf_counter()
+        read_image(path)
+        decode.append(time.perf_counter() - start)
+    image = read_image(paths[0])[4:-4, 4:-4]
+    encode = []
+    for _ in range(5):
+        start = time.perf_counter()
+        encode_image(image, 8)
+        encode.append(time.perf_counter() - start)
+    return {"decode": statistics.median(decode), "encode": statistics.median(encode)}
+
+
+def decode_encode_bound(per: dict, cores: int, decodes: float = FRAMES) -> float:
     """Samples per second the host can decode and encode, every core busy.
 
-    A sample decodes 9 frames and encodes 2 images (``per``: :func:`single_core_seconds`).
+    A sample decodes ``decodes`` frames (9; fewer where a frame cache serves overlapping
+    windows) and encodes 2 images (``per``: :func:`single_core_seconds`).
     """
-    return cores / (FRAMES * per["decode"] + 2 * per["encode"])
+    return cores / (decodes * per["decode"] + 2 * per["encode"])
+
+
+def pixel_digest(out: Path) -> str:
+    """sha256 over the decoded pixels of every image of a set (names and codes).
+
+    Sets whose PNG files differ only in how they are compressed give the same digest.
+    """
+    digest = hashlib.sha256()
+    for path in sorted(out.rglob("*.png")):
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        digest.update(path.relative_to(out).as_posix().encode() + image.tobytes())
+    return digest.hexdigest()
+
+
+def compare(args, cores: int) -> dict:
+    """``--windows`` and ``--against``: each kind of windows with both checkouts, side by side."""
+    cases = {}
+    for windows in args.windows.split(","):
+        if windows not in ("overlapping", "distinct"):
+            raise SystemExit(f"--windows {windows}: overlapping or distinct")
+        frames = 4 * FRAMES if windows == "overlapping" else FRAMES * args.samples
+        with tempfile.TemporaryDirectory() as tmp:
+            root = Path(tmp) / "in"
+            paths = write_sequence(root, frames)
+            # the new tree reads each frame once where a cache holds it; the old reads 9
+            new_decodes = min(FRAMES, frames / args.samples)
+            old_per, new_per = single_core_seconds(paths), gpu_blur_codec_seconds(paths)
+            case = {"frames_in_sequence": frames, "samples": args.samples,
+                    "bound_before": {"single_core_seconds": old_per, "decodes_per_sample":
+                                     FRAMES, "samples_per_s":
+                                     decode_encode_bound(old_per, cores)},
+                    "bound_now": {"single_core_seconds": new_per,
+                                  "decodes_per_sample": new_decodes, "samples_per_s":
+                                  decode_encode_bound(new_per, cores, new_decodes)},
+                    "runs": {}, "pixel_digests": {}}
+            trees = ([("before", args.against)] if args.against else []) + [("now", None)]
+            for name, tree in trees:
+                out = Path(tmp) / f"out_{name}"
+                case["runs"][name] = generate(root, out, args.backend, args.samples, cores,
+                                              tree=tree)
+                case["pixel_digests"][name] = pixel_digest(out)
+            case["same_pixels"] = len(set(case["pixel_digests"].values())) == 1
+            now = case["runs"]["now"]["samples_per_s"]
+            case["ratio_to_bound_now"] = now / case["bound_now"]["samples_per_s"]
+            if args.against:
+                case["speedup"] = now / case["runs"]["before"]["samples_per_s"]
+        cases[windows] = case
+    for windows, case in cases.items():
+        runs = ", ".join(f"{name} {run['samples_per_s']:.2f}" for name, run in
+                         case["runs"].items())
+        speed = f" ({case['speedup']:.2f}x)" if "speedup" in case else ""
+        print(f"{windows}: samples/s {runs}{speed}; bound now "
+              f"{case['bound_now']['samples_per_s']:.1f}/s "
+              f"({100 * case['ratio_to_bound_now']:.0f} % of it), before "
+              f"{case['bound_before']['samples_per_s']:.1f}/s; same pixels: "
+              f"{case['same_pixels']}")
+        print("\n".join(case["runs"]["now"]["summary"]))
+    return {"backend": args.backend, "cores": cores, "image": [W, H], "frames": FRAMES,
+            "against": args.against, "cases": cases}
 
 
 def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
-         extra: tuple[str, ...] = ()):
+         extra: tuple[str, ...] = (), tree: str | None = None):
     command = [sys.executable, "-m", "gpu_blur.cli", "generate", "--input", str(root),
                "--output", str(out), "--scene", "rsblur", "--backend", backend,
                "--samples-per-sequence", str(samples), "--io-threads", str(threads),
                "--quiet", "--overwrite", *extra]
+    env = dict(os.environ)
+    if tree is not None:  # that checkout's gpu_blur first on the path
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [tree, env.get("PYTHONPATH")]))
     start = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True, check=False)
+    done = subprocess.run(command, capture_output=True, text=True, check=False, env=env)
     wall = time.perf_counter() - start
     if done.returncode:
         raise RuntimeError(done.stderr[-2000:])
-    return wall, (done.stdout + done.stderr).strip().splitlines()[-9:]
+    return wall, (done.stdout + done.stderr).strip().splitlines()[-12:]
 
 
 def generate(root: Path, out: Path, backend: str, samples: int, threads: int,
-             extra: tuple[str, ...] = ()) -> dict:
+             extra: tuple[str, ...] = (), tree: str | None = None) -> dict:
     """Samples per second of ``gpu-blur generate`` without its fixed start, and its summary.
 
     A first 1-sample run warms the file cache and the kernel caches and is not counted: a
-    cold start can take longer than the whole run that follows.
+    cold start can take longer than the whole run that follows. ``tree``: a checkout whose
+    ``gpu_blur`` runs instead of this one.
     """
-    _run(root, out, backend, 1, threads, extra)
-    start, _ = _run(root, out, backend, 1, threads, extra)
-    wall, summary = _run(root, out, backend, samples, threads, extra)
+    _run(root, out, backend, 1, threads, extra, tree)
+    start, _ = _run(root, out, backend, 1, threads, extra, tree)
+    wall, summary = _run(root, out, backend, samples, threads, extra, tree)
     return {"threads": threads, "options": list(extra), "seconds": wall,
             "start_seconds": start, "samples_per_s": (samples - 1) / (wall - start),
             "summary": summary}
@@ -135,9 +234,18 @@ def main(argv=None) -> int:
     p.add_argument("--workers", default="", help="also run --devices with each of these "
                    "numbers of workers on --backend's device, comma-separated (e.g. 1,2,4), "
                    "and compare the sets' bytes")
+    p.add_argument("--windows", help="overlapping,distinct: compare kinds of windows "
+                   "(one I/O thread per core) instead of the --threads runs")
+    p.add_argument("--against", metavar="TREE", help="with --windows: also run another "
+                   "checkout's gpu_blur (a folder holding gpu_blur/ and kernels/)")
     p.add_argument("--json", help="write the results here")
     args = p.parse_args(argv)
     cores = len(os.sched_getaffinity(0))
+    if args.windows:
+        result = compare(args, cores)
+        if args.json:
+            Path(args.json).write_text(json.dumps(result, indent=1))
+        return 0
     devices = {}
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp) / "in"
