@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import os
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
@@ -35,8 +36,9 @@ from gpu_blur.scheduler import Schedule
 from gpu_blur.synthesis import Synthesis, synthesize
 from gpu_blur.timings import PoolTimes
 
-__all__ = ["Job", "MAX_DEFAULT_IO_THREADS", "QUEUE_PER_THREAD", "WriteBehind", "decode",
-           "default_io_threads", "for_driver", "make_sample", "run_pipelined", "run_serial"]
+__all__ = ["Job", "MAX_DEFAULT_IO_THREADS", "PinnedStaging", "QUEUE_PER_THREAD", "STAGED_SAMPLES",
+           "WriteBehind", "checked_inputs", "decode", "default_io_threads", "for_driver",
+           "make_sample", "pinned_staging", "read_input", "run_pipelined", "run_serial"]
 
 #: Samples per I/O thread that may wait on each side of synthesis: decoded (or being decoded)
 #: ahead of the sample being made, and made but not yet written behind it. With N threads at
@@ -46,6 +48,9 @@ QUEUE_PER_THREAD = 2
 #: enough to decode 9 PNG frames of 1920 x 1200 for a few hundred samples a second, while the
 #: queues stay within a few GB (such a sample holds 62 MB of frames and 55 MB of outputs).
 MAX_DEFAULT_IO_THREADS = 32
+#: Samples copied into page-locked host memory ahead of the one being made, on a GPU
+#: (:class:`PinnedStaging`): 4 slots of a 1920 x 1200 RSBlur sample hold 250 MB.
+STAGED_SAMPLES = 4
 
 
 def default_io_threads() -> int:
@@ -154,42 +159,198 @@ def decode(spec: SampleSpec, cache: FrameCache | None = None) -> tuple[np.ndarra
     if spec.problem:
         return None
     try:
-        images = tuple(read_image(path) if cache is None else cache.read(path, read_image)
-                       for path in spec.inputs)
+        images = [read_input(path, cache) for path in spec.inputs]
+    except Exception:  # synthesize meets it again, and says what it is
+        return None
+    return checked_inputs(spec, images)
+
+
+def read_input(path, cache: FrameCache | None = None) -> np.ndarray:
+    """One input file decoded (through ``cache`` if given), as ``synthesize`` reads it."""
+    return read_image(path) if cache is None else cache.read(path, read_image)
+
+
+def checked_inputs(spec: SampleSpec, images: list[np.ndarray] | None
+                   ) -> tuple[np.ndarray, ...] | None:
+    """:func:`decode`'s checks of a sample's decoded files: the arrays, or None."""
+    if images is None:
+        return None
+    try:
         for path, image in zip(spec.inputs, images, strict=True):
             check_image(image, str(path))
     except Exception:  # synthesize meets it again, and says what it is
         return None
     if len({image.shape for image in images}) > 1:
         return None
-    return images
+    return tuple(images)
+
+
+class PinnedStaging:
+    """Page-locked host slots that I/O threads copy a sample's decoded inputs into.
+
+    A GPU backend copies page-locked memory to the device at the bus's rate and pageable
+    memory through a staging copy of its own on the thread that makes the samples (a 1920 x
+    1200 RSBlur sample's 9 frames, 62 MB, took that thread 8.6 ms an H200 sample at e7b24ae,
+    bench/generate_gpu.py). Staged here by an I/O thread, a sample's frames go up with one
+    copy the device's copy engine makes: ``make_sample`` gets them as views of one stack in a
+    slot (:func:`gpu_blur.backends.pinned_stack` finds the stack again). The slots' memory is
+    allocated on the making thread, as a sample first needs it (page-locking is slow and
+    device APIs want their own thread); a sample that does not fit a slot yet goes as it is.
+
+    Args:
+        backend: the kernel backend that makes the samples (its ``pinned``).
+        slots: samples staged at once, ahead of the one being made.
+    """
+
+    def __init__(self, backend, slots: int):
+        self._backend = backend
+        self._buffers: list[np.ndarray | None] = [None] * slots
+        self._wanted = [0] * slots  # bytes a sample needed that its slot did not have
+        self.free = list(range(slots))
+
+    def fill(self, slot: int, images: tuple[np.ndarray, ...] | None
+             ) -> tuple[np.ndarray, ...] | None:
+        """``images`` copied into ``slot`` as one stack (in an I/O thread), or as they are.
+
+        Only images of one shape and dtype are stacked; they come back as views of the stack.
+        """
+        if not images or len({(i.shape, i.dtype) for i in images}) > 1:
+            return images
+        nbytes = sum(image.nbytes for image in images)
+        buffer = self._buffers[slot]
+        if buffer is None or buffer.nbytes < nbytes:
+            self._wanted[slot] = nbytes  # the making thread allocates it (:meth:`grow`)
+            return images
+        stack = buffer[:nbytes].view(images[0].dtype).reshape((len(images), *images[0].shape))
+        for into, image in zip(stack, images, strict=True):
+            np.copyto(into, image)
+        return tuple(stack)
+
+    def release(self, slot: int, failed: bool = False) -> None:
+        """``slot`` free again once its sample is made (on the making thread).
+
+        A made sample's results were fetched, so its upload is done; after a failed one the
+        device is waited for. The slot gets the page-locked bytes its sample wanted.
+        """
+        if failed:
+            self._backend.wait()
+        if self._wanted[slot]:
+            self._buffers[slot] = None  # the old block is freed before the larger one is made
+            self._buffers[slot] = self._backend.pinned((self._wanted[slot],), np.uint8)
+            self._wanted[slot] = 0
+        self.free.append(slot)
+
+
+def pinned_staging(job: Job) -> PinnedStaging | None:
+    """:class:`PinnedStaging` for a job whose backend copies to a GPU, else None.
+
+    So where the backend is a kernel backend on an NVIDIA GPU (Warp on CUDA, NVIDIA's
+    OpenCL) and the job runs whole images on it (no tiles, budget or spot checks: those run
+    on the host's copies).
+    """
+    from gpu_blur.backends import get_backend, is_resident
+
+    if job.schedule is not None and job.schedule != Schedule():
+        return None
+    backend = get_backend(job.backend, job.scene.output.precision)
+    if not (is_resident(backend) and backend.uses_cuda):
+        return None
+    return PinnedStaging(backend, STAGED_SAMPLES)
+
+
+class _Inputs:
+    """A sample's input files decoded in a pool, a task per file, then checked.
+
+    The task that decodes the last file checks them all (:func:`checked_inputs`), so no
+    thread waits on another's decode; :attr:`checked` then holds the arrays or None.
+    :meth:`stage` has a slot of :class:`PinnedStaging` filled once they are checked.
+    """
+
+    def __init__(self, spec: SampleSpec, pool: Executor, times: PoolTimes,
+                 cache: FrameCache | None):
+        self.spec, self.checked, self.staged, self.slot = spec, Future(), None, None
+        self._images: list = [None] * len(spec.inputs)
+        self._left, self._lock = len(spec.inputs), threading.Lock()
+        self.tasks = [] if spec.problem or not spec.inputs else [
+            pool.submit(times.run, "decode", self._read, i, path, cache)
+            for i, path in enumerate(spec.inputs)]
+        if not self.tasks:
+            self.checked.set_result(None)
+
+    def _read(self, i: int, path, cache) -> None:
+        try:
+            image = read_input(path, cache)
+        except Exception:  # synthesize meets it again, and says what it is
+            image = None
+        with self._lock:
+            self._images[i] = image
+            self._left -= 1
+            last = self._left == 0
+        if last:
+            images = None if any(image is None for image in self._images) else self._images
+            self.checked.set_result(checked_inputs(self.spec, images))
+
+    def stage(self, staging: PinnedStaging, slot: int, pool: Executor, times: PoolTimes) -> None:
+        """Copy the checked inputs into ``slot`` in the pool; :attr:`staged` holds the views."""
+        self.slot, self.staged = slot, Future()
+
+        def fill() -> None:
+            self.staged.set_result(staging.fill(slot, self.checked.result()))
+
+        def submit(_) -> None:
+            try:
+                pool.submit(times.run, "decode", fill)
+            except RuntimeError:  # the pool is shut down: the run stopped
+                self.staged.set_result(self.checked.result())
+
+        self.checked.add_done_callback(submit)
+
+    def result(self) -> tuple[np.ndarray, ...] | None:
+        """The inputs for ``make_sample``: staged if they are, else as decoded."""
+        return (self.staged or self.checked).result()
+
+    def cancel(self) -> None:
+        for task in self.tasks:
+            task.cancel()
 
 
 def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: PoolTimes,
-                  depth: int, cache: FrameCache | None = None) -> Iterator[tuple]:
+                  depth: int, cache: FrameCache | None = None,
+                  staging: PinnedStaging | None = None) -> Iterator[tuple]:
     """Make the samples in this thread, in order, while ``pool`` decodes the next ones' inputs.
 
-    At most ``depth`` samples are decoded or being decoded ahead of the one being made. The
-    results are :func:`run_serial`'s; the time this thread waits for inputs is added to
-    ``times.waited_for_inputs``, the pool's decoding to ``times.busy["decode"]``.
+    At most ``depth`` samples are decoded or being decoded ahead of the one being made, each
+    file a task of its own (so the frames that overlapping windows share are decoded in
+    parallel, not one after another by the first window's thread). With ``staging`` the pool
+    also copies the next samples into its page-locked slots. The results are
+    :func:`run_serial`'s; the time this thread waits for inputs is added to
+    ``times.waited_for_inputs``, the pool's decoding and staging to ``times.busy["decode"]``.
     """
     rest = iter(specs)
-    ahead: deque[tuple[SampleSpec, Future]] = deque()
+    ahead: deque[_Inputs] = deque()
     try:
         while True:
             for spec in itertools.islice(rest, depth - len(ahead)):
-                ahead.append((spec, pool.submit(times.run, "decode", decode, spec, cache)))
+                ahead.append(_Inputs(spec, pool, times, cache))
             if not ahead:
                 return
-            spec, decoding = ahead[0]
+            for waiting in ahead:  # the oldest samples not yet staged, while slots are free
+                if staging is None or not staging.free:
+                    break
+                if waiting.staged is None:
+                    waiting.stage(staging, staging.free.pop(), pool, times)
             start = time.perf_counter()
-            inputs = decoding.result()
+            inputs = ahead[0].result()
             times.waited_for_inputs += time.perf_counter() - start
+            spec, slot = ahead[0].spec, ahead[0].slot
             ahead.popleft()
-            yield make_sample(job, spec, inputs)
+            made = make_sample(job, spec, inputs)
+            if slot is not None:
+                staging.release(slot, failed=made[2] is not None)
+            yield made
     finally:  # stopped early: nothing more is decoded
-        for _, decoding in ahead:
-            decoding.cancel()
+        for waiting in ahead:
+            waiting.cancel()
 
 
 class WriteBehind:

@@ -485,6 +485,7 @@ class _Run:
             Job,
             WriteBehind,
             default_io_threads,
+            pinned_staging,
             run_pipelined,
             run_serial,
         )
@@ -506,7 +507,8 @@ class _Run:
             # one device: the pool also decodes ahead; devices and ray workers decode their
             # own inputs, and the pool encodes and writes what they make
             cache = self.frame_cache() if self.executor is run_serial else None
-            samples = (run_pipelined(job, self.todo, pool, io, QUEUE_PER_THREAD * threads, cache)
+            samples = (run_pipelined(job, self.todo, pool, io, QUEUE_PER_THREAD * threads, cache,
+                                     pinned_staging(job))
                        if io and self.executor is run_serial else
                        run_serial(job, self.todo, cache) if self.executor is run_serial else
                        self.executor(job, self.todo))

@@ -35,8 +35,8 @@ if TYPE_CHECKING:
 
 __all__ = ["Backend", "COPY_THREADS", "Drawn", "FRAMES_PER_LAUNCH", "OnDevice",
            "PARALLEL_COPY_VALUES", "PinnedHost", "ResidentBackend", "Slots", "cfa_bits",
-           "copy_values", "fill_stack", "get_backend", "is_resident", "pinned_owner", "to_host",
-           "usable_devices"]
+           "copy_values", "fill_stack", "get_backend", "is_resident", "pinned_owner",
+           "pinned_stack", "to_host", "usable_devices"]
 
 #: Frames summed per accumulate launch (blur mode average) on the kernel backends: a device
 #: stack of this many frames fills (on a GPU, on a copy stream, while the previous stack is
@@ -287,6 +287,36 @@ def pinned_owner(x):
     while isinstance(base, np.ndarray):
         base = base.base
     return base.owner if isinstance(base, PinnedHost) else None
+
+
+def pinned_stack(frames, owner) -> np.ndarray | None:
+    """Frames lying one after another in ``owner``'s pinned memory, as one stack; else None.
+
+    ``frames``: a list of arrays of one shape and dtype, each C-contiguous, frame ``i`` at
+    frame 0's address plus ``i`` frames' bytes, all in one :class:`PinnedHost` block of
+    ``owner`` (the views of a stack made there, as ``gpu-blur generate``'s I/O threads stage
+    a sample's frames): an ``n x H x W x 3`` view of that memory, which ``owner`` copies to
+    its device at once. Anything else (other memory, gaps, another order): None.
+    """
+    if not isinstance(frames, (list, tuple)) or not frames or not all(
+            isinstance(f, np.ndarray) for f in frames):
+        return None
+    first = frames[0]
+    if any(f.shape != first.shape or f.dtype != first.dtype or not f.flags.c_contiguous
+           for f in frames) or pinned_owner(first) is not owner:
+        return None
+    start, size = first.ctypes.data, first.nbytes
+    if any(f.ctypes.data != start + i * size for i, f in enumerate(frames)):
+        return None
+    block = first
+    while isinstance(block.base, np.ndarray):  # the array over the whole PinnedHost block
+        block = block.base
+    offset = start - block.ctypes.data
+    if offset < 0 or offset + len(frames) * size > block.nbytes:
+        return None
+    flat = block.reshape(-1).view(np.uint8)
+    return flat[offset:offset + len(frames) * size].view(first.dtype).reshape(
+        (len(frames), *first.shape))
 
 
 def fill_stack(host: np.ndarray, frames, indices: range, region) -> None:

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from gpu_blur import caches, notices
-from gpu_blur.backends import OnDevice, copy_values, fill_stack
+from gpu_blur.backends import OnDevice, copy_values, fill_stack, pinned_stack
 from gpu_blur.backends.kernel import Arg, KernelBackend, PassConfig, source_dtype
 from gpu_blur.kernel_constants import opencl_header
 from gpu_blur.planning import Pass
@@ -519,6 +519,9 @@ class OpenCLBackend(KernelBackend):
         follow; filling the other buffer overlaps the upload. NVIDIA's OpenCL moves pinned
         memory at the bus's rate and the caller's pageable memory at a fraction of it.
         """
+        stack = pinned_stack(image, self)  # frames staged in this backend's pinned memory
+        if stack is not None:
+            image = stack
         if self._direct(image):  # pinned(): no staging
             with timer("copies"):
                 data = self._empty(image.size, image.dtype)

@@ -25,7 +25,7 @@ import warp as wp
 
 from gpu_blur import caches, notices
 from gpu_blur.arrays import view_at
-from gpu_blur.backends import OnDevice, copy_values, fill_stack
+from gpu_blur.backends import OnDevice, copy_values, fill_stack, pinned_stack
 from gpu_blur.backends.kernel import (
     Arg,
     KernelBackend,
@@ -448,6 +448,9 @@ class WarpBackend(KernelBackend):
         overlapping.
         """
         if not isinstance(image, wp.array):
+            stack = pinned_stack(image, self)  # frames staged in this backend's pinned memory
+            if stack is not None:
+                image = stack
             if self._direct(image):
                 return self._put_pinned(image)
             if not self.overlap:

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from conftest import KERNEL_BACKEND_SPECS, files, manifest_lines
 
+import gpu_blur.backends
 import gpu_blur.dataset
 import gpu_blur.file_writing
 import gpu_blur.generate
@@ -228,3 +229,62 @@ def test_bad_io_threads_are_refused_before_any_work(tmp_path, photos, capsys, ex
     assert main(args(folder, scene, tmp_path / "out", *extra)) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def kernel_backend():
+    """The first kernel backend the suite runs (a CPU device here): its pinned memory is
+    plain host memory, but its arrays end in a PinnedHost block as on a GPU."""
+    from gpu_blur.backends import get_backend
+
+    name, _, precision = KERNEL_BACKEND_SPECS[0].partition("/")
+    return name, get_backend(name, precision or "float32")
+
+
+@pytest.mark.skipif(not KERNEL_BACKEND_SPECS, reason="no kernel backend here")
+def test_pinned_stack_finds_frames_staged_one_after_another_in_one_block():
+    from gpu_blur.backends import pinned_stack
+
+    _, backend = kernel_backend()
+    stack = backend.pinned((3, 4, 5, 3), np.uint8)
+    stack[:] = np.arange(stack.size, dtype=np.uint8).reshape(stack.shape)
+    found = pinned_stack(tuple(stack), backend)
+    assert found.shape == (3, 4, 5, 3) and np.shares_memory(found, stack)
+    assert np.array_equal(found, stack)
+    assert pinned_stack(list(stack[1:]), backend).shape == (2, 4, 5, 3)
+    assert pinned_stack([stack[1], stack[0], stack[2]], backend) is None  # out of order
+    assert pinned_stack([stack[0], stack[2]], backend) is None  # a gap
+    assert pinned_stack([f.copy() for f in stack], backend) is None  # pageable memory
+    assert pinned_stack(list(stack), object()) is None  # another backend's memory
+    assert pinned_stack([stack[0][:, :4]], backend) is None  # not contiguous
+    assert pinned_stack(stack[0], backend) is None  # one image, not a list
+
+
+@pytest.mark.skipif(not KERNEL_BACKEND_SPECS, reason="no kernel backend here")
+def test_inputs_staged_in_pinned_memory_make_the_bytes_of_unstaged_ones(
+        tmp_path, bad_sequences, monkeypatch):
+    """The I/O threads copy each sample's frames into page-locked slots (on a GPU); made on
+    a CPU kernel backend here, with the staging forced: the same set, bad samples too."""
+    folder, scene = bad_sequences
+    rng = np.random.default_rng(2)
+    (folder / "d_long" / "sharp").mkdir(parents=True)
+    for i in range(8):
+        cv2.imwrite(str(folder / "d_long" / "sharp" / f"{i}.png"),
+                    rng.integers(0, 256, (24, 32, 3), np.uint8))
+    name, backend = kernel_backend()
+    run = ("--backend", name, "--samples-per-sequence", "4")
+    assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
+    staged = []
+    stack = gpu_blur.backends.pinned_stack
+    module = gpu_blur.backends.warp if name.startswith("warp") else gpu_blur.backends.opencl
+
+    def spied(frames, owner):
+        found = stack(frames, owner)
+        staged.append(found is not None)
+        return found
+
+    monkeypatch.setattr(module, "pinned_stack", spied)
+    monkeypatch.setattr(gpu_blur.generate, "pinned_staging",
+                        lambda job: gpu_blur.generate.PinnedStaging(backend, 2))
+    assert main(args(folder, scene, tmp_path / "staged", *run, "--io-threads", "3")) == 1
+    assert sum(staged) >= 4  # every slot's first sample goes unstaged while it is allocated
+    assert_same_set(tmp_path / "staged", tmp_path / "one")
