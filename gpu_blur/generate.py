@@ -276,6 +276,8 @@ class _Inputs:
             for i, path in enumerate(spec.inputs)]
         if not self.tasks:
             self.checked.set_result(None)
+        else:
+            times.samples += 1  # on the making thread
 
     def _read(self, i: int, path, cache) -> None:
         try:

@@ -165,7 +165,8 @@ class RunTotals:
         encoding and writing outputs (``writing``) and synthesis (the rest: copies, kernels,
         checks, and the host's part of a sample: draws, plans, launches). Run one after
         another (no ``pool``), the largest is the bound; with an I/O pool decoding and writing
-        are the driver's waits for the pool, and the stage it waited on most is the bound.
+        are the driver's waits for the pool, and the stage it waited on most is the bound,
+        with the pool's own figure for it (:meth:`PoolTimes.ceiling`): what more cores give.
         """
         spent = {"decode": self.seconds["reading"], "encode/write": self.seconds["writing"]}
         spent["synthesis"] = max(wall - sum(spent.values()), 0.0)
@@ -174,8 +175,10 @@ class RunTotals:
         if pool is None:
             return (f"bound by: {stage} ({share:.0f} % of the run; one thread decodes, "
                     "synthesizes and writes in turn)")
-        how = {"decode": f"synthesis waited {share:.0f} % of the run for decoded inputs",
-               "encode/write": f"synthesis waited {share:.0f} % of the run for writes",
+        how = {"decode": f"synthesis waited {share:.0f} % of the run for decoded inputs; "
+                         f"{pool.ceiling('decode')}",
+               "encode/write": f"synthesis waited {share:.0f} % of the run for writes; "
+                               f"{pool.ceiling('write')}",
                "synthesis": f"synthesizing {share:.0f} % of the run, on the host and the "
                             "device"}[stage]
         return f"bound by: {stage} ({how}; I/O threads busy {pool.busy_share(wall):.0f} %)"
@@ -186,13 +189,18 @@ class PoolTimes:
 
     Attributes:
         threads: the pool's threads.
-        busy: seconds of ``decode`` and ``write`` work, summed over the threads.
+        busy: seconds of ``decode`` (a file each, or a sample's staging) and ``write`` (a
+            sample each) work, summed over the threads.
+        calls: the tasks of each.
+        samples: samples whose inputs the pool decoded.
         waited_for_inputs: seconds the driver thread waited for decoded inputs.
     """
 
     def __init__(self, threads: int):
         self.threads = threads
         self.busy = {"decode": 0.0, "write": 0.0}
+        self.calls = {"decode": 0, "write": 0}
+        self.samples = 0
         self.waited_for_inputs = 0.0
         self._lock = threading.Lock()
 
@@ -204,6 +212,23 @@ class PoolTimes:
         finally:
             with self._lock:
                 self.busy[stage] += time.perf_counter() - start
+                self.calls[stage] += 1
+
+    def ceiling(self, stage: str) -> str:
+        """The samples a second ``stage`` alone would allow on these threads, in words.
+
+        From the thread time a sample took (decoding its files, or encoding and writing its
+        outputs): ``threads`` such threads make at most ``threads / that`` samples a second,
+        if the work scales with them (codecs that hold the GIL, or memory bandwidth, may not).
+        """
+        samples = self.samples if stage == "decode" else self.calls["write"]
+        if not samples or not self.busy[stage]:
+            return f"the threads {'decoded' if stage == 'decode' else 'wrote'} nothing"
+        per = self.busy[stage] / samples
+        what = ("decoding a sample's inputs" if stage == "decode"
+                else "encoding and writing a sample")
+        return (f"{what} took a thread {1e3 * per:.1f} ms, so {self.threads} threads make at "
+                f"most {self.threads / per:.1f} samples/s: more cores, more")
 
     def busy_share(self, wall: float) -> float:
         """Percent of the threads' time over ``wall`` seconds they spent working."""
@@ -211,6 +236,8 @@ class PoolTimes:
 
     def summary(self, wall: float) -> str:
         """One line: the threads, what they did, and how busy they were."""
-        return (f"I/O threads ({self.threads}): decoding {self.busy['decode']:.2f} s, encoding "
-                f"and writing {self.busy['write']:.2f} s; busy {self.busy_share(wall):.0f} % of "
-                "the run")
+        files = self.calls["decode"]
+        each = f" ({files} tasks, {1e3 * self.busy['decode'] / files:.1f} ms each)" if files else ""
+        return (f"I/O threads ({self.threads}): decoding {self.busy['decode']:.2f} s{each}, "
+                f"encoding and writing {self.busy['write']:.2f} s; busy "
+                f"{self.busy_share(wall):.0f} % of the run")

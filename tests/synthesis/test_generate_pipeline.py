@@ -218,6 +218,11 @@ def test_the_summary_says_which_stage_bounded_the_run(tmp_path, photos, monkeypa
     spent = re.findall(r"^  [a-z]+ +([\d.]+) s +[\d.]+ %", out, re.MULTILINE)
     assert len(spent) == 6 and sum(map(float, spent)) == pytest.approx(wall, abs=0.01)
     assert ("I/O threads (2): decoding" in out) == (threads == "2")
+    if threads == "2" and slow is not None:  # the bound's own figure: 0.25 s a sample or more
+        what = "decoding a sample's inputs" if slow == "read_image" else "encoding and writing"
+        figure = re.search(rf"{what}.* took a thread ([\d.]+) ms, so 2 threads make at most "
+                           r"([\d.]+) samples/s", out)
+        assert figure and float(figure[1]) >= 250 and float(figure[2]) <= 8, out
 
 
 @pytest.mark.parametrize("extra, message", [
