@@ -33,12 +33,14 @@ from gpu_blur.image_reading import opencv_reason, read_image
 from gpu_blur.reference.output import to_integers
 from gpu_blur.scene import Scene
 from gpu_blur.scheduler import Schedule
-from gpu_blur.synthesis import Synthesis, synthesize
+from gpu_blur.staging import PinnedStaging
+from gpu_blur.synthesis import Synthesis, Synthesizer, synthesize
 from gpu_blur.timings import PoolTimes
 
-__all__ = ["Job", "MAX_DEFAULT_IO_THREADS", "PinnedStaging", "QUEUE_PER_THREAD", "STAGED_SAMPLES",
+__all__ = ["BATCH", "Job", "MAX_DEFAULT_IO_THREADS", "QUEUE_PER_THREAD", "STAGED_BATCHES",
            "WriteBehind", "checked_inputs", "decode", "default_io_threads", "for_driver",
-           "make_sample", "pinned_staging", "read_input", "run_pipelined", "run_serial"]
+           "make_batch", "make_sample", "pinned_staging", "read_input", "run_pipelined",
+           "run_serial"]
 
 #: Samples per I/O thread that may wait on each side of synthesis: decoded (or being decoded)
 #: ahead of the sample being made, and made but not yet written behind it. With N threads at
@@ -48,9 +50,12 @@ QUEUE_PER_THREAD = 2
 #: enough to decode 9 PNG frames of 1920 x 1200 for a few hundred samples a second, while the
 #: queues stay within a few GB (such a sample holds 62 MB of frames and 55 MB of outputs).
 MAX_DEFAULT_IO_THREADS = 32
-#: Samples copied into page-locked host memory ahead of the one being made, on a GPU
-#: (:class:`PinnedStaging`): 4 slots of a 1920 x 1200 RSBlur sample hold 250 MB.
-STAGED_SAMPLES = 4
+#: Samples a GPU makes at once in a run on one device (:func:`make_batch`), from one slot of
+#: page-locked memory the I/O threads fill (:class:`~gpu_blur.staging.PinnedStaging`).
+BATCH = 4
+#: Such slots, filled ahead of the batch being made: three of four 1920 x 1200 RSBlur samples
+#: (9 frames of 8 bits) hold 750 MB of page-locked host memory.
+STAGED_BATCHES = 3
 
 
 def default_io_threads() -> int:
@@ -185,77 +190,51 @@ def checked_inputs(spec: SampleSpec, images: list[np.ndarray] | None
     return tuple(images)
 
 
-class PinnedStaging:
-    """Page-locked host slots that I/O threads copy a sample's decoded inputs into.
-
-    A GPU backend copies page-locked memory to the device at the bus's rate and pageable
-    memory through a staging copy of its own on the thread that makes the samples (a 1920 x
-    1200 RSBlur sample's 9 frames, 62 MB, took that thread 8.6 ms an H200 sample at e7b24ae,
-    bench/generate_gpu.py). Staged here by an I/O thread, a sample's frames go up with one
-    copy the device's copy engine makes: ``make_sample`` gets them as views of one stack in a
-    slot (:func:`gpu_blur.backends.pinned_stack` finds the stack again). The slots' memory is
-    allocated on the making thread, as a sample first needs it (page-locking is slow and
-    device APIs want their own thread); a sample that does not fit a slot yet goes as it is.
-
-    Args:
-        backend: the kernel backend that makes the samples (its ``pinned``).
-        slots: samples staged at once, ahead of the one being made.
-    """
-
-    def __init__(self, backend, slots: int):
-        self._backend = backend
-        self._buffers: list[np.ndarray | None] = [None] * slots
-        self._wanted = [0] * slots  # bytes a sample needed that its slot did not have
-        self.free = list(range(slots))
-
-    def fill(self, slot: int, images: tuple[np.ndarray, ...] | None
-             ) -> tuple[np.ndarray, ...] | None:
-        """``images`` copied into ``slot`` as one stack (in an I/O thread), or as they are.
-
-        Only images of one shape and dtype are stacked; they come back as views of the stack.
-        """
-        if not images or len({(i.shape, i.dtype) for i in images}) > 1:
-            return images
-        nbytes = sum(image.nbytes for image in images)
-        buffer = self._buffers[slot]
-        if buffer is None or buffer.nbytes < nbytes:
-            self._wanted[slot] = nbytes  # the making thread allocates it (:meth:`grow`)
-            return images
-        stack = buffer[:nbytes].view(images[0].dtype).reshape((len(images), *images[0].shape))
-        for into, image in zip(stack, images, strict=True):
-            np.copyto(into, image)
-        return tuple(stack)
-
-    def release(self, slot: int, failed: bool = False) -> None:
-        """``slot`` free again once its sample is made (on the making thread).
-
-        A made sample's results were fetched, so its upload is done; after a failed one the
-        device is waited for. The slot gets the page-locked bytes its sample wanted.
-        """
-        if failed:
-            self._backend.wait()
-        if self._wanted[slot]:
-            self._buffers[slot] = None  # the old block is freed before the larger one is made
-            self._buffers[slot] = self._backend.pinned((self._wanted[slot],), np.uint8)
-            self._wanted[slot] = 0
-        self.free.append(slot)
-
-
 def pinned_staging(job: Job) -> PinnedStaging | None:
-    """:class:`PinnedStaging` for a job whose backend copies to a GPU, else None.
+    """:class:`~gpu_blur.staging.PinnedStaging` for a job that runs on a GPU, else None.
 
     So where the backend is a kernel backend on an NVIDIA GPU (Warp on CUDA, NVIDIA's
-    OpenCL) and the job runs whole images on it (no tiles, budget or spot checks: those run
-    on the host's copies).
+    OpenCL) and the job runs whole images there (no tiles, budget or spot checks, no frame
+    interpolation: those run on the host's copies): :data:`STAGED_BATCHES` slots of
+    :data:`BATCH` samples.
     """
     from gpu_blur.backends import get_backend, is_resident
+    from gpu_blur.backends.flows import interpolation_factor
+    from gpu_blur.planning import plan
 
-    if job.schedule is not None and job.schedule != Schedule():
+    if (job.schedule is not None and job.schedule != Schedule()) or interpolation_factor(
+            plan(job.scene)) != 1:
         return None
     backend = get_backend(job.backend, job.scene.output.precision)
     if not (is_resident(backend) and backend.uses_cuda):
         return None
-    return PinnedStaging(backend, STAGED_SAMPLES)
+    return PinnedStaging(backend, STAGED_BATCHES, BATCH)
+
+
+def make_batch(job: Job, synthesizer: Synthesizer, specs: list[SampleSpec], batch: np.ndarray
+               ) -> list[tuple] | None:
+    """Samples made as one batch: :func:`make_sample`'s tuples, or None if the batch failed.
+
+    ``batch``: their inputs, B x F x H x W x 3 (mode average) or B x H x W x 3, in the
+    synthesizer's pinned memory. A batch's sample is ``synthesize``'s, bit for bit
+    (:class:`~gpu_blur.synthesis.Synthesizer`); so is each sample of a batch that fails,
+    made again on its own by the caller, whose reason then names its file.
+    """
+    windows = [spec.window for spec in specs]
+    try:
+        made = synthesizer(batch, indices=[spec.index for spec in specs], codes=bool(job.bits),
+                           sequences=([w.sequence_index for w in windows] if all(windows)
+                                      else None))
+    except (ValueError, OSError, cv2.error, MemoryError):
+        return None
+    share = {category: seconds / len(specs) for category, seconds in made.timings.items()}
+    return [(spec, Synthesis(made.blurred[b], made.sharp[b],
+                             None if made.mask is None else made.mask[b], made.params[b],
+                             made.plans[b], dict(share), crop=job.scene.output.crop,
+                             device=synthesizer.runner.model,
+                             _raw=None if made.raw is None else made.raw[b],
+                             raw_info=None if made.raw_info is None else made.raw_info[b]),
+             None) for b, spec in enumerate(specs)]
 
 
 class _Inputs:
@@ -263,12 +242,14 @@ class _Inputs:
 
     The task that decodes the last file checks them all (:func:`checked_inputs`), so no
     thread waits on another's decode; :attr:`checked` then holds the arrays or None.
-    :meth:`stage` has a slot of :class:`PinnedStaging` filled once they are checked.
+    :meth:`stage` has them copied to a position of a :class:`PinnedStaging` slot.
     """
 
     def __init__(self, spec: SampleSpec, pool: Executor, times: PoolTimes,
                  cache: FrameCache | None):
-        self.spec, self.checked, self.staged, self.slot = spec, Future(), None, None
+        self.spec, self.checked, self.staged = spec, Future(), None
+        self.slot: int | None = None
+        self.position = 0
         self._images: list = [None] * len(spec.inputs)
         self._left, self._lock = len(spec.inputs), threading.Lock()
         self.tasks = [] if spec.problem or not spec.inputs else [
@@ -278,6 +259,11 @@ class _Inputs:
             self.checked.set_result(None)
         else:
             times.samples += 1  # on the making thread
+
+    @property
+    def batchable(self) -> bool:
+        """Whether it may go in a batch: files to read, no problem, no roles (mode none)."""
+        return bool(self.tasks) and not self.spec.roles
 
     def _read(self, i: int, path, cache) -> None:
         try:
@@ -292,12 +278,13 @@ class _Inputs:
             images = None if any(image is None for image in self._images) else self._images
             self.checked.set_result(checked_inputs(self.spec, images))
 
-    def stage(self, staging: PinnedStaging, slot: int, pool: Executor, times: PoolTimes) -> None:
-        """Copy the checked inputs into ``slot`` in the pool; :attr:`staged` holds the views."""
-        self.slot, self.staged = slot, Future()
+    def stage(self, staging: PinnedStaging, slot: int, position: int, pool: Executor,
+              times: PoolTimes) -> None:
+        """Copy the checked inputs to ``position`` of ``slot`` in the pool (:attr:`staged`)."""
+        self.slot, self.position, self.staged = slot, position, Future()
 
         def fill() -> None:
-            self.staged.set_result(staging.fill(slot, self.checked.result()))
+            self.staged.set_result(staging.fill(slot, position, self.checked.result()))
 
         def submit(_) -> None:
             try:
@@ -316,6 +303,26 @@ class _Inputs:
             task.cancel()
 
 
+def _stage(ahead: deque[_Inputs], staging: PinnedStaging, pool: Executor,
+           times: PoolTimes) -> None:
+    """Give free slots to the oldest runs of batchable samples not yet staged."""
+    run: list[_Inputs] = []
+    for waiting in [*ahead, None]:
+        if waiting is not None and waiting.slot is None and waiting.batchable and (
+                len(run) < staging.batch):
+            run.append(waiting)
+            continue
+        if run:
+            if not staging.free:
+                return
+            slot = staging.free.pop()
+            for position, member in enumerate(run):
+                member.stage(staging, slot, position, pool, times)
+            run = []
+        if waiting is not None and waiting.slot is None and waiting.batchable:
+            run.append(waiting)  # the next run starts where a full one ended
+
+
 def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: PoolTimes,
                   depth: int, cache: FrameCache | None = None,
                   staging: PinnedStaging | None = None) -> Iterator[tuple]:
@@ -323,33 +330,48 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
 
     At most ``depth`` samples are decoded or being decoded ahead of the one being made, each
     file a task of its own (so the frames that overlapping windows share are decoded in
-    parallel, not one after another by the first window's thread). With ``staging`` the pool
-    also copies the next samples into its page-locked slots. The results are
-    :func:`run_serial`'s; the time this thread waits for inputs is added to
-    ``times.waited_for_inputs``, the pool's decoding and staging to ``times.busy["decode"]``.
+    parallel, not one after another by the first window's thread). With ``staging`` (a GPU)
+    the pool also copies the next samples into its page-locked slots, a batch to a slot, and
+    a slot's samples are made as one batch (:func:`make_batch`; one by one where they cannot
+    be). The results are :func:`run_serial`'s, in order; the time this thread waits for inputs
+    is added to ``times.waited_for_inputs``, the pool's decoding and staging to
+    ``times.busy["decode"]``.
     """
     rest = iter(specs)
     ahead: deque[_Inputs] = deque()
+    synthesizer = None
     try:
         while True:
             for spec in itertools.islice(rest, depth - len(ahead)):
                 ahead.append(_Inputs(spec, pool, times, cache))
             if not ahead:
                 return
-            for waiting in ahead:  # the oldest samples not yet staged, while slots are free
-                if staging is None or not staging.free:
-                    break
-                if waiting.staged is None:
-                    waiting.stage(staging, staging.free.pop(), pool, times)
+            if staging is not None:
+                _stage(ahead, staging, pool, times)
+            slot = ahead[0].slot
+            group = ([w for w in itertools.islice(ahead, staging.batch) if w.slot == slot]
+                     if slot is not None else [ahead[0]])
             start = time.perf_counter()
-            inputs = ahead[0].result()
+            inputs = [waiting.result() for waiting in group]
             times.waited_for_inputs += time.perf_counter() - start
-            spec, slot = ahead[0].spec, ahead[0].slot
-            ahead.popleft()
-            made = make_sample(job, spec, inputs)
+            for _ in group:
+                ahead.popleft()
+            specs_made = [waiting.spec for waiting in group]
+            made = None
+            if len(group) > 1:
+                batch = staging.batch_of(slot, inputs, job.scene.blur.mode == "average")
+                if batch is not None:
+                    if synthesizer is None:
+                        synthesizer = Synthesizer(job.scene, backend=job.backend, seed=job.seed,
+                                                  with_mask=job.with_mask,
+                                                  with_raw=job.with_raw)
+                    made = make_batch(job, synthesizer, specs_made, batch)
+            if made is None:
+                made = [make_sample(job, spec, given)
+                        for spec, given in zip(specs_made, inputs, strict=True)]
             if slot is not None:
-                staging.release(slot, failed=made[2] is not None)
-            yield made
+                staging.release(slot, failed=any(error is not None for *_, error in made))
+            yield from made
     finally:  # stopped early: nothing more is decoded
         for waiting in ahead:
             waiting.cancel()

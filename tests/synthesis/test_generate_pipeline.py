@@ -21,6 +21,7 @@ import gpu_blur.backends
 import gpu_blur.dataset
 import gpu_blur.file_writing
 import gpu_blur.generate
+import gpu_blur.staging
 import gpu_blur.synthesis.inputs
 import gpu_blur.testhooks
 from gpu_blur.cli import main
@@ -265,31 +266,48 @@ def test_pinned_stack_finds_frames_staged_one_after_another_in_one_block():
 
 
 @pytest.mark.skipif(not KERNEL_BACKEND_SPECS, reason="no kernel backend here")
+@pytest.mark.parametrize("batch_fails, draws", [(False, "per-sample"), (True, "per-sample"),
+                                                (False, "per-sequence")])
 def test_inputs_staged_in_pinned_memory_make_the_bytes_of_unstaged_ones(
-        tmp_path, bad_sequences, monkeypatch):
-    """The I/O threads copy each sample's frames into page-locked slots (on a GPU); made on
-    a CPU kernel backend here, with the staging forced: the same set, bad samples too."""
+        tmp_path, bad_sequences, monkeypatch, batch_fails, draws):
+    """On a GPU the I/O threads copy each sample's frames into page-locked slots and a slot's
+    samples are made as one batch; forced here on a CPU kernel backend: the same set, bad
+    samples too, and when a batch fails its samples are made one by one."""
     folder, scene = bad_sequences
     rng = np.random.default_rng(2)
     (folder / "d_long" / "sharp").mkdir(parents=True)
-    for i in range(8):
+    for i in range(10):
         cv2.imwrite(str(folder / "d_long" / "sharp" / f"{i}.png"),
                     rng.integers(0, 256, (24, 32, 3), np.uint8))
+    if draws == "per-sequence":  # a batch's samples keyed by their sequences
+        scene.write_text(scene.read_text() + 'draws = "per-sequence"\n')
     name, backend = kernel_backend()
-    run = ("--backend", name, "--samples-per-sequence", "4")
+    run = ("--backend", name, "--samples-per-sequence", "8", "--save", "mask")
     assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
-    staged = []
-    stack = gpu_blur.backends.pinned_stack
+    batches, stacks = [], []
+    make_batch, stack = gpu_blur.generate.make_batch, gpu_blur.backends.pinned_stack
     module = gpu_blur.backends.warp if name.startswith("warp") else gpu_blur.backends.opencl
+
+    def refusing(*a, **k):
+        raise ValueError("sample 1 of 3: refused")
+
+    def batched(job, synthesizer, specs, batch):
+        made = make_batch(job, refusing if batch_fails else synthesizer, specs, batch)
+        batches.append(len(specs) if made else 0)
+        return made
 
     def spied(frames, owner):
         found = stack(frames, owner)
-        staged.append(found is not None)
+        stacks.append(found is not None)
         return found
 
+    monkeypatch.setattr(gpu_blur.generate, "make_batch", batched)
     monkeypatch.setattr(module, "pinned_stack", spied)
     monkeypatch.setattr(gpu_blur.generate, "pinned_staging",
-                        lambda job: gpu_blur.generate.PinnedStaging(backend, 2))
+                        lambda job: gpu_blur.staging.PinnedStaging(backend, 2, 3))
     assert main(args(folder, scene, tmp_path / "staged", *run, "--io-threads", "3")) == 1
-    assert sum(staged) >= 4  # every slot's first sample goes unstaged while it is allocated
+    assert len(batches) >= 2  # the first batch of each slot goes one by one (allocating)
+    assert (sum(batches) == 0) if batch_fails else (sum(batches) >= 6)
+    if batch_fails:
+        assert sum(stacks) >= 6  # one by one, each from its staged stack
     assert_same_set(tmp_path / "staged", tmp_path / "one")
