@@ -29,6 +29,7 @@ import argparse
 import hashlib
 import json
 import os
+import re
 import statistics
 import subprocess
 import sys
@@ -161,8 +162,8 @@ def compare(args, cores: int) -> dict:
                 case["speedup"] = now / case["runs"]["before"]["samples_per_s"]
         cases[windows] = case
     for windows, case in cases.items():
-        runs = ", ".join(f"{name} {run['samples_per_s']:.2f}" for name, run in
-                         case["runs"].items())
+        runs = ", ".join(f"{name} {run['samples_per_s']:.2f} (in the run "
+                         f"{run['in_run_samples_per_s']})" for name, run in case["runs"].items())
         speed = f" ({case['speedup']:.2f}x)" if "speedup" in case else ""
         print(f"{windows}: samples/s {runs}{speed}; bound now "
               f"{case['bound_now']['samples_per_s']:.1f}/s "
@@ -188,7 +189,9 @@ def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
     wall = time.perf_counter() - start
     if done.returncode:
         raise RuntimeError(done.stderr[-2000:])
-    return wall, (done.stdout + done.stderr).strip().splitlines()[-12:]
+    lines = (done.stdout + done.stderr).strip().splitlines()
+    return wall, lines[next((i for i, line in enumerate(lines) if line.startswith("wrote ")),
+                            max(len(lines) - 12, 0)):]
 
 
 def generate(root: Path, out: Path, backend: str, samples: int, threads: int,
@@ -202,9 +205,10 @@ def generate(root: Path, out: Path, backend: str, samples: int, threads: int,
     _run(root, out, backend, 1, threads, extra, tree)
     start, _ = _run(root, out, backend, 1, threads, extra, tree)
     wall, summary = _run(root, out, backend, samples, threads, extra, tree)
+    wrote = re.search(r"\(([\d.]+) samples/s\)", summary[0]) if summary else None
     return {"threads": threads, "options": list(extra), "seconds": wall,
             "start_seconds": start, "samples_per_s": (samples - 1) / (wall - start),
-            "summary": summary}
+            "in_run_samples_per_s": float(wrote[1]) if wrote else None, "summary": summary}
 
 
 def set_digest(out: Path) -> str:
