@@ -53,9 +53,9 @@ MAX_DEFAULT_IO_THREADS = 32
 #: Samples a GPU makes at once in a run on one device (:func:`make_batch`), from one slot of
 #: page-locked memory the I/O threads fill (:class:`~gpu_blur.staging.PinnedStaging`).
 BATCH = 4
-#: Such slots, filled ahead of the batch being made: three of four 1920 x 1200 RSBlur samples
-#: (9 frames of 8 bits) hold 750 MB of page-locked host memory.
-STAGED_BATCHES = 3
+#: Such slots, filled ahead of the batch being made: two of four 1920 x 1200 RSBlur samples
+#: (9 frames of 8 bits) hold 500 MB of page-locked host memory.
+STAGED_BATCHES = 2
 
 
 def default_io_threads() -> int:
@@ -347,6 +347,10 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
             if not ahead:
                 return
             if staging is not None:
+                if not staging.sized and ahead[0].batchable:  # its size is the slots' stride
+                    first = ahead[0].checked.result()
+                    if first:
+                        staging.size_for(first)
                 _stage(ahead, staging, pool, times)
             slot = ahead[0].slot
             group = ([w for w in itertools.islice(ahead, staging.batch) if w.slot == slot]

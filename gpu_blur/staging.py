@@ -86,6 +86,23 @@ class PinnedStaging:
         return buffer[:len(samples) * stride].view(first[0].dtype).reshape(
             (len(samples), *shape))
 
+    @property
+    def sized(self) -> bool:
+        """Whether every slot has memory yet."""
+        return all(buffer is not None for buffer in self._buffers)
+
+    def size_for(self, images: tuple[np.ndarray, ...]) -> None:
+        """Give every free slot room for samples like ``images`` (on the making thread).
+
+        Called with the first sample decoded, so that no batch goes one by one while its
+        slot is allocated.
+        """
+        nbytes = sum(image.nbytes for image in images)
+        for slot in self.free:
+            with self._lock:
+                self._wanted[slot] = max(self._wanted[slot], nbytes)
+            self._grow(slot)
+
     def release(self, slot: int, failed: bool = False) -> None:
         """``slot`` free again once its samples are made (on the making thread).
 
@@ -94,10 +111,13 @@ class PinnedStaging:
         """
         if failed:
             self.backend.wait()
-        if self._wanted[slot]:
+        self._grow(slot)
+        self.free.append(slot)
+
+    def _grow(self, slot: int) -> None:
+        if self._wanted[slot] > self._stride[slot]:
             self._buffers[slot] = None  # the old block is freed before the larger one is made
             self._stride[slot] = self._wanted[slot]
             self._buffers[slot] = self.backend.pinned((self.batch * self._wanted[slot],),
                                                       np.uint8)
-            self._wanted[slot] = 0
-        self.free.append(slot)
+        self._wanted[slot] = 0
