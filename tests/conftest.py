@@ -281,6 +281,20 @@ def files(out):
             for sub in SETS for p in sorted((out / sub).iterdir())}
 
 
+#: A scene of the full default chain with 3 camera poses: the built-in photo (400 x 600) in
+#: about 1 s a sample on numpy instead of 6 (the default scene's poses follow the shake's
+#: length). For runs whose subject is not the default path's length.
+QUICK_SCENE = "[blur]\nsteps = 3\n"
+
+
+@pytest.fixture
+def quick_scene(tmp_path):
+    """The :data:`QUICK_SCENE` file (``quick.toml``)."""
+    scene = tmp_path / "quick.toml"
+    scene.write_text(QUICK_SCENE)
+    return scene
+
+
 @pytest.fixture
 def photos(tmp_path):
     """Two small photos (in/a.png, in/b.png, 24 x 32) and a fast scene (3 camera poses).
@@ -295,5 +309,5 @@ def photos(tmp_path):
     for name in ("a", "b"):
         cv2.imwrite(str(folder / f"{name}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
     scene = tmp_path / "s.toml"
-    scene.write_text("[blur]\nsteps = 3\n")  # the full default chain, 3 camera poses
+    scene.write_text(QUICK_SCENE)  # the full default chain, 3 camera poses
     return folder, scene

@@ -1,9 +1,11 @@
+import contextlib
+import io
 import json
 
 import cv2
 import numpy as np
 import pytest
-from conftest import BACKEND_SPECS
+from conftest import BACKEND_SPECS, QUICK_SCENE
 
 import gpu_blur
 from gpu_blur.cli import main
@@ -16,10 +18,24 @@ def write_sequence(folder, n, size=(24, 32), seed=0):
         cv2.imwrite(str(folder / f"{i:06d}.png"), rng.integers(0, 256, (*size, 3), np.uint8))
 
 
-@pytest.mark.slow
-def test_generate_on_the_built_in_photo_writes_pairs_and_a_manifest(tmp_path, capsys):
-    out = tmp_path / "set"
-    assert main(["generate", "--output", str(out), "--limit", "2", "--quiet"]) == 0
+@pytest.fixture(scope="module")
+def built_in_set(tmp_path_factory):
+    """``generate --limit 2 --seed 5`` on the built-in photo, the quick scene (the default chain,
+    3 camera poses): (set folder, scene file, what it printed on stdout). Made once for the
+    tests that read it."""
+    folder = tmp_path_factory.mktemp("built_in")
+    scene = folder / "quick.toml"
+    scene.write_text(QUICK_SCENE)
+    out = folder / "set"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["generate", "--output", str(out), "--limit", "2", "--seed", "5",
+                     "--scene", str(scene), "--quiet"]) == 0
+    return out, scene, printed.getvalue()
+
+
+def test_generate_on_the_built_in_photo_writes_pairs_and_a_manifest(built_in_set):
+    out, _, printed = built_in_set
     lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
     assert [x["index"] for x in lines] == [0, 1]
     for line in lines:
@@ -31,11 +47,10 @@ def test_generate_on_the_built_in_photo_writes_pairs_and_a_manifest(tmp_path, ca
         with np.load(out / line["arrays"]) as arrays:
             assert arrays["homographies"].shape[1:] == (3, 3)
     assert lines[0]["params"] != lines[1]["params"]
-    assert "wrote 2 samples" in capsys.readouterr().out
+    assert "wrote 2 samples" in printed
 
 
-@pytest.mark.slow
-def test_manifest_names_the_device_that_made_each_sample(tmp_path, monkeypatch):
+def test_manifest_names_the_device_that_made_each_sample(tmp_path, photos, monkeypatch):
     # with --devices, workers hold other devices than the driver's backend: each line says the
     # device of the sample's own Synthesis (here a stand-in executor renames it)
     import dataclasses
@@ -54,8 +69,10 @@ def test_manifest_names_the_device_that_made_each_sample(tmp_path, monkeypatch):
         return run
 
     monkeypatch.setattr(distributed, "pick_executor", renaming)
+    folder, scene = photos
     out = tmp_path / "set"
-    assert main(["generate", "--output", str(out), "--limit", "2", "--quiet"]) == 0
+    assert main(["generate", "--input", str(folder), "--scene", str(scene), "--output",
+                 str(out), "--limit", "2", "--quiet"]) == 0
     lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
     assert [x["device"] for x in lines] == ["worker 0", "worker 1"]
     # and a sample made here names this process's device
@@ -81,14 +98,13 @@ def test_a_sample_names_its_device_model_not_the_device_s_number_on_this_host(sp
     assert not any(part.startswith(("opencl:", "warp:")) for part in backend.model.split())
 
 
-@pytest.mark.slow
-def test_generate_is_reproducible_for_a_seed(tmp_path):
-    for name in ("a", "b"):
-        assert main(["generate", "--output", str(tmp_path / name), "--limit", "1", "--quiet",
-                     "--seed", "5"]) == 0
-    a = (tmp_path / "a" / "blur").iterdir().__next__()
-    b = tmp_path / "b" / "blur" / a.name
-    assert a.read_bytes() == b.read_bytes()
+def test_generate_is_reproducible_for_a_seed(tmp_path, built_in_set):
+    made, scene, _ = built_in_set
+    out = tmp_path / "again"
+    assert main(["generate", "--output", str(out), "--limit", "1", "--quiet", "--seed", "5",
+                 "--scene", str(scene)]) == 0
+    (a,) = (out / "blur").iterdir()
+    assert a.read_bytes() == (made / "blur" / a.name).read_bytes()
 
 
 def test_generate_reads_gopro_sequences_in_windows_of_frames(tmp_path):
@@ -104,14 +120,15 @@ def test_generate_reads_gopro_sequences_in_windows_of_frames(tmp_path):
     assert [len(x["inputs"]) for x in lines] == [3, 3, 3]
 
 
-@pytest.mark.slow
-def test_generate_refuses_to_overwrite_an_existing_set(tmp_path, capsys):
+def test_generate_refuses_to_overwrite_an_existing_set(tmp_path, photos, capsys):
+    folder, scene = photos
     out = tmp_path / "set"
-    assert main(["generate", "--output", str(out), "--limit", "1", "--quiet"]) == 0
-    assert main(["generate", "--output", str(out), "--limit", "1", "--quiet"]) == 2
+    run = ["generate", "--input", str(folder), "--scene", str(scene), "--output", str(out),
+           "--limit", "1", "--quiet"]
+    assert main(run) == 0
+    assert main(run) == 2
     assert "--overwrite" in capsys.readouterr().err
-    assert main(["generate", "--output", str(out), "--limit", "1", "--quiet",
-                 "--overwrite"]) == 0
+    assert main([*run, "--overwrite"]) == 0
 
 
 @pytest.mark.parametrize("args, message", [
@@ -175,14 +192,13 @@ def run_closed(*command):
                            "gpu_blur.cli", *command], timeout=300).returncode
 
 
-@pytest.mark.slow
-def test_generate_with_stdout_and_stderr_closed_makes_its_samples(tmp_path):
+def test_generate_with_stdout_and_stderr_closed_makes_its_samples(tmp_path, photos):
     out = tmp_path / "set"
-    assert run_closed("generate", "--output", str(out), "--limit", "1", "--scene",
-                      "minimal") == 0
+    assert run_closed("generate", "--input", str(photos[0]), "--output", str(out), "--limit",
+                      "1", "--scene", "minimal") == 0
     lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
     assert [x["status"] for x in lines] == ["ok"]
-    assert cv2.imread(str(out / lines[0]["blurred"])).shape == (400, 600, 3)
+    assert cv2.imread(str(out / lines[0]["blurred"])).shape == (24, 32, 3)
     assert run_closed("plan", str(tmp_path / "none.toml")) == 2  # errors: the status says it
 
 

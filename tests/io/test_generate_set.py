@@ -15,9 +15,11 @@ def files(folder):
 
 
 @pytest.mark.slow
-def test_generate_set_reports_and_writes_the_clis_set(tmp_path, capsys):
+def test_generate_set_reports_and_writes_the_clis_set(tmp_path, capsys, quick_scene):
+    # the built-in photo (no input given to either), the default chain with 3 camera poses
     out, seen = tmp_path / "api", []
     report = gpu_blur.generate_set(out, limit=2, seed=3, backend="numpy", io_threads=1,
+                                   scene=quick_scene,
                                    progress=lambda done, total: seen.append((done, total)))
     assert capsys.readouterr() == ("", "")  # nothing printed: the report says it
     assert (report.made, report.failed, report.skipped, report.to_make) == (2, (), 0, 2)
@@ -35,19 +37,20 @@ def test_generate_set_reports_and_writes_the_clis_set(tmp_path, capsys):
 
     cli = tmp_path / "cli"
     assert main(["generate", "--output", str(cli), "--limit", "2", "--seed", "3", "--backend",
-                 "numpy", "--io-threads", "1", "--quiet"]) == 0
+                 "numpy", "--io-threads", "1", "--scene", str(quick_scene), "--quiet"]) == 0
     assert capsys.readouterr().out.splitlines()[0].startswith("wrote 2 samples (0 failed)")
     assert files(out) == files(cli)  # byte for byte, run.json and manifest included
     assert len(files(out)) > 4
 
     # resume finds the set done; a new run is refused as the command refuses it
     states = []
-    again = gpu_blur.generate_set(out, limit=2, seed=3, resume=True, on_resume=states.append)
+    again = gpu_blur.generate_set(out, limit=2, seed=3, scene=quick_scene, resume=True,
+                                  on_resume=states.append)
     assert (again.made, again.skipped, again.to_make) == (0, 2, 0)
     assert [(s.done, s.samples, s.to_make) for s in states] == [(2, 2, 0)]
     assert files(out) == files(cli)
     with pytest.raises(ValueError, match="--overwrite"):
-        gpu_blur.generate_set(out, limit=2, seed=3)
+        gpu_blur.generate_set(out, limit=2, seed=3, scene=quick_scene)
 
 
 def test_generate_set_raises_what_the_command_prints(tmp_path, capsys):
