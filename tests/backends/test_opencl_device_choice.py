@@ -76,9 +76,9 @@ def test_devices_command_lists_an_unusable_device_with_its_reason(present, capsy
             "'generic'") in out
 
 
-@pytest.mark.slow
-def test_generate_starts_by_printing_the_device_it_runs_on(tmp_path, capsys):
-    assert main(["generate", "--output", str(tmp_path / "set"), "--limit", "1", "--quiet"]) == 0
+def test_generate_starts_by_printing_the_device_it_runs_on(tmp_path, capsys, quick_scene):
+    assert main(["generate", "--output", str(tmp_path / "set"), "--limit", "1", "--scene",
+                 str(quick_scene), "--quiet"]) == 0
     assert capsys.readouterr().err.splitlines()[0] == "device: numpy float64 (host CPU)"
 
 

@@ -226,9 +226,9 @@ def test_photos_are_not_sequences_and_one_image_in_a_sharp_folder_is_no_sequence
 
 def test_generate_says_what_it_found_and_the_blur_mode_before_it_starts(tmp_path,
                                                                         gopro_large_all,
-                                                                        capsys):
-    assert main(["generate", "--output", str(tmp_path / "a"), "--limit", "1",
-                 "--quiet"]) == 0
+                                                                        capsys, quick_scene):
+    assert main(["generate", "--output", str(tmp_path / "a"), "--limit", "1", "--scene",
+                 str(quick_scene), "--quiet"]) == 0
     assert capsys.readouterr().err.splitlines()[:3] == [
         "device: numpy float64 (host CPU)",
         "input: the built-in photo (coffee.png) -> 4 samples, taking 1 (--limit)",

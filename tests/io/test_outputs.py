@@ -265,16 +265,16 @@ def test_generate_save_refuses_raw_without_the_round_trip_and_unknown_names(tmp_
         capsys.readouterr().err
 
 
-@pytest.mark.slow
-def test_a_set_recorded_before_output_jpeg_quality_existed_resumes(tmp_path, capsys):
+def test_a_set_recorded_before_output_jpeg_quality_existed_resumes(tmp_path, photos, capsys):
+    folder, quick = photos
     out = tmp_path / "set"
-    assert main(["generate", "--output", str(out), "--limit", "1", "--quiet"]) == 0
-    run = json.loads((out / "run.json").read_text())
-    del run["scene"]["output"]["jpeg_quality"]  # as gpu_blur recorded it before the key
-    (out / "run.json").write_text(json.dumps(run))
-    assert main(["generate", "--output", str(out), "--limit", "2", "--quiet", "--resume"]) == 0
+    run = ["generate", "--input", str(folder), "--output", str(out), "--quiet"]
+    assert main([*run, "--scene", str(quick), "--limit", "1"]) == 0
+    record = json.loads((out / "run.json").read_text())
+    del record["scene"]["output"]["jpeg_quality"]  # as gpu_blur recorded it before the key
+    (out / "run.json").write_text(json.dumps(record))
+    assert main([*run, "--scene", str(quick), "--limit", "2", "--resume"]) == 0
     scene = tmp_path / "j.toml"
-    scene.write_text("[output]\njpeg_quality = [70, 90]\n")
-    assert main(["generate", "--output", str(out), "--limit", "2", "--quiet", "--resume",
-                 "--scene", str(scene)]) == 2
+    scene.write_text(quick.read_text() + "[output]\njpeg_quality = [70, 90]\n")
+    assert main([*run, "--limit", "2", "--resume", "--scene", str(scene)]) == 2
     assert "scene.output.jpeg_quality = None (this run: [70, 90])" in capsys.readouterr().err

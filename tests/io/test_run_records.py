@@ -54,9 +54,10 @@ def test_a_sample_without_spot_checks_says_none(tmp_path, photo):
 
 @pytest.mark.slow
 def test_the_built_in_photo_is_recorded_by_name_and_resumes_from_another_install(
-        tmp_path, monkeypatch):
+        tmp_path, monkeypatch, quick_scene):
     out = tmp_path / "set"
-    assert main(["generate", "--output", str(out), "--limit", "1", "--quiet"]) == 0
+    run = ["generate", "--output", str(out), "--scene", str(quick_scene), "--quiet"]
+    assert main([*run, "--limit", "1"]) == 0
     installed = str(discovery.default_photo())
     for name in ("manifest.jsonl", "run.json"):
         assert installed not in (out / name).read_text()
@@ -66,7 +67,7 @@ def test_the_built_in_photo_is_recorded_by_name_and_resumes_from_another_install
     moved.parent.mkdir()
     shutil.copy(installed, moved)
     monkeypatch.setattr(discovery, "default_photo", lambda: moved)
-    assert main(["generate", "--output", str(out), "--limit", "2", "--quiet", "--resume"]) == 0
+    assert main([*run, "--limit", "2", "--resume"]) == 0
     assert [x["inputs"] for x in manifest_lines(out)] == [[discovery.BUILT_IN_INPUT]] * 2
 
 
