@@ -11,8 +11,11 @@ What crosses a process boundary: the job (a few hundred bytes, once per worker),
 :class:`~gpu_blur.discovery.SampleSpec` (index, name, input paths) and each result (the
 :class:`~gpu_blur.synthesis.Synthesis` with only what the set writes,
 :func:`~gpu_blur.generate.for_driver`: blurred and sharp as the set's integer codes, the mask
-if saved, the drawn parameters and the plan; 1.4 MB for the 600 x 400 built-in photo at 8
-bits). Workers read the inputs themselves from the spec's paths, so on a Ray cluster the
+and the RAW mosaic if saved, the drawn parameters and the plan; 14 MB for a 1920 x 1200 sample
+at 8 bits). A device worker on this host writes a result's arrays into shared memory and sends
+the rest through its pipe (:mod:`gpu_blur.shared_results`: a pipe took 31 such samples a second
+into the driver's one receiving thread); a Ray task returns its results through Ray's object
+store. Workers read the inputs themselves from the spec's paths, so on a Ray cluster the
 inputs (and gpu_blur, in the same version) must be at the same paths on every node.
 """
 
@@ -37,10 +40,11 @@ from gpu_blur import caches, testhooks
 from gpu_blur.backends import usable_devices
 from gpu_blur.discovery import SampleSpec
 from gpu_blur.generate import Job, decode, default_io_threads, for_driver, make_sample, run_serial
+from gpu_blur.shared_results import ASK, Blocks, Outbox
 
 __all__ = ["DEVICE_DEPTH", "DRIVER_SIGNALS", "GPU_BATCH", "PARENT_CHECK_S", "RAY_INSTALL",
-           "all_devices", "family", "import_ray", "parse_devices", "pick_executor", "run_devices",
-           "run_ray", "uses_cuda"]
+           "all_devices", "family", "import_ray", "parse_devices", "pick_executor",
+           "run_devices", "run_ray", "uses_cuda"]
 
 RAY_INSTALL = "pip install 'gpu_blur[ray]'"
 #: Samples per Ray task on GPUs. Ray starts a fresh worker process for every GPU task (its
@@ -167,8 +171,8 @@ def _children_skip_cwd():
             os.chdir(here)
 
 
-def _device_worker(job: Job, driver: int, conn, threads: int = 1,
-                   cwd: str | None = None) -> None:
+def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | None = None,
+                   shared: bool = False) -> None:
     """A device worker process: open the device, then make each sample the driver sends.
 
     With ``threads`` > 1, that many threads decode the input files of the samples waiting in
@@ -176,10 +180,14 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1,
     run on one device does); the samples are made in the order they came.
 
     Messages to the driver: ``("open", device description)`` or ``("error", why)`` first,
-    then per sample ``("sample", make_sample's tuple)`` or ``("error", traceback)`` for an
-    exception that is no fault of the sample (a bug: the driver stops the run with it). The
-    driver closing its end of the pipe ends the worker. ``cwd``: the driver's folder, where
-    relative paths lead (a worker may start elsewhere: :func:`_children_skip_cwd`).
+    then per sample ``("sample", (spec, result, error, layout))`` (``result`` as
+    :func:`~gpu_blur.generate.for_driver` leaves it; with ``shared`` its arrays are in the
+    shared-memory block ``layout`` names, :class:`gpu_blur.shared_results.Outbox`, else
+    ``layout`` is None) or
+    ``("error", traceback)`` for an exception that is no fault of the sample (a bug: the
+    driver stops the run with it). The driver closing its end of the pipe ends the worker.
+    ``cwd``: the driver's folder, where relative paths lead (a worker may start elsewhere:
+    :func:`_children_skip_cwd`).
     """
     if cwd is not None and os.getcwd() != cwd:
         os.chdir(cwd)
@@ -190,7 +198,8 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1,
         signal.signal(s, signal.SIG_IGN)
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, DRIVER_SIGNALS)
-    threading.Thread(target=_exit_without, args=(driver,), daemon=True).start()
+    held: list[Outbox] = []  # what to unlink if the driver dies
+    threading.Thread(target=_exit_without, args=(driver, held), daemon=True).start()
     from gpu_blur.backends import get_backend
 
     try:
@@ -201,22 +210,37 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1,
         return
     pool = ThreadPoolExecutor(threads, "gpu-blur-decode") if threads > 1 else None
     waiting: deque = deque()  # (spec, its decoding or None), in the order they came
-    while True:
-        try:
-            while not waiting or conn.poll():  # take every sample sent, start decoding it
-                spec = conn.recv()
-                waiting.append((spec, pool.submit(decode, spec) if pool else None))
-        except EOFError:
-            return
-        spec, decoding = waiting.popleft()
-        try:
-            inputs = None if decoding is None else decoding.result()
-            spec, result, error = make_sample(job, spec, inputs)
-            message = ("sample", (spec, for_driver(job, result), error))
-        except Exception:
-            message = ("error", traceback.format_exc())
-        if not _send(conn, message):
-            return
+
+    def arrived(spec: SampleSpec) -> None:  # start decoding it
+        waiting.append((spec, pool.submit(decode, spec) if pool else None))
+
+    outbox = Outbox(conn, arrived) if shared else None
+    if outbox is not None:
+        held.append(outbox)
+    try:
+        while True:
+            while not waiting or conn.poll():  # take every message sent
+                message = conn.recv()
+                if outbox is None or not outbox.take(message):
+                    arrived(message)
+            spec, decoding = waiting.popleft()
+            try:
+                inputs = None if decoding is None else decoding.result()
+                spec, result, error = make_sample(job, spec, inputs)
+                result, layout = for_driver(job, result), None
+            except Exception:
+                if not _send(conn, ("error", traceback.format_exc())):
+                    return
+                continue
+            if outbox is not None:
+                result, layout = outbox.pack(result)
+            if not _send(conn, ("sample", (spec, result, error, layout))):
+                return
+    except EOFError:  # the driver closed its end: the run is over
+        return
+    finally:
+        if outbox is not None:
+            outbox.close()
 
 
 #: Signals a device worker ignores: Ctrl-C and a closed terminal, which the driver handles.
@@ -251,10 +275,16 @@ def _driver_signals_blocked():
         signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
-def _exit_without(driver: int) -> None:
-    """End this worker process once the driver is no longer its parent (killed, crashed)."""
+def _exit_without(driver: int, held: list | None = None) -> None:
+    """End this worker process once the driver is no longer its parent (killed, crashed).
+
+    ``held``: the worker's :class:`~gpu_blur.shared_results.Outbox`, if any: the shared-memory
+    blocks it holds are unlinked first (the driver, which made them, cannot any more).
+    """
     while os.getppid() == driver:
         time.sleep(PARENT_CHECK_S)
+    for outbox in held or ():
+        outbox.abandon()
     os._exit(1)
 
 
@@ -265,10 +295,13 @@ def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str]) -> It
     each builds its backend once (``job`` with its device as the backend) and takes the
     next sample when it finishes one, so faster devices make more. Each decodes the inputs
     of the samples sent ahead to it in threads (the host's cores shared among the workers).
-    A device that cannot be opened stops the run before any sample. When the run stops
+
+    A worker writes each result's arrays into shared memory and the driver copies them out
+    (:mod:`gpu_blur.shared_results`); every block is unlinked when the run ends, however it
+    ends. A device that cannot be opened stops the run before any sample. When the run stops
     early (Ctrl-C, SIGTERM, an error, the caller closing this generator) the workers are
-    terminated, not waited for;
-    a worker whose driver dies exits by itself within :data:`PARENT_CHECK_S`.
+    terminated, not waited for; a worker whose driver dies exits by itself within
+    :data:`PARENT_CHECK_S`.
 
     Raises:
         RuntimeError: a device that cannot be opened, a worker that died (killed, out of
@@ -286,6 +319,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
     specs = iter(todo)
     context = multiprocessing.get_context("spawn")
     workers, conns = [], []
+    blocks = Blocks()
     finished = False
     threads = max(1, default_io_threads() // len(devices))  # each worker's decoding threads
     depth = DEVICE_DEPTH + (2 * threads if threads > 1 else 0)
@@ -294,7 +328,8 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
         for device in devices:
             conn, child = context.Pipe()
             worker = context.Process(target=_device_worker, daemon=True, args=(
-                dataclasses.replace(job, backend=device), os.getpid(), child, threads, cwd))
+                dataclasses.replace(job, backend=device), os.getpid(), child, threads, cwd,
+                True))
             with _children_skip_cwd(), _driver_signals_blocked():
                 worker.start()
             child.close()  # the worker's end is the worker's: its death closes the pipe
@@ -303,7 +338,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
         for device, conn in zip(devices, conns, strict=True):
             try:
                 kind, value = conn.recv()
-            except EOFError:
+            except (EOFError, OSError):
                 raise RuntimeError(f"--devices {device}: its worker process died while "
                                    "opening the device") from None
             if kind != "open":
@@ -328,20 +363,26 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
         while any(queued):
             for conn in wait([c for c, q in zip(conns, queued, strict=True) if q]):
                 worker = conns.index(conn)
-                spec = queued[worker].popleft()
                 try:
                     kind, value = conn.recv()
-                except EOFError:
+                except (EOFError, OSError):  # OSError: reset, with messages it had not read
+                    spec = queued[worker][0]
                     raise RuntimeError(
                         f"the worker on {devices[worker]} died while making sample "
                         f"{spec.index} ({spec.name}): killed, or out of memory? The samples "
                         "finished so far are kept: run the same command with --resume"
                     ) from None
+                if kind == ASK:  # a shared-memory block for its results
+                    blocks.answer(conn, *value)
+                    continue
+                spec = queued[worker].popleft()
                 if kind != "sample":
                     raise RuntimeError(f"the worker on {devices[worker]} failed on sample "
                                        f"{spec.index} ({spec.name}), not for a fault of the "
                                        f"sample:\n{value}")
-                _, result, error = value
+                _, result, error, layout = value
+                if layout is not None:  # copied out of the block, which goes back
+                    result = blocks.receive(conn, result, layout)
                 feed(worker)
                 yield spec, result, error  # the driver's own spec object
         finished = True
@@ -352,6 +393,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
             if not finished:  # stopped early: the samples still being made are dropped
                 worker.terminate()
             worker.join()
+        blocks.close()  # once no worker can attach any more
 
 
 # -- Ray ------------------------------------------------------------------------------------

@@ -6,23 +6,27 @@ driver writes the lines in sample order; no field is ignored, since every field 
 driver's (seed, backend, device) or the sample's own.
 """
 
+import dataclasses
+import multiprocessing
 import os
 import pickle
 import sys
+import threading
 import types
+from multiprocessing.shared_memory import SharedMemory
 
 import cv2
 import numpy as np
 import pytest
 from conftest import files, manifest_lines
 
-from gpu_blur import distributed
+from gpu_blur import distributed, shared_results
 from gpu_blur.cli import main
 from gpu_blur.discovery import find_samples
 from gpu_blur.distributed import parse_devices, run_devices, run_ray
 from gpu_blur.file_writing import write_image
 from gpu_blur.generate import Job, for_driver, run_serial
-from gpu_blur.scene import load_scene
+from gpu_blur.scene import load_scene, scene_from_dict
 from gpu_blur.testhooks import TEST_FAIL_ONCE
 
 
@@ -293,3 +297,165 @@ def test_a_device_workers_own_error_stops_the_run_naming_the_sample_with_its_tra
         list(run_devices(job, specs, ["numpy"]))
     assert str(e.value).startswith("the worker on numpy failed on sample 0 (a), not for a "
                                    "fault of the sample:\nTraceback (most recent call last):")
+
+
+# -- results through shared memory (gpu_blur.shared_results) ---------------------------------
+
+@pytest.fixture
+def blocks_made(monkeypatch):
+    """The names of the shared-memory blocks this process (the driver) makes from now on."""
+    made = []
+
+    class Recorded(SharedMemory):
+        def __init__(self, name=None, create=False, size=0):
+            super().__init__(name, create, size)
+            if create:
+                made.append(self.name)
+
+    monkeypatch.setattr(shared_results, "SharedMemory", Recorded)
+    return made
+
+
+def left_behind(names):
+    """Those of ``names`` that still exist as shared memory."""
+    left = []
+    for name in names:
+        try:
+            block = SharedMemory(name)
+        except FileNotFoundError:
+            continue
+        block.close()
+        block.unlink()  # for the next tests; this one fails
+        left.append(name)
+    return left
+
+
+def assert_same_result(got, want, timings=True):
+    """Two Synthesis objects hold the same bytes: arrays by dtype, shape and bytes, every other
+    field pickled (``timings`` False: but the seconds measured, which differ run to run)."""
+    assert (got is None) == (want is None)
+    if want is None:
+        return
+    for field in dataclasses.fields(want):
+        a, b = getattr(got, field.name), getattr(want, field.name)
+        if isinstance(b, np.ndarray):
+            assert (a.dtype, a.shape, a.tobytes()) == (b.dtype, b.shape, b.tobytes()), field
+        elif timings or field.name != "timings":
+            assert pickle.dumps(a) == pickle.dumps(b), field.name
+
+
+def handed_over(results):
+    """``results`` through an Outbox (a thread standing in for the worker) and Blocks."""
+    driver, worker = multiprocessing.Pipe()
+    outbox = shared_results.Outbox(worker, lambda message: pytest.fail(f"{message!r}"))
+
+    def send():
+        for result in results:
+            worker.send(("sample", outbox.pack(result)))
+        worker.send(("done", None))
+
+    thread = threading.Thread(target=send)
+    thread.start()
+    blocks, got = shared_results.Blocks(), []
+    try:
+        while True:
+            kind, value = driver.recv()
+            if kind == shared_results.ASK:
+                blocks.answer(driver, *value)
+            elif kind == "sample":
+                shell, layout = value
+                got.append(shell if layout is None else blocks.receive(driver, shell, layout))
+            else:
+                break
+        thread.join()
+        return got, len(blocks)
+    finally:
+        outbox.close()
+        blocks.close()
+
+
+RAW_SCENE = {"blur": {"steps": 3}, "noise": {"model": "poisson-gaussian"}}
+
+
+@pytest.mark.parametrize("bits, extras", [(8, ()), (16, ("mask", "raw")), (0, ("mask",))],
+                         ids=["8-bit", "16-bit-mask-raw", "float32-mask"])
+def test_a_result_through_shared_memory_is_the_made_result_byte_for_byte(
+        photos, blocks_made, bits, extras):
+    folder, _ = photos
+    scene = scene_from_dict({**RAW_SCENE, "output": {"bits": bits}})
+    job = Job(scene, 5, "numpy", with_raw="raw" in extras, bits=bits,
+              with_mask="mask" in extras)
+    specs = find_samples(folder, "trajectory", 1, 1).take()  # a, b, c (truncated: fails)
+    made = [for_driver(job, result) for _, result, _ in run_serial(job, [*specs, specs[0]])]
+    assert made[2] is None and made[0].blurred.dtype == {8: np.uint8, 16: np.uint16,
+                                                         0: np.float32}[bits]
+    got, in_use = handed_over(made)
+    for g, want in zip(got, made, strict=True):
+        assert_same_result(g, want)
+    assert (got[0].raw is not None, got[0].mask is not None) == ("raw" in extras,
+                                                                 "mask" in extras)
+    assert in_use == len(blocks_made) == 2  # two blocks, reused: 3 samples went through them
+    assert left_behind(blocks_made) == []
+
+
+def test_where_no_shared_memory_can_be_had_results_go_whole_through_the_pipe(photos,
+                                                                            monkeypatch):
+    class Full(SharedMemory):  # /dev/shm full: posix_fallocate's ENOSPC
+        def __init__(self, name=None, create=False, size=0):
+            if create:
+                raise OSError(28, "No space left on device")
+            super().__init__(name, create, size)
+
+    monkeypatch.setattr(shared_results, "SharedMemory", Full)
+    folder, _ = photos
+    job = Job(scene_from_dict(RAW_SCENE), 5, "numpy", bits=8, with_mask=False)
+    specs = find_samples(folder, "trajectory", 1, 1).take()
+    made = [for_driver(job, result) for _, result, _ in run_serial(job, specs)]
+    got, in_use = handed_over(made)
+    assert in_use == 0
+    for g, want in zip(got, made, strict=True):
+        assert_same_result(g, want)
+
+
+def test_devices_hand_a_serial_run_s_16_bit_samples_masks_and_mosaics_through_shared_memory(
+        photos, blocks_made):
+    folder, _ = photos
+    scene = scene_from_dict({**RAW_SCENE, "output": {"bits": 16}})
+    job = Job(scene, 5, "numpy", with_raw=True, bits=16, with_mask=True)
+    specs = find_samples(folder, "trajectory", 1, 2).take()  # c's two samples fail
+    got = {spec.index: (spec, result, error) for spec, result, error
+           in run_devices(job, specs, ["numpy", "numpy"])}
+    for spec, result, error in run_serial(job, specs):
+        assert got[spec.index][0] is spec and got[spec.index][2] == error
+        assert_same_result(got[spec.index][1], for_driver(job, result), timings=False)
+    assert [got[i][1] is None for i in range(6)] == [False] * 4 + [True] * 2
+    assert len(blocks_made) >= 2 and left_behind(blocks_made) == []  # one or two per worker
+
+
+def started_devices(photos, samples_per_photo=4):
+    """A run on two numpy workers, its first sample received; (the generator, its workers)."""
+    folder, scene_path = photos
+    job = Job(load_scene(scene_path), 0, "numpy", bits=8)
+    specs = find_samples(folder, "trajectory", 1, samples_per_photo).take()
+    before = set(multiprocessing.active_children())
+    results = run_devices(job, specs, ["numpy", "numpy"])
+    next(results)
+    return results, [p for p in multiprocessing.active_children() if p not in before]
+
+
+def test_a_run_stopped_early_leaves_no_shared_memory_and_no_worker(photos, blocks_made):
+    results, workers = started_devices(photos)
+    assert len(workers) == 2 and blocks_made
+    results.close()  # what Ctrl-C, SetInterrupted or an error in the driver do
+    assert not any(w.is_alive() for w in workers)
+    assert left_behind(blocks_made) == []
+
+
+def test_a_worker_killed_mid_run_stops_it_and_leaves_no_shared_memory(photos, blocks_made):
+    results, workers = started_devices(photos)
+    assert blocks_made
+    workers[0].kill()
+    with pytest.raises(RuntimeError, match="the worker on numpy died"):
+        list(results)
+    assert not any(w.is_alive() for w in workers)
+    assert left_behind(blocks_made) == []
