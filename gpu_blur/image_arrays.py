@@ -5,7 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["check_image", "check_layout", "swap_red_blue", "to_unit", "unit_values"]
+__all__ = ["check_image", "check_layout", "in_unit_range", "refuse_values", "swap_red_blue",
+           "to_unit", "unit_values"]
 
 
 def swap_red_blue(image: np.ndarray) -> np.ndarray:
@@ -69,8 +70,13 @@ def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
 
     Frames stay in their integer codes until a backend reads them (kernels upload 1 or 2
     bytes per value and divide on the device); floats are checked and made float64. Kernel
-    backends make the same checks on the device (``KernelBackend.inspect``) and come here
+    backends make the same checks where a batch lies (``KernelBackend.inspect`` on the
+    device, or the batch's own reductions: :mod:`gpu_blur.synthesis.batches`) and come here
     only for the message.
+
+    Floats cost the float64 copy and two reductions (their lowest and highest: NaN anywhere
+    makes both NaN), over float32 values as stored; only an image that fails them is read
+    again, to count and locate what is wrong (:func:`refuse_values`).
 
     Raises:
         ValueError: naming ``what``, with how many bad values there are, where the first is,
@@ -80,7 +86,33 @@ def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
     image = check_layout(image, what)
     if image.dtype in (np.uint8, np.uint16):
         return image
-    x = image.astype(np.float64)
+    # float32 and float64 are reduced as stored (numpy's SIMD loops; float32 is exact in
+    # float64); other floats as the float64 they become (float16 has no fast loop)
+    x = image if image.dtype in (np.float32, np.float64) else image.astype(np.float64)
+    if not in_unit_range(x.min(), x.max()):
+        refuse_values(x, what)
+    return image.astype(np.float64) if x is image else x
+
+
+def in_unit_range(lowest, highest) -> bool:
+    """Whether values whose lowest and highest are these all lie in [0, 1].
+
+    False when either is NaN (a NaN-propagating reduction's result for a NaN anywhere):
+    every comparison with NaN is false. -0.0 passes, as ``x < 0`` passes it.
+    """
+    return bool(lowest >= 0) and bool(highest <= 1)
+
+
+def refuse_values(image: np.ndarray, what: str = "image") -> None:
+    """Raise :func:`check_image`'s message for a float H x W x 3 image with a bad value.
+
+    The slow path, for an image already known to fail: counts NaN and infinities, negatives
+    or values above 1 (in that order of precedence), and where the first lies.
+
+    Raises:
+        ValueError: that message; nothing is raised for an image of finite values in [0, 1].
+    """
+    x = np.asarray(image, dtype=np.float64)
     finite = np.isfinite(x)
     if not finite.all():
         nan = int(np.count_nonzero(np.isnan(x)))
@@ -104,5 +136,4 @@ def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
             f"{x.max():.6g}, the first at {_where(high)}; float images must be sRGB values "
             "in [0, 1]: pass 0..255 data as uint8 (or divide it by 255), clip small "
             "overshoots with np.clip(x, 0, 1)")
-    return x
 

@@ -2,7 +2,8 @@
 
 :class:`BatchIO` splits a batch (numpy, torch, CuPy or Warp arrays) into per-sample
 :class:`~gpu_blur.synthesis.inputs.Inputs` and gives the results back as the batch's type,
-layout and device, or in the caller's ``out=`` arrays.
+layout and device, or in the caller's ``out=`` arrays. A torch batch of floats has its
+values measured by torch where it lies (:meth:`BatchIO.value_ranges`).
 """
 
 from __future__ import annotations
@@ -17,10 +18,13 @@ from gpu_blur.outputs import jpeg_round_trip
 from gpu_blur.planning import Plan, StageName
 from gpu_blur.reference.output import code_dtype, to_integers
 from gpu_blur.scene import Scene
-from gpu_blur.synthesis.inputs import Inputs, frame_count, kept_size
+from gpu_blur.synthesis.inputs import Inputs, ValueRanges, frame_count, kept_size
 from gpu_blur.tiling import Region
 
 __all__ = ["BatchIO", "jpeg_stage", "refuse_out_on_inputs"]
+
+#: A batch's inputs by split's name -> their name in a sample's Inputs.
+_INPUT_KEYS = {"batch": "frames", "mask": "mask", "sharp": "sharp"}
 
 
 class BatchIO:
@@ -66,6 +70,7 @@ class BatchIO:
             if tuple(x.shape) != tuple(parts["batch"].shape):
                 raise ValueError(f"{key} has shape {tuple(x.shape)} but the batch "
                                  f"{tuple(parts['batch'].shape)}: give one of each per sample")
+        ranges = self.value_ranges(parts, lib)
         reached = self.reaches(parts["batch"], lib)
         samples = {key: (reached and arrays.warp_samples(x, lib))
                    or [self._taken(x[b], lib, reached) for b in range(count)]
@@ -74,16 +79,47 @@ class BatchIO:
         for b in range(count):
             label = f"sample {b} of {count}: "
             x = samples["batch"][b]
+            mine = None if ranges is None else (ranges, b)
             if mode == "average":
                 names = {"frames": [f"frame {i}" for i in range(x.shape[0])]}
-                items.append(Inputs(x, None, None, names, label))
+                items.append(Inputs(x, None, None, names, label, ranges=mine))
                 continue
             m = samples["mask"][b] if "mask" in parts else None
             s = samples["sharp"][b] if "sharp" in parts else None
             name = "blurred" if mode == "none" else "photo"
             items.append(Inputs([x], m, s, {"frames": [name], "mask": "mask",
-                                          "sharp": "sharp"}, label))
+                                          "sharp": "sharp"}, label, ranges=mine))
         return items
+
+    def value_ranges(self, parts: dict, lib: str) -> ValueRanges | None:
+        """Each sample's lowest and highest value in a torch batch's float inputs, or None.
+
+        ``parts``: split's inputs (``batch``, ``mask``, ``sharp``), laid out and of the
+        backend's precision. Measured by torch where the batch lies, in place of the kernel
+        backend's counts (:meth:`~gpu_blur.backends.ResidentBackend.inspect_queued`, atomics
+        value by value), where that is cheaper:
+
+        * on a CUDA device: ``torch.aminmax`` over each sample of each input (one reduction
+          launch an input), the B x 2 results of all inputs copied at once to pinned host
+          memory behind an event: nothing waits until the device path reads them, once the
+          batch's passes are queued (one wait a batch, as for the counts);
+        * in host memory, for a backend computing on the host (Warp's CPU device): numpy's
+          SIMD min and max of each sample, read when the checks end.
+
+        None for the host path (:func:`~gpu_blur.synthesis.inputs.checked_on_host` checks
+        every input) and for other arrays: the kernel backend counts them.
+        """
+        if not self.resident or lib != "torch":
+            return None
+        floats = {_INPUT_KEYS[key]: x for key, x in parts.items() if x.dtype.is_floating_point}
+        if not floats:
+            return None
+        device = next(iter(floats.values())).device
+        if device.type == "cuda":
+            return _torch_ranges(floats, device)
+        if device.type == "cpu" and self.runner.wp_device == "cpu":
+            return _host_ranges({key: arrays.to_numpy(x, lib) for key, x in floats.items()})
+        return None
 
     def _normalized(self, x, key: str, lib: str, *, frames: bool):
         """One batch input checked for layout, channels-last, a kernel dtype, even size."""
@@ -193,6 +229,40 @@ class BatchIO:
         for view, x in zip(views, made, strict=True):
             np.copyto(view, x)
         return views
+
+
+def _torch_ranges(floats: dict, device) -> ValueRanges:
+    """:class:`ValueRanges` of torch CUDA inputs ({key: B x ...}, of one float dtype).
+
+    Queued on the device's current stream (the caller's, which wrote the batch): one
+    ``aminmax`` per input (NaN propagates), one stack, one copy to pinned host memory.
+    """
+    import torch
+
+    with torch.cuda.device(device):
+        ends = [end for x in floats.values()
+                for end in torch.aminmax(x.reshape(x.shape[0], -1), dim=1)]
+        both = torch.stack(ends)  # 2K x B: each input's lowest, then its highest
+        host = torch.empty(both.shape, dtype=both.dtype, pin_memory=True)
+        host.copy_(both, non_blocking=True)
+        done = torch.cuda.Event()
+        done.record(torch.cuda.current_stream())
+
+    def read() -> dict[str, np.ndarray]:
+        done.synchronize()
+        values = host.numpy().astype(np.float64).reshape(len(floats), 2, -1)
+        return {key: v.T for key, v in zip(floats, values, strict=True)}
+
+    return ValueRanges(floats, read)
+
+
+def _host_ranges(floats: dict) -> ValueRanges:
+    """:class:`ValueRanges` of inputs in host memory ({key: B x ... numpy array})."""
+    def read() -> dict[str, np.ndarray]:
+        return {key: np.array([(s.min(), s.max()) for s in x], np.float64)
+                for key, x in floats.items()}
+
+    return ValueRanges(floats, read)
 
 
 def jpeg_stage(blurred, plans: list[Plan], params: list[dict]) -> None:

@@ -2,27 +2,58 @@
 
 :class:`Inputs` is one sample's inputs, as read (:func:`gather`, :func:`synthesize`'s) or
 split from a batch (:mod:`gpu_blur.synthesis.batches`); a kernel backend's device checks them
-by counts (:meth:`~gpu_blur.synthesis.resident.ResidentPath.prepared`), the host path here
-(:func:`checked_on_host`).
+by counts (:meth:`~gpu_blur.synthesis.resident.ResidentPath.prepared`), or by the batch's own
+reductions where it lies (:class:`ValueRanges`), the host path here (:func:`checked_on_host`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from gpu_blur import arrays
 from gpu_blur.backends import OnDevice
-from gpu_blur.image_arrays import check_image, check_layout, unit_values
+from gpu_blur.image_arrays import check_image, check_layout, in_unit_range, unit_values
 from gpu_blur.image_reading import read_image
 from gpu_blur.planning import raw_round_trip
 from gpu_blur.scene import FROM_NAME, Scene
 
-__all__ = ["Inputs", "bad_values", "check_codes", "checked", "checked_on_host", "codes_only",
-           "even", "frame_count", "gather", "kept_size", "reaches_clip_level", "sample_indices"]
+__all__ = ["Inputs", "ValueRanges", "bad_values", "check_codes", "checked", "checked_on_host",
+           "codes_only", "even", "frame_count", "gather", "kept_size", "reaches_clip_level",
+           "sample_indices"]
+
+
+class ValueRanges:
+    """Each sample's lowest and highest value in a batch's float inputs, one reduction each.
+
+    Measured where the batch lies, by its own library
+    (:meth:`~gpu_blur.synthesis.batches.BatchIO.value_ranges`); the device path reads them
+    instead of counting those inputs on the kernel backend's device. NaN anywhere in a
+    sample's input makes both of its values NaN (the reductions propagate it).
+
+    Args:
+        keys: the inputs measured, of ``frames``, ``mask`` and ``sharp``.
+        read: returns {key: B x 2 float64 array, each sample's (lowest, highest)}; called
+            once, when first needed (it may wait for the device that reduced them).
+    """
+
+    def __init__(self, keys, read: Callable[[], dict[str, np.ndarray]]):
+        self.keys = frozenset(keys)
+        self._read, self._values = read, None
+
+    def flags(self, key: str, b: int) -> tuple[bool, bool, bool]:
+        """(bad, clips, above 0) of sample ``b``'s input ``key``, as the device's counts say.
+
+        bad: a value NaN, infinite or outside [0, 1]; clips: one at or above 1.0 (the clip
+        level of float values); above 0: one above 0 (a mask's "anything to saturate").
+        """
+        if self._values is None:
+            self._values = self._read()
+        lowest, highest = self._values[key][b]
+        return not in_unit_range(lowest, highest), bool(highest >= 1), bool(highest > 0)
 
 
 @dataclasses.dataclass
@@ -31,7 +62,8 @@ class Inputs:
 
     Host arrays as stored (:func:`gpu_blur.image_arrays.check_layout`), or after
     :meth:`~gpu_blur.synthesis.resident.ResidentPath.put`,
-    :class:`~gpu_blur.backends.OnDevice` values.
+    :class:`~gpu_blur.backends.OnDevice` values. ``ranges``: (the batch's
+    :class:`ValueRanges`, this sample's place in it) where its float inputs were measured.
     """
 
     frames: object
@@ -40,6 +72,7 @@ class Inputs:
     names: dict
     label: str = ""
     saturated: bool = False
+    ranges: tuple[ValueRanges, int] | None = None
 
 
 def gather(inputs, scene: Scene) -> Inputs:

@@ -45,6 +45,11 @@ STREAMED_SAMPLES = 4
 STREAMED_BYTES = 1 << 22
 
 
+def _flags(row: np.ndarray) -> tuple[bool, bool, bool]:
+    """(bad, clips, above 0) from an input's device counts (``INSPECT_COLUMNS``' order)."""
+    return bool(row[:4].any()), bool(row[4]), bool(row[5])
+
+
 @dataclasses.dataclass
 class _Resident:
     """A batch's results on the device (:meth:`ResidentPath.run`).
@@ -128,26 +133,36 @@ class ResidentPath:
         """
         put = [self.put(item) for item in items]
         clip_test = self.scene.saturation.mode == "auto"
-        # (sample, which, image): each input once (a default sharp is a frame); float values
-        # are checked, 8/16-bit codes only looked at for the clip test. Listed input by input,
-        # so a device batch's samples of one input (evenly spaced in its buffer) are counted
-        # in one launch (ResidentBackend.inspect_queued)
-        images = [(i, key, getattr(p, key)) for key in ("frames", "mask", "sharp")
-                  for i, (item, p) in enumerate(zip(items, put, strict=True))
-                  if getattr(item, key) is not None and (
-                      getattr(p, key).dtype is None or (clip_test and key != "sharp"))]
+        # (sample, which, image, measured): each input once (a default sharp is a frame), input
+        # by input, so the first bad one named is the same whoever looks; float values are
+        # checked, 8/16-bit codes only looked at for the clip test. Inputs the batch measured
+        # where it lies (Inputs.ranges) are read from there; the others are counted on the
+        # device, a device batch's samples of one input (evenly spaced in its buffer) in one
+        # launch (ResidentBackend.inspect_queued)
+        images = []
+        for key in ("frames", "mask", "sharp"):
+            for i, (item, p) in enumerate(zip(items, put, strict=True)):
+                image = getattr(p, key)
+                measured = item.ranges is not None and key in item.ranges[0].keys
+                if getattr(item, key) is not None and (
+                        measured or image.dtype is None or (clip_test and key != "sharp")):
+                    images.append((i, key, image, item.ranges if measured else None))
         with timer("checks"):
-            counts = self.runner.inspect_queued([image for _, _, image in images])
+            counts = self.runner.inspect_queued([image for _, _, image, ranges in images
+                                                 if ranges is None])
 
         def check() -> None:
             with timer("checks"):
-                rows = counts()
-            for (i, key, image), row in zip(images, rows, strict=True):
-                if row[:4].any():  # the host says exactly what is wrong, and where
+                rows = iter(counts())
+                # (bad, clips, above 0) of each input, from its counts or its ranges
+                flags = [ranges[0].flags(key, ranges[1]) if ranges is not None
+                         else _flags(next(rows)) for _, key, _, ranges in images]
+            for (i, key, image, _), (bad, clips, above_0) in zip(images, flags, strict=True):
+                if bad:  # the host says exactly what is wrong, and where
                     bad_values(image, put[i], key)
-                if clip_test and key == "mask" and row[5]:
+                if clip_test and key == "mask" and above_0:
                     put[i].saturated = True
-                if clip_test and key == "frames" and put[i].mask is None and row[4]:
+                if clip_test and key == "frames" and put[i].mask is None and clips:
                     put[i].saturated = True
 
         if clip_test and not clip_test_later:

@@ -78,3 +78,22 @@ def test_meta_and_sparse_batches_are_refused_by_name(make, words):
 def test_overrides_are_checked_when_the_transform_is_made():
     with pytest.raises(ValueError, match=r"overrides\['alpha'\] = nan is invalid"):
         RealisticBlur(SCENE, overrides={"alpha": float("nan")})
+
+
+@pytest.mark.parametrize("backend", [None, "numpy"])
+@pytest.mark.parametrize("bad, words", [
+    (float("nan"), "1 NaN and 0 infinite value(s), the first at row 4, column 6, channel 1"),
+    (float("-inf"), "0 NaN and 1 infinite value(s), the first at row 4, column 6, channel 1"),
+    (-0.5, "1 negative value(s), the lowest -0.5, the first at row 4, column 6, channel 1"),
+    (2.0, "1 value(s) above 1, the highest 2, the first at row 4, column 6, channel 1")])
+def test_a_bad_float_in_a_channels_first_batch_names_its_sample(backend, bad, words):
+    # float batches are checked by torch where they lie (Warp) or on the host (numpy): the same
+    # words, with the sample and the place in its H x W x 3 image
+    batch = photos(3).float() / 255
+    batch[2, 1, 4, 6] = bad  # sample 2, channel 1, row 4, column 6
+    blur = RealisticBlur(SCENE, backend=backend)
+    with pytest.raises(ValueError) as e:
+        blur(batch)
+    assert str(e.value).startswith(f"sample 2 of 3: photo: {words}; float images must be")
+    blurred, _ = blur(batch.nan_to_num(0.0).clamp(0, 1))  # the fix the message gives
+    assert blurred.shape == (3, 3, 20, 24)
