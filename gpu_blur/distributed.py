@@ -39,12 +39,13 @@ from multiprocessing.connection import wait
 from gpu_blur import caches, testhooks
 from gpu_blur.backends import usable_devices
 from gpu_blur.discovery import SampleSpec
+from gpu_blur.frame_cache import CacheCounts, FrameCache
 from gpu_blur.generate import Job, decode, default_io_threads, for_driver, make_sample, run_serial
 from gpu_blur.shared_results import ASK, Blocks, Outbox
 
 __all__ = ["DEVICE_DEPTH", "DRIVER_SIGNALS", "GPU_BATCH", "PARENT_CHECK_S", "RAY_INSTALL",
-           "all_devices", "family", "import_ray", "parse_devices", "pick_executor",
-           "run_devices", "run_ray", "uses_cuda"]
+           "RUN_SAMPLES", "all_devices", "family", "import_ray", "parse_devices",
+           "pick_executor", "run_devices", "run_ray", "uses_cuda"]
 
 RAY_INSTALL = "pip install 'gpu_blur[ray]'"
 #: Samples per Ray task on GPUs. Ray starts a fresh worker process for every GPU task (its
@@ -58,6 +59,12 @@ GPU_BATCH = 32
 #: Samples handed to one local device worker ahead of the one it makes, so it never waits,
 #: besides two per decoding thread (they decode ahead).
 DEVICE_DEPTH = 2
+#: The most consecutive samples that share input files (overlapping windows of a sequence,
+#: draws of one photo) a device worker is sent in a row: its frame cache decodes a frame they
+#: share once. A longer run decodes fewer frames twice (a run of 16 windows of 7 frames, one
+#: frame apart, decodes 22 frames instead of 112) but keeps more of the driver's manifest
+#: lines waiting for an earlier sample, and more samples on one worker at the end of a set.
+RUN_SAMPLES = 16
 #: Seconds between a device worker's checks that the driver process is still its parent.
 PARENT_CHECK_S = 0.5
 
@@ -172,18 +179,21 @@ def _children_skip_cwd():
 
 
 def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | None = None,
-                   shared: bool = False) -> None:
+                   shared: bool = False, cache_bytes: int = 0) -> None:
     """A device worker process: open the device, then make each sample the driver sends.
 
     With ``threads`` > 1, that many threads decode the input files of the samples waiting in
     the pipe while the device makes the current one (:func:`gpu_blur.generate.decode`, as a
-    run on one device does); the samples are made in the order they came.
+    run on one device does); the samples are made in the order they came. ``cache_bytes`` >
+    0: the files are decoded through a frame cache of that many bytes of this worker's own
+    (:class:`~gpu_blur.frame_cache.FrameCache`), so windows of a sequence that overlap decode
+    a frame once.
 
     Messages to the driver: ``("open", device description)`` or ``("error", why)`` first,
-    then per sample ``("sample", (spec, result, error, layout))`` (``result`` as
-    :func:`~gpu_blur.generate.for_driver` leaves it; with ``shared`` its arrays are in the
-    shared-memory block ``layout`` names, :class:`gpu_blur.shared_results.Outbox`, else
-    ``layout`` is None) or
+    then per sample ``("sample", (spec, result, error, layout, cache counts))`` (``result``
+    as :func:`~gpu_blur.generate.for_driver` leaves it; with ``shared`` its arrays are in
+    the shared-memory block ``layout`` names, :class:`gpu_blur.shared_results.Outbox`, else
+    ``layout`` is None; the frame cache's counts since the last message, or None) or
     ``("error", traceback)`` for an exception that is no fault of the sample (a bug: the
     driver stops the run with it). The driver closing its end of the pipe ends the worker.
     ``cwd``: the driver's folder, where relative paths lead (a worker may start elsewhere:
@@ -209,14 +219,16 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
     if not _send(conn, opened) or opened[0] == "error":
         return
     pool = ThreadPoolExecutor(threads, "gpu-blur-decode") if threads > 1 else None
+    cache = FrameCache(cache_bytes) if cache_bytes > 0 else None
     waiting: deque = deque()  # (spec, its decoding or None), in the order they came
 
     def arrived(spec: SampleSpec) -> None:  # start decoding it
-        waiting.append((spec, pool.submit(decode, spec) if pool else None))
+        waiting.append((spec, pool.submit(decode, spec, cache) if pool else None))
 
     outbox = Outbox(conn, arrived) if shared else None
     if outbox is not None:
         held.append(outbox)
+    counted = CacheCounts(0, 0, 0)  # the frame cache's counts sent so far
     try:
         while True:
             while not waiting or conn.poll():  # take every message sent
@@ -225,7 +237,8 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
                     arrived(message)
             spec, decoding = waiting.popleft()
             try:
-                inputs = None if decoding is None else decoding.result()
+                inputs = (decoding.result() if decoding is not None else
+                          None if cache is None else decode(spec, cache))
                 spec, result, error = make_sample(job, spec, inputs)
                 result, layout = for_driver(job, result), None
             except Exception:
@@ -234,7 +247,13 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
                 continue
             if outbox is not None:
                 result, layout = outbox.pack(result)
-            if not _send(conn, ("sample", (spec, result, error, layout))):
+            counts = None
+            if cache is not None:  # what the driver's summary has not counted yet
+                now = cache.counts()
+                counts = CacheCounts(now.hits - counted.hits, now.misses - counted.misses,
+                                     now.evicted - counted.evicted)
+                counted = now
+            if not _send(conn, ("sample", (spec, result, error, layout, counts))):
                 return
     except EOFError:  # the driver closed its end: the run is over
         return
@@ -288,13 +307,25 @@ def _exit_without(driver: int, held: list | None = None) -> None:
     os._exit(1)
 
 
-def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str]) -> Iterator[tuple]:
+def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str],
+                frame_cache: FrameCache | None = None) -> Iterator[tuple]:
     """Make the samples in one worker process per entry of ``devices``, yielding as they finish.
 
     Workers are started with ``spawn`` (OpenCL and CUDA contexts do not survive a fork),
     each builds its backend once (``job`` with its device as the backend) and takes the
-    next sample when it finishes one, so faster devices make more. Each decodes the inputs
-    of the samples sent ahead to it in threads (the host's cores shared among the workers).
+    next sample when it finishes one, so faster devices make more. Samples whose input files
+    overlap (windows of a sequence, draws of one photo) go to one worker in runs of up to
+    :data:`RUN_SAMPLES` consecutive ones; with ``frame_cache`` each worker decodes through a
+    cache of its own, an equal share of ``frame_cache.budget``, so a frame is decoded once per
+    worker, and the workers' counts are added to ``frame_cache``'s.
+
+    The host's threads: each worker decodes the inputs of the samples sent ahead to it in
+    ``default_io_threads() // len(devices)`` threads (at least one), so the workers together
+    decode in about as many threads as the host has cores (at most 32), besides their main
+    threads (which drive the devices); the driver encodes and writes the files in its own
+    pool (``--io-threads``, as many again). The two pools take turns on each sample's cores
+    (OpenCV, zlib and file I/O release the GIL), decoding where the frames are needed and
+    writing where the folder is owned.
 
     A worker writes each result's arrays into shared memory and the driver copies them out
     (:mod:`gpu_blur.shared_results`); every block is unlinked when the run ends, however it
@@ -310,26 +341,57 @@ def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str]) -> It
     """
     if not devices:
         raise ValueError("run_devices needs at least one device")
-    return _device_results(job, list(specs), list(devices))
+    return _device_results(job, list(specs), list(devices), frame_cache)
 
 
-def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
+class _Runs:
+    """The samples still to send, in runs: consecutive samples that share an input file.
+
+    A worker is sent the rest of its run before another run. A run holds up to
+    :data:`RUN_SAMPLES` samples, so that the driver's manifest lines, written in order, wait
+    for few, and no more than an equal share of the set, so that every worker gets some.
+    """
+
+    def __init__(self, specs: list[SampleSpec], workers: int):
+        longest = max(1, min(RUN_SAMPLES, -(-len(specs) // workers)))
+        runs: deque[deque[SampleSpec]] = deque()
+        for spec in specs:
+            last = runs[-1] if runs else None
+            if last and len(last) < longest and set(last[-1].inputs) & set(spec.inputs):
+                last.append(spec)
+            else:
+                runs.append(deque([spec]))
+        self._runs = runs
+        self._current: list[deque[SampleSpec]] = [deque() for _ in range(workers)]
+
+    def next(self, worker: int) -> SampleSpec | None:
+        """The next sample for ``worker``: its run's next, else the next run's first; None."""
+        if not self._current[worker]:
+            if not self._runs:
+                return None
+            self._current[worker] = self._runs.popleft()
+        return self._current[worker].popleft()
+
+
+def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
+                    frame_cache: FrameCache | None = None):
     if not todo:
         return
-    specs = iter(todo)
+    runs = _Runs(todo, len(devices))
     context = multiprocessing.get_context("spawn")
     workers, conns = [], []
     blocks = Blocks()
     finished = False
     threads = max(1, default_io_threads() // len(devices))  # each worker's decoding threads
     depth = DEVICE_DEPTH + (2 * threads if threads > 1 else 0)
+    share = frame_cache.budget // len(devices) if frame_cache is not None else 0
     try:
         cwd = os.getcwd()
         for device in devices:
             conn, child = context.Pipe()
             worker = context.Process(target=_device_worker, daemon=True, args=(
                 dataclasses.replace(job, backend=device), os.getpid(), child, threads, cwd,
-                True))
+                True, share))
             with _children_skip_cwd(), _driver_signals_blocked():
                 worker.start()
             child.close()  # the worker's end is the worker's: its death closes the pipe
@@ -346,7 +408,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
         queued: list[deque[SampleSpec]] = [deque() for _ in devices]
 
         def feed(worker: int) -> None:
-            spec = next(specs, None)
+            spec = runs.next(worker)
             if spec is None:
                 return
             try:
@@ -380,9 +442,11 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str]):
                     raise RuntimeError(f"the worker on {devices[worker]} failed on sample "
                                        f"{spec.index} ({spec.name}), not for a fault of the "
                                        f"sample:\n{value}")
-                _, result, error, layout = value
+                _, result, error, layout, counts = value
                 if layout is not None:  # copied out of the block, which goes back
                     result = blocks.receive(conn, result, layout)
+                if counts is not None and frame_cache is not None:
+                    frame_cache.add(counts)
                 feed(worker)
                 yield spec, result, error  # the driver's own spec object
         finished = True

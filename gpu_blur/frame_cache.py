@@ -121,6 +121,13 @@ class FrameCache:
         with self._lock:
             return CacheCounts(self._hits, self._misses, self._evicted)
 
+    def add(self, counts: CacheCounts) -> None:
+        """Count what a cache elsewhere did as this one's (``--devices``: each worker's share)."""
+        with self._lock:
+            self._hits += counts.hits
+            self._misses += counts.misses
+            self._evicted += counts.evicted
+
     def _keep(self, key: tuple, frame: np.ndarray) -> None:
         """Keep ``frame``, dropping the least recently used ones past the budget (lock held)."""
         if frame.nbytes > self.budget:

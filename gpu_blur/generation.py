@@ -480,6 +480,7 @@ class _Run:
 
     def run(self) -> SetReport:
         """Make the samples to do, write them, and sum up."""
+        from gpu_blur.distributed import run_devices
         from gpu_blur.generate import (
             QUEUE_PER_THREAD,
             Job,
@@ -505,12 +506,15 @@ class _Run:
             job = Job(scene, o.seed, o.backend, self.schedule, "raw" in self.extras,
                       bits=scene.output.bits, with_mask="mask" in self.extras)
             # one device: the pool also decodes ahead; devices and ray workers decode their
-            # own inputs, and the pool encodes and writes what they make
-            cache = self.frame_cache() if self.executor is run_serial else None
+            # own inputs (device workers through shares of the frame cache), and the pool
+            # encodes and writes what they make
+            devices = getattr(self.executor, "func", None) is run_devices
+            cache = self.frame_cache() if self.executor is run_serial or devices else None
             samples = (run_pipelined(job, self.todo, pool, io, QUEUE_PER_THREAD * threads, cache,
                                      pinned_staging(job))
                        if io and self.executor is run_serial else
                        run_serial(job, self.todo, cache) if self.executor is run_serial else
+                       self.executor(job, self.todo, frame_cache=cache) if devices else
                        self.executor(job, self.todo))
             # kept in a name: after a strict stop the progress bar closes once the stop is
             # dropped (its message is then on the screen above it)

@@ -14,15 +14,17 @@ import sys
 import threading
 import types
 from multiprocessing.shared_memory import SharedMemory
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 from conftest import files, manifest_lines
 
+import gpu_blur
 from gpu_blur import distributed, shared_results
 from gpu_blur.cli import main
-from gpu_blur.discovery import find_samples
+from gpu_blur.discovery import SampleSpec, find_samples
 from gpu_blur.distributed import parse_devices, run_devices, run_ray
 from gpu_blur.file_writing import write_image
 from gpu_blur.generate import Job, for_driver, run_serial
@@ -459,3 +461,45 @@ def test_a_worker_killed_mid_run_stops_it_and_leaves_no_shared_memory(photos, bl
         list(results)
     assert not any(w.is_alive() for w in workers)
     assert left_behind(blocks_made) == []
+
+
+def test_samples_sharing_inputs_go_to_one_worker_in_runs_of_consecutive_samples():
+    def spec(index, *frames):
+        return SampleSpec(index, f"s{index}", tuple(Path(f"{f}.png") for f in frames))
+
+    windows = [spec(i, i, i + 1, i + 2) for i in range(40)]  # one sequence, stride 1
+    photos = [spec(40 + i, f"p{i}") for i in range(3)]  # one sample per photo
+    runs = distributed._Runs(windows + photos, 2)
+
+    def take(worker, count):
+        return [runs.next(worker).index for _ in range(count)]
+
+    n = distributed.RUN_SAMPLES  # 16: runs 0-15, 16-31, 32-39, then a photo each
+    assert take(0, 1) + take(1, 1) == [0, n]
+    assert take(0, n) == [*range(1, n), 2 * n]  # its run's rest, then the next run
+    assert take(1, n + 1) == [*range(n + 1, 2 * n), 40, 41]
+    assert take(0, 8) == [*range(2 * n + 1, 40), 42]
+    assert runs.next(0) is None and runs.next(1) is None
+    few = distributed._Runs(windows[:4], 2)  # no more than an equal share in one run
+    assert [few.next(0).index, few.next(0).index, few.next(1).index] == [0, 1, 2]
+
+
+def test_each_device_worker_decodes_overlapping_windows_once_through_its_frame_cache(tmp_path):
+    rng = np.random.default_rng(1)
+    sequence = tmp_path / "in" / "seq" / "sharp"
+    sequence.mkdir(parents=True)
+    for i in range(6):
+        cv2.imwrite(str(sequence / f"{i:03d}.png"), rng.integers(0, 256, (16, 20, 3), np.uint8))
+    scene = {"blur": {"mode": "average", "frames": 3, "steps": 3}}
+    sets = {executor: gpu_blur.generate_set(tmp_path / executor, input=tmp_path / "in",
+                                            scene=scene, samples_per_sequence=4,
+                                            devices=devices)
+            for executor, devices in (("serial", None), ("devices", "numpy,numpy"))}
+    # windows 0-1 to one worker, 2-3 to the other: 4 frames each, 2 of them read twice
+    assert "frame cache: 8 decoded, 4 served decoded (33 % of 12 reads), 0 evicted" in (
+        sets["devices"].summary)
+    def written(out):  # every file: blur/, sharp/, manifest.jsonl, run.json
+        return {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*")
+                if p.is_file()}
+
+    assert written(tmp_path / "devices") == written(tmp_path / "serial")
