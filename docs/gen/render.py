@@ -394,6 +394,24 @@ def bench_generate_devices() -> str:
     return table + "\n\n" + provenance(path, f"{data['device']}; {same}", _named(data))
 
 
+def bench_generate_windows(name: str = "generate_windows_h200") -> str:
+    """``generate`` over distinct and overlapping windows, a commit before and this one."""
+    data, path = load(name)
+    rows = []
+    for windows, case in data["cases"].items():
+        before, now = case["runs"].get("before"), case["runs"]["now"]
+        bound = case["bound_now"]
+        rows.append([windows, case["frames_in_sequence"], case["samples"],
+                     before and before["samples_per_s"], before and before["in_run_samples_per_s"],
+                     now["samples_per_s"], now["in_run_samples_per_s"], case.get("speedup"),
+                     bound["samples_per_s"], bound["decodes_per_sample"],
+                     case["ratio_to_bound_now"], case["same_pixels"]])
+    table = _table(["windows", "frames", "samples", "before", "before, in the run", "now",
+                    "now, in the run", "speed-up", "bound now", "decodes a sample",
+                    "share of the bound", "same pixels"], rows)
+    return table + "\n\n" + provenance(path, data["machine"], _named(data))
+
+
 def bench_multi_gpu(name: str) -> str:
     """Samples per second on 1, 2, 4 GPUs of one host, by source."""
     data, path = load(name)
@@ -686,6 +704,7 @@ BENCH = {
     "generate-threads": bench_generate_threads,
     "generate-codes": bench_generate_codes,
     "generate-devices": bench_generate_devices,
+    "generate-windows": bench_generate_windows,
     "multi-gpu": bench_multi_gpu,
     "training": bench_training,
     "side-by-side": bench_side_by_side,
