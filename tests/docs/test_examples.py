@@ -20,12 +20,14 @@ Each block is one test, named by its page and the line of its fence (``README.md
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import json
 import os
 import re
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -171,35 +173,71 @@ ALL = {path: read_blocks(path) for path in pages()}
 BLOCKS = [b for blocks, _ in ALL.values() for b in blocks if b.kind != "shown"]
 
 
+#: Pages run at the same time, each in its own process and folder (its blocks in order there):
+#: a page's run is mostly one process on one core, and the tests only wait for it.
+PARALLEL_PAGES = max(1, min(4, os.cpu_count() or 1))
+
+
+def uses_its_page(block: Block) -> bool:
+    """Whether ``test_block`` asks for the block's page run (it runs, as written, here)."""
+    return block.excerpt is None and runnable(block) and unrunnable(block) is None
+
+
 @pytest.fixture(scope="session")
-def page_results(tmp_path_factory):
-    """page -> (its blocks' results, the runner's output), each page run once when asked."""
-    done: dict[str, tuple[dict, str]] = {}
+def page_results(request, tmp_path_factory):
+    """page -> (its blocks' results, the runner's output).
+
+    Every page that a selected test asks for starts on first use, in the tests' order,
+    PARALLEL_PAGES at a time; a test waits for its own page only.
+    """
+    pages = []
+    for item in request.session.items:
+        block = getattr(item, "callspec", None) and item.callspec.params.get("block")
+        if isinstance(block, Block) and uses_its_page(block) and block.path not in pages:
+            pages.append(block.path)
+    running: dict[str, subprocess.Popen] = {}
+    closing = threading.Event()
+
+    def run(path: str, folder: Path) -> tuple[dict, str]:
+        blocks = [b for b in ALL[ROOT / path][0] if runnable(b) and not unrunnable(b)]
+        spec, out = folder / ".blocks.json", folder / ".results.json"
+        spec.write_text(json.dumps([{
+            "id": b.id, "path": b.path, "line": b.line, "kind": b.kind, "code": b.code,
+            "commands": shell_commands(b) if b.kind == "shell" else []} for b in blocks]))
+        env = dict(os.environ, MPLBACKEND="Agg", PYTHONUNBUFFERED="1",
+                   PATH=os.pathsep.join([str(Path(sys.executable).parent),
+                                         os.environ.get("PATH", "")]))
+        if closing.is_set():
+            return {}, "not run: the session ended first"
+        process = subprocess.Popen([sys.executable, str(RUNNER), str(spec), str(out)],
+                                   cwd=folder, env=env, stdout=subprocess.PIPE,
+                                   stderr=subprocess.STDOUT, text=True)
+        running[path] = process
+        try:
+            printed, _ = process.communicate(timeout=PAGE_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            printed = f"the page took more than {PAGE_TIMEOUT} s\n{process.communicate()[0]}"
+        finally:
+            running.pop(path, None)
+        found = json.loads(out.read_text()) if out.exists() else {}
+        return found, printed
+
+    pool = concurrent.futures.ThreadPoolExecutor(PARALLEL_PAGES, "docs-page")
+    started: dict[str, concurrent.futures.Future] = {}
 
     def results(path: str) -> tuple[dict, str]:
-        if path not in done:
-            blocks = [b for b in ALL[ROOT / path][0] if runnable(b) and not unrunnable(b)]
-            folder = tmp_path_factory.mktemp(re.sub(r"\W", "_", path))
-            spec, out = folder / ".blocks.json", folder / ".results.json"
-            spec.write_text(json.dumps([{
-                "id": b.id, "path": b.path, "line": b.line, "kind": b.kind, "code": b.code,
-                "commands": shell_commands(b) if b.kind == "shell" else []} for b in blocks]))
-            env = dict(os.environ, MPLBACKEND="Agg", PYTHONUNBUFFERED="1",
-                       PATH=os.pathsep.join([str(Path(sys.executable).parent),
-                                             os.environ.get("PATH", "")]))
-            try:
-                run = subprocess.run([sys.executable, str(RUNNER), str(spec), str(out)],
-                                     cwd=folder, env=env, stdout=subprocess.PIPE,
-                                     stderr=subprocess.STDOUT, text=True,
-                                     timeout=PAGE_TIMEOUT)
-                printed = run.stdout
-            except subprocess.TimeoutExpired as e:
-                printed = f"the page took more than {PAGE_TIMEOUT} s\n{e.stdout or ''}"
-            found = json.loads(out.read_text()) if out.exists() else {}
-            done[path] = found, printed
-        return done[path]
+        for page in [*pages, path]:  # the first use starts them all, in the tests' order
+            if page not in started:
+                folder = tmp_path_factory.mktemp(re.sub(r"\W", "_", page))
+                started[page] = pool.submit(run, page, folder)
+        return started[path].result()
 
-    return results
+    yield results
+    closing.set()
+    for process in list(running.values()):
+        process.kill()
+    pool.shutdown(wait=True, cancel_futures=True)
 
 
 def unrunnable(block: Block) -> str | None:
