@@ -295,19 +295,32 @@ def quick_scene(tmp_path):
     return scene
 
 
+def write_photos(root):
+    """Two small photos (in/a.png, in/b.png, 24 x 32) and a fast scene (s.toml, 3 camera poses)
+    under ``root``: (input folder, scene file). The same bytes every time."""
+    import cv2
+
+    folder = root / "in"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for name in ("a", "b"):
+        cv2.imwrite(str(folder / f"{name}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    scene = root / "s.toml"
+    scene.write_text(QUICK_SCENE)  # the full default chain, 3 camera poses
+    return folder, scene
+
+
 @pytest.fixture
 def photos(tmp_path):
     """Two small photos (in/a.png, in/b.png, 24 x 32) and a fast scene (3 camera poses).
 
     Returns (input folder, scene file): the full default chain in a few ms per sample.
     """
-    import cv2
+    return write_photos(tmp_path)
 
-    folder = tmp_path / "in"
-    folder.mkdir()
-    rng = np.random.default_rng(0)
-    for name in ("a", "b"):
-        cv2.imwrite(str(folder / f"{name}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
-    scene = tmp_path / "s.toml"
-    scene.write_text(QUICK_SCENE)  # the full default chain, 3 camera poses
-    return folder, scene
+
+@pytest.fixture(scope="module")
+def shared_photos(tmp_path_factory):
+    """:func:`photos` once for a module, for tests that only read them: sets made from the same
+    folder have the same manifest (it names the input files), so tests can share them."""
+    return write_photos(tmp_path_factory.mktemp("photos"))

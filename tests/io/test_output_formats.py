@@ -54,17 +54,46 @@ def temporaries(out):
     return sorted(p.name for p in out.rglob(".*.part*"))
 
 
-@pytest.fixture
-def png_set(tmp_path, photos):
-    """The PNG set of 8 samples (2 photos x 4), with masks: what each format must hold."""
-    out = tmp_path / "png"
-    assert main(args(photos, out, "--save", "mask")) == 0
-    return out
+def meta_infos(out):
+    """{folder: bytes} of every LMDB environment's meta_info.txt."""
+    return {p.parent.name: p.read_bytes() for p in sorted(out.glob("*.lmdb/meta_info.txt"))}
 
 
-def test_an_lmdb_set_holds_the_png_sets_bytes_under_basicsrs_keys(tmp_path, photos, png_set):
-    out = tmp_path / "lmdb"
-    assert main(args(photos, out, "--save", "mask", "--format", "lmdb")) == 0
+def assert_same_set(out, reference):
+    """``out`` holds the set of ``reference``, an uninterrupted run: the manifest, and the shards
+    or every environment and its meta_info.txt, byte for byte; no temporary file is left."""
+    assert shards(reference) or lmdb_contents(reference), f"{reference} holds no set"
+    assert (out / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
+    assert shards(out) == shards(reference)
+    assert lmdb_contents(out) == lmdb_contents(reference)
+    assert meta_infos(out) == meta_infos(reference)
+    assert temporaries(out) == []
+
+
+@pytest.fixture(scope="module")
+def made(shared_photos, tmp_path_factory):
+    """``made(*options)``: the set of 8 samples (2 photos x 4) that ``generate`` with these
+    options writes from ``shared_photos``, made once for the tests that read it (none writes)."""
+    sets = {}
+
+    def make(*options):
+        if options not in sets:
+            out = tmp_path_factory.mktemp("set") / "out"
+            assert main(args(shared_photos, out, *options)) == 0
+            sets[options] = out
+        return sets[options]
+
+    return make
+
+
+@pytest.fixture(scope="module")
+def png_set(made):
+    """The PNG set with masks, from ``shared_photos``: what each format must hold."""
+    return made("--save", "mask")
+
+
+def test_an_lmdb_set_holds_the_png_sets_bytes_under_basicsrs_keys(made, png_set):
+    out = made("--save", "mask", "--format", "lmdb")
     lines, expected = manifest_lines(out), manifest_lines(png_set)
     assert [without_files(x) for x in lines] == [without_files(x) for x in expected]
     stored = lmdb_contents(out)
@@ -119,9 +148,8 @@ def basicsr_pairs(lq_folder: str, gt_folder: str):
             env.close()
 
 
-def test_a_basicsr_paired_lmdb_reader_sees_every_pair(tmp_path, photos, png_set):
-    out = tmp_path / "lmdb"
-    assert main(args(photos, out, "--format", "lmdb")) == 0
+def test_a_basicsr_paired_lmdb_reader_sees_every_pair(made, png_set):
+    out = made("--format", "lmdb")
     pairs = list(basicsr_pairs(str(out / "blur.lmdb"), str(out / "sharp.lmdb")))
     lines = manifest_lines(png_set)
     assert [key for key, _, _ in pairs] == [sample_key(x["index"], x["name"]) for x in lines]
@@ -131,9 +159,9 @@ def test_a_basicsr_paired_lmdb_reader_sees_every_pair(tmp_path, photos, png_set)
             assert np.array_equal(image, png.astype(np.float32) / 255.0)
 
 
-def test_a_webdataset_set_reads_back_with_webdataset(tmp_path, photos, png_set):
+def test_a_webdataset_set_reads_back_with_webdataset(tmp_path, shared_photos, png_set):
     out = tmp_path / "wds"
-    assert main(args(photos, out, "--save", "mask", "--format", "webdataset",
+    assert main(args(shared_photos, out, "--save", "mask", "--format", "webdataset",
                      "--shard-size", "3")) == 0
     assert sorted(shards(out)) == ["shard-000000.tar", "shard-000001.tar", "shard-000002.tar"]
     urls = str(out / "shard-{000000..000002}.tar")
@@ -225,18 +253,16 @@ def test_a_killed_webdataset_run_resumes_to_the_shards_an_uninterrupted_run_writ
 
     assert main(args(photos, out, *options, "--resume")) == 0
     assert (out / "shard-000000.tar").stat().st_ino == finished.st_ino  # untouched
-    assert shards(out) == shards(reference)
-    assert (out / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
-    assert temporaries(out) == []
+    assert_same_set(out, reference)
 
 
 def test_a_killed_lmdb_run_resumes_to_the_samples_an_uninterrupted_run_writes(tmp_path,
-                                                                             photos):
+                                                                             shared_photos,
+                                                                             made):
     options = ("--format", "lmdb", "--save", "mask")
-    reference = tmp_path / "reference"
-    assert main(args(photos, reference, *options)) == 0
+    reference = made(*options)
     out = tmp_path / "out"
-    killed_after_sample_2(tmp_path, args(photos, out, *options), out)
+    killed_after_sample_2(tmp_path, args(shared_photos, out, *options), out)
     lines = manifest_lines(out)
     assert [x["index"] for x in lines] == [0, 1, 2]
     # a kill at a worse moment: sample 3's values put in two environments, without its line
@@ -245,13 +271,9 @@ def test_a_killed_lmdb_run_resumes_to_the_samples_an_uninterrupted_run_writes(tm
         with lmdb.open(str(out / folder)) as env, env.begin(write=True) as txn:
             txn.put(key, b"\x89PNG half an image")
 
-    assert main(args(photos, out, *options, "--resume")) == 0
-    assert lmdb_contents(out) == lmdb_contents(reference)
-    for folder in ("blur.lmdb", "sharp.lmdb", "mask.lmdb"):
-        assert (out / folder / "meta_info.txt").read_bytes() == (
-            reference / folder / "meta_info.txt").read_bytes()
-    assert (out / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
-    assert temporaries(out) == []
+    assert main(args(shared_photos, out, *options, "--resume")) == 0
+    assert sorted(meta_infos(out)) == ["blur.lmdb", "mask.lmdb", "sharp.lmdb"]
+    assert_same_set(out, reference)
 
 
 @pytest.mark.parametrize("format", ["lmdb", "webdataset"])
@@ -272,13 +294,7 @@ def test_resume_remakes_failed_samples_into_finished_shards_and_environments(tmp
     assert main(args(photos, out, *options, "--resume")) == 0
     reference = tmp_path / "reference"
     assert main(args(photos, reference, *options)) == 0
-    assert (out / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
-    if format == "webdataset":
-        assert shards(out) == shards(reference)
-    else:
-        assert lmdb_contents(out) == lmdb_contents(reference)
-        assert (out / "blur.lmdb" / "meta_info.txt").read_bytes() == (
-            reference / "blur.lmdb" / "meta_info.txt").read_bytes()
+    assert_same_set(out, reference)
 
 
 @pytest.mark.parametrize("options, message", [
@@ -365,23 +381,17 @@ def test_a_stopped_run_drops_its_unfinished_shard_and_resumes(tmp_path, photos):
     assert (report.skipped, report.made) == (3, 5)  # 3 and 4 were in the dropped shard
     reference = tmp_path / "reference"
     gpu_blur.generate_set(reference, **options)
-    assert shards(out) == shards(reference)
-    assert (out / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
+    assert_same_set(out, reference)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("format", ["lmdb", "webdataset"])
-def test_devices_write_the_serial_runs_samples(tmp_path, photos, format):
+def test_devices_write_the_serial_runs_samples(tmp_path, shared_photos, made, format):
     # worker processes hand samples back in any order; shards and keys go in in sample order
     options = ("--format", format, *(("--shard-size", "3") if format == "webdataset" else ()))
-    serial, spread = tmp_path / "serial", tmp_path / "spread"
-    assert main(args(photos, serial, *options)) == 0
-    assert main(args(photos, spread, *options, "--devices", "numpy,numpy")) == 0
-    assert (spread / "manifest.jsonl").read_bytes() == (serial / "manifest.jsonl").read_bytes()
-    if format == "webdataset":
-        assert shards(spread) == shards(serial)
-    else:
-        assert lmdb_contents(spread) == lmdb_contents(serial)
+    spread = tmp_path / "spread"
+    assert main(args(shared_photos, spread, *options, "--devices", "numpy,numpy")) == 0
+    assert_same_set(spread, made(*options))
 
 
 def test_meta_info_gives_the_compression_level_of_the_png_mode(tmp_path, photos):
@@ -401,16 +411,10 @@ def test_meta_info_gives_the_compression_level_of_the_png_mode(tmp_path, photos)
 
 
 @pytest.mark.parametrize("format", ["lmdb", "webdataset"])
-def test_a_larger_limit_grows_the_last_shard_and_the_environments(tmp_path, photos, format):
+def test_a_larger_limit_grows_the_last_shard_and_the_environments(tmp_path, shared_photos,
+                                                                   made, format):
     options = ("--format", format, *(("--shard-size", "3") if format == "webdataset" else ()))
-    out, reference = tmp_path / "out", tmp_path / "reference"
-    assert main(args(photos, out, *options, "--limit", "4")) == 0  # shard 1 holds sample 3
-    assert main(args(photos, out, *options, "--resume")) == 0
-    assert main(args(photos, reference, *options)) == 0
-    assert (out / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
-    if format == "webdataset":
-        assert shards(out) == shards(reference)
-    else:
-        assert lmdb_contents(out) == lmdb_contents(reference)
-        assert (out / "sharp.lmdb" / "meta_info.txt").read_bytes() == (
-            reference / "sharp.lmdb" / "meta_info.txt").read_bytes()
+    out = tmp_path / "out"
+    assert main(args(shared_photos, out, *options, "--limit", "4")) == 0  # shard 1: sample 3
+    assert main(args(shared_photos, out, *options, "--resume")) == 0
+    assert_same_set(out, made(*options))
