@@ -154,6 +154,11 @@ class RealisticBlur(torch.nn.Module):
             batch's device, in its layout: blurred and sharp images, B x 3 x H' x W' or B x
             H' x W' x 3, H' and W' after ``output.crop`` (and an odd last row or column cut
             for the RAW round trip); with ``with_mask`` also the blurred saturation masks.
+
+        Raises:
+            ValueError: a bad shape, dtype or value, naming the sample (``sample 3 of 16:
+                mask: 1 NaN ...``): float inputs are checked where they lie (one reduction an
+                input, read once the batch's passes are queued); nothing is returned.
         """
         check_dense(batch, "batch")  # before its device picks a backend
         if indices is None:
