@@ -235,14 +235,13 @@ def _torch_ranges(floats: dict, device) -> ValueRanges:
     """:class:`ValueRanges` of torch CUDA inputs ({key: B x ...}, of one float dtype).
 
     Queued on the device's current stream (the caller's, which wrote the batch): one
-    ``aminmax`` per input (NaN propagates), one stack, one copy to pinned host memory.
+    ``aminmax`` per input, one stack (:func:`_torch_ends`), one copy to pinned host memory,
+    one event that the read waits for.
     """
     import torch
 
     with torch.cuda.device(device):
-        ends = [end for x in floats.values()
-                for end in torch.aminmax(x.reshape(x.shape[0], -1), dim=1)]
-        both = torch.stack(ends)  # 2K x B: each input's lowest, then its highest
+        both = _torch_ends(floats)
         host = torch.empty(both.shape, dtype=both.dtype, pin_memory=True)
         host.copy_(both, non_blocking=True)
         done = torch.cuda.Event()
@@ -250,10 +249,27 @@ def _torch_ranges(floats: dict, device) -> ValueRanges:
 
     def read() -> dict[str, np.ndarray]:
         done.synchronize()
-        values = host.numpy().astype(np.float64).reshape(len(floats), 2, -1)
-        return {key: v.T for key, v in zip(floats, values, strict=True)}
+        return _ends_by_key(host.numpy(), floats)
 
     return ValueRanges(floats, read)
+
+
+def _torch_ends(floats: dict):
+    """2K x B tensor: each of the K inputs' per-sample lowest values, then its highest.
+
+    ``torch.aminmax`` over each sample ({key: B x ... tensor}), on the inputs' device; a NaN
+    anywhere in a sample makes both of its ends NaN.
+    """
+    import torch
+
+    return torch.stack([end for x in floats.values()
+                        for end in torch.aminmax(x.reshape(x.shape[0], -1), dim=1)])
+
+
+def _ends_by_key(ends: np.ndarray, keys) -> dict[str, np.ndarray]:
+    """:func:`_torch_ends`' 2K x B values as {key: B x 2 float64 (lowest, highest)}."""
+    values = np.asarray(ends, np.float64).reshape(len(keys), 2, -1)
+    return {key: v.T for key, v in zip(keys, values, strict=True)}
 
 
 def _host_ranges(floats: dict) -> ValueRanges:

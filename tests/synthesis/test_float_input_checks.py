@@ -259,3 +259,43 @@ def test_a_torch_cuda_batch_takes_one_reduction_an_input_and_one_wait(monkeypatc
         given["batch"], mask=given["mask"])
     assert np.array_equal(out.blurred.cpu().numpy(), plain.blurred)
     assert np.array_equal(out.sharp.cpu().numpy(), plain.sharp)
+
+
+def test_torchs_ends_give_each_samples_lowest_and_highest_of_each_input():
+    # the reductions a torch CUDA batch's checks run, here on CPU tensors: aminmax propagates
+    # NaN, and the 2K x B ends come back per input as B x 2 (lowest, highest)
+    rng = np.random.default_rng(2)
+    floats = {"frames": torch.from_numpy(rng.random((3, 4, 5, 3)).astype(np.float32)),
+              "mask": torch.from_numpy(rng.random((3, 4, 5, 3)).astype(np.float32))}
+    floats["frames"][1, 2, 3, 0] = float("nan")
+    floats["mask"][2, 0, 0, 2] = -3.0
+    ranges = batches._ends_by_key(batches._torch_ends(floats).numpy(), floats)
+    for key, x in floats.items():
+        x = x.numpy()
+        want = np.array([(s.min(), s.max()) for s in x], np.float64)
+        np.testing.assert_array_equal(ranges[key], want)
+    assert np.isnan(ranges["frames"][1]).all() and ranges["mask"][2, 0] == -3.0
+    flags = gpu_blur.synthesis.inputs.ValueRanges(floats, lambda: ranges).flags
+    assert [flags("frames", b)[0] for b in range(3)] == [False, True, False]
+    assert [flags("mask", b)[0] for b in range(3)] == [False, False, True]
+
+
+@pytest.mark.parametrize("bad", BAD)
+def test_batches_checked_by_torchs_reductions_name_the_sample(monkeypatch, bad):
+    # the CUDA route's reductions and unpacking, run on the host: every input's ends from
+    # torch.aminmax name the same sample in the same words as the device's counts
+    def by_torch(floats):
+        tensors = {key: torch.from_numpy(x) for key, x in floats.items()}
+        return gpu_blur.synthesis.inputs.ValueRanges(floats, lambda: batches._ends_by_key(
+            batches._torch_ends(tensors).numpy(), floats))
+
+    monkeypatch.setattr(batches, "_host_ranges", by_torch)
+    for key, b in (("batch", 0), ("mask", 2), ("batch", B - 1)):
+        given = good("none")
+        given[key][b, 6, 2, 1] = BAD[bad]
+        want = f"sample {b} of {B}: " + words(given[key][b],
+                                               "blurred" if key == "batch" else key)
+        s = gpu_blur.Synthesizer("realblur_j", backend="warp:cpu", seed=3)
+        assert message("none", "torch", "warp:cpu", given) == want
+        arrays = as_type(good("none"), "torch")
+        assert s(arrays["batch"], mask=arrays["mask"]).blurred.shape[0] == B
