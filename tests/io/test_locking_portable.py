@@ -115,15 +115,21 @@ def test_the_windows_path_keeps_a_second_writer_out_and_names_the_holder(tmp_pat
 def test_a_set_is_made_and_resumed_without_fcntl(tmp_path, photos):
     folder, scene = photos
     out = tmp_path / "out"
+    # one child makes the set, then resumes it (one start of Python and gpu_blur, not two)
     code = f"""
-        import sys
+        from pathlib import Path
         from gpu_blur.cli import main
-        sys.exit(main(["generate", "--input", {str(folder)!r}, "--output", {str(out)!r},
-                       "--scene", {str(scene)!r}, "--limit", "2", "--quiet", *sys.argv[1:]]))
+        from gpu_blur.dataset import LOCK
+        command = ["generate", "--input", {str(folder)!r}, "--output", {str(out)!r},
+                   "--scene", {str(scene)!r}, "--limit", "2", "--quiet"]
+        for again in ([], ["--resume"]):
+            assert main([*command, *again]) == 0, again
+            assert not (Path({str(out)!r}) / LOCK).exists(), again
+        print("made and resumed")
     """
-    for again in ([], ["--resume"]):
-        run = child(code, *again, emulate=True)
-        assert run.returncode == 0, run.stderr
+    run = child(code, emulate=True)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip().splitlines()[-1] == "made and resumed", run.stdout
     assert len((out / "manifest.jsonl").read_text().splitlines()) == 2
     assert not (out / dataset.LOCK).exists()
 
