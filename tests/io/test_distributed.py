@@ -484,7 +484,11 @@ def test_samples_sharing_inputs_go_to_one_worker_in_runs_of_consecutive_samples(
     assert [few.next(0).index, few.next(0).index, few.next(1).index] == [0, 1, 2]
 
 
-def test_each_device_worker_decodes_overlapping_windows_once_through_its_frame_cache(tmp_path):
+def test_each_device_worker_decodes_overlapping_windows_once_through_its_frame_cache(
+        tmp_path, monkeypatch):
+    # the samples sent ahead to a worker grow with its decoding threads (the host's cores
+    # shared among the workers): two threads here, one a worker, as on a 2-core host
+    monkeypatch.setattr(distributed, "default_io_threads", lambda: 2)
     rng = np.random.default_rng(1)
     sequence = tmp_path / "in" / "seq" / "sharp"
     sequence.mkdir(parents=True)
