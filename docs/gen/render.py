@@ -412,6 +412,46 @@ def bench_generate_windows(name: str = "generate_windows_h200") -> str:
     return table + "\n\n" + provenance(path, data["machine"], _named(data))
 
 
+def bench_devices_host() -> str:
+    """``generate`` on a 2-GPU host: one process against ``--devices`` workers."""
+    data, path = load("generate_devices_h200x2")
+    one = data["one_process"]["runs"][-1]
+    rows = [[f"one process, {one['threads']} I/O threads, one GPU", one["samples_per_s"],
+             one["in_run_samples_per_s"]]]
+    rows += [[f"`--devices`, {r['gpus']} GPU{'s' if r['gpus'] > 1 else ''}", r["samples_per_s"],
+              r["in_run_samples_per_s"]] for r in data["devices"]["disk"]]
+    rows.append(["bound with 1d3f510's codecs and no cache (9 OpenCV decodes, 2 encodes a sample)",
+                 data["devices"]["disk_bound_samples_per_s"], None])
+    table = _table(["run", "samples/s", "in the run"], rows)
+    same = ("every `--devices` set the same bytes" if data["devices"].get("same_bytes", True)
+            else "sets differ")
+    return table + "\n\n" + provenance(path, f"{data['machine']}; {same}", _named(data))
+
+
+def bench_devices_handoff() -> str:
+    """``--devices`` results to the driver: through the pipe against shared memory."""
+    data, path = load("devices_handoff_h200x2")
+    rows = [[r["mode"], r["workers"], r["samples_per_s"], r["gb_per_s"],
+             r["driver_ms_per_sample"], r["mb_per_sample"]] for r in data["rows"]]
+    table = _table(["hand-off", "workers", "samples/s", "GB/s", "driver ms a sample",
+                    "MB a sample"], rows, 2)
+    return table + "\n\n" + provenance(path, f"{data['cpus']}-core host of two H200s",
+                                       _named(data))
+
+
+def bench_float_inputs() -> str:
+    """Torch batches as uint8 codes against float32 values, ms a sample."""
+    data, path = load("float_inputs_h200")
+    rows = [[r["scene"], r["size"], r["batch"], r["uint8_ms"], r["float32_ms"],
+             r["float32_over_uint8_ratio"], r["uint8_back_to_back_ms"],
+             r["float32_back_to_back_ms"], r["float32_over_uint8_back_to_back_ratio"],
+             r["float32_reductions_ms"]] for r in data["results"]]
+    table = _table(["scene", "size", "batch", "uint8", "float32", "ratio", "uint8 back to back",
+                    "float32 back to back", "ratio back to back", "float32 checks' reductions"],
+                   rows, 2)
+    return table + "\n\n" + provenance(path, data["device"], _named(data))
+
+
 def bench_multi_gpu(name: str) -> str:
     """Samples per second on 1, 2, 4 GPUs of one host, by source."""
     data, path = load(name)
@@ -705,6 +745,9 @@ BENCH = {
     "generate-codes": bench_generate_codes,
     "generate-devices": bench_generate_devices,
     "generate-windows": bench_generate_windows,
+    "devices-host": bench_devices_host,
+    "devices-handoff": bench_devices_handoff,
+    "float-inputs": bench_float_inputs,
     "multi-gpu": bench_multi_gpu,
     "training": bench_training,
     "side-by-side": bench_side_by_side,
