@@ -40,8 +40,17 @@ from gpu_blur import caches, testhooks
 from gpu_blur.backends import usable_devices
 from gpu_blur.discovery import SampleSpec
 from gpu_blur.frame_cache import CacheCounts, FrameCache
-from gpu_blur.generate import Job, decode, default_io_threads, for_driver, make_sample, run_serial
+from gpu_blur.generate import (
+    Job,
+    default_io_threads,
+    for_driver,
+    make_sample,
+    pinned_staging,
+    run_pipelined,
+    run_serial,
+)
 from gpu_blur.shared_results import ASK, Blocks, Outbox
+from gpu_blur.timings import PoolTimes
 
 __all__ = ["DEVICE_DEPTH", "DRIVER_SIGNALS", "GPU_BATCH", "PARENT_CHECK_S", "RAY_INSTALL",
            "RUN_SAMPLES", "all_devices", "family", "import_ray", "parse_devices",
@@ -182,10 +191,13 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
                    shared: bool = False, cache_bytes: int = 0) -> None:
     """A device worker process: open the device, then make each sample the driver sends.
 
-    With ``threads`` > 1, that many threads decode the input files of the samples waiting in
-    the pipe while the device makes the current one (:func:`gpu_blur.generate.decode`, as a
-    run on one device does); the samples are made in the order they came. ``cache_bytes`` >
-    0: the files are decoded through a frame cache of that many bytes of this worker's own
+    With ``threads`` > 1 the worker runs the one-device pipeline
+    (:func:`gpu_blur.generate.run_pipelined`, as a run on one device does): that many
+    threads decode the input files of the samples waiting in the pipe while the device makes
+    the current ones, and on a GPU stage them in page-locked memory for batches of
+    :data:`gpu_blur.generate.BATCH`; the samples are made and sent in the order they came.
+    ``cache_bytes`` > 0: the files are decoded through a frame cache of that many bytes of
+    this worker's own
     (:class:`~gpu_blur.frame_cache.FrameCache`), so windows of a sequence that overlap decode
     a frame once.
 
@@ -220,31 +232,36 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
         return
     pool = ThreadPoolExecutor(threads, "gpu-blur-decode") if threads > 1 else None
     cache = FrameCache(cache_bytes) if cache_bytes > 0 else None
-    waiting: deque = deque()  # (spec, its decoding or None), in the order they came
-
-    def arrived(spec: SampleSpec) -> None:  # start decoding it
-        waiting.append((spec, pool.submit(decode, spec, cache) if pool else None))
-
-    outbox = Outbox(conn, arrived) if shared else None
+    arrived: deque[SampleSpec] = deque()  # samples sent, not yet taken by the pipeline
+    outbox = Outbox(conn, arrived.append) if shared else None
     if outbox is not None:
         held.append(outbox)
-    counted = CacheCounts(0, 0, 0)  # the frame cache's counts sent so far
-    try:
-        while True:
-            while not waiting or conn.poll():  # take every message sent
+
+    def receive(wait: bool) -> bool:
+        """Take the driver's messages: those waiting, or (``wait``) until a sample came.
+
+        False once the driver closed its end (the run is over).
+        """
+        try:
+            while (wait and not arrived) or conn.poll():
                 message = conn.recv()
                 if outbox is None or not outbox.take(message):
-                    arrived(message)
-            spec, decoding = waiting.popleft()
-            try:
-                inputs = (decoding.result() if decoding is not None else
-                          None if cache is None else decode(spec, cache))
-                spec, result, error = make_sample(job, spec, inputs)
-                result, layout = for_driver(job, result), None
-            except Exception:
-                if not _send(conn, ("error", traceback.format_exc())):
-                    return
-                continue
+                    arrived.append(message)
+        except EOFError:
+            return False
+        return True
+
+    counted = CacheCounts(0, 0, 0)  # the frame cache's counts sent so far
+    try:
+        if pool is not None:  # this device's one-device pipeline (batches, staging on a GPU)
+            samples = run_pipelined(job, _Arrived(arrived, receive), pool, PoolTimes(threads),
+                                    worker_depth(threads), cache, pinned_staging(job),
+                                    more=lambda: receive(True) and bool(arrived))
+        else:
+            samples = run_serial(job, iter(lambda: arrived.popleft() if receive(True)
+                                           and arrived else None, None), cache)
+        for spec, result, error in samples:
+            result, layout = for_driver(job, result), None
             if outbox is not None:
                 result, layout = outbox.pack(result)
             counts = None
@@ -255,11 +272,39 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
                 counted = now
             if not _send(conn, ("sample", (spec, result, error, layout, counts))):
                 return
-    except EOFError:  # the driver closed its end: the run is over
+    except EOFError:  # the driver closed its end while a block was awaited: the run is over
         return
+    except Exception:  # no fault of a sample (make_sample returns those): a bug, reported
+        _send(conn, ("error", traceback.format_exc()))
     finally:
         if outbox is not None:
             outbox.close()
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+
+
+class _Arrived:
+    """The samples a device worker was sent, as far as they came.
+
+    It ends (for now) when none is waiting; :func:`~gpu_blur.generate.run_pipelined` then
+    asks its ``more`` when it has nothing ahead.
+    """
+
+    def __init__(self, arrived: deque, receive: Callable[[bool], bool]):
+        self._arrived, self._receive = arrived, receive
+
+    def __iter__(self):
+        return self
+
+    def __next__(self) -> SampleSpec:
+        if not self._receive(False) or not self._arrived:
+            raise StopIteration
+        return self._arrived.popleft()
+
+
+def worker_depth(threads: int) -> int:
+    """Samples sent ahead to a device worker with ``threads`` decoding threads."""
+    return DEVICE_DEPTH + (2 * threads if threads > 1 else 0)
 
 
 #: Signals a device worker ignores: Ctrl-C and a closed terminal, which the driver handles.
@@ -383,7 +428,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
     blocks = Blocks()
     finished = False
     threads = max(1, default_io_threads() // len(devices))  # each worker's decoding threads
-    depth = DEVICE_DEPTH + (2 * threads if threads > 1 else 0)
+    depth = worker_depth(threads)
     share = frame_cache.budget // len(devices) if frame_cache is not None else 0
     try:
         cwd = os.getcwd()

@@ -325,7 +325,8 @@ def _stage(ahead: deque[_Inputs], staging: PinnedStaging, pool: Executor,
 
 def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: PoolTimes,
                   depth: int, cache: FrameCache | None = None,
-                  staging: PinnedStaging | None = None) -> Iterator[tuple]:
+                  staging: PinnedStaging | None = None,
+                  more: Callable[[], bool] | None = None) -> Iterator[tuple]:
     """Make the samples in this thread, in order, while ``pool`` decodes the next ones' inputs.
 
     At most ``depth`` samples are decoded or being decoded ahead of the one being made, each
@@ -335,7 +336,9 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
     a slot's samples are made as one batch (:func:`make_batch`; one by one where they cannot
     be). The results are :func:`run_serial`'s, in order; the time this thread waits for inputs
     is added to ``times.waited_for_inputs``, the pool's decoding and staging to
-    ``times.busy["decode"]``.
+    ``times.busy["decode"]``. ``more``: for samples that arrive while the run goes (a device
+    worker's): ``specs`` ends when none is waiting, and ``more()`` waits for the next one
+    when nothing is ahead (False: there are no more).
     """
     rest = iter(specs)
     ahead: deque[_Inputs] = deque()
@@ -345,6 +348,8 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
             for spec in itertools.islice(rest, depth - len(ahead)):
                 ahead.append(_Inputs(spec, pool, times, cache))
             if not ahead:
+                if more is not None and more():
+                    continue
                 return
             if staging is not None:
                 if not staging.sized and ahead[0].batchable:  # its size is the slots' stride
