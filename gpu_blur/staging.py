@@ -1,15 +1,14 @@
 """Page-locked host slots that ``gpu-blur generate``'s I/O threads fill with decoded samples.
 
-A GPU backend copies page-locked ("pinned") host memory to the device at the bus's rate,
-and pageable memory only through a staging copy of its own, made on the thread that makes
-the samples: at e7b24ae a 1920 x 1200 RSBlur sample's 9 frames (62 MB) cost that thread
-8.6 ms on an H200 (bench/generate_gpu.py). Here the I/O threads copy each decoded sample into
-a slot of :class:`PinnedStaging`, beside the others of its batch, and the making thread hands
-the slot's batch to the device as one array (``Synthesizer`` on a B x F x H x W x 3 pinned
-batch), or a sample's frames as views of one stack
-(:func:`gpu_blur.backends.pinned_stack` finds it again). Only where a sample is staged does
-anything change; the bytes made are the same either way (tests/synthesis/
-test_generate_pipeline.py).
+A GPU backend copies page-locked ("pinned") host memory to the device at the bus's rate, and
+pageable memory only through a staging copy of its own, made on the thread that makes the
+samples. Here the I/O threads copy each decoded sample into a slot of :class:`PinnedStaging`,
+beside the others of its batch, and the making thread hands the slot's batch to the device as
+one array (``Synthesizer`` on a B x F x H x W x 3 pinned batch), or a sample's frames as views
+of one stack (:func:`gpu_blur.backends.pinned_stack` finds it again). Only where a sample is
+staged does anything change; the bytes made are the same either way
+(tests/synthesis/test_generate_pipeline.py). docs/performance.md, "Whole sets from disk", has
+the rates before and after.
 """
 
 from __future__ import annotations
