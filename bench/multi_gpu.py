@@ -209,7 +209,8 @@ def main(argv=None) -> int:
                 row = from_disk(args.backend, n, root, Path(tmp) / f"out{n}", args.samples,
                                 cores)
                 result["disk"].append(row)
-                print(f"disk, {n} GPU(s): {row['samples_per_s']:.1f} samples/s", flush=True)
+                print(f"disk, {n} GPU(s): {row['samples_per_s']:.1f} samples/s (in the run, "
+                      f"workers' start included: {row.get('in_run_samples_per_s')})", flush=True)
     sources = {"disk": result["disk"]}
     for kind in kinds:
         sources["memory" if kind == "pageable" else "memory_pinned"] = [
