@@ -172,7 +172,7 @@ def compare(args, cores: int) -> dict:
               f"{case['same_pixels']}")
         print("\n".join(case["runs"]["now"]["summary"]))
     return {"backend": args.backend, "cores": cores, "image": [W, H], "frames": FRAMES,
-            "against": args.against, "cases": cases}
+            "against": args.against and Path(args.against).name, "cases": cases}
 
 
 def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
@@ -189,7 +189,8 @@ def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
     wall = time.perf_counter() - start
     if done.returncode:
         raise RuntimeError(done.stderr[-2000:])
-    lines = (done.stdout + done.stderr).strip().splitlines()
+    # the run's temporary folders named as such: no path of this machine in the results
+    lines = (done.stdout + done.stderr).replace(str(root.parent), "<tmp>").strip().splitlines()
     return wall, lines[next((i for i, line in enumerate(lines) if line.startswith("wrote ")),
                             max(len(lines) - 12, 0)):]
 
