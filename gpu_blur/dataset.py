@@ -513,9 +513,10 @@ class DatasetWriter:
         here until every earlier sample has its own, so the manifest is a serial run's, byte
         for byte. What waits is small and bounded: lines (about 1 KB; the images and arrays
         are on disk already) of samples finished while an earlier one is still being made,
-        and the executors hand out samples in order, only a few per worker ahead
-        (``DEVICE_DEPTH``, Ray's window). Lines still waiting at :meth:`close` (a run
-        stopped early) are dropped: a resume makes those samples again, in order.
+        and the executors hand out samples in order, a bounded number per worker ahead
+        (``distributed.worker_depth``, in runs of at most ``RUN_SAMPLES``; Ray's window).
+        Lines still waiting at :meth:`close` (a run stopped early) are dropped: a resume
+        makes those samples again, in order.
         """
         text = json.dumps(line) + "\n"
         if self._specs is None:

@@ -78,7 +78,8 @@ def add_parser(sub) -> None:
     g.add_argument("--frame-cache", metavar="BYTES", help="host memory for decoded input "
                    "frames that several samples read (overlapping windows, a photo drawn "
                    "several times), each decoded once while it fits (e.g. 512M, 2G; 0: none; "
-                   "default 1/8 of the host's memory, at most 1G); the output does not change")
+                   "default 1/8 of the host's memory, at most 1G; with --devices split among "
+                   "the workers); the output does not change")
     g.add_argument("--verify", type=float, default=0.0, metavar="FRACTION",
                    help="recompute this fraction of tiles (0 to 1, chosen from seed and sample "
                    "index) with the numpy reference and compare under the tolerance table; a "
