@@ -197,9 +197,8 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
     the current ones, and on a GPU stage them in page-locked memory for batches of
     :data:`gpu_blur.generate.BATCH`; the samples are made and sent in the order they came.
     ``cache_bytes`` > 0: the files are decoded through a frame cache of that many bytes of
-    this worker's own
-    (:class:`~gpu_blur.frame_cache.FrameCache`), so windows of a sequence that overlap decode
-    a frame once.
+    this worker's own (:class:`~gpu_blur.frame_cache.FrameCache`), so windows of a sequence
+    that overlap decode a frame once.
 
     Messages to the driver: ``("open", device description)`` or ``("error", why)`` first,
     then per sample ``("sample", (spec, result, error, layout, cache counts))`` (``result``
