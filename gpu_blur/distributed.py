@@ -49,7 +49,7 @@ from gpu_blur.generate import (
     run_pipelined,
     run_serial,
 )
-from gpu_blur.shared_results import ASK, Blocks, Outbox
+from gpu_blur.shared_results import ASK, Blocks, Outbox, send
 from gpu_blur.timings import PoolTimes
 
 __all__ = ["DEVICE_DEPTH", "DRIVER_SIGNALS", "GPU_BATCH", "PARENT_CHECK_S", "RAY_INSTALL",
@@ -227,7 +227,11 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
         opened = ("open", get_backend(job.backend, job.scene.output.precision).device)
     except Exception as e:  # any reason the device cannot be opened
         opened = ("error", str(e))
-    if not _send(conn, opened) or opened[0] == "error":
+    try:
+        send(conn, opened)
+    except EOFError:  # the driver is gone
+        return
+    if opened[0] == "error":
         return
     pool = ThreadPoolExecutor(threads, "gpu-blur-decode") if threads > 1 else None
     cache = FrameCache(cache_bytes) if cache_bytes > 0 else None
@@ -269,12 +273,12 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
                 counts = CacheCounts(now.hits - counted.hits, now.misses - counted.misses,
                                      now.evicted - counted.evicted)
                 counted = now
-            if not _send(conn, ("sample", (spec, result, error, layout, counts))):
-                return
-    except EOFError:  # the driver closed its end while a block was awaited: the run is over
+            send(conn, ("sample", (spec, result, error, layout, counts)))
+    except EOFError:  # the driver closed its end (or was killed): the run is over
         return
     except Exception:  # no fault of a sample (make_sample returns those): a bug, reported
-        _send(conn, ("error", traceback.format_exc()))
+        with contextlib.suppress(EOFError):  # the driver is gone: no one to report it to
+            send(conn, ("error", traceback.format_exc()))
     finally:
         if outbox is not None:
             outbox.close()
@@ -309,15 +313,6 @@ def worker_depth(threads: int) -> int:
 #: Signals a device worker ignores: Ctrl-C and a closed terminal, which the driver handles.
 DRIVER_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGHUP")
                        if hasattr(signal, name))
-
-
-def _send(conn, message) -> bool:
-    """Send ``message`` to the driver; False when the driver is gone (its end is closed)."""
-    try:
-        conn.send(message)
-    except OSError:  # BrokenPipeError: the driver was killed or stopped the run
-        return False
-    return True
 
 
 @contextlib.contextmanager

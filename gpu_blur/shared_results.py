@@ -59,7 +59,7 @@ import numpy as np
 from gpu_blur import notices
 
 __all__ = ["ALIGN", "ASK", "BLOCKS_PER_WORKER", "FIELDS", "FREE", "GRAIN", "GRANT", "Blocks",
-           "Layout", "Outbox"]
+           "Layout", "Outbox", "send"]
 
 ASK, GRANT, FREE = "block?", "block", "free"
 #: Blocks a worker may hold: one the driver copies a sample out of while the worker writes the
@@ -105,7 +105,7 @@ def _offsets(arrays: dict[str, np.ndarray]) -> tuple[dict[str, int], int]:
     return offsets, max(end, 1)
 
 
-def _send(conn, message) -> None:
+def send(conn, message) -> None:
     """Send ``message``; EOFError when the other end is closed (its process gone)."""
     try:
         conn.send(message)
@@ -187,7 +187,7 @@ class Outbox:
 
     def _ask(self, need: int, retired: str | None) -> str | None:
         self._granted = None
-        _send(self._conn, (ASK, (-(-need // GRAIN) * GRAIN, retired)))
+        send(self._conn, (ASK, (-(-need // GRAIN) * GRAIN, retired)))
         self._wait(lambda: self._granted is not None)
         name, detail = self._granted
         if name is None:
@@ -263,7 +263,7 @@ class Blocks:
         else:
             reply = (block.name, need)
         with contextlib.suppress(EOFError):
-            _send(conn, (GRANT, reply))
+            send(conn, (GRANT, reply))
 
     def _make(self, size: int) -> SharedMemory:
         block = SharedMemory(create=True, size=size)
@@ -287,7 +287,7 @@ class Blocks:
         arrays = {field: np.ndarray(shape, dtype, buffer, offset).copy()
                   for field, offset, shape, dtype in layout.arrays}
         with contextlib.suppress(EOFError):  # a worker gone: its next message says so
-            _send(conn, (FREE, layout.block))
+            send(conn, (FREE, layout.block))
         return dataclasses.replace(shell, **arrays)
 
     def close(self) -> None:
