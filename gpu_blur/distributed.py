@@ -270,9 +270,7 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
             counts = None
             if cache is not None:  # what the driver's summary has not counted yet
                 now = cache.counts()
-                counts = CacheCounts(now.hits - counted.hits, now.misses - counted.misses,
-                                     now.evicted - counted.evicted)
-                counted = now
+                counts, counted = now - counted, now
             send(conn, ("sample", (spec, result, error, layout, counts)))
     except EOFError:  # the driver closed its end (or was killed): the run is over
         return

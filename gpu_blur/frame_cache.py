@@ -18,7 +18,7 @@ import os
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +58,11 @@ class CacheCounts:
         share = f" ({100 * self.hits / asked:.0f} % of {asked} reads)" if asked else ""
         return (f"frame cache: {self.misses} decoded, {self.hits} served decoded{share}, "
                 f"{self.evicted} evicted")
+
+    def __sub__(self, earlier: CacheCounts) -> CacheCounts:
+        """What the cache did since it counted ``earlier``."""
+        return CacheCounts(*(now - then for now, then in zip(astuple(self), astuple(earlier),
+                                                             strict=True)))
 
 
 class FrameCache:

@@ -4,7 +4,7 @@ import time
 import numpy as np
 import pytest
 
-from gpu_blur.frame_cache import FrameCache
+from gpu_blur.frame_cache import CacheCounts, FrameCache
 
 
 class CountingReader:
@@ -44,6 +44,8 @@ def test_a_frame_read_twice_is_decoded_once_and_read_only(tmp_path):
     assert (counts.hits, counts.misses, counts.evicted) == (1, 1, 0)
     assert counts.summary() == ("frame cache: 1 decoded, 1 served decoded (50 % of 2 reads), "
                                 "0 evicted")
+    cache.read(path, reader)
+    assert cache.counts() - counts == CacheCounts(hits=1, misses=0, evicted=0)
 
 
 def test_the_least_recently_used_frame_leaves_first_past_the_budget(tmp_path):
