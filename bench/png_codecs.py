@@ -334,7 +334,7 @@ def same(decoded, source: np.ndarray) -> bool:
 def library_versions() -> dict[str, str]:
     found = {d: version(d) for d in ("opencv-python-headless", "numpy", "pyspng",
                                      "pyspng-seunglab", "imagecodecs", "zlib-ng", "isal",
-                                     "fpng", "fpng-py", "pillow") if version(d)}
+                                     "deflate", "fpng", "fpng-py", "pillow") if version(d)}
     return {**found, "python zlib": zlib.ZLIB_RUNTIME_VERSION}
 
 
@@ -435,44 +435,58 @@ def read_path(data: bytes) -> np.ndarray:
 def thread_scaling(runs: int) -> list[dict]:
     """Images a second through a pool of 1, 2, 4, ... threads up to the cores, per codec.
 
-    The noisy image, 8 and 16 bits; each rate the best of ``runs`` pool runs of at least 8
-    images and 2 per thread. A codec that holds the GIL gains nothing from more threads.
+    The noisy and the smooth image, 8 and 16 bits; each rate the best of ``runs`` pool runs
+    of at least 8 images and 2 per thread. A codec that holds the GIL gains nothing from more
+    threads. Besides gpu_blur's read path as it is, each inflater's own path (libdeflate,
+    ISA-L without its slots), to show why the read path uses it as it does.
     """
     from concurrent.futures import ThreadPoolExecutor
 
     cores = os.cpu_count() or 1
     counts = sorted({1, cores, *(2**k for k in range(1, 8) if 2**k < cores)})
-    values = images()["noisy"][1]
     spng = optional("pyspng")
+    inflaters = [found for found in (png_codecs._libdeflate_inflater(),
+                                     png_codecs._isal_inflater()) if found]
     rows = []
-    for bits in (8, 16):
-        source = codes(values, bits)
-        default = cv2.imencode(".png", bgr(source))[1].tobytes()
-        jobs = {
-            "decode: OpenCV imdecode (OpenCV's default file)":
-                lambda d=default: cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED),
-            "decode: gpu_blur's read path (OpenCV's default file)":
-                lambda d=default: read_path(d),
-            "encode: OpenCV default": lambda s=source: cv2.imencode(".png", bgr(s)),
-            "encode: gpu_blur output.png = fast": lambda s=source: encode_png(s, "fast"),
-            "encode: gpu_blur output.png = small": lambda s=source: encode_png(s, "small"),
-        }
-        if spng is not None:
-            jobs["decode: pyspng (OpenCV's default file)"] = lambda d=default: spng.load(d)
-        for name, job in jobs.items():
-            job()
-            for threads in counts:
-                count = max(8, 2 * threads)
-                best = math.inf
-                with ThreadPoolExecutor(threads) as pool:
-                    for _ in range(runs):
-                        start = time.perf_counter()
-                        list(pool.map(lambda _, job=job: job(), range(count)))
-                        best = min(best, time.perf_counter() - start)
-                rows.append({"bits": bits, "codec": name, "threads": threads,
-                             "images_per_s": round(count / best, 2)})
-                print(f"{bits:2}-bit {name:66} {threads:3} threads "
-                      f"{count / best:8.1f} images/s", flush=True)
+    for image in ("noisy", "smooth"):
+        values = images()[image][1]
+        for bits in (8, 16):
+            source = codes(values, bits)
+            default = cv2.imencode(".png", bgr(source))[1].tobytes()
+            jobs = {
+                "decode: OpenCV imdecode (OpenCV's default file)":
+                    lambda d=default: cv2.imdecode(np.frombuffer(d, np.uint8),
+                                                   cv2.IMREAD_UNCHANGED),
+                "decode: gpu_blur's read path (OpenCV's default file)":
+                    lambda d=default: read_path(d),
+            }
+            for name, inflate in inflaters:
+                library = {"deflate": "libdeflate", "isal": "ISA-L"}[name]
+                jobs[f"decode: {library}'s inflate and numpy, every file (OpenCV's default "
+                     "file)"] = lambda d=default, f=inflate: png_codecs._decode(f, d)
+            if image == "noisy":
+                jobs.update({
+                    "encode: OpenCV default": lambda s=source: cv2.imencode(".png", bgr(s)),
+                    "encode: gpu_blur output.png = fast": lambda s=source: encode_png(s, "fast"),
+                    "encode: gpu_blur output.png = small":
+                        lambda s=source: encode_png(s, "small"),
+                })
+            if spng is not None:
+                jobs["decode: pyspng (OpenCV's default file)"] = lambda d=default: spng.load(d)
+            for name, job in jobs.items():
+                job()
+                for threads in counts:
+                    count = max(8, 2 * threads)
+                    best = math.inf
+                    with ThreadPoolExecutor(threads) as pool:
+                        for _ in range(runs):
+                            start = time.perf_counter()
+                            list(pool.map(lambda _, job=job: job(), range(count)))
+                            best = min(best, time.perf_counter() - start)
+                    rows.append({"image": image, "bits": bits, "codec": name,
+                                 "threads": threads, "images_per_s": round(count / best, 2)})
+                    print(f"{image:6} {bits:2}-bit {name:70} {threads:3} threads "
+                          f"{count / best:8.1f} images/s", flush=True)
     return rows
 
 
@@ -507,9 +521,9 @@ def main() -> None:
                              / f"png_codecs_threads_{cpu_tag(cpu_name())}.json")
         path.write_text(json.dumps({
             "what": ("PNG codecs through a pool of threads, images a second (best of 3 pool "
-                     "runs of max(8, 2 x threads) images), the noisy 1920 x 1200 image of "
-                     "bench/png_codecs.py; OpenCV on one thread per call; a codec holding the "
-                     "GIL does not scale"),
+                     "runs of max(8, 2 x threads) images), the noisy and smooth 1920 x 1200 "
+                     "images of bench/png_codecs.py (encoders: noisy only); OpenCV on one "
+                     "thread per call; a codec holding the GIL does not scale"),
             "machine": machine(), "load_average_after": load_average(),
             "commit": source_commit(), "libraries": library_versions(),
             "rows": rows}, indent=1) + "\n")

@@ -16,11 +16,14 @@ docs/performance.md, "PNG codecs"):
     ``fast`` file (16-bit noise, where libpng finds little more); so never the larger.
 
 * reading (:func:`decode_png`): files whose rows are filtered with None, Sub or Up only (as
-  OpenCV's default and ``fast`` write them) are inflated by ISA-L and unfiltered in numpy,
-  both without holding the GIL, so I/O threads decode in parallel; every other file goes
-  through OpenCV, as before. libspng (``pyspng``) decoded 8-bit files faster than OpenCV on
-  one core, but holds the GIL while it decodes, so a pool of I/O threads would decode one
-  file at a time; it is not used.
+  OpenCV's default and ``fast`` write them) are inflated by libdeflate (``deflate``), else by
+  ISA-L (``isal``), and unfiltered in numpy, all without holding the GIL, so I/O threads
+  decode in parallel; every other file goes through OpenCV, as before. On a 16-core host
+  (bench/png_codecs.py --threads) libdeflate's path decoded more files a second through 16
+  threads than ISA-L's and than OpenCV's, and ISA-L's fewer than OpenCV's, so ISA-L decodes
+  only a few files at a time (:data:`_ISAL_SLOTS`). libspng (``pyspng``) decoded 8-bit files
+  faster than OpenCV on one core, but holds the GIL while it decodes, so a pool of I/O threads
+  would decode one file at a time; it is not used.
 
 Every mode and decoder gives the same pixels (tests/io/test_png_codecs.py); only the size of
 the file and the time differ.
@@ -192,22 +195,65 @@ def encoder_name(mode: str) -> str:
 
 def decoder_name() -> str:
     """Which library decodes the PNG files :func:`decode_png` takes here."""
-    isal = _isal()
-    if isal is not None:
-        from importlib.metadata import version
+    from importlib.metadata import version
 
-        return f"isal {version('isal')} (ISA-L inflate, numpy's unfiltering)"
+    inflater = _inflater()
+    if inflater is not None:
+        name = inflater[0]
+        library = "libdeflate" if name == "deflate" else "ISA-L"
+        return f"{name} {version(name)} ({library} inflate, numpy's unfiltering)"
     import cv2
 
     return f"OpenCV {cv2.__version__} (libpng)"
 
 
-#: Files :func:`decode_png` decodes at a time. Its walk over the chunks and its copies hold
-#: the GIL, so the path stops gaining past a few threads, while OpenCV's decoder releases
-#: the GIL throughout and takes the files of the threads beyond these. On a 16-core host
-#: (bench/png_codecs.py --threads), 8-bit: 3.1 times OpenCV's files a second on 1 thread,
-#: 1.6 on 4, 1.1 on 16; 4 slots fell to 0.9 on 16.
-_SLOTS = threading.BoundedSemaphore(2)
+def _inflater():
+    """The fastest zlib inflater present, ``(distribution, inflate)``, or None.
+
+    ``inflate(stream, size)``: the bytes ``stream`` inflates to, at most ``size`` of them
+    (None past that or for a stream that is damaged, or whose Adler-32 fails), without the
+    GIL. libdeflate (``deflate``) first, then ISA-L (``isal``).
+    """
+    return _libdeflate_inflater() or _isal_inflater()
+
+
+def _libdeflate_inflater():
+    try:
+        import deflate
+    except ImportError:
+        return None
+
+    def inflate(stream: bytes, size: int) -> bytes | None:
+        try:
+            return deflate.zlib_decompress(stream, size)
+        except deflate.DeflateError:
+            return None
+
+    return "deflate", inflate
+
+
+def _isal_inflater():
+    isal = _isal()
+    if isal is None:
+        return None
+
+    def inflate(stream: bytes, size: int) -> bytes | None:
+        inflater = isal.decompressobj()
+        try:  # one byte more than asked: a stream that goes on is refused, not inflated
+            raw = inflater.decompress(stream, size + 1)
+        except isal.error:
+            return None
+        return raw if inflater.eof and len(raw) <= size else None  # eof: Adler-32 checked
+
+    return "isal", inflate
+
+
+#: Files ISA-L's path of :func:`decode_png` decodes at a time. ISA-L's inflate scales less
+#: well through threads than OpenCV's decoder, which releases the GIL throughout and takes
+#: the files of the threads beyond these. On a 16-core host (bench/png_codecs.py --threads),
+#: 8-bit: 3.1 times OpenCV's files a second on 1 thread, 1.6 on 4, 1.1 on 16; 4 slots fell
+#: to 0.9 on 16. libdeflate's path has no such limit.
+_ISAL_SLOTS = threading.BoundedSemaphore(2)
 #: Rows decompressed first, whose filter types say whether the file is one to go on with.
 _FIRST_ROWS = 16
 
@@ -280,56 +326,61 @@ def _unfilter(kinds: np.ndarray, body: np.ndarray, step: int) -> np.ndarray | No
 
 
 def decode_png(data: bytes) -> np.ndarray | None:
-    """A PNG file's codes through ISA-L's inflate and numpy, in RGB(A) order, or None.
+    """A PNG file's codes through libdeflate's or ISA-L's inflate and numpy, RGB(A), or None.
 
     Taken: the files of :func:`_idat` whose rows are filtered with None, Sub or Up only, as
     OpenCV's default and ``output.png = "fast"`` write them (every row Sub). The zlib
-    stream's Adler-32 is checked by ISA-L (not the IDAT chunks' CRCs, see :func:`_idat`),
-    its length against the header here; the filter
-    types of the first rows are read before the rest is inflated, so a file of Average or
-    Paeth rows (libpng's per-row choice) costs little before OpenCV takes it. None without
-    ``isal`` and for every other file, damaged ones included, and while :data:`_SLOTS` other
-    calls run: the caller decodes those with OpenCV, which says what is wrong.
+    stream's Adler-32 is checked by the inflater (not the IDAT chunks' CRCs, see
+    :func:`_idat`), its length against the header here; the filter types of the first rows
+    are read before the rest is inflated, so a file of Average or Paeth rows (libpng's
+    per-row choice) costs little before OpenCV takes it. None without an inflater
+    (:func:`_inflater`) and for every other file, damaged ones included, and while ISA-L's
+    :data:`_ISAL_SLOTS` are taken: the caller decodes those with OpenCV, which says what is
+    wrong.
 
     Returns:
         H x W x 3 (RGB), H x W x 4 (RGBA) or H x W (grey), uint8 or uint16: OpenCV's
         IMREAD_UNCHANGED with red and blue in RGB order.
     """
-    isal = _isal()
-    if isal is None or not _SLOTS.acquire(blocking=False):
+    inflater = _inflater()
+    if inflater is None:
+        return None
+    name, inflate = inflater
+    if name != "isal":
+        return _decode(inflate, data)
+    if not _ISAL_SLOTS.acquire(blocking=False):
         return None
     try:
-        return _decode(isal, data)
+        return _decode(inflate, data)
     finally:
-        _SLOTS.release()
+        _ISAL_SLOTS.release()
 
 
-def _decode(isal, data: bytes) -> np.ndarray | None:
-    """:func:`decode_png` with ``isal``, in one of its slots."""
+def _decode(inflate, data: bytes) -> np.ndarray | None:
+    """:func:`decode_png` with ``inflate`` (:func:`_inflater`'s)."""
     found = _idat(data)
     if found is None:
         return None
     width, height, depth, channels, parts = found
     step = channels * depth // 8
     stride = 1 + width * step
-    try:  # the first rows' filter types first: a file of Paeth rows goes to OpenCV at once
-        inflate, wanted, head = isal.decompressobj(), min(height, _FIRST_ROWS) * stride, b""
+    head, peek = b"", zlib.decompressobj()  # the first rows' filter types: Paeth goes at once
+    try:
         for part in parts:
-            tail = inflate.unconsumed_tail
-            head += inflate.decompress(tail + part if tail else part, wanted - len(head))
-            if len(head) >= wanted or inflate.eof:
+            tail = peek.unconsumed_tail
+            wanted = min(height, _FIRST_ROWS) * stride - len(head)
+            head += peek.decompress(tail + part if tail else part, wanted)
+            if len(head) >= min(height, _FIRST_ROWS) * stride or peek.eof:
                 break
-        if np.any(np.frombuffer(head, np.uint8)[::stride] > 2):
-            return None
-        stream = parts[0] if len(parts) == 1 else b"".join(parts)
-        # at most one byte more than the rows: a small file whose stream inflates past its
-        # header's size (a decompression bomb) costs no more memory than its image, and goes
-        # to OpenCV, which refuses it
-        inflate = isal.decompressobj()
-        raw = inflate.decompress(stream, height * stride + 1)
-    except isal.error:
+    except zlib.error:
         return None
-    if len(raw) != height * stride or not inflate.eof:  # eof: the Adler-32 was checked
+    if np.any(np.frombuffer(head, np.uint8)[::stride] > 2):
+        return None
+    # at most the image's rows: a small file whose stream inflates past its header's size
+    # (a decompression bomb) costs no more memory than its image, and goes to OpenCV, which
+    # refuses it
+    raw = inflate(parts[0] if len(parts) == 1 else b"".join(parts), height * stride)
+    if raw is None or len(raw) != height * stride:
         return None
     rows = np.frombuffer(raw, np.uint8).reshape(height, stride)
     codes = _unfilter(rows[:, 0], rows[:, 1:], step)

@@ -705,22 +705,26 @@ def bench_png_codecs(name: str = "png_codecs_intel-xeon", part: str = "picks",
 def _png_threads(data: dict, path: Path) -> str:
     """Images a second through pools of threads (bench/png_codecs.py --threads)."""
     counts = sorted({r["threads"] for r in data["rows"]})
+    images = list(dict.fromkeys(r.get("image", "noisy") for r in data["rows"]))
     rows = []
-    for bits in (8, 16):
-        for codec in dict.fromkeys(r["codec"] for r in data["rows"]):
-            rate = {r["threads"]: r["images_per_s"] for r in data["rows"]
-                    if r["bits"] == bits and r["codec"] == codec}
-            if rate:
-                rows.append([f"{bits}-bit", codec, *(rate.get(n) for n in counts)])
+    for image in images:
+        for bits in (8, 16):
+            for codec in dict.fromkeys(r["codec"] for r in data["rows"]):
+                rate = {r["threads"]: r["images_per_s"] for r in data["rows"]
+                        if r.get("image", "noisy") == image and r["bits"] == bits
+                        and r["codec"] == codec}
+                if rate:
+                    rows.append([f"{image}, {bits}-bit", codec, *(rate.get(n) for n in counts)])
     table = _table(["", "codec, images a second", *(f"{n} threads" if n > 1 else "1 thread"
                                                      for n in counts)], rows, 2)
-    machine = data["machine"]
+    machine, libraries = data["machine"], data["libraries"]
+    versions = ", ".join(f"{name} {libraries[name]}" for name in
+                         ("deflate", "isal", "opencv-python-headless") if name in libraries)
     return table + "\n\n" + provenance(
         path, f"{machine['cpu']} (family {machine.get('family')}, model "
-        f"{machine.get('model')}), {machine['cores']} cores, the host of an H200; the noisy "
-        f"1920 x 1200 image; best of 3 pool runs; isal {data['libraries'].get('isal')}, "
-        f"opencv-python-headless {data['libraries'].get('opencv-python-headless')}",
-        _named_commit(data.get("commit")))
+        f"{machine.get('model')}), {machine['cores']} cores, the host of an H200; the "
+        f"{' and '.join(images)} 1920 x 1200 image{'s' if len(images) > 1 else ''}; best of 3 "
+        f"pool runs; {versions}", _named_commit(data.get("commit")))
 
 
 def _apart(name: str) -> str:

@@ -1,9 +1,10 @@
 """PNG codecs (issue 39): every write mode and every decoder give back the source's codes.
 
 Writing: ``output.png`` = fast (numpy's Sub filter + ISA-L, or OpenCV's default without
-isal) or small (the smallest of OpenCV's libpng files and the fast one). Reading: ISA-L and
-numpy for files of None/Sub/Up rows, OpenCV for the rest and for anything they refuse. Each
-test runs with isal present and, patched away, without it, so it passes either way.
+isal) or small (the smallest of OpenCV's libpng files and the fast one). Reading: libdeflate's
+or ISA-L's inflate and numpy for files of None/Sub/Up rows, OpenCV for the rest and for
+anything they refuse. Each test runs with each inflater and, with deflate and isal patched
+away, without them, so it passes either way.
 """
 
 import struct
@@ -20,13 +21,35 @@ from gpu_blur.run_record import set_keys
 from gpu_blur.scene import SceneError, scene_from_dict
 
 
-@pytest.fixture(params=["present", "absent"])
+INFLATERS = {"libdeflate": png_codecs._libdeflate_inflater, "isal": png_codecs._isal_inflater}
+
+
+def use_inflater(name, monkeypatch):
+    """Have decode_png inflate with ``name`` (a key of INFLATERS) alone."""
+    inflater = INFLATERS[name]()
+    if inflater is None:
+        pytest.skip(f"{name}'s Python package is not installed")
+    monkeypatch.setattr(png_codecs, "_inflater", lambda: inflater)
+    return name
+
+
+@pytest.fixture(params=list(INFLATERS))
+def inflater(request, monkeypatch):
+    """Decoding by libdeflate's inflate, then by ISA-L's."""
+    return use_inflater(request.param, monkeypatch)
+
+
+@pytest.fixture(params=[*INFLATERS, "absent"])
 def libraries(request, monkeypatch):
-    """isal as installed, or treated as missing (the OpenCV fallbacks)."""
-    if request.param == "absent":
-        monkeypatch.setattr(png_codecs, "_isal", lambda: None)
-    elif png_codecs._isal() is None:
-        pytest.skip("isal is not installed")
+    """Decoding by libdeflate's or ISA-L's inflate, or with both missing (OpenCV only).
+
+    "absent" also treats isal as missing for writing (OpenCV's encoder); the others write
+    with isal as installed.
+    """
+    if request.param != "absent":
+        return use_inflater(request.param, monkeypatch)
+    monkeypatch.setattr(png_codecs, "_isal", lambda: None)
+    monkeypatch.setattr(png_codecs, "_inflater", lambda: None)
     return request.param
 
 
@@ -221,13 +244,13 @@ def test_each_filter_and_rows_of_mixed_filters_decode_to_the_source(libraries, b
         data = png_codecs.png_file(source, zlib.compress(filtered.tobytes(), 1))
         assert np.array_equal(opencv_rgb(data), source), (bits, kind)
         image = png_codecs.decode_png(data)
-        if libraries == "present":
+        if libraries != "absent":
             assert image.dtype == source.dtype and np.array_equal(image, source), kind
         else:
             assert image is None
 
 
-def test_a_stream_of_the_wrong_length_or_checksum_goes_to_opencv():
+def test_a_stream_of_the_wrong_length_or_checksum_goes_to_opencv(inflater):
     source = codes(8)
     rows = png_codecs.filtered_rows(source).tobytes()
     for stream in (zlib.compress(rows[:-5]), zlib.compress(rows + bytes(5)),
@@ -235,10 +258,9 @@ def test_a_stream_of_the_wrong_length_or_checksum_goes_to_opencv():
         assert png_codecs.decode_png(png_codecs.png_file(source, stream)) is None
 
 
-def test_a_stream_inflating_past_its_header_is_never_inflated_whole():
+def test_a_stream_inflating_past_its_header_is_never_inflated_whole(inflater):
     import tracemalloc
 
-    pytest.importorskip("isal")
     source = codes(8, shape=(4, 4, 3))
     rows = png_codecs.filtered_rows(source).tobytes()
     bomb = png_codecs.png_file(source, zlib.compress(rows + bytes(64 << 20), 9))  # 64 MiB more
@@ -278,10 +300,8 @@ def test_generate_writes_the_same_pixels_in_either_mode(tmp_path, bits):
     assert any(fast[name] != small[name] for name in fast)
 
 
-def test_only_a_stored_idat_crc_damaged_decodes_to_the_intact_pixels():
+def test_only_a_stored_idat_crc_damaged_decodes_to_the_intact_pixels(inflater):
     """png_codecs._idat checks the zlib stream's Adler-32, not each IDAT chunk's CRC."""
-    if png_codecs._isal() is None:
-        pytest.skip("isal is not installed")
     source = codes(8)
     data = bytearray(png_codecs.encode_png(source, "fast"))
     kind, start, length = next(c for c in chunks(data) if c[0] == b"IDAT")
@@ -291,17 +311,22 @@ def test_only_a_stored_idat_crc_damaged_decodes_to_the_intact_pixels():
     assert png_codecs.decode_png(bytes(data)) is None
 
 
-def test_beyond_its_slots_decoding_goes_to_opencv(tmp_path):
-    """decode_png decodes a few files at a time; read_image gives the rest to OpenCV."""
+def test_beyond_isals_slots_decoding_goes_to_opencv(tmp_path, monkeypatch):
+    """Through ISA-L decode_png decodes a few files at a time; read_image gives the rest to
+    OpenCV. Through libdeflate there is no such limit."""
+    use_inflater("isal", monkeypatch)
     source = codes(8)
     path = tmp_path / "in.png"
     path.write_bytes(png_codecs.encode_png(source, "fast"))
     taken = 0
-    while png_codecs._SLOTS.acquire(blocking=False):
+    while png_codecs._ISAL_SLOTS.acquire(blocking=False):
         taken += 1
     try:
         assert taken >= 1 and png_codecs.decode_png(path.read_bytes()) is None
         assert np.array_equal(read_image(path), source)
+        if INFLATERS["libdeflate"]() is not None:
+            use_inflater("libdeflate", monkeypatch)
+            assert np.array_equal(png_codecs.decode_png(path.read_bytes()), source)
     finally:
         for _ in range(taken):
-            png_codecs._SLOTS.release()
+            png_codecs._ISAL_SLOTS.release()
