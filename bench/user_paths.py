@@ -161,14 +161,14 @@ def dtype_rows(synth, given: dict, batch: int, runs: int, backend, cuda: bool) -
             row[f"{dtype}_kernels_ms"] = kernel_ms(synth, tensors, batch)
             if dtype == "float32":
                 row["float32_reductions_ms"] = reduction_ms(tensors, batch, runs)
-                if not wp_pools(backend.wp_device):
-                    continue
+            if wp_pools(backend.wp_device):
                 with pool_kept(backend.wp_device):
-                    row["float32_back_to_back_pool_kept_ms"] = back_to_back_ms(
+                    row[f"{dtype}_back_to_back_pool_kept_ms"] = back_to_back_ms(
                         call, batch, runs, sync)
-    for kind in ("", "back_to_back_"):
-        row[f"float32_over_uint8_{kind}ratio"] = (row[f"float32_{kind}ms"]
-                                                  / row[f"uint8_{kind}ms"])
+    for kind in ("", "back_to_back_", "back_to_back_pool_kept_"):
+        if f"uint8_{kind}ms" in row:
+            row[f"float32_over_uint8_{kind}ratio"] = (row[f"float32_{kind}ms"]
+                                                      / row[f"uint8_{kind}ms"])
     return row
 
 
@@ -176,7 +176,9 @@ def dtype_rows(synth, given: dict, batch: int, runs: int, backend, cuda: bool) -
 DTYPE_COLUMNS = {"uint8_ms": "uint8", "float32_ms": "float32", "float32_over_uint8_ratio": "ratio",
                  "uint8_back_to_back_ms": "uint8 b2b", "float32_back_to_back_ms": "float32 b2b",
                  "float32_over_uint8_back_to_back_ratio": "b2b ratio",
+                 "uint8_back_to_back_pool_kept_ms": "u8 b2b pool kept",
                  "float32_back_to_back_pool_kept_ms": "f32 b2b pool kept",
+                 "float32_over_uint8_back_to_back_pool_kept_ratio": "pool kept ratio",
                  "float32_reductions_ms": "f32 reductions"}
 
 
