@@ -201,11 +201,12 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
     that overlap decode a frame once.
 
     Messages to the driver: ``("open", device description)`` or ``("error", why)`` first,
-    then per sample ``("sample", (spec, result, error, layout, cache counts))`` (``result``
+    then per sample ``("sample", (spec, result, error, layout, counts, times))`` (``result``
     as :func:`~gpu_blur.generate.for_driver` leaves it; with ``shared`` its arrays are in
     the shared-memory block ``layout`` names, :class:`gpu_blur.shared_results.Outbox`, else
-    ``layout`` is None; the frame cache's counts since the last message, or None) or
-    ``("error", traceback)`` for an exception that is no fault of the sample (a bug: the
+    ``layout`` is None; ``counts``: the frame cache's counts since the last message, or None;
+    ``times``: the decoding threads' :class:`~gpu_blur.timings.PoolTimes` so far, or None)
+    or ``("error", traceback)`` for an exception that is no fault of the sample (a bug: the
     driver stops the run with it). The driver closing its end of the pipe ends the worker.
     ``cwd``: the driver's folder, where relative paths lead (a worker may start elsewhere:
     :func:`_children_skip_cwd`).
@@ -234,6 +235,7 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
     if opened[0] == "error":
         return
     pool = ThreadPoolExecutor(threads, "gpu-blur-decode") if threads > 1 else None
+    times = PoolTimes(threads) if pool is not None else None
     cache = FrameCache(cache_bytes) if cache_bytes > 0 else None
     arrived: deque[SampleSpec] = deque()  # samples sent, not yet taken by the pipeline
     outbox = Outbox(conn, arrived.append) if shared else None
@@ -257,7 +259,7 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
     counted = CacheCounts(0, 0, 0)  # the frame cache's counts sent so far
     try:
         if pool is not None:  # this device's one-device pipeline (batches, staging on a GPU)
-            samples = run_pipelined(job, _Arrived(arrived, receive), pool, PoolTimes(threads),
+            samples = run_pipelined(job, _Arrived(arrived, receive), pool, times,
                                     worker_depth(threads), cache, pinned_staging(job),
                                     more=lambda: receive(True) and bool(arrived))
         else:
@@ -271,7 +273,7 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
             if cache is not None:  # what the driver's summary has not counted yet
                 now = cache.counts()
                 counts, counted = now - counted, now
-            send(conn, ("sample", (spec, result, error, layout, counts)))
+            send(conn, ("sample", (spec, result, error, layout, counts, times)))
     except EOFError:  # the driver closed its end (or was killed): the run is over
         return
     except Exception:  # no fault of a sample (make_sample returns those): a bug, reported
@@ -345,7 +347,8 @@ def _exit_without(driver: int, held: list | None = None) -> None:
 
 
 def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str],
-                frame_cache: FrameCache | None = None) -> Iterator[tuple]:
+                frame_cache: FrameCache | None = None,
+                pool_times: PoolTimes | None = None) -> Iterator[tuple]:
     """Make the samples in one worker process per entry of ``devices``, yielding as they finish.
 
     Workers are started with ``spawn`` (OpenCL and CUDA contexts do not survive a fork),
@@ -354,7 +357,8 @@ def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str],
     overlap (windows of a sequence, draws of one photo) go to one worker in runs of up to
     :data:`RUN_SAMPLES` consecutive ones; with ``frame_cache`` each worker decodes through a
     cache of its own, an equal share of ``frame_cache.budget``, so a frame is decoded once per
-    worker, and the workers' counts are added to ``frame_cache``'s.
+    worker, and the workers' counts are added to ``frame_cache``'s. The workers' decoding
+    threads, their work and waits are added to ``pool_times`` when the run ends.
 
     The host's threads: each worker decodes the inputs of the samples sent ahead to it in
     ``default_io_threads() // len(devices)`` threads (at least one), so the workers together
@@ -378,7 +382,7 @@ def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str],
     """
     if not devices:
         raise ValueError("run_devices needs at least one device")
-    return _device_results(job, list(specs), list(devices), frame_cache)
+    return _device_results(job, list(specs), list(devices), frame_cache, pool_times)
 
 
 class _Runs:
@@ -411,7 +415,8 @@ class _Runs:
 
 
 def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
-                    frame_cache: FrameCache | None = None):
+                    frame_cache: FrameCache | None = None,
+                    pool_times: PoolTimes | None = None):
     if not todo:
         return
     runs = _Runs(todo, len(devices))
@@ -443,6 +448,9 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
             if kind != "open":
                 raise RuntimeError(f"--devices {device}: {value}")
         queued: list[deque[SampleSpec]] = [deque() for _ in devices]
+        # each worker's decoding threads as it last sent them, from the start: a worker sent
+        # no sample has them too (with one thread, none: it decodes in turn)
+        pools = [PoolTimes(threads) if threads > 1 else None for _ in devices]
 
         def feed(worker: int) -> None:
             spec = runs.next(worker)
@@ -479,13 +487,17 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
                     raise RuntimeError(f"the worker on {devices[worker]} failed on sample "
                                        f"{spec.index} ({spec.name}), not for a fault of the "
                                        f"sample:\n{value}")
-                _, result, error, layout, counts = value
+                _, result, error, layout, counts, times = value
+                pools[worker] = times
                 if layout is not None:  # copied out of the block, which goes back
                     result = blocks.receive(conn, result, layout)
                 if counts is not None and frame_cache is not None:
                     frame_cache.add(counts)
                 feed(worker)
                 yield spec, result, error  # the driver's own spec object
+        for times in pools:
+            if times is not None and pool_times is not None:
+                pool_times.add(times)
         finished = True
     finally:
         for conn in conns:  # an idle worker ends when its pipe closes

@@ -146,7 +146,8 @@ class SetReport:
         to_make: samples this run set out to make (``made + len(failed)`` when it finished).
         seconds: the wall time of making and writing them.
         timings: seconds per category summed over the run (:data:`gpu_blur.timings.CATEGORIES`).
-        bound: which stage bounded a one-device run, as a line (None with ``devices``/``ray``).
+        bound: which stage bounded the run, as a line (None with ``ray``, and with
+            ``devices`` and ``io_threads=1``).
         summary: the lines ``gpu-blur generate`` prints at the end (samples, samples/s, where
             the time went, the I/O threads, the bound).
     """
@@ -514,7 +515,8 @@ class _Run:
                                      pinned_staging(job))
                        if io and self.executor is run_serial else
                        run_serial(job, self.todo, cache) if self.executor is run_serial else
-                       self.executor(job, self.todo, frame_cache=cache) if devices else
+                       self.executor(job, self.todo, frame_cache=cache, pool_times=io)
+                       if devices else
                        self.executor(job, self.todo))
             # kept in a name: after a strict stop the progress bar closes once the stop is
             # dropped (its message is then on the screen above it)
@@ -593,8 +595,12 @@ class _Run:
             lines.append(io.summary(took))
         if cache is not None:
             lines.append(cache.counts().summary())
-        bound = totals.bound(took, io) if self.executor is run_serial else None
-        if bound is not None:  # the device's time is this thread's
+        # the waits for inputs are this thread's, or (--devices) the workers' in io; Ray's
+        # tasks send none back
+        devices = getattr(self.executor, "keywords", {}).get("devices")
+        bound = (totals.bound(took, io) if self.executor is run_serial else
+                 totals.bound(took, io, len(devices)) if devices and io else None)
+        if bound is not None:
             lines.append(bound)
         return SetReport(output=o.output, manifest=Path(writer.manifest_path),
                          device=self.backend.device, made=self.made, failed=tuple(self.failed),

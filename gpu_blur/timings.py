@@ -158,8 +158,8 @@ class RunTotals:
             lines.append(f"  (parallel workers: {counted:.2f} s of work in {wall:.2f} s)")
         return lines
 
-    def bound(self, wall: float, pool: PoolTimes | None = None) -> str:
-        """Which stage bounded a one-device run of ``wall`` seconds, as a summary line.
+    def bound(self, wall: float, pool: PoolTimes | None = None, devices: int = 1) -> str:
+        """Which stage bounded a run of ``wall`` seconds, as a summary line.
 
         The driver thread's time (these totals) splits into decoding inputs (``reading``),
         encoding and writing outputs (``writing``) and synthesis (the rest: copies, kernels,
@@ -167,8 +167,11 @@ class RunTotals:
         another (no ``pool``), the largest is the bound; with an I/O pool decoding and writing
         are the driver's waits for the pool, and the stage it waited on most is the bound,
         with the pool's own figure for it (:meth:`PoolTimes.ceiling`): what more cores give.
+        With ``devices`` worker processes (``--devices``) each waits for its own inputs:
+        ``reading`` holds their waits summed, and the bound takes their mean.
         """
-        spent = {"decode": self.seconds["reading"], "encode/write": self.seconds["writing"]}
+        spent = {"decode": self.seconds["reading"] / devices,
+                 "encode/write": self.seconds["writing"]}
         spent["synthesis"] = max(wall - sum(spent.values()), 0.0)
         stage = max(spent, key=spent.get)
         share = 100 * spent[stage] / max(wall, 1e-12)
@@ -187,13 +190,17 @@ class RunTotals:
 class PoolTimes:
     """Seconds a pool of I/O threads spent per stage, and what the driver waited for it.
 
+    A ``--devices`` worker's pool crosses to the driver pickled (its figures, not its lock),
+    where :meth:`add` counts it in the run's.
+
     Attributes:
         threads: the pool's threads.
         busy: seconds of ``decode`` (a file each, or a sample's staging) and ``write`` (a
             sample each) work, summed over the threads.
         calls: the tasks of each.
         samples: samples whose inputs the pool decoded.
-        waited_for_inputs: seconds the driver thread waited for decoded inputs.
+        waited_for_inputs: seconds the driver thread waited for decoded inputs (summed over
+            the workers' threads that make samples, with ``--devices``).
     """
 
     def __init__(self, threads: int):
@@ -213,6 +220,24 @@ class PoolTimes:
             with self._lock:
                 self.busy[stage] += time.perf_counter() - start
                 self.calls[stage] += 1
+
+    def add(self, other: PoolTimes) -> None:
+        """Count another pool's threads, work and waits as this one's."""
+        with self._lock:
+            self.threads += other.threads
+            for stage in self.busy:
+                self.busy[stage] += other.busy[stage]
+                self.calls[stage] += other.calls[stage]
+            self.samples += other.samples
+            self.waited_for_inputs += other.waited_for_inputs
+
+    def __getstate__(self) -> dict:
+        with self._lock:
+            return {**self.__dict__, "busy": dict(self.busy), "calls": dict(self.calls),
+                    "_lock": None}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, _lock=threading.Lock())
 
     def ceiling(self, stage: str) -> str:
         """The samples a second ``stage`` alone would allow on these threads, in words.

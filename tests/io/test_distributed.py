@@ -149,6 +149,18 @@ def test_a_device_worker_decoding_ahead_in_threads_writes_the_serial_run_s_set(
     assert_same_set(out, reference("numpy"))
 
 
+def test_a_devices_run_s_summary_counts_its_workers_decoding(tmp_path, photos, monkeypatch):
+    monkeypatch.setattr(distributed, "default_io_threads", lambda: 4)  # 2 a worker
+    folder, scene = photos
+    report = gpu_blur.generate_set(tmp_path / "out", input=folder, scene=scene,
+                                   samples_per_photo=2, devices="numpy,numpy", io_threads=2)
+    threads = next(line for line in report.summary if line.startswith("I/O threads"))
+    # the driver's 2 writing threads and each worker's 2 decoding threads; a task per file
+    assert re.match(r"I/O threads \(6\): decoding [\d.]+ s \(6 tasks, [\d.]+ ms each\)",
+                    threads), threads
+    assert report.bound.startswith("bound by: ") and report.summary[-1] == report.bound
+
+
 def test_a_worker_sends_the_codes_the_writer_writes_and_no_unsaved_mask(tmp_path, photos):
     folder, scene_path = photos
     spec = find_samples(folder, "trajectory", 1, 2).take()[0]
