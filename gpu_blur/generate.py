@@ -15,6 +15,7 @@ file I/O release the GIL, so those threads run beside synthesis. Queues of
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import os
 import threading
@@ -28,6 +29,7 @@ import numpy as np
 
 from gpu_blur.discovery import SampleSpec
 from gpu_blur.frame_cache import FrameCache
+from gpu_blur.gpu_jpeg import JpegBatches
 from gpu_blur.image_arrays import check_image
 from gpu_blur.image_reading import opencv_reason, read_image
 from gpu_blur.reference.output import to_integers
@@ -242,12 +244,14 @@ class _Inputs:
 
     The task that decodes the last file checks them all (:func:`checked_inputs`), so no
     thread waits on another's decode; :attr:`checked` then holds the arrays or None.
-    :meth:`stage` has them copied to a position of a :class:`PinnedStaging` slot.
+    :meth:`stage` has them copied to a position of a :class:`PinnedStaging` slot. With
+    ``jpeg``, a sample of JPEG files is read and checked for the GPU instead (:attr:`jpeg`).
     """
 
     def __init__(self, spec: SampleSpec, pool: Executor, times: PoolTimes,
-                 cache: FrameCache | None):
+                 cache: FrameCache | None, jpeg: JpegBatches | None = None):
         self.spec, self.checked, self.staged = spec, Future(), None
+        self.jpeg = jpeg if jpeg is not None and jpeg.takes(spec) else None
         self.slot: int | None = None
         self.position = 0
         self._images: list = [None] * len(spec.inputs)
@@ -263,11 +267,11 @@ class _Inputs:
     @property
     def batchable(self) -> bool:
         """Whether it may go in a batch: files to read, no problem, no roles (mode none)."""
-        return bool(self.tasks) and not self.spec.roles
+        return bool(self.tasks) and not self.spec.roles and self.jpeg is None
 
     def _read(self, i: int, path, cache) -> None:
         try:
-            image = read_input(path, cache)
+            image = (read_input if self.jpeg is None else self.jpeg.read)(path, cache)
         except Exception:  # synthesize meets it again, and says what it is
             image = None
         with self._lock:
@@ -276,7 +280,8 @@ class _Inputs:
             last = self._left == 0
         if last:
             images = None if any(image is None for image in self._images) else self._images
-            self.checked.set_result(checked_inputs(self.spec, images))
+            self.checked.set_result(checked_inputs(self.spec, images) if self.jpeg is None
+                                    else self.jpeg.checked(self.spec, images, checked_inputs))
 
     def stage(self, staging: PinnedStaging, slot: int, position: int, pool: Executor,
               times: PoolTimes) -> None:
@@ -303,6 +308,12 @@ class _Inputs:
             task.cancel()
 
 
+def _synthesizer(job: Job) -> Synthesizer:
+    """The Synthesizer that makes a run's batches (:func:`make_batch`)."""
+    return Synthesizer(job.scene, backend=job.backend, seed=job.seed, schedule=job.schedule,
+                       with_mask=job.with_mask, with_raw=job.with_raw)
+
+
 def _stage(ahead: deque[_Inputs], staging: PinnedStaging, pool: Executor,
            times: PoolTimes) -> None:
     """Give free slots to the oldest runs of batchable samples not yet staged."""
@@ -326,7 +337,8 @@ def _stage(ahead: deque[_Inputs], staging: PinnedStaging, pool: Executor,
 def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: PoolTimes,
                   depth: int, cache: FrameCache | None = None,
                   staging: PinnedStaging | None = None,
-                  more: Callable[[], bool] | None = None) -> Iterator[tuple]:
+                  more: Callable[[], bool] | None = None,
+                  jpeg: JpegBatches | None = None) -> Iterator[tuple]:
     """Make the samples in this thread, in order, while ``pool`` decodes the next ones' inputs.
 
     At most ``depth`` samples are decoded or being decoded ahead of the one being made, each
@@ -338,7 +350,8 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
     is added to ``times.waited_for_inputs``, the pool's decoding and staging to
     ``times.busy["decode"]``. ``more``: for samples that arrive while the run goes (a device
     worker's): ``specs`` ends when none is waiting, and ``more()`` waits for the next one
-    when nothing is ahead (False: there are no more).
+    when nothing is ahead (False: there are no more). ``jpeg``: samples of JPEG files are
+    read as bytes and decoded in groups of :data:`BATCH` on the GPU (``--jpeg-decoder gpu``).
     """
     rest = iter(specs)
     ahead: deque[_Inputs] = deque()
@@ -346,7 +359,7 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
     try:
         while True:
             for spec in itertools.islice(rest, depth - len(ahead)):
-                ahead.append(_Inputs(spec, pool, times, cache))
+                ahead.append(_Inputs(spec, pool, times, cache, jpeg))
             if not ahead:
                 if more is not None and more():
                     continue
@@ -359,7 +372,9 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
                 _stage(ahead, staging, pool, times)
             slot = ahead[0].slot
             group = ([w for w in itertools.islice(ahead, staging.batch) if w.slot == slot]
-                     if slot is not None else [ahead[0]])
+                     if slot is not None else
+                     list(itertools.takewhile(lambda w: w.jpeg, itertools.islice(ahead, BATCH)))
+                     if ahead[0].jpeg else [ahead[0]])
             start = time.perf_counter()
             inputs = [waiting.result() for waiting in group]
             times.waited_for_inputs += time.perf_counter() - start
@@ -367,13 +382,15 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
                 ahead.popleft()
             specs_made = [waiting.spec for waiting in group]
             made = None
-            if len(group) > 1:
+            if group[0].jpeg:
+                synthesizer = synthesizer or _synthesizer(job)
+                made = jpeg.make(specs_made, inputs,
+                                 functools.partial(make_batch, job, synthesizer),
+                                 functools.partial(make_sample, job))
+            elif len(group) > 1:
                 batch = staging.batch_of(slot, inputs, job.scene.blur.mode == "average")
                 if batch is not None:
-                    if synthesizer is None:
-                        synthesizer = Synthesizer(job.scene, backend=job.backend, seed=job.seed,
-                                                  with_mask=job.with_mask,
-                                                  with_raw=job.with_raw)
+                    synthesizer = synthesizer or _synthesizer(job)
                     made = make_batch(job, synthesizer, specs_made, batch)
             if made is None:
                 made = [make_sample(job, spec, given)

@@ -228,6 +228,30 @@ def frame_cache_bytes(value: str | int | None) -> int | None:
         raise ValueError(f"--frame-cache: {e}; 0 keeps no frames") from None
 
 
+def _check_jpeg_decoder(o) -> None:
+    """Refuse a ``--jpeg-decoder`` this run cannot use, before the backend is asked.
+
+    The GPU decoder feeds the one-device pipeline of :func:`gpu_blur.generate.run_pipelined`;
+    what it needs of the backend and libraries :func:`gpu_blur.gpu_jpeg.for_backend` checks.
+    """
+    from gpu_blur.generate import default_io_threads
+    from gpu_blur.gpu_jpeg import JPEG_DECODERS
+
+    decoder = getattr(o, "jpeg_decoder", "cpu")
+    if decoder not in JPEG_DECODERS:
+        raise ValueError(f"--jpeg-decoder {decoder}: not a decoder; give one of "
+                         f"{', '.join(JPEG_DECODERS)}")
+    if decoder != "gpu":
+        return
+    if o.devices is not None or o.ray is not None:
+        raise ValueError(f"--jpeg-decoder gpu decodes in a run on one device, not with "
+                         f"--{'devices' if o.devices is not None else 'ray'}: leave one out")
+    if (o.io_threads or default_io_threads()) == 1:
+        raise ValueError("--jpeg-decoder gpu decodes in the pipeline of I/O threads, and this "
+                         "run has one thread (--io-threads 1, or a host of one core): give "
+                         "--io-threads 2 or more, or leave --jpeg-decoder at cpu")
+
+
 def check_setup(o, scene) -> None:
     """Fail before any sample for what every sample would fail on (``o``: the options)."""
     from gpu_blur.cameras import scene_camera
@@ -254,6 +278,7 @@ def check_setup(o, scene) -> None:
     if o.io_threads is not None and o.io_threads < 1:
         raise ValueError(f"--io-threads {o.io_threads}: must be >= 1 (1: no I/O threads)")
     frame_cache_bytes(getattr(o, "frame_cache", None))
+    _check_jpeg_decoder(o)
     if not 0.0 <= o.verify <= 1.0:
         raise ValueError(f"--verify {o.verify}: the fraction of tiles to check, 0 to 1")
     if "raw" in extras(o.save) and not raw_round_trip(scene):
@@ -295,8 +320,8 @@ def generate_set(
     devices: str | None = None, ray: str | None = None, gpus_per_task: float | None = None,
     retries: int | None = None, ray_batch: int | None = None, io_threads: int | None = None,
     tile: Sequence[int] | None = None, max_device_memory: str | int | None = None,
-    frame_cache: str | int | None = None, verify: float = 0.0, strict: bool = False,
-    samples_per_photo: int | None = None,
+    frame_cache: str | int | None = None, jpeg_decoder: str = "cpu", verify: float = 0.0,
+    strict: bool = False, samples_per_photo: int | None = None,
     samples_per_sequence: int | None = None, limit: int | None = None,
     save: str | Iterable[str] = "", format: str = "png", shard_size: int | None = None,
     overwrite: bool = False, resume: bool = False, average_gopro_large_sharp: bool = False,
@@ -326,6 +351,8 @@ def generate_set(
         max_device_memory: device memory one tile's passes may hold ("2G", bytes).
         frame_cache: host memory for decoded frames that several samples read ("2G", bytes;
             0: none; default 1/8 of physical memory, at most 1 GiB), used where they do.
+        jpeg_decoder: ``"cpu"`` (OpenCV) or ``"gpu"`` (nvJPEG through torchvision, a Warp
+            CUDA backend; pixels may differ by a few codes): :mod:`gpu_blur.gpu_jpeg`.
         verify: fraction of tiles recomputed by the numpy reference and compared.
         strict: stop at the first spot-check mismatch (raises :class:`StrictStop`).
         samples_per_photo: samples drawn from each photo (default 1; 4 for the built-in one).
@@ -368,7 +395,8 @@ def generate_set(
         seed=seed, backend=backend, devices=devices, ray=ray, gpus_per_task=gpus_per_task,
         retries=retries, ray_batch=ray_batch, io_threads=io_threads,
         tile=None if tile is None else list(tile), max_device_memory=max_device_memory,
-        frame_cache=frame_cache, verify=verify, strict=strict, samples_per_photo=samples_per_photo,
+        frame_cache=frame_cache, jpeg_decoder=jpeg_decoder, verify=verify, strict=strict,
+        samples_per_photo=samples_per_photo,
         samples_per_sequence=samples_per_sequence, limit=limit, save=save, format=format,
         shard_size=shard_size, overwrite=overwrite, resume=resume,
         average_gopro_large_sharp=average_gopro_large_sharp, frames_as_photos=frames_as_photos)
@@ -382,6 +410,7 @@ class _Run:
         from gpu_blur.backends import get_backend
         from gpu_blur.discovery import BUILT_IN_INPUT, check_layout, find_samples
         from gpu_blur.distributed import pick_executor
+        from gpu_blur.gpu_jpeg import for_backend
         from gpu_blur.run_record import library_versions
         from gpu_blur.scene import load_scene
         from gpu_blur.scheduler import Schedule
@@ -393,6 +422,8 @@ class _Run:
         if on_device is not None:
             on_device(self.backend.device)
         check_setup(o, scene)
+        self.jpeg = (for_backend(self.backend, scene.blur.mode == "average")
+                     if o.jpeg_decoder == "gpu" else None)
         self.executor = pick_executor(o, scene.output.precision)  # serial, devices or ray
         per_photo = o.samples_per_photo or (1 if o.input else 4)
         where = (f"scene file {scene.path}" if scene.path
@@ -425,6 +456,9 @@ class _Run:
                "files": {key: hashlib.sha256(path.read_bytes()).hexdigest()
                          for key, path in scene_files(scene).items()},
                "libraries": library_versions(o.backend)}
+        if self.jpeg:  # absent for the CPU's decoder, as sets made before the option record it
+            run["jpeg_decoder"] = o.jpeg_decoder
+            run["libraries"].update(self.jpeg.libraries)
         self.extras = extras(o.save)
         if self.extras:  # absent without save, as sets made before it record it
             run["save"] = list(self.extras)
@@ -447,7 +481,9 @@ class _Run:
         try:  # the model of device that made it
             return self.writer.save(spec, result, {**self.record,
                                                    "device": result.device
-                                                   or self.record["device"]})
+                                                   or self.record["device"],
+                                                   **(self.jpeg.record(spec) if self.jpeg
+                                                      else {})})
         except OSError as e:
             raise _cannot_write(self.o.output, spec, e) from None
 
@@ -512,7 +548,7 @@ class _Run:
             devices = getattr(self.executor, "func", None) is run_devices
             cache = self.frame_cache() if self.executor is run_serial or devices else None
             samples = (run_pipelined(job, self.todo, pool, io, QUEUE_PER_THREAD * threads, cache,
-                                     pinned_staging(job))
+                                     pinned_staging(job), jpeg=self.jpeg)
                        if io and self.executor is run_serial else
                        run_serial(job, self.todo, cache) if self.executor is run_serial else
                        self.executor(job, self.todo, frame_cache=cache, pool_times=io)
@@ -595,6 +631,8 @@ class _Run:
             lines.append(io.summary(took))
         if cache is not None:
             lines.append(cache.counts().summary())
+        if self.jpeg:
+            lines.append(self.jpeg.summary())
         # the waits for inputs are this thread's, or (--devices) the workers' in io; Ray's
         # tasks send none back
         devices = getattr(self.executor, "keywords", {}).get("devices")

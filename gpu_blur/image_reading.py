@@ -20,10 +20,12 @@ from gpu_blur import limits
 from gpu_blur.image_arrays import swap_red_blue
 from gpu_blur.png_codecs import decode_png
 
-__all__ = ["READ_FORMATS", "decode_file", "opencv_reason", "read_image", "too_many_pixels"]
+__all__ = ["READ_FORMATS", "WAY_OUT", "decode_file", "opencv_reason", "read_checked", "read_image",
+           "too_many_pixels"]
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_WAY_OUT = "re-export or re-copy the file, or remove it from the input"
+#: The way out a bad input file's message ends with.
+WAY_OUT = "re-export or re-copy the file, or remove it from the input"
 
 
 _TRUNCATED_JPEG = "truncated JPEG (no end-of-image marker after the image data)"
@@ -355,6 +357,35 @@ def too_many_pixels(width: int, height: int) -> str | None:
             f"environment variable {limits.MAX_PIXELS_VARIABLE}={pixels}")
 
 
+def read_checked(path: Path, where: str, fix: str,
+                 refuse: Callable[[int, int], str | None] = too_many_pixels) -> bytes:
+    """An image file's bytes, once its header and structure pass :func:`decode_file`'s checks.
+
+    The checks before decoding: not empty, a size in the header (:func:`_header_size`) that
+    ``refuse`` lets through, no damage (:func:`_damage`). A decoder other than OpenCV's
+    (nvJPEG, :mod:`gpu_blur.gpu_jpeg`) takes the bytes from here.
+
+    Raises:
+        ValueError: as :func:`decode_file`, naming ``where``.
+    """
+    from gpu_blur.files import read_bytes
+
+    data = read_bytes(path, where)
+    if not data:
+        raise ValueError(f"{where}: the file is empty (0 bytes){fix}")
+    size = _header_size(data)
+    problem = refuse(*size) if size else None
+    if problem:
+        raise ValueError(f"{where}: {problem}")
+    problem = _damage(data, decode=size is not None)
+    if problem:
+        raise ValueError(f"{where}: {problem}{fix}")
+    if size is None:
+        raise ValueError(f"{where}: not a readable image (no width and height in its header: "
+                         f"gpu_blur reads {READ_FORMATS}); convert it to PNG{fix}")
+    return data
+
+
 def decode_file(path: Path, where: str, fix: str,
                 refuse: Callable[[int, int], str | None] = too_many_pixels,
                 rgb: bool = False) -> np.ndarray:
@@ -373,21 +404,7 @@ def decode_file(path: Path, where: str, fix: str,
             damaged, not an image of :data:`READ_FORMATS`), then ``fix`` (a size has its own:
             what ``refuse`` says).
     """
-    from gpu_blur.files import read_bytes
-
-    data = read_bytes(path, where)
-    if not data:
-        raise ValueError(f"{where}: the file is empty (0 bytes){fix}")
-    size = _header_size(data)
-    problem = refuse(*size) if size else None
-    if problem:
-        raise ValueError(f"{where}: {problem}")
-    problem = _damage(data, decode=size is not None)
-    if problem:
-        raise ValueError(f"{where}: {problem}{fix}")
-    if size is None:
-        raise ValueError(f"{where}: not a readable image (no width and height in its header: "
-                         f"gpu_blur reads {READ_FORMATS}); convert it to PNG{fix}")
+    data = read_checked(path, where, fix, refuse)
     image = decode_png(data) if rgb else None
     if image is None:
         try:
@@ -429,7 +446,7 @@ def read_image(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.exists():  # anything else there is refused by its kind (files.open_regular)
         raise ValueError(f"{path}: no such file")
-    image = decode_file(path, str(path), f"; {_WAY_OUT}", rgb=True)
+    image = decode_file(path, str(path), f"; {WAY_OUT}", rgb=True)
     if image.ndim == 2:
         image = image[:, :, None]
     channels = image.shape[2]

@@ -25,9 +25,11 @@ __all__ = ["RESUME_KEYS", "check_run", "jsonable", "library_versions", "plain", 
 #: holds the sha256 of each file the scene names (camera.name, blur.kernel), "device" the
 #: backend's device (OpenCL platform numbers change when a runtime is installed),
 #: "libraries" the versions of the libraries that compute the pixels (library_versions),
-#: "save" the extra outputs of --save (absent without it).
+#: "save" the extra outputs of --save (absent without it), "jpeg_decoder" --jpeg-decoder
+#: (absent for the default, cpu; before "libraries", to which it adds torchvision's).
 RESUME_KEYS = {"seed": "--seed", "scene": "--scene", "backend": "--backend",
-               "device": "device behind --backend", "input": "--input",
+               "device": "device behind --backend", "jpeg_decoder": "--jpeg-decoder",
+               "input": "--input",
                "samples_per_photo": "--samples-per-photo",
                "samples_per_sequence": "--samples-per-sequence",
                "files": "camera or kernel file contents", "libraries": "library version",
@@ -50,7 +52,8 @@ def library_versions(backend: str) -> dict[str, str]:
     """The versions of the libraries a sample's pixels depend on with ``backend``.
 
     gpu_blur, numpy and OpenCV (image decoding and encoding, resampling) always; pyopencl or
-    Warp with their backends.
+    Warp with their backends. ``--jpeg-decoder gpu`` adds its own
+    (:attr:`gpu_blur.gpu_jpeg.JpegBatches.libraries`).
     """
     import cv2
 

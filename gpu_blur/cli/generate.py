@@ -80,6 +80,14 @@ def add_parser(sub) -> None:
                    "several times), each decoded once while it fits (e.g. 512M, 2G; 0: none; "
                    "default 1/8 of the host's memory, at most 1G; with --devices split among "
                    "the workers); the output does not change")
+    g.add_argument("--jpeg-decoder", choices=("cpu", "gpu"), default="cpu",
+                   help="what decodes JPEG inputs: cpu (OpenCV's libjpeg-turbo, the default) or "
+                   "gpu (NVIDIA's nvJPEG through torchvision, a group of samples' files at a "
+                   "time, into the memory of a --backend warp:cuda:N; needs torch and "
+                   "torchvision built for CUDA). Decoded pixels may differ from the CPU's by a "
+                   "few codes (docs/cli/generate.md gives the measured tolerance), so the set "
+                   "records the decoder and --resume keeps it; files nvJPEG is not given "
+                   "(progressive, greyscale, damaged) are decoded on the CPU")
     g.add_argument("--verify", type=float, default=0.0, metavar="FRACTION",
                    help="recompute this fraction of tiles (0 to 1, chosen from seed and sample "
                    "index) with the numpy reference and compare under the tolerance table; a "
@@ -204,7 +212,7 @@ def _generate(args) -> int:
             backend=args.backend, devices=args.devices, ray=args.ray,
             gpus_per_task=args.gpus_per_task, retries=args.retries, ray_batch=args.ray_batch,
             io_threads=args.io_threads, tile=args.tile, max_device_memory=args.max_device_memory,
-            frame_cache=args.frame_cache,
+            frame_cache=args.frame_cache, jpeg_decoder=args.jpeg_decoder,
             verify=args.verify, strict=args.strict, samples_per_photo=args.samples_per_photo,
             samples_per_sequence=args.samples_per_sequence, limit=args.limit, save=args.save,
             format=args.format, shard_size=args.shard_size,
