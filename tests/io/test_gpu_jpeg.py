@@ -31,6 +31,10 @@ from gpu_blur.image_reading import read_image
 torch = pytest.importorskip("torch")
 
 AVERAGE = '[blur]\nmode = "average"\nframes = 3\n'
+#: numpy and the first device of each kernel backend (Warp takes torch tensors where they lie,
+#: as on CUDA)
+BACKENDS = ["numpy", *{spec.split(":")[0]: spec.split("/")[0]
+                       for spec in reversed(KERNEL_BACKEND_SPECS)}.values()]
 SAMPLING = {"420": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420,
             "444": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444}
 
@@ -106,7 +110,7 @@ def assert_cpu_runs_set(out, reference):
     assert without_decoder(manifest_lines(out)) == manifest_lines(reference)
 
 
-@pytest.mark.parametrize("backend", ["numpy", *KERNEL_BACKEND_SPECS[:1]])
+@pytest.mark.parametrize("backend", BACKENDS)
 def test_the_gpu_path_with_the_cpu_decoders_pixels_writes_the_cpu_runs_bytes(
         tmp_path, sequences, stand_in, backend):
     folder, scene = sequences
