@@ -284,3 +284,17 @@ def test_nvjpeg_pixels_lie_within_the_tolerance_of_opencvs(tmp_path, sampling):
     difference = np.abs(gpu - read_image(tmp_path / "a.jpg").astype(int))
     assert difference.max() <= NVJPEG_MAX_DIFFERENCE, difference.max()
     assert difference.mean() <= NVJPEG_MEAN_DIFFERENCE, difference.mean()
+
+
+@pytest.mark.skipif(not nvjpeg_ready(), reason="nvJPEG needs torch with CUDA and torchvision")
+def test_a_cuda_run_decodes_its_jpeg_samples_with_nvjpeg(tmp_path, sequences):
+    folder, scene = sequences
+    run = ["--backend", "warp:cuda:0", "--io-threads", "3"]
+    assert main(args(folder, scene, tmp_path / "cpu", *run)) == 0
+    assert main(args(folder, scene, tmp_path / "gpu", *run, "--jpeg-decoder", "gpu")) == 0
+    lines = manifest_lines(tmp_path / "gpu")
+    assert sum(x.get("jpeg_decoder") == "gpu" for x in lines) == 6
+    assert [(x["name"], x["status"]) for x in lines] == [
+        (x["name"], x["status"]) for x in manifest_lines(tmp_path / "cpu")]
+    libraries = json.loads((tmp_path / "gpu" / "run.json").read_text())["libraries"]
+    assert "torchvision" in libraries and "cuda" in libraries
