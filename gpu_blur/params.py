@@ -24,8 +24,8 @@ from gpu_blur.reference.bayer import BayerPattern
 from gpu_blur.reference.noise import draw_noise_levels
 from gpu_blur.scene import PATTERNS, PER_SEQUENCE, Scene
 
-__all__ = ["ARRAY_PARAMS", "DRAW_INDEX", "OVERRIDE_LIMITS", "batch_uniforms", "check_overrides",
-           "draw_keys", "draw_params", "image_streams"]
+__all__ = ["ARRAY_PARAMS", "DRAW_INDEX", "KERNEL_WALK", "OVERRIDE_LIMITS", "batch_uniforms",
+           "check_overrides", "draw_keys", "draw_params", "image_streams"]
 
 #: Index of each scalar draw in stream PARAMS (a contract: changing one changes every dataset).
 DRAW_INDEX = {
@@ -116,6 +116,11 @@ def _uniform_range(u: float, lo: float, hi: float) -> float:
     return lo + (hi - lo) * u
 
 
+#: The key of a :func:`batch_uniforms` row's random-kernel walk values
+#: (:func:`gpu_blur.reference.motion_kernel.kernel_walk_values` of its kernel uniforms).
+KERNEL_WALK = "kernel_walk"
+
+
 def image_streams(scene: Scene) -> dict:
     """The per-image random streams :func:`draw_params` reads for ``scene``: {stream: count}."""
     streams = {rng.Stream.PARAMS: len(DRAW_INDEX)}
@@ -157,11 +162,14 @@ def batch_uniforms(scene: Scene, *, seed: int, sample_indices,
     Row b is what :func:`draw_params` draws for ``sample_indices[b]`` (its ``uniforms``
     argument; keyed by ``sequence_indices[b]`` under per-sequence draws, :func:`draw_keys`):
     the same values (:func:`gpu_blur.reference.rng.image_uniforms_batch`), in one Philox
-    evaluation per stream instead of one per sample.
+    evaluation per stream instead of one per sample; random kernels' walk values
+    (:data:`KERNEL_WALK`) likewise.
     """
     keys, keyed = draw_keys(scene, sample_indices, sequence_indices)
     drawn = {stream: rng.image_uniforms_batch(seed, keys, stream, count, keyed)
              for stream, count in image_streams(scene).items()}
+    if rng.Stream.KERNEL in drawn:  # one fixedmath call for every kernel's walk
+        drawn[KERNEL_WALK] = motion_kernel.kernel_walk_values(drawn[rng.Stream.KERNEL])
     return [{stream: u[b] for stream, u in drawn.items()} for b in range(len(keys))]
 
 
@@ -220,7 +228,8 @@ def draw_params(scene: Scene, plan: Plan, camera: Camera, *, seed: int, sample_i
         sizes = [s for s in range(lo, hi + 1) if s % 2 == 1]
         put("kernel_size", sizes[min(int(draw["kernel_size"] * len(sizes)), len(sizes) - 1)])
         ku = stream_uniforms(rng.Stream.KERNEL)
-        put("kernel", motion_kernel.random_motion_kernel(ku, int(p["kernel_size"])))
+        put("kernel", motion_kernel.random_motion_kernel(ku, int(p["kernel_size"]),
+                                                         given.get(KERNEL_WALK)))
     if plan.kept("blur") and b.mode == "trajectory":
         put("extent_px", _uniform_range(draw["extent_px"], *b.extent))
         su = stream_uniforms(rng.Stream.TRAJECTORY)

@@ -20,8 +20,10 @@ __all__ = [
     "GOPRO_U_KERNEL_SIZES",
     "KERNEL_UNIFORMS",
     "KERNEL_WALK_STEPS",
+    "KERNEL_WALK_VALUES",
     "convolve_kernel",
     "kernel_halo",
+    "kernel_walk_values",
     "normalize_kernel",
     "random_motion_kernel",
 ]
@@ -51,6 +53,9 @@ KERNEL_SAMPLE_SPACING_PX = 0.1
 #: direction, jitter, pull, shake probability, extent), then 4 per step (a complex Gaussian from
 #: two, a shake test, a shake turn).
 KERNEL_UNIFORMS = 5 + 4 * (KERNEL_WALK_STEPS - 1)
+#: Values :func:`kernel_walk_values` gives a kernel: a radius per step, then the sines and then
+#: the cosines of each step's Gaussian angle, each step's shake turn and the start direction.
+KERNEL_WALK_VALUES = (KERNEL_WALK_STEPS - 1) + 2 * (2 * (KERNEL_WALK_STEPS - 1) + 1)
 
 
 def normalize_kernel(kernel) -> np.ndarray:
@@ -151,7 +156,36 @@ def convolve_kernel(image, kernel) -> np.ndarray:
     return out.reshape(img.shape)
 
 
-def random_motion_kernel(uniforms, size: int) -> np.ndarray:
+def kernel_walk_values(uniforms) -> np.ndarray:
+    """The elementary functions' values that random kernels' walks need, many kernels at once.
+
+    Per row of uniforms (:func:`random_motion_kernel`'s layout): the Box-Muller radii
+    ``sqrt(-2 log u)`` of the steps' Gaussians, then the sines and then the cosines of their
+    angles, of the shake turns' and of the start direction. Through :mod:`fixedmath` (the same
+    bits on every CPU), whose cost on a kernel's few hundred values is its per-call numpy
+    overhead: one call for a batch's kernels costs about what one kernel's does, and an
+    elementwise function gives each value the same bits whatever lies beside it.
+
+    Args:
+        uniforms: ``(..., KERNEL_UNIFORMS)`` uniforms in (0, 1), a row per kernel.
+
+    Returns:
+        ``(..., KERNEL_WALK_VALUES)`` float64, a row per kernel.
+    """
+    u = np.asarray(uniforms, dtype=np.float64)
+    n = KERNEL_WALK_STEPS
+    steps = u[..., 5:].reshape(*u.shape[:-1], n - 1, 4)
+    radius = np.sqrt(-2.0 * fixedmath.log(steps[..., 0]))
+    angles = np.concatenate([
+        2.0 * math.pi * steps[..., 1],
+        math.pi + 2.0 * KERNEL_SHAKE_TURN_SPREAD_RAD * (steps[..., 3] - 0.5),
+        2.0 * math.pi * u[..., :1],
+    ], axis=-1)
+    sines, cosines = fixedmath.sincos(angles)
+    return np.concatenate([radius, sines, cosines], axis=-1)
+
+
+def random_motion_kernel(uniforms, size: int, walk=None) -> np.ndarray:
     """Draw a random camera-motion blur kernel, centred on its centroid.
 
     Path model, a momentum random walk after Boracchi & Foi, "Modeling the Performance of Image
@@ -192,13 +226,16 @@ def random_motion_kernel(uniforms, size: int) -> np.ndarray:
     Args:
         uniforms: ``(KERNEL_UNIFORMS,)`` uniforms in the open interval (0, 1).
         size: odd kernel side ``>= 3`` (pixels).
+        walk: this row of :func:`kernel_walk_values` (made for many kernels at once), or
+            None: made here from ``uniforms``.
 
     Returns:
         ``size x size`` float64, non-negative, summing to 1, centroid at ``(size // 2,
         size // 2)`` (row, column), ``kernel[row, col]`` with rows along y.
 
     Raises:
-        ValueError: for a wrong count of uniforms, values outside (0, 1), or a bad size.
+        ValueError: for a wrong count of uniforms, values outside (0, 1), a bad size, or walk
+            values not of shape ``(KERNEL_WALK_VALUES,)``.
     """
     u = as_uniforms(uniforms, KERNEL_UNIFORMS, "random_motion_kernel")
     if (
@@ -211,26 +248,19 @@ def random_motion_kernel(uniforms, size: int) -> np.ndarray:
     size = int(size)
     n = KERNEL_WALK_STEPS
     step_len = 1.0 / (n - 1)
-    theta0 = 2.0 * math.pi * u[0]
     sigma = KERNEL_JITTER_MAX * u[1]
     kappa = KERNEL_PULL_MAX * u[2]
     p_shake = KERNEL_SHAKE_PROBABILITY_MAX * u[3]
     extent = KERNEL_EXTENT_MIN + (1.0 - KERNEL_EXTENT_MIN) * u[4]
     steps = u[5:].reshape(n - 1, 4)
 
-    # Gaussian pairs by Box-Muller and the shake turns, all at once, through fixedmath (the
-    # same bits on every CPU). Every angle goes through one sincos call: fixedmath's cost on
-    # a few hundred values is its per-call numpy overhead, and an elementwise function
-    # gives each value the same bits whatever lies beside it
-    radius = np.sqrt(-2.0 * fixedmath.log(steps[:, 0]))
-    angles = np.concatenate([
-        2.0 * math.pi * steps[:, 1],
-        math.pi + 2.0 * KERNEL_SHAKE_TURN_SPREAD_RAD * (steps[:, 3] - 0.5),
-        [theta0],
-    ])
-    sines, cosines = fixedmath.sincos(angles)
-    gauss_sin, turn_sin, (start_sin,) = np.split(sines, [n - 1, 2 * (n - 1)])
-    gauss_cos, turn_cos, (start_cos,) = np.split(cosines, [n - 1, 2 * (n - 1)])
+    # Gaussian pairs by Box-Muller, the shake turns and the start direction (theta_0)
+    walk = kernel_walk_values(u) if walk is None else np.asarray(walk, dtype=np.float64)
+    if walk.shape != (KERNEL_WALK_VALUES,):
+        raise ValueError(f"random_motion_kernel needs ({KERNEL_WALK_VALUES},) walk values; got "
+                         f"shape {walk.shape}")
+    radius, gauss_sin, turn_sin, (start_sin,), gauss_cos, turn_cos, (start_cos,) = np.split(
+        walk, np.cumsum([n - 1, n - 1, n - 1, 1, n - 1, n - 1]))
     shake = steps[:, 2] < p_shake
 
     # the walk on Python floats in the complex plane written as (x, y) pairs, each operation

@@ -14,8 +14,10 @@ from gpu_blur.reference.motion_kernel import (
     GOPRO_U_KERNEL_SIZES,
     KERNEL_EXTENT_MIN,
     KERNEL_UNIFORMS,
+    KERNEL_WALK_VALUES,
     convolve_kernel,
     kernel_halo,
+    kernel_walk_values,
     normalize_kernel,
     random_motion_kernel,
 )
@@ -325,6 +327,18 @@ def test_motion_kernels_keep_their_recorded_bits():
         u = rng.image_uniforms(11, i, rng.Stream.KERNEL, KERNEL_UNIFORMS)
         digest.update(random_motion_kernel(u, 5 + 2 * (i % 13)).tobytes())
     assert digest.hexdigest()[:32] == "a26f2660a1c300bac43178f9546867b6"
+
+
+def test_motion_kernels_walk_values_made_for_a_batch_give_the_same_bits():
+    """kernel_walk_values of many rows at once, each row handed to random_motion_kernel, makes
+    each kernel's bits as one made alone (a batch's draws take them so); a wrong shape is named."""
+    rows = np.stack([uniforms(40 + i, KERNEL_UNIFORMS) for i in range(16)])
+    walks = kernel_walk_values(rows)
+    assert walks.shape == (16, KERNEL_WALK_VALUES)
+    for u, walk in zip(rows, walks, strict=True):
+        assert random_motion_kernel(u, 23, walk).tobytes() == random_motion_kernel(u, 23).tobytes()
+    with pytest.raises(ValueError, match=f"needs \\({KERNEL_WALK_VALUES},\\) walk values"):
+        random_motion_kernel(rows[0], 23, walks[0][:-1])
 
 
 def test_motion_kernel_is_deterministic_in_its_uniforms():
