@@ -22,7 +22,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Executor, Future, ThreadPoolExecutor
+from concurrent.futures import Executor, Future
 
 import cv2
 import numpy as np
@@ -32,15 +32,15 @@ from gpu_blur.frame_cache import FrameCache
 from gpu_blur.gpu_jpeg import JpegBatches
 from gpu_blur.image_arrays import check_image
 from gpu_blur.image_reading import opencv_reason, read_image
-from gpu_blur.reference.output import code_dtype, to_integers
+from gpu_blur.reference.output import to_integers
 from gpu_blur.scene import Scene
 from gpu_blur.scheduler import Schedule
-from gpu_blur.staging import PinnedResults, PinnedStaging
+from gpu_blur.staging import PinnedStaging
 from gpu_blur.synthesis import Synthesis, Synthesizer, synthesize
 from gpu_blur.timings import PoolTimes
 
-__all__ = ["BATCH", "Job", "MAX_DEFAULT_IO_THREADS", "QUEUE_PER_THREAD", "RESULT_COPY_THREADS",
-           "RESULT_SLOTS", "STAGED_BATCHES", "WriteBehind", "checked_inputs", "decode", "default_io_threads", "for_driver",
+__all__ = ["BATCH", "Job", "MAX_DEFAULT_IO_THREADS", "QUEUE_PER_THREAD", "STAGED_BATCHES",
+           "WriteBehind", "checked_inputs", "decode", "default_io_threads", "for_driver",
            "make_batch", "make_sample", "pinned_staging", "read_input", "run_pipelined",
            "run_serial"]
 
@@ -58,13 +58,6 @@ BATCH = 4
 #: Such slots, filled ahead of the batch being made: two of four 1920 x 1200 RSBlur samples
 #: (9 frames of 8 bits) hold 500 MB of page-locked host memory.
 STAGED_BATCHES = 2
-#: Batches whose results a GPU fetches into page-locked memory (:class:`PinnedResults`): the
-#: one being made and the one being copied out; for four 1920 x 1200 samples of 8-bit codes
-#: 110 MB (330 MB more with float32 masks, ``--save mask``).
-RESULT_SLOTS = 2
-#: Threads that copy a batch's results out of page-locked memory while the next is made
-#: (their own, not the I/O pool, whose queue of decodes they would wait behind).
-RESULT_COPY_THREADS = 2
 
 
 def default_io_threads() -> int:
@@ -205,7 +198,7 @@ def pinned_staging(job: Job) -> PinnedStaging | None:
     So where the backend is a kernel backend on an NVIDIA GPU (Warp on CUDA, NVIDIA's
     OpenCL) and the job runs whole images there (no tiles, budget or spot checks, no frame
     interpolation: those run on the host's copies): :data:`STAGED_BATCHES` slots of
-    :data:`BATCH` samples, and :data:`RESULT_SLOTS` for their results.
+    :data:`BATCH` samples.
     """
     from gpu_blur.backends import get_backend, is_resident
     from gpu_blur.backends.flows import interpolation_factor
@@ -217,25 +210,23 @@ def pinned_staging(job: Job) -> PinnedStaging | None:
     backend = get_backend(job.backend, job.scene.output.precision)
     if not (is_resident(backend) and backend.uses_cuda):
         return None
-    return PinnedStaging(backend, STAGED_BATCHES, BATCH,
-                         PinnedResults(backend, RESULT_SLOTS, BATCH))
+    return PinnedStaging(backend, STAGED_BATCHES, BATCH)
 
 
-def make_batch(job: Job, synthesizer: Synthesizer, specs: list[SampleSpec], batch: np.ndarray,
-               out: list[np.ndarray] | None = None) -> list[tuple] | None:
+def make_batch(job: Job, synthesizer: Synthesizer, specs: list[SampleSpec], batch: np.ndarray
+               ) -> list[tuple] | None:
     """Samples made as one batch: :func:`make_sample`'s tuples, or None if the batch failed.
 
     ``batch``: their inputs, B x F x H x W x 3 (mode average) or B x H x W x 3, in the
     synthesizer's pinned memory. A batch's sample is ``synthesize``'s, bit for bit
     (:class:`~gpu_blur.synthesis.Synthesizer`); so is each sample of a batch that fails,
-    made again on its own by the caller, whose reason then names its file. ``out``: arrays
-    the results go into (:func:`result_shapes`), whose views the results then are.
+    made again on its own by the caller, whose reason then names its file.
     """
     windows = [spec.window for spec in specs]
     try:
         made = synthesizer(batch, indices=[spec.index for spec in specs], codes=bool(job.bits),
                            sequences=([w.sequence_index for w in windows] if all(windows)
-                                      else None), out=out)
+                                      else None))
     except (ValueError, OSError, cv2.error, MemoryError):
         return None
     share = {category: seconds / len(specs) for category, seconds in made.timings.items()}
@@ -246,67 +237,6 @@ def make_batch(job: Job, synthesizer: Synthesizer, specs: list[SampleSpec], batc
                              _raw=None if made.raw is None else made.raw[b],
                              raw_info=None if made.raw_info is None else made.raw_info[b]),
              None) for b, spec in enumerate(specs)]
-
-
-def result_shapes(job: Job, batch: np.ndarray) -> list[tuple[tuple, np.dtype]]:
-    """(shape, dtype) of one sample's results of ``batch`` (blurred, sharp, and the mask).
-
-    H' x W' x 3, cropped by ``output.crop`` on every side; blurred and sharp as the set's codes
-    (``job.bits``) or float32, the mask float32 (:meth:`Synthesizer.__call__`'s ``out``).
-    """
-    crop = job.scene.output.crop
-    height, width = batch.shape[-3:-1]
-    shape = (height - 2 * crop, width - 2 * crop, 3)
-    image = code_dtype(job.bits) if job.bits else np.dtype(np.float32)
-    return [(shape, image), (shape, image)] + (
-        [(shape, np.dtype(np.float32))] if job.with_mask else [])
-
-
-def _copied_out(made: tuple) -> tuple:
-    """A made sample whose results are views of page-locked memory, with copies of them."""
-    spec, result, error = made
-    if result is None:
-        return made
-    return spec, dataclasses.replace(
-        result, blurred=result.blurred.copy(), sharp=result.sharp.copy(),
-        _mask=None if result._mask is None else result._mask.copy()), error
-
-
-class _Made:
-    """Made samples in order, each batch's handed on once its results are copied out.
-
-    A batch made into page-locked slots (:class:`PinnedResults`) has each sample's results
-    copied out by :data:`RESULT_COPY_THREADS` threads while the next batch is made; its slot is
-    then free again. :meth:`ready` yields the batches whose copies are done, and the oldest
-    ones, waited for, beyond one.
-    """
-
-    def __init__(self, results: PinnedResults | None):
-        self.results = results
-        self._copier = (ThreadPoolExecutor(RESULT_COPY_THREADS,
-                                           thread_name_prefix="gpu-blur-results")
-                        if results is not None else None)
-        self._queue: deque[tuple[list, int | None]] = deque()
-
-    def add(self, made: list, slot: int | None = None) -> None:
-        """A batch's ``made`` tuples; with ``slot``, their results lie in that slot."""
-        if slot is not None:
-            made = [self._copier.submit(_copied_out, sample) for sample in made]
-        self._queue.append((made, slot))
-
-    def ready(self, keep: int = 1) -> Iterator[tuple]:
-        """The samples of the oldest batches: those copied out, and all but ``keep``."""
-        while self._queue and (len(self._queue) > keep or all(
-                not isinstance(m, Future) or m.done() for m in self._queue[0][0])):
-            made, slot = self._queue.popleft()
-            done = [m.result() if isinstance(m, Future) else m for m in made]
-            if slot is not None:
-                self.results.release(slot)
-            yield from done
-
-    def close(self) -> None:
-        if self._copier is not None:
-            self._copier.shutdown(cancel_futures=True)
 
 
 class _Inputs:
@@ -426,13 +356,11 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
     rest = iter(specs)
     ahead: deque[_Inputs] = deque()
     synthesizer = None
-    made_in_order = _Made(staging and staging.results)
     try:
         while True:
             for spec in itertools.islice(rest, depth - len(ahead)):
                 ahead.append(_Inputs(spec, pool, times, cache, jpeg))
             if not ahead:
-                yield from made_in_order.ready(keep=0)  # none may wait for what comes next
                 if more is not None and more():
                     continue
                 return
@@ -453,7 +381,7 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
             for _ in group:
                 ahead.popleft()
             specs_made = [waiting.spec for waiting in group]
-            made, into = None, None
+            made = None
             if group[0].jpeg:
                 synthesizer = synthesizer or _synthesizer(job)
                 made = jpeg.make(specs_made, inputs,
@@ -463,24 +391,16 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
                 batch = staging.batch_of(slot, inputs, job.scene.blur.mode == "average")
                 if batch is not None:
                     synthesizer = synthesizer or _synthesizer(job)
-                    into = staging.results and staging.results.take(
-                        len(group), result_shapes(job, batch))
-                    made = make_batch(job, synthesizer, specs_made, batch,
-                                      into and into[1])
-                    if made is None and into:
-                        staging.results.release(into[0])
-                        into = None
+                    made = make_batch(job, synthesizer, specs_made, batch)
             if made is None:
                 made = [make_sample(job, spec, given)
                         for spec, given in zip(specs_made, inputs, strict=True)]
             if slot is not None:
                 staging.release(slot, failed=any(error is not None for *_, error in made))
-            made_in_order.add(made, into and into[0])
-            yield from made_in_order.ready()
+            yield from made
     finally:  # stopped early: nothing more is decoded
         for waiting in ahead:
             waiting.cancel()
-        made_in_order.close()
 
 
 class WriteBehind:

@@ -9,10 +9,6 @@ of one stack (:func:`gpu_blur.backends.pinned_stack` finds it again). Only where
 staged does anything change; the bytes made are the same either way
 (tests/synthesis/test_generate_pipeline.py). docs/performance.md, "Whole sets from disk", has
 the rates before and after.
-
-The results come back the same way: :class:`PinnedResults` holds page-locked arrays a batch's
-results are fetched into (by the device's copy engine, no core busy), which other threads copy
-out while the next batch is made.
 """
 
 from __future__ import annotations
@@ -21,7 +17,7 @@ import threading
 
 import numpy as np
 
-__all__ = ["PinnedResults", "PinnedStaging"]
+__all__ = ["PinnedStaging"]
 
 
 class PinnedStaging:
@@ -36,12 +32,10 @@ class PinnedStaging:
         backend: the kernel backend that makes the samples (its ``pinned``).
         slots: batches staged at once, ahead of the one being made.
         batch: samples per slot.
-        results: where the batches' results are fetched into, if anywhere.
     """
 
-    def __init__(self, backend, slots: int, batch: int,
-                 results: PinnedResults | None = None):
-        self.backend, self.batch, self.results = backend, batch, results
+    def __init__(self, backend, slots: int, batch: int):
+        self.backend, self.batch = backend, batch
         self._buffers: list[np.ndarray | None] = [None] * slots
         self._stride = [0] * slots  # bytes a sample may take in each slot
         self._wanted = [0] * slots  # bytes a sample needed that its slot did not have
@@ -126,45 +120,3 @@ class PinnedStaging:
             self._buffers[slot] = self.backend.pinned((self.batch * self._wanted[slot],),
                                                       np.uint8)
         self._wanted[slot] = 0
-
-
-class PinnedResults:
-    """Slots of page-locked arrays that a batch's results are fetched into (``out=``).
-
-    A GPU writes results into page-locked memory at the bus's rate with no core busy; into
-    pageable memory only through staging buffers of its own, copied out by the fetching
-    thread while the I/O threads compete for the cores. A slot's arrays are allocated on the
-    making thread the first time it meets a sample size (page-locking is slow) and kept.
-
-    Args:
-        backend: the kernel backend that makes the samples (its ``pinned``).
-        slots: batches whose results may be held at once.
-        batch: samples per slot.
-    """
-
-    def __init__(self, backend, slots: int, batch: int):
-        self.backend, self.batch = backend, batch
-        self.free = list(range(slots))
-        self._arrays: list[tuple | None] = [None] * slots  # (key, arrays) of each slot
-
-    def take(self, count: int, shapes: list[tuple[tuple, np.dtype]]
-             ) -> tuple[int, list[np.ndarray]] | None:
-        """A free slot and its arrays for ``count`` samples, each result of ``shapes``.
-
-        ``shapes``: (shape, dtype) of one sample's result per output (blurred, sharp, mask);
-        the arrays are ``count`` x shape. None when no slot is free or ``count`` is more than
-        a slot holds.
-        """
-        if not self.free or count > self.batch:
-            return None
-        slot = self.free.pop()
-        key = tuple((tuple(shape), np.dtype(dtype).str) for shape, dtype in shapes)
-        if self._arrays[slot] is None or self._arrays[slot][0] != key:
-            self._arrays[slot] = None  # the old arrays are freed before the new ones are made
-            self._arrays[slot] = (key, [self.backend.pinned((self.batch, *shape), dtype)
-                                        for shape, dtype in shapes])
-        return slot, [array[:count] for array in self._arrays[slot][1]]
-
-    def release(self, slot: int) -> None:
-        """``slot`` free again: nothing reads its arrays any more."""
-        self.free.append(slot)
