@@ -568,6 +568,14 @@ class WarpBackend(KernelBackend):
         return step // item if step >= first.size * item and step % item == 0 else None
 
     def _spaced_data(self, buffers: Sequence) -> tuple[wp.array, int] | None:
+        """One view from the first buffer's start over all of them, and their spacing.
+
+        Pointers alone say the buffers are evenly spaced, not that they lie in one
+        allocation: two separate ones also have a spacing, which may be anything. The view
+        is only read at the buffers' own values, but its span must stay within the kernels'
+        int32 indices (:data:`MAX_BUFFER_VALUES`): beyond it, None (the caller reads each
+        buffer on its own).
+        """
         first = buffers[0]
         stride = self._gap(first, buffers[1]) if len(buffers) > 1 else None
         if len(buffers) > 1 and stride is None:
@@ -578,8 +586,10 @@ class WarpBackend(KernelBackend):
             stride = first.size
         if any(self._gap(a, b) != stride for a, b in zip(buffers[:-1], buffers[1:], strict=True)):
             return None
-        return view_at(first.ptr, first.dtype, ((len(buffers) - 1) * stride + first.size,),
-                       list(buffers)), stride
+        span = (len(buffers) - 1) * stride + first.size
+        if span > MAX_BUFFER_VALUES:
+            return None
+        return view_at(first.ptr, first.dtype, (span,), list(buffers)), stride
 
     @staticmethod
     def _part(buffer, start: int, count: int, dtype) -> wp.array:

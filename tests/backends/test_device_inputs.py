@@ -104,6 +104,26 @@ def test_queued_inspects_read_in_any_order_each_give_their_own_counts(spec):
     assert len(made) == kept  # the kept words served both
 
 
+@pytest.mark.parametrize("spec", [s for s in KERNEL_BACKEND_SPECS if s.startswith("warp")])
+@pytest.mark.parametrize("limit", ["int32", "below the span"])
+def test_images_spaced_in_one_buffer_each_give_their_own_counts(spec, limit, monkeypatch):
+    # evenly spaced images are inspected in one launch through one view over all of them;
+    # where that view would pass the kernels' int32 indices (two separate allocations far
+    # apart look evenly spaced too), each image is inspected on its own
+    import gpu_blur.backends.warp as warp_backend
+
+    backend = backend_of(spec)
+    rng = np.random.default_rng(9)
+    images = rng.random((3, 17, 19, 3)).astype(backend.np_real)
+    images[1, 4, 5, 2], images[2, 0, 0, 0], images[2, 16, 18, 1] = np.nan, -0.5, 1.5
+    stack = stored(backend, images)
+    frames = [backend.frame(stack, i) for i in range(3)]
+    if limit != "int32":
+        monkeypatch.setattr(warp_backend, "MAX_BUFFER_VALUES", 2 * images[0].size)
+    assert (backend.spaced(frames) is None) == (limit != "int32")
+    np.testing.assert_array_equal(backend.inspect(frames), [numpy_counts(x) for x in images])
+
+
 @pytest.mark.parametrize("bits", [8, 16])
 @pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
 def test_device_codes_are_to_integers_codes_of_every_value(spec, bits):

@@ -262,11 +262,13 @@ class Buffers:
             return None
         return self._spaced_data([i.data for i in images])
 
-    def _spaced_runs(self, images: Sequence[OnDevice]) -> list[list[OnDevice]]:
-        """``images`` cut, in order, into runs of one image or of evenly spaced ones.
+    def _spaced_runs(self, images: Sequence[OnDevice]
+                     ) -> list[tuple[list[OnDevice], tuple[object, int] | None]]:
+        """``images`` cut, in order, into runs: each with its :meth:`spaced`, or None.
 
-        Evenly spaced: lying in one device buffer a fixed number of values apart
-        (:meth:`spaced`).
+        A run of several images lies evenly spaced in one device buffer (a fixed number of
+        values apart) and has its :meth:`spaced`; every other image is a run of its own, with
+        None (so are those of a run :meth:`spaced` refuses as a whole).
         """
         runs: list[list[OnDevice]] = []
         stride = None  # the last run's spacing
@@ -279,7 +281,11 @@ class Buffers:
                 stride = gap
             else:
                 runs.append([image])
-        return runs
+        found = []
+        for run in runs:
+            spaced = self.spaced(run) if len(run) > 1 else None
+            found += [(run, spaced)] if spaced is not None else [([i], None) for i in run]
+        return found
 
     def _spaced_data(self, buffers: Sequence) -> tuple[object, int] | None:
         """:meth:`spaced` of device buffers of one size and dtype."""

@@ -109,8 +109,7 @@ class Inputs:
         counts = self._zeros(words, np.uint32)
         with self._timed(sync=False):
             row = 0
-            for run in self._spaced_runs(images):
-                spaced = self.spaced(run) if len(run) > 1 else None
+            for run, spaced in self._spaced_runs(images):
                 data, stride = spaced or (run[0].data, 0)
                 n = int(np.prod(run[0].shape))
                 items = inspect_items(n, len(run))
