@@ -439,16 +439,25 @@ def bench_devices_handoff() -> str:
                                        _named(data))
 
 
+def _kernels_ratio(row: dict) -> float | None:
+    """float32's kernels' device time a sample over uint8's (bench/user_paths.py on CUDA)."""
+    if "uint8_kernels_ms" not in row:
+        return None
+    return sum(row["float32_kernels_ms"].values()) / sum(row["uint8_kernels_ms"].values())
+
+
 def bench_float_inputs() -> str:
     """Torch batches as uint8 codes against float32 values, ms a sample."""
     data, path = load("float_inputs_h200")
     rows = [[r["scene"], r["size"], r["batch"], r["uint8_ms"], r["float32_ms"],
              r["float32_over_uint8_ratio"], r["uint8_back_to_back_ms"],
              r["float32_back_to_back_ms"], r["float32_over_uint8_back_to_back_ratio"],
-             r["float32_reductions_ms"]] for r in data["results"]]
+             r.get("float32_over_uint8_back_to_back_pool_kept_ratio"),
+             _kernels_ratio(r), r["float32_reductions_ms"]] for r in data["results"]]
     table = _table(["scene", "size", "batch", "uint8", "float32", "ratio", "uint8 back to back",
-                    "float32 back to back", "ratio back to back", "float32 checks' reductions"],
-                   rows, 2)
+                    "float32 back to back", "ratio back to back",
+                    "ratio back to back, Warp's pool kept", "kernels' ratio",
+                    "float32 checks' reductions"], rows, 2)
     return table + "\n\n" + provenance(path, data["device"], _named(data))
 
 
