@@ -446,6 +446,51 @@ def _kernels_ratio(row: dict) -> float | None:
     return sum(row["float32_kernels_ms"].values()) / sum(row["uint8_kernels_ms"].values())
 
 
+#: bench_device_path_beside's rows: (label, path through a gpu_targets file, scale).
+_BESIDE_ROWS = (
+    ("frames on the device, wall ms a sample (synchronized after each pass)",
+     ("warp_frames_on_device", "wall_seconds_synchronized_per_pass"), 1e3),
+    ("frames on the device, wall ms a sample (one synchronize)",
+     ("warp_frames_on_device", "wall_seconds_one_synchronize"), 1e3),
+    ("pinned frames one at a time, samples/s",
+     ("warp_frames_in_pinned_memory", "one_at_a_time", "samples_per_s"), 1),
+    ("pinned frames pipelined, samples/s",
+     ("warp_frames_in_pinned_memory", "pipelined", "samples_per_s"), 1),
+    ("Warp synthesize from numpy, serial copies, samples/s",
+     ("warp_synthesize_numpy_frames", "serial", "samples_per_s"), 1),
+    ("Warp synthesize from numpy, overlapped copies, samples/s",
+     ("warp_synthesize_numpy_frames", "overlapped", "samples_per_s"), 1),
+    ("OpenCL synthesize from numpy, serial copies, samples/s",
+     ("opencl_synthesize_numpy_frames", "serial", "samples_per_s"), 1),
+    ("OpenCL synthesize from numpy, overlapped copies, samples/s",
+     ("opencl_synthesize_numpy_frames", "overlapped", "samples_per_s"), 1),
+    ("Warp batches of torch CUDA frames, samples/s",
+     ("warp_batches_torch_cuda_frames", "samples_per_s"), 1),
+)
+
+
+def bench_device_path_beside() -> str:
+    """The device path at 1d3f510 and now, bench/gpu_targets.py interleaved, and host time."""
+    data, path = load("device_path_beside_h200")
+    names = list(data["gpu_targets"])
+
+    def value(run: dict, keys: tuple):
+        for key in keys:
+            run = run.get(key, {}) if isinstance(run, dict) else {}
+        return run if isinstance(run, (int, float)) else None
+
+    rows = [[label, *((v * scale if (v := value(data["gpu_targets"][n], keys)) is not None
+                       else None) for n in names)] for label, keys, scale in _BESIDE_ROWS]
+    heads = [f"{'1d3f510' if n.startswith('old') else 'now'}, run {n[-1]}" for n in names]
+    table = _table(["bench/gpu_targets.py", *heads], rows)
+    host = data["host_overhead"]
+    host_rows = [[o["input"], o["batch_ms"], n["batch_ms"]]
+                 for o, n in zip(host["old"]["rows"], host["new"]["rows"], strict=True)]
+    table += "\n\n" + _table(["bench/host_overhead.py, host ms a batch of 16", "1d3f510", "now"],
+                               host_rows)
+    return table + "\n\n" + provenance(path, data["machine"], _named(data))
+
+
 def bench_float_inputs() -> str:
     """Torch batches as uint8 codes against float32 values, ms a sample."""
     data, path = load("float_inputs_h200")
@@ -758,6 +803,7 @@ BENCH = {
     "generate-codes": bench_generate_codes,
     "generate-devices": bench_generate_devices,
     "generate-windows": bench_generate_windows,
+    "device-path-beside": bench_device_path_beside,
     "devices-host": bench_devices_host,
     "devices-handoff": bench_devices_handoff,
     "float-inputs": bench_float_inputs,
