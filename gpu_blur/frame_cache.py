@@ -85,14 +85,16 @@ class FrameCache:
     def read(self, path: str | Path, reader: Callable[[Path], np.ndarray]) -> np.ndarray:
         """``reader(path)``'s array, read-only, decoded once while it stays in the budget.
 
-        A reader's exception reaches every thread waiting on that file, and nothing is kept.
+        Kept by file and reader: readers give different arrays of one file (a JPEG's checked
+        bytes for nvJPEG, its pixels for everything else). A reader's exception reaches every
+        thread waiting on that file, and nothing is kept.
         """
         path = Path(path)
         if self.budget == 0:
             with self._lock:
                 self._misses += 1
             return reader(path)
-        key = _identity(path)
+        key = (*_identity(path), reader)
         with self._lock:
             frame = self._frames.get(key)
             if frame is not None:

@@ -48,6 +48,21 @@ def test_a_frame_read_twice_is_decoded_once_and_read_only(tmp_path):
     assert cache.counts() - counts == CacheCounts(hits=1, misses=0, evicted=0)
 
 
+def test_each_reader_of_a_file_gets_its_own_array(tmp_path):
+    # --jpeg-decoder gpu keeps a JPEG's checked bytes, a sample with files of other formats
+    # the same file's pixels: neither is served the other's
+    (path,) = frames(tmp_path, 1)
+    cache, pixels = FrameCache(1 << 20), CountingReader()
+
+    def raw(p):
+        return np.frombuffer(p.read_bytes(), np.uint8)
+
+    assert cache.read(path, raw).shape == (1,)
+    assert cache.read(path, pixels).shape == (4, 4, 3) and pixels.calls == ["0.png"]
+    assert cache.read(path, raw).shape == (1,) and cache.read(path, pixels).shape == (4, 4, 3)
+    assert pixels.calls == ["0.png"]
+
+
 def test_the_least_recently_used_frame_leaves_first_past_the_budget(tmp_path):
     a, b, c = frames(tmp_path, 3)
     cache, reader = FrameCache(2 * 48), CountingReader()  # two 4 x 4 x 3 uint8 frames
