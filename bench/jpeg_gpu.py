@@ -40,6 +40,7 @@ import cv2
 import numpy as np
 
 from gpu_blur.analysis.bench.host import cpu_name, source_commit
+from gpu_blur.analysis.bench.measure import median_time
 from gpu_blur.discovery import default_photo
 from gpu_blur.gpu_jpeg import NVJPEG_MAX_DIFFERENCE, NVJPEG_MEAN_DIFFERENCE, nvjpeg_decode
 from gpu_blur.image_reading import read_checked, read_image
@@ -76,12 +77,7 @@ def write_jpegs(folder: Path, frames: list[np.ndarray], quality: int, sampling: 
 
 def median_ms(work, count: int, runs: int) -> float:
     """Median over ``runs`` passes of ``work()`` (after one warm-up), in ms per image."""
-    work()
-    times = []
-    for _ in range(runs):
-        start = time.perf_counter()
-        work()
-        times.append(time.perf_counter() - start)
+    times, _ = median_time(work, runs)
     return 1e3 * statistics.median(times) / count
 
 

@@ -392,7 +392,8 @@ def decode_file(path: Path, where: str, fix: str,
     """An image file decoded by OpenCV as stored (IMREAD_UNCHANGED), after :func:`_damage`.
 
     With ``rgb``, colour comes in RGB(A) order, and PNG files filtered as OpenCV's default
-    and gpu_blur write them are decoded by ISA-L and numpy, faster, to the same pixels
+    and gpu_blur write them are inflated by libdeflate (or ISA-L) and unfiltered by numpy,
+    faster, to the same pixels
     (:func:`gpu_blur.png_codecs.decode_png`).
     Its width and height are checked with ``refuse`` first, from the header
     (:func:`_header_size`), before anything is decoded, so a small file that claims a huge

@@ -21,9 +21,9 @@ docs/performance.md, "PNG codecs"):
   decode in parallel; every other file goes through OpenCV, as before. On a 16-core host
   (bench/png_codecs.py --threads) libdeflate's path decoded more files a second through 16
   threads than ISA-L's and than OpenCV's, and ISA-L's fewer than OpenCV's on noisy images, so
-  ISA-L decodes only a few files at a time (:data:`_ISAL_SLOTS`). libspng (``pyspng``) decoded 8-bit files
-  faster than OpenCV on one core, but holds the GIL while it decodes, so a pool of I/O threads
-  would decode one file at a time; it is not used.
+  ISA-L decodes only a few files at a time (:data:`_ISAL_SLOTS`). libspng (``pyspng``)
+  decoded 8-bit files faster than OpenCV on one core, but holds the GIL while it decodes, so a
+  pool of I/O threads would decode one file at a time; it is not used.
 
 Every mode and decoder gives the same pixels (tests/io/test_png_codecs.py); only the size of
 the file and the time differ.
