@@ -140,6 +140,16 @@ def accumulate_kernels(real, source=None) -> dict:
         linear[q] = vec4(table[code_at(word, 0)], table[code_at(word, 1)],
                          table[code_at(word, 2)], table[code_at(word, 3)])
 
+    @wp.kernel(module="unique", **LEAN)
+    def linearize_values(values: wp.array(dtype=vec4), linear: wp.array(dtype=vec4)):
+        # linearize for blur mode none, values of the compute type, four a thread (one
+        # 4-vector in, one out): the same function as linearize, so the same bits; no clip
+        # indicator, which mode none's given mask replaces
+        q = wp.tid()
+        v = values[q]
+        linear[q] = vec4(pixel.srgb_to_linear(v[0]), pixel.srgb_to_linear(v[1]),
+                         pixel.srgb_to_linear(v[2]), pixel.srgb_to_linear(v[3]))
+
     @wp.kernel(module="unique")
     def blur_average_add(frames: wp.array(dtype=source), count: int, stride: int,
                          total: wp.array(dtype=real), compensation: wp.array(dtype=real),
@@ -357,6 +367,7 @@ def accumulate_kernels(real, source=None) -> dict:
 
     return {
         "linearize": linearize, "linearize_codes": linearize_codes,
+        "linearize_values": linearize_values,
         "blur_average_add": blur_average_add,
         "blur_average_exact": blur_average_exact, "blur_kernel": blur_kernel,
         "blur_trajectory_add": blur_trajectory_add,

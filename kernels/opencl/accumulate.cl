@@ -34,6 +34,19 @@ __kernel void gb_linearize_codes(__global const uchar4 *quads, __global const re
 }
 #endif
 
+#if GB_SOURCE_BITS == 0
+/* linearize for blur mode none, real values, four a work item (one real4 load, one real4
+ * store): gb_linearize's function of each value, so the same bits; no clip indicator, which
+ * mode none's given mask replaces. */
+__kernel void gb_linearize_values(__global const real4 *values, __global real4 *linear)
+{
+    size_t q = get_global_id(0);
+    real4 v = values[q];
+    linear[q] = (real4)(gb_srgb_to_linear(v.x), gb_srgb_to_linear(v.y),
+                        gb_srgb_to_linear(v.z), gb_srgb_to_linear(v.w));
+}
+#endif
+
 /* The linear value of a stored frame value at frames[i]. 8-bit codes: a gather from `table`,
  * the value of each code that gb_linearize computed from codes 0..255 (the same function, so
  * the same bits, without a pow per value); other sources: the sRGB EOTF. */

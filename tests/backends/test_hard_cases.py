@@ -321,6 +321,34 @@ def test_8bit_image_and_mask_in_mode_none_give_the_bits_of_their_float_values(sp
             assert np.array_equal(a, b)
 
 
+@pytest.mark.parametrize("spec", KERNEL_BACKEND_SPECS)
+def test_float_image_in_mode_none_goes_four_values_a_work_item_with_linearizes_bits(
+        spec, monkeypatch):
+    """Blur mode none takes an image of the compute type four values a work item by the curve
+    (linearize_values, no clip indicator) where the values come in fours: the same bits as
+    linearize's one value a work item, at the curve's knee, near 0 and 1 and in between."""
+    h, w = 32, 64
+    real = np.dtype(spec_dtype(spec))
+    rng = np.random.default_rng(5)
+    values = rng.random(h * w * 3).astype(real)
+    knee = np.float64(0.04045)
+    hard = np.array([0.0, 1.0, knee, np.nextafter(knee, 0), np.nextafter(knee, 1), 1e-30,
+                     np.finfo(real).tiny, np.nextafter(real.type(1), real.type(0)), 0.5])
+    values[:hard.size] = hard.astype(real)
+    image = values.reshape(h, w, 3)
+    p, _, params = prepare(spec, {"blur": {"mode": "none"}}, (h, w))
+    region = Region.whole(h, w)
+    backend = make_backend(spec)
+    launched = launch_names(backend.backend, monkeypatch)
+    fours, _ = backend.accumulate(p, params, backend.put(image), None, region)
+    assert "linearize_values" in launched and "linearize" not in launched
+    launched.clear()
+    monkeypatch.setattr(backend.backend, "_quads", lambda buffers, n: None)
+    ones, _ = backend.accumulate(p, params, backend.put(image), None, region)
+    assert "linearize" in launched and "linearize_values" not in launched
+    assert np.array_equal(fours, ones)
+
+
 @pytest.mark.parametrize("spec", BACKEND_SPECS)
 def test_camera_path_of_1000_poses_stays_within_the_stated_bound(spec, coffee_rgb):
     photo = np.ascontiguousarray(coffee_rgb[240:272, 330:362])

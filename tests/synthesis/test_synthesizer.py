@@ -710,7 +710,7 @@ def test_a_batch_in_one_device_buffer_runs_each_input_pass_once_with_the_same_bi
     synth.runner._launch = lambda k, name, *a: launches.update([name]) or launch(k, name, *a)
     got = synth(wp.array(given["batch"], device="cpu"), mask=wp.array(given["mask"],
                                                                        device="cpu"))
-    assert launches == {"inspect": 2, "linearize": 1, "render_sharp": 1, "to_raw": 1,
+    assert launches == {"inspect": 2, "linearize_values": 1, "render_sharp": 1, "to_raw": 1,
                         "finish": 1}
     # the results are the batch's own buffers: the next batch must not write into them
     synth(wp.array(given["batch"], device="cpu"), mask=wp.array(given["mask"], device="cpu"),

@@ -207,17 +207,22 @@ class Accumulate:
                              linear) -> None:
         """Blur mode none's linearize: ``count`` values of ``image`` into ``linear``.
 
-        No clip indicator: mode none's given mask replaces it. 8-bit codes where they come in
-        fours go four a work item through the code table (``linearize_codes``, the same bits);
+        No clip indicator: mode none's given mask replaces it. Where the values come in fours,
+        four a work item: 8-bit codes through the code table (``linearize_codes``), values of
+        the compute type by the curve (``linearize_values``), the same bits as ``linearize``;
         else ``linearize``, its indicator into a spare buffer.
         """
         k = self._pass_kernels(config, source)
-        quads = self._quads((image, linear), count) if np.dtype(source) == np.uint8 else None
+        kind = np.dtype(source)
+        quads = (self._quads((image, linear), count)
+                 if kind in (np.uint8, np.dtype(self.np_real)) else None)
         if quads is None:
             self._launch(k, "linearize", count, image, linear, self._empty(count))
-        else:
+        elif kind == np.uint8:
             self._launch(k, "linearize_codes", count // 4, quads[0],
                          self._code_table(config, source), quads[1])
+        else:
+            self._launch(k, "linearize_values", count // 4, *quads)
 
     def _unit_values(self, stored: OnDevice, count: int, into) -> None:
         """``count`` stored values (a mask in its stored dtype) as reals in [0, 1] into ``into``.
