@@ -4,10 +4,11 @@ Writes a GoPro-style sequence (``seq/sharp/000000.png ...``, 36 frames of 1920 x
 built-in photo panned 2 px per frame), then runs ``gpu-blur generate --scene rsblur`` over
 ``--samples`` overlapping windows of it (``--samples-per-sequence``) with one I/O thread and
 with one per core. Each run's rate leaves out the process's fixed start (imports, device,
-kernels from the cache): ``(N - 1) / (t(N) - t(1))`` from a run of N samples and one of 1. The
-bound: a sample decodes 9 PNG frames and encodes 2 PNG outputs, so with every core busy the
-host makes at most ``cores / (9 t_decode + 2 t_encode)`` samples per second (single-core times
-measured here on the same images).
+kernels from the cache): ``(N - 1) / (t(N) - t(1))`` from a run of N samples and one of 1,
+after an uncounted 1-sample run that warms the caches. The bound: a sample decodes 9 PNG
+frames and encodes 2 PNG outputs, so with every core busy the host makes at most
+``cores / (9 t_decode + 2 t_encode)`` samples per second (single-core times measured here on
+the same images, codecs assumed to scale linearly with cores).
 
     PYTHONPATH=$PWD python3 bench/generate_gpu.py --backend warp --samples 32 --json out.json
 
@@ -19,8 +20,28 @@ measured here on the same images).
 frame cache helps) and ``distinct`` (a sequence of ``9 x --samples`` frames, each frame read by
 one sample: only faster codecs and the pipeline help). ``--against TREE`` runs each case with
 another checkout's ``gpu_blur`` too (e.g. ``git archive 1d3f510 gpu_blur kernels | tar -x -C
-old``), interleaved, one I/O thread per core, and compares the sets by their decoded pixels
-(a digest of every output image's pixels: PNG bytes differ between encoders).
+old``), one I/O thread per core, and compares the sets by their decoded pixels (a digest of
+every output image's pixels: PNG bytes differ between encoders).
+
+With ``--windows``, t(1) and t(N) of each tree are measured ``--repeats`` times (default 3),
+the trees taking turns (before's pair, now's, before's, ...) so that drift hits both alike.
+A run's ``samples_per_s`` is ``(N - 1) / (median t(N) - median t(1))``, ``seconds`` and
+``start_seconds`` those medians, ``in_run_samples_per_s`` the median of ``generate``'s own
+rates (its ``wrote`` line) and ``summary`` the lines of the N-sample run whose t(N) is the
+median (the lower middle one for an even count); ``seconds_each``, ``start_seconds_each``,
+``in_run_each`` and ``samples_per_s_each`` (each repeat's own pair) keep every repeat. The
+speed-up is the ratio of the two median-based rates.
+
+``bound_now_measured`` sits beside the single-core bounds (``bound_before``, ``bound_now``):
+this checkout's codecs alone (``read_image``; ``encode_image(image, 8)``) through a pool of one
+thread per core, as many as the runs' I/O threads. It decodes each input frame as often as
+this tree does (overlapping: each frame of the sequence once, the frame cache serving the rest;
+distinct: 9 a sample) and encodes 2 images a sample: the "now" run's own outputs read back
+(blurred and sharp PNGs in turn, noisier than the inputs; up to 32, cycled). Its
+``samples_per_s`` is the samples over the median wall seconds of the pool's job (decode-only
+and encode-only seconds beside). It is the ceiling these codecs reach through these threads on
+this host; not the run's: synthesis, host-device copies, the main thread's work and the writes
+to disk are left out. ``ratio_to_measured_bound_now``: now's rate over it.
 """
 
 from __future__ import annotations
@@ -30,12 +51,14 @@ import hashlib
 import json
 import os
 import re
+import shutil
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from pathlib import Path
 
 import cv2
@@ -44,6 +67,7 @@ import numpy as np
 from gpu_blur.discovery import default_photo
 
 H, W, FRAMES = 1200, 1920, 9
+ENCODED = 32  # output images read back for the measured bound, at most
 
 
 def panned_frames(count: int) -> list[np.ndarray]:
@@ -116,6 +140,47 @@ def decode_encode_bound(per: dict, cores: int, decodes: float = FRAMES) -> float
     return cores / (decodes * per["decode"] + 2 * per["encode"])
 
 
+def measured_codec_bound(paths: list[Path], decodes: int, out: Path, samples: int,
+                         threads: int, repeats: int) -> dict:
+    """Samples per second this checkout's codecs alone reach through ``threads`` threads.
+
+    ``decodes`` reads of ``paths`` (in turn) with ``read_image`` and 2 ``encode_image(.., 8)``
+    a sample of the output set ``out`` read back, mixed as the samples run; the pool's wall
+    seconds, the median of ``repeats`` (each job also decode-only and encode-only).
+    """
+    from gpu_blur.file_writing import encode_image
+    from gpu_blur.image_reading import read_image
+
+    # the blurred and sharp images of each sample in turn
+    outputs = sorted(out.rglob("*.png"), key=lambda path: (path.name, path.parent.name))
+    images = [read_image(path) for path in outputs[:ENCODED]]
+    decode = [partial(read_image, paths[i % len(paths)]) for i in range(decodes)]
+    encode = [partial(encode_image, images[i % len(images)], 8) for i in range(2 * samples)]
+    order = sorted([(i / len(decode), 0, i) for i in range(len(decode))]
+                   + [(i / len(encode), 1, i) for i in range(len(encode))])
+    both = [(decode, encode)[kind][i] for _, kind, i in order]
+
+    def call(task) -> None:  # drops each result as it comes
+        task()
+
+    with ThreadPoolExecutor(threads) as pool:
+        def wall(tasks) -> float:
+            start = time.perf_counter()
+            for _ in pool.map(call, tasks):
+                pass
+            return time.perf_counter() - start
+
+        wall(both[:2 * threads])  # threads started, first allocations made
+        each = {"seconds_each": [], "decode_seconds_each": [], "encode_seconds_each": []}
+        for _ in range(repeats):
+            for key, tasks in zip(each, (both, decode, encode), strict=True):
+                each[key].append(wall(tasks))
+    seconds = {key.removesuffix("_each"): statistics.median(v) for key, v in each.items()}
+    return {"threads": threads, "decodes": len(decode), "encodes": len(encode),
+            "images_encoded": len(images), **seconds, **each,
+            "samples_per_s": samples / seconds["seconds"]}
+
+
 def pixel_digest(out: Path) -> str:
     """sha256 over the decoded pixels of every image of a set (names and codes).
 
@@ -150,33 +215,63 @@ def compare(args, cores: int) -> dict:
                                   decode_encode_bound(new_per, cores, new_decodes)},
                     "runs": {}, "pixel_digests": {}}
             trees = ([("before", args.against)] if args.against else []) + [("now", None)]
-            for name, tree in trees:
-                out = Path(tmp) / f"out_{name}"
-                case["runs"][name] = generate(root, out, args.backend, args.samples, cores,
-                                              tree=tree)
-                case["pixel_digests"][name] = pixel_digest(out)
+            outs = {name: (Path(tmp) / f"out_{name}", tree) for name, tree in trees}
+            case["runs"] = generate_each(outs, root, args.backend, args.samples, cores,
+                                         repeats=args.repeats)
+            case["pixel_digests"] = {name: pixel_digest(out) for name, (out, _) in outs.items()}
             case["same_pixels"] = len(set(case["pixel_digests"].values())) == 1
+            case["bound_now_measured"] = measured_codec_bound(
+                paths, round(new_decodes * args.samples), outs["now"][0], args.samples, cores,
+                args.repeats)
             now = case["runs"]["now"]["samples_per_s"]
             case["ratio_to_bound_now"] = now / case["bound_now"]["samples_per_s"]
+            case["ratio_to_measured_bound_now"] = (
+                now / case["bound_now_measured"]["samples_per_s"])
             if args.against:
                 case["speedup"] = now / case["runs"]["before"]["samples_per_s"]
         cases[windows] = case
     for windows, case in cases.items():
         runs = ", ".join(f"{name} {run['samples_per_s']:.2f} (in the run "
-                         f"{run['in_run_samples_per_s']})" for name, run in case["runs"].items())
+                         f"{_num(run['in_run_samples_per_s'], '.3g')})"
+                         for name, run in case["runs"].items())
         speed = f" ({case['speedup']:.2f}x)" if "speedup" in case else ""
+        measured = case["bound_now_measured"]
         print(f"{windows}: samples/s {runs}{speed}; bound now "
               f"{case['bound_now']['samples_per_s']:.1f}/s "
               f"({100 * case['ratio_to_bound_now']:.0f} % of it), before "
               f"{case['bound_before']['samples_per_s']:.1f}/s; same pixels: "
               f"{case['same_pixels']}")
+        for name, run in case["runs"].items():
+            print(f"  {name}, {run['repeats']} repeats: samples/s "
+                  f"{_spread(run['samples_per_s_each'], '.2f')}, t(1) "
+                  f"{_spread(run['start_seconds_each'], '.2f')} s, t({args.samples}) "
+                  f"{_spread(run['seconds_each'], '.2f')} s, in the run "
+                  f"{_spread(run['in_run_each'], '')}")
+        print(f"  measured bound now: {measured['samples_per_s']:.1f} samples/s "
+              f"({100 * case['ratio_to_measured_bound_now']:.0f} % of it; {cores} threads, "
+              f"{measured['decodes']} decodes and {measured['encodes']} encodes in "
+              f"{measured['seconds']:.2f} s, decode-only {measured['decode_seconds']:.2f} s, "
+              f"encode-only {measured['encode_seconds']:.2f} s)")
         print("\n".join(case["runs"]["now"]["summary"]))
     return {"backend": args.backend, "cores": cores, "image": [W, H], "frames": FRAMES,
-            "against": args.against and Path(args.against).name, "cases": cases}
+            "repeats": args.repeats, "against": args.against and Path(args.against).name,
+            "cases": cases}
+
+
+def _num(value: float | None, spec: str) -> str:
+    """``value`` formatted, ``?`` where a run printed none."""
+    return "?" if value is None else f"{value:{spec}}"
+
+
+def _spread(values: list, spec: str) -> str:
+    """``lowest-highest`` of the repeats' figures."""
+    known = [v for v in values if v is not None]
+    return f"{min(known):{spec}}-{max(known):{spec}}" if known else "?"
 
 
 def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
          extra: tuple[str, ...] = (), tree: str | None = None):
+    """Wall seconds of one ``gpu-blur generate`` into a new ``out``, and its summary lines."""
     command = [sys.executable, "-m", "gpu_blur.cli", "generate", "--input", str(root),
                "--output", str(out), "--scene", "rsblur", "--backend", backend,
                "--samples-per-sequence", str(samples), "--io-threads", str(threads),
@@ -184,6 +279,7 @@ def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
     env = dict(os.environ)
     if tree is not None:  # that checkout's gpu_blur first on the path
         env["PYTHONPATH"] = os.pathsep.join(filter(None, [tree, env.get("PYTHONPATH")]))
+    shutil.rmtree(out, ignore_errors=True)  # not timed: no run removes an earlier one's files
     start = time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True, check=False, env=env)
     wall = time.perf_counter() - start
@@ -195,21 +291,52 @@ def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
                             max(len(lines) - 12, 0)):]
 
 
+def generate_each(outs: dict[str, tuple[Path, str | None]], root: Path, backend: str,
+                  samples: int, threads: int, extra: tuple[str, ...] = (),
+                  repeats: int = 1) -> dict[str, dict]:
+    """:func:`generate` for several checkouts, ``name: (output folder, tree)``, in turn.
+
+    Each tree's uncounted 1-sample run first, then ``repeats`` rounds of each tree's t(1) and
+    t(N) in the order given; rates from the medians (the module's docstring has the keys).
+    """
+    for out, tree in outs.values():
+        _run(root, out, backend, 1, threads, extra, tree)
+    each = {name: {"start": [], "wall": [], "summary": []} for name in outs}
+    for _ in range(repeats):
+        for name, (out, tree) in outs.items():
+            each[name]["start"].append(_run(root, out, backend, 1, threads, extra, tree)[0])
+            wall, summary = _run(root, out, backend, samples, threads, extra, tree)
+            each[name]["wall"].append(wall)
+            each[name]["summary"].append(summary)
+    runs = {}
+    for name, got in each.items():
+        starts, walls = got["start"], got["wall"]
+        wrote = [re.search(r"\(([\d.]+) samples/s\)", lines[0]) if lines else None
+                 for lines in got["summary"]]
+        in_run = [float(m[1]) if m else None for m in wrote]
+        start, wall = statistics.median(starts), statistics.median(walls)
+        middle = sorted(range(repeats), key=walls.__getitem__)[(repeats - 1) // 2]
+        runs[name] = {
+            "threads": threads, "options": list(extra), "repeats": repeats, "seconds": wall,
+            "start_seconds": start, "samples_per_s": (samples - 1) / (wall - start),
+            "in_run_samples_per_s": (statistics.median(in_run) if None not in in_run
+                                     else None),
+            "summary": got["summary"][middle], "seconds_each": walls,
+            "start_seconds_each": starts, "in_run_each": in_run,
+            "samples_per_s_each": [(samples - 1) / (w - t) for w, t in zip(walls, starts,
+                                                                           strict=True)]}
+    return runs
+
+
 def generate(root: Path, out: Path, backend: str, samples: int, threads: int,
              extra: tuple[str, ...] = (), tree: str | None = None) -> dict:
     """Samples per second of ``gpu-blur generate`` without its fixed start, and its summary.
 
     A first 1-sample run warms the file cache and the kernel caches and is not counted: a
     cold start can take longer than the whole run that follows. ``tree``: a checkout whose
-    ``gpu_blur`` runs instead of this one.
+    ``gpu_blur`` runs instead of this one. One t(1) and one t(N).
     """
-    _run(root, out, backend, 1, threads, extra, tree)
-    start, _ = _run(root, out, backend, 1, threads, extra, tree)
-    wall, summary = _run(root, out, backend, samples, threads, extra, tree)
-    wrote = re.search(r"\(([\d.]+) samples/s\)", summary[0]) if summary else None
-    return {"threads": threads, "options": list(extra), "seconds": wall,
-            "start_seconds": start, "samples_per_s": (samples - 1) / (wall - start),
-            "in_run_samples_per_s": float(wrote[1]) if wrote else None, "summary": summary}
+    return generate_each({"": (out, tree)}, root, backend, samples, threads, extra)[""]
 
 
 def set_digest(out: Path) -> str:
@@ -231,7 +358,10 @@ def set_digest(out: Path) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    # the --windows paragraphs (repeats, the measured bound) as the help's epilog
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                epilog="\n\n".join(__doc__.split("\n\n")[-2:]),
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--backend", default="warp", help="backend (default warp)")
     p.add_argument("--samples", type=int, default=64, help="samples per run (default 64)")
     p.add_argument("--threads", default="1,all", help="--io-threads of the one-process runs, "
@@ -240,12 +370,19 @@ def main(argv=None) -> int:
                    "numbers of workers on --backend's device, comma-separated (e.g. 1,2,4), "
                    "and compare the sets' bytes")
     p.add_argument("--windows", help="overlapping,distinct: compare kinds of windows "
-                   "(one I/O thread per core) instead of the --threads runs")
+                   "(one I/O thread per core) instead of the --threads runs, with the "
+                   "codecs' bound measured through as many threads beside the single-core one")
     p.add_argument("--against", metavar="TREE", help="with --windows: also run another "
-                   "checkout's gpu_blur (a folder holding gpu_blur/ and kernels/)")
+                   "checkout's gpu_blur (a folder holding gpu_blur/ and kernels/), the trees "
+                   "taking turns")
+    p.add_argument("--repeats", type=int, default=3, help="with --windows: times each tree's "
+                   "t(1) and t(N), and the measured bound, are measured; rates from the "
+                   "medians (default 3)")
     p.add_argument("--json", help="write the results here")
     args = p.parse_args(argv)
     cores = len(os.sched_getaffinity(0))
+    if args.repeats < 1:
+        raise SystemExit("--repeats: 1 or more")
     if args.windows:
         result = compare(args, cores)
         if args.json:
