@@ -395,21 +395,47 @@ def bench_generate_devices() -> str:
 
 
 def bench_generate_windows(name: str = "generate_windows_h200") -> str:
-    """``generate`` over distinct and overlapping windows, a commit before and this one."""
+    """``generate`` over distinct and overlapping windows, a commit before and this one.
+
+    Files of ``--repeats`` runs add each rate's range over the repeats and the measured bound
+    (the codecs alone through one thread per core); older files render as they did.
+    """
     data, path = load(name)
+    cases = data["cases"].values()
+    measured = any("bound_now_measured" in case for case in cases)
+    spread = any("samples_per_s_each" in run for case in cases for run in case["runs"].values())
+
+    def rate(run: dict | None):
+        if run is None or "samples_per_s_each" not in run:
+            return run and run["samples_per_s"]
+        each = run["samples_per_s_each"]
+        return f"{_fmt(run['samples_per_s'])} ({_fmt(min(each))}-{_fmt(max(each))})"
+
     rows = []
     for windows, case in data["cases"].items():
         before, now = case["runs"].get("before"), case["runs"]["now"]
         bound = case["bound_now"]
         rows.append([windows, case["frames_in_sequence"], case["samples"],
-                     before and before["samples_per_s"], before and before["in_run_samples_per_s"],
-                     now["samples_per_s"], now["in_run_samples_per_s"], case.get("speedup"),
+                     rate(before), before and before["in_run_samples_per_s"],
+                     rate(now), now["in_run_samples_per_s"], case.get("speedup"),
                      bound["samples_per_s"], bound["decodes_per_sample"],
-                     case["ratio_to_bound_now"], case["same_pixels"]])
+                     case["ratio_to_bound_now"]]
+                    + ([case.get("bound_now_measured", {}).get("samples_per_s"),
+                        case.get("ratio_to_measured_bound_now")] if measured else [])
+                    + [case["same_pixels"]])
     table = _table(["windows", "frames", "samples", "before", "before, in the run", "now",
                     "now, in the run", "speed-up", "bound now", "decodes a sample",
-                    "share of the bound", "same pixels"], rows)
-    return table + "\n\n" + provenance(path, data["machine"], _named(data))
+                    "share of the bound"]
+                   + (["measured bound now", "share of the measured bound"] if measured else [])
+                   + ["same pixels"], rows)
+    device = data["machine"]
+    if spread:
+        device += (f"; each rate from the medians of {data.get('repeats', 'several')} runs a "
+                   "tree, the trees taking turns, with the range of the single runs' rates")
+    if measured:
+        device += ("; measured bound: this code's decodes and encodes alone through one "
+                   "thread per core")
+    return table + "\n\n" + provenance(path, device, _named(data))
 
 
 def bench_devices_host() -> str:
