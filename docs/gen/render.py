@@ -517,19 +517,24 @@ def bench_device_path_beside() -> str:
     return table + "\n\n" + provenance(path, data["machine"], _named(data))
 
 
-def bench_float_inputs() -> str:
-    """Torch batches as uint8 codes against float32 values, ms a sample."""
-    data, path = load("float_inputs_h200")
-    rows = [[r["scene"], r["size"], r["batch"], r["uint8_ms"], r["float32_ms"],
-             r["float32_over_uint8_ratio"], r["uint8_back_to_back_ms"],
-             r["float32_back_to_back_ms"], r["float32_over_uint8_back_to_back_ratio"],
-             r.get("float32_over_uint8_back_to_back_pool_kept_ratio"),
-             _kernels_ratio(r), r["float32_reductions_ms"]] for r in data["results"]]
-    table = _table(["scene", "size", "batch", "uint8", "float32", "ratio", "uint8 back to back",
-                    "float32 back to back", "ratio back to back",
-                    "ratio back to back, Warp's pool kept", "kernels' ratio",
-                    "float32 checks' reductions"], rows, 2)
-    return table + "\n\n" + provenance(path, data["device"], _named(data))
+def bench_float_inputs(name: str = "float_inputs_h200") -> str:
+    """Torch batches as uint8 codes against float32 values, ms a sample (and a tree before)."""
+    data, path = load(name)
+    beside = "before" in data
+    trees = ([(data["before"]["commit"], data["before"]["results"])] if beside
+             else []) + [(data.get("commit"), data["results"])]
+    rows = [([commit] if beside else []) + [
+        r["scene"], r["size"], r["batch"], r["uint8_ms"], r["float32_ms"],
+        r["float32_over_uint8_ratio"], r["uint8_back_to_back_ms"], r["float32_back_to_back_ms"],
+        r["float32_over_uint8_back_to_back_ratio"],
+        r.get("float32_over_uint8_back_to_back_pool_kept_ratio"), _kernels_ratio(r),
+        r["float32_reductions_ms"]] for commit, results in trees for r in results]
+    heads = (["commit"] if beside else []) + [
+        "scene", "size", "batch", "uint8", "float32", "ratio", "uint8 back to back",
+        "float32 back to back", "ratio back to back", "ratio back to back, Warp's pool kept",
+        "kernels' ratio", "float32 checks' reductions"]
+    return (_table(heads, rows, 2 + beside) + "\n\n"
+            + provenance(path, data["device"], _named(data)))
 
 
 def bench_multi_gpu(name: str) -> str:
