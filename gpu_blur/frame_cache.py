@@ -3,8 +3,9 @@
 Windows of one sequence overlap whenever a set asks for more windows than fit side by side
 (``--samples-per-sequence``, a window stride shorter than the window): without a cache each
 window decodes its frames again. :class:`FrameCache` decodes each file once while it stays
-within the budget, least recently used first out, and a frame that several I/O threads ask for
-at once is decoded by one of them while the others wait for it.
+within the budget, least recently used first out. :meth:`FrameCache.claim` hands out a frame's
+future without taking a thread: only the first sample to ask for a file gets the decode to run
+(in an I/O thread); the others get the same future, so no thread waits on another's decode.
 
 A cached frame is the reader's array made read-only (``writeable = False``), so no sample can
 change what another sample reads. A file is known by its path and its ``os.stat`` identity
@@ -17,13 +18,13 @@ import collections
 import os
 import threading
 from collections.abc import Callable
-from concurrent.futures import Future
+from concurrent.futures import CancelledError, Future
 from dataclasses import astuple, dataclass
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CacheCounts", "FrameCache", "default_budget"]
+__all__ = ["CacheCounts", "Decode", "FrameCache", "default_budget"]
 
 #: The share of the host's physical memory :func:`default_budget` gives the cache.
 MEMORY_SHARE = 1 / 8
@@ -85,43 +86,49 @@ class FrameCache:
     def read(self, path: str | Path, reader: Callable[[Path], np.ndarray]) -> np.ndarray:
         """``reader(path)``'s array, read-only, decoded once while it stays in the budget.
 
-        Kept by file and reader: readers give different arrays of one file (a JPEG's checked
-        bytes for nvJPEG, its pixels for everything else). A reader's exception reaches every
-        thread waiting on that file, and nothing is kept.
+        :meth:`claim`'s frame, decoded here if no other thread is decoding it, else waited for.
+        """
+        future, decode = self.claim(path, reader)
+        if decode is not None:
+            decode()
+        return future.result()
+
+    def claim(self, path: str | Path, reader: Callable[[Path], np.ndarray]
+              ) -> tuple[Future, Decode | None]:
+        """(the future of ``path``'s frame, the decode that sets it or None).
+
+        The future is done when the frame is cached; a frame being decoded gives that decode's
+        future and None; else the caller gets the new future and its :class:`Decode` to run
+        (in an I/O thread). Kept by file and reader: readers give different arrays of one file
+        (a JPEG's checked bytes for nvJPEG, its pixels for everything else). A reader's
+        exception is set on the future, for every sample waiting on that file, and nothing
+        is kept.
+
+        Raises:
+            OSError: ``path`` cannot be looked at (``os.stat``).
         """
         path = Path(path)
         if self.budget == 0:
             with self._lock:
                 self._misses += 1
-            return reader(path)
+            future = Future()
+            return future, Decode(self, None, path, reader, future)
         key = (*_identity(path), reader)
         with self._lock:
             frame = self._frames.get(key)
             if frame is not None:
                 self._frames.move_to_end(key)
                 self._hits += 1
-                return frame
+                done = Future()
+                done.set_result(frame)
+                return done, None
             pending = self._pending.get(key)
-            if pending is None:
-                self._pending[key] = mine = Future()
-                self._misses += 1
-            else:
+            if pending is not None:
                 self._hits += 1
-        if pending is not None:
-            return pending.result()
-        try:
-            frame = reader(path)
-            frame.flags.writeable = False
-        except BaseException as error:
-            with self._lock:
-                del self._pending[key]
-            mine.set_exception(error)
-            raise
-        with self._lock:
-            del self._pending[key]
-            self._keep(key, frame)
-        mine.set_result(frame)
-        return frame
+                return pending, None
+            self._pending[key] = mine = Future()
+            self._misses += 1
+        return mine, Decode(self, key, path, reader, mine)
 
     def counts(self) -> CacheCounts:
         """The hits, misses and evictions so far."""
@@ -135,6 +142,13 @@ class FrameCache:
             self._misses += counts.misses
             self._evicted += counts.evicted
 
+    def _settled(self, key: tuple, frame: np.ndarray | None) -> None:
+        """A decode of ``key`` ended: no longer pending, its frame (if any) kept."""
+        with self._lock:
+            del self._pending[key]
+            if frame is not None:
+                self._keep(key, frame)
+
     def _keep(self, key: tuple, frame: np.ndarray) -> None:
         """Keep ``frame``, dropping the least recently used ones past the budget (lock held)."""
         if frame.nbytes > self.budget:
@@ -145,6 +159,45 @@ class FrameCache:
             _, dropped = self._frames.popitem(last=False)
             self._bytes -= dropped.nbytes
             self._evicted += 1
+
+
+class Decode:
+    """One file's decode for :meth:`FrameCache.claim`: run it once, or :meth:`abandon` it.
+
+    Running it sets the future every sample of that file waits on (its array read-only and
+    kept in the cache, or the reader's exception); with ``key`` None (a budget of 0) the array
+    is the reader's, as it is, and nothing is kept (so too with no cache).
+    """
+
+    def __init__(self, cache: FrameCache | None, key: tuple | None, path: Path,
+                 reader: Callable[[Path], np.ndarray], future: Future):
+        self._cache, self._key, self._path = cache, key, path
+        self._reader, self.future = reader, future
+
+    def __call__(self) -> None:
+        """Decode the file and settle the future (the reader's error goes on it, not up)."""
+        try:
+            frame = self._reader(self._path)
+            if self._key is not None:
+                frame.flags.writeable = False
+        except BaseException as error:
+            self._settle(None, error)
+            if not isinstance(error, Exception):
+                raise
+            return
+        self._settle(frame, None)
+
+    def abandon(self) -> None:
+        """The decode will not run (its task was cancelled): waiting samples see CancelledError."""
+        self._settle(None, CancelledError(f"{self._path}: not decoded, the run stopped"))
+
+    def _settle(self, frame: np.ndarray | None, error: BaseException | None) -> None:
+        if self._key is not None:
+            self._cache._settled(self._key, frame)
+        if error is None:
+            self.future.set_result(frame)
+        else:
+            self.future.set_exception(error)
 
 
 def _identity(path: Path) -> tuple:

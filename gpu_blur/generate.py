@@ -23,12 +23,13 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor, Future
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from gpu_blur.discovery import SampleSpec
-from gpu_blur.frame_cache import FrameCache
+from gpu_blur.frame_cache import Decode, FrameCache
 from gpu_blur.gpu_jpeg import JpegBatches
 from gpu_blur.image_arrays import check_image
 from gpu_blur.image_reading import opencv_reason, read_image
@@ -240,12 +241,15 @@ def make_batch(job: Job, synthesizer: Synthesizer, specs: list[SampleSpec], batc
 
 
 class _Inputs:
-    """A sample's input files decoded in a pool, a task per file, then checked.
+    """A sample's input files decoded in a pool, then checked.
 
-    The task that decodes the last file checks them all (:func:`checked_inputs`), so no
-    thread waits on another's decode; :attr:`checked` then holds the arrays or None.
-    :meth:`stage` has them copied to a position of a :class:`PinnedStaging` slot. With
-    ``jpeg``, a sample of JPEG files is read and checked for the GPU instead (:attr:`jpeg`).
+    Each file is claimed from the frame cache when the sample is queued
+    (:meth:`~gpu_blur.frame_cache.FrameCache.claim`): only a file that no earlier sample asked
+    for gets a decode task, so no I/O thread waits on another's decode. The thread that brings
+    the last file checks them all (:func:`checked_inputs`), or a task where every file was
+    decoded already; :attr:`checked` then holds the arrays or None. :meth:`stage` has them
+    copied to a position of a :class:`PinnedStaging` slot. With ``jpeg``, a sample of JPEG
+    files is read and checked for the GPU instead (:attr:`jpeg`).
     """
 
     def __init__(self, spec: SampleSpec, pool: Executor, times: PoolTimes,
@@ -254,58 +258,105 @@ class _Inputs:
         self.jpeg = jpeg if jpeg is not None and jpeg.takes(spec) else None
         self.slot: int | None = None
         self.position = 0
+        self.reads = not spec.problem and bool(spec.inputs)
+        self._pool, self._times = pool, times
         self._images: list = [None] * len(spec.inputs)
         self._left, self._lock = len(spec.inputs), threading.Lock()
-        self.tasks = [] if spec.problem or not spec.inputs else [
-            pool.submit(times.run, "decode", self._read, i, path, cache)
-            for i, path in enumerate(spec.inputs)]
-        if not self.tasks:
+        self._claiming = True
+        #: (pool task, its decode) of the files this sample decodes
+        self.tasks: list[tuple[Future, Decode]] = []
+        if not self.reads:
             self.checked.set_result(None)
-        else:
-            times.samples += 1  # on the making thread
+            return
+        times.samples += 1  # on the making thread
+        reader = read_image if self.jpeg is None else self.jpeg.read
+        for i, path in enumerate(spec.inputs):
+            frame, decode = _claim(path, reader, cache)
+            if decode is not None:
+                self.tasks.append((pool.submit(times.run, "decode", decode), decode))
+            frame.add_done_callback(functools.partial(self._arrived, i))
+        with self._lock:
+            self._claiming = False
+            ready = self._left == 0
+        if ready:  # every file was decoded already: checked in a task
+            try:
+                pool.submit(times.run, "decode", self._check, counted=False)
+            except RuntimeError:  # the pool is shut down: the run stopped
+                self.checked.set_result(None)
 
     @property
     def batchable(self) -> bool:
         """Whether it may go in a batch: files to read, no problem, no roles (mode none)."""
-        return bool(self.tasks) and not self.spec.roles and self.jpeg is None
+        return self.reads and not self.spec.roles and self.jpeg is None
 
-    def _read(self, i: int, path, cache) -> None:
-        try:
-            image = (read_input if self.jpeg is None else self.jpeg.read)(path, cache)
-        except Exception:  # synthesize meets it again, and says what it is
-            image = None
+    def _arrived(self, i: int, frame: Future) -> None:
+        """File ``i`` decoded (or failed: None), in the thread that decoded it."""
+        image = None if frame.cancelled() or frame.exception() is not None else frame.result()
         with self._lock:
             self._images[i] = image
             self._left -= 1
-            last = self._left == 0
+            last = self._left == 0 and not self._claiming
         if last:
-            images = None if any(image is None for image in self._images) else self._images
-            self.checked.set_result(checked_inputs(self.spec, images) if self.jpeg is None
-                                    else self.jpeg.checked(self.spec, images, checked_inputs))
+            self._check()
+
+    def _check(self) -> None:
+        images = None if any(image is None for image in self._images) else self._images
+        try:
+            checked = (checked_inputs(self.spec, images) if self.jpeg is None
+                       else self.jpeg.checked(self.spec, images, checked_inputs))
+        except Exception:  # synthesize meets it again, and says what it is
+            checked = None
+        self.checked.set_result(checked)
 
     def stage(self, staging: PinnedStaging, slot: int, position: int, pool: Executor,
               times: PoolTimes) -> None:
-        """Copy the checked inputs to ``position`` of ``slot`` in the pool (:attr:`staged`)."""
+        """Copy the checked inputs to ``position`` of ``slot`` (:attr:`staged`).
+
+        In the I/O thread that checks them, once they are; in a task of their own if they
+        are checked already.
+        """
         self.slot, self.position, self.staged = slot, position, Future()
+        making = threading.current_thread()
 
-        def fill() -> None:
-            self.staged.set_result(staging.fill(slot, position, self.checked.result()))
+        def fill(checked: Future) -> None:
+            self.staged.set_result(staging.fill(slot, position, checked.result()))
 
-        def submit(_) -> None:
+        def filled(checked: Future) -> None:
+            if threading.current_thread() is not making:  # the thread that checked them
+                fill(checked)
+                return
             try:
-                pool.submit(times.run, "decode", fill)
+                pool.submit(times.run, "decode", fill, checked, counted=False)
             except RuntimeError:  # the pool is shut down: the run stopped
-                self.staged.set_result(self.checked.result())
+                self.staged.set_result(checked.result())
 
-        self.checked.add_done_callback(submit)
+        self.checked.add_done_callback(filled)
 
     def result(self) -> tuple[np.ndarray, ...] | None:
         """The inputs for ``make_sample``: staged if they are, else as decoded."""
         return (self.staged or self.checked).result()
 
     def cancel(self) -> None:
-        for task in self.tasks:
-            task.cancel()
+        """Decode nothing more for this sample; samples waiting on its files see them fail."""
+        for task, decode in self.tasks:
+            if task.cancel():
+                decode.abandon()
+
+
+def _claim(path, reader: Callable, cache: FrameCache | None) -> tuple[Future, Decode | None]:
+    """:meth:`~gpu_blur.frame_cache.FrameCache.claim` of a file, or its own decode (no cache).
+
+    A file that cannot be looked at gives a future holding that error.
+    """
+    if cache is None:
+        future = Future()
+        return future, Decode(None, None, Path(path), reader, future)
+    try:
+        return cache.claim(path, reader)
+    except OSError as error:
+        failed = Future()
+        failed.set_exception(error)
+        return failed, None
 
 
 def _synthesizer(job: Job) -> Synthesizer:

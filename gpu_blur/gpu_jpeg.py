@@ -230,13 +230,13 @@ class JpegBatches:
             Path(path).suffix.lower() in JPEG_SUFFIXES for path in spec.inputs)
 
     @staticmethod
-    def read(path, cache=None) -> np.ndarray:
-        """One file in an I/O thread (through ``cache``): checked bytes, or decoded pixels.
+    def read(path: Path) -> np.ndarray:
+        """One file in an I/O thread: checked bytes, or decoded pixels (a frame cache's reader).
 
         Raises:
             ValueError: the file fails a check (:func:`~gpu_blur.image_reading.read_checked`).
         """
-        return _read(Path(path)) if cache is None else cache.read(path, _read)
+        return _read(Path(path))
 
     @staticmethod
     def checked(spec, images: list | None,

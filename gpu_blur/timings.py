@@ -195,9 +195,9 @@ class PoolTimes:
 
     Attributes:
         threads: the pool's threads.
-        busy: seconds of ``decode`` (a file each, or a sample's staging) and ``write`` (a
-            sample each) work, summed over the threads.
-        calls: the tasks of each.
+        busy: seconds of ``decode`` (files decoded, samples' checks and staging) and
+            ``write`` (a sample each) work, summed over the threads.
+        calls: the counted tasks of each: files decoded, samples written.
         samples: samples whose inputs the pool decoded.
         waited_for_inputs: seconds the driver thread waited for decoded inputs (summed over
             the workers' threads that make samples, with ``--devices``).
@@ -211,15 +211,19 @@ class PoolTimes:
         self.waited_for_inputs = 0.0
         self._lock = threading.Lock()
 
-    def run(self, stage: str, work: Callable[..., Any], *args) -> Any:
-        """``work(*args)`` in a pool thread, its time added to ``busy[stage]``."""
+    def run(self, stage: str, work: Callable[..., Any], *args, counted: bool = True) -> Any:
+        """``work(*args)`` in a pool thread, its time added to ``busy[stage]``.
+
+        ``counted``: the task is one of ``calls[stage]`` (a file decoded, a sample written);
+        a sample's checks or staging on their own are not.
+        """
         start = time.perf_counter()
         try:
             return work(*args)
         finally:
             with self._lock:
                 self.busy[stage] += time.perf_counter() - start
-                self.calls[stage] += 1
+                self.calls[stage] += counted
 
     def add(self, other: PoolTimes) -> None:
         """Count another pool's threads, work and waits as this one's."""
@@ -262,7 +266,7 @@ class PoolTimes:
     def summary(self, wall: float) -> str:
         """One line: the threads, what they did, and how busy they were."""
         files = self.calls["decode"]
-        each = f" ({files} tasks, {1e3 * self.busy['decode'] / files:.1f} ms each)" if files else ""
+        each = f" ({files} files, {1e3 * self.busy['decode'] / files:.1f} ms each)" if files else ""
         return (f"I/O threads ({self.threads}): decoding {self.busy['decode']:.2f} s{each}, "
                 f"encoding and writing {self.busy['write']:.2f} s; busy "
                 f"{self.busy_share(wall):.0f} % of the run")

@@ -155,9 +155,14 @@ def test_a_devices_run_s_summary_counts_its_workers_decoding(tmp_path, photos, m
     report = gpu_blur.generate_set(tmp_path / "out", input=folder, scene=scene,
                                    samples_per_photo=2, devices="numpy,numpy", io_threads=2)
     threads = next(line for line in report.summary if line.startswith("I/O threads"))
-    # the driver's 2 writing threads and each worker's 2 decoding threads; a task per file
-    assert re.match(r"I/O threads \(6\): decoding [\d.]+ s \(6 tasks, [\d.]+ ms each\)",
-                    threads), threads
+    cache = next(line for line in report.summary if line.startswith("frame cache"))
+    # the driver's 2 writing threads and each worker's 2 decoding threads; the files that
+    # the workers' caches decoded (a photo read by both of its samples in one worker, once)
+    files = re.match(r"I/O threads \(6\): decoding [\d.]+ s \((\d+) files, [\d.]+ ms each\)",
+                     threads)
+    decoded = re.match(r"frame cache: (\d+) decoded, (\d+) served decoded", cache)
+    assert files and decoded, (threads, cache)
+    assert files[1] == decoded[1] and int(decoded[1]) + int(decoded[2]) == 6
     assert report.bound.startswith("bound by: ") and report.summary[-1] == report.bound
 
 

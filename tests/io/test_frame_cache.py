@@ -99,6 +99,39 @@ def test_threads_asking_for_one_frame_at_once_share_one_decode(tmp_path):
     assert all(frame is got[0] for frame in got)
 
 
+def test_samples_sharing_a_file_take_no_io_thread_to_wait_for_its_decode(tmp_path,
+                                                                       monkeypatch):
+    # two I/O threads; sample A reads files f and g, sample B f and h, and f's decode lasts
+    # until h is decoded: had B's read of f taken a thread to wait for A's decode of f, no
+    # thread would be left for h
+    from concurrent.futures import ThreadPoolExecutor
+
+    import gpu_blur.generate as generate
+    from gpu_blur.discovery import SampleSpec
+    from gpu_blur.timings import PoolTimes
+
+    f, g, h = frames(tmp_path, 3)
+    h_decoded, counting = threading.Event(), CountingReader()
+
+    def reader(path):
+        if path == f:
+            assert h_decoded.wait(10), "h was never decoded"
+        image = counting(path)
+        if path == h:
+            h_decoded.set()
+        return image
+
+    monkeypatch.setattr(generate, "read_image", reader)
+    cache, times = FrameCache(1 << 20), PoolTimes(2)
+    with ThreadPoolExecutor(2) as pool:
+        samples = [generate._Inputs(SampleSpec(i, f"s{i}", files), pool, times, cache)
+                   for i, files in enumerate([(f, g), (f, h)])]
+        a, b = (sample.checked.result(timeout=20) for sample in samples)
+    assert sorted(counting.calls) == ["0.png", "1.png", "2.png"]  # each file decoded once
+    assert a[0] is b[0] and times.calls["decode"] == 3
+    assert cache.counts() == CacheCounts(hits=1, misses=3, evicted=0)
+
+
 def test_a_failed_decode_reaches_every_waiter_and_is_not_kept(tmp_path):
     (path,) = frames(tmp_path, 1)
     cache, reader = FrameCache(1 << 20), CountingReader(delay=0.2, fail=True)

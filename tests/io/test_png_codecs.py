@@ -20,7 +20,6 @@ from gpu_blur.image_reading import read_image
 from gpu_blur.run_record import set_keys
 from gpu_blur.scene import SceneError, scene_from_dict
 
-
 INFLATERS = {"libdeflate": png_codecs._libdeflate_inflater, "isal": png_codecs._isal_inflater}
 
 
