@@ -472,7 +472,9 @@ def test_a_run_stopped_early_leaves_no_shared_memory_and_no_worker(photos, block
 
 
 def test_a_worker_killed_mid_run_stops_it_and_leaves_no_shared_memory(photos, blocks_made):
-    results, workers = started_devices(photos)
+    # enough samples that the killed worker still has some to make on a fast host (with 4 a
+    # photo, a 16-core host's worker had made all of its own before the kill)
+    results, workers = started_devices(photos, samples_per_photo=32)
     assert blocks_made
     workers[0].kill()
     with pytest.raises(RuntimeError, match="the worker on numpy died"):
