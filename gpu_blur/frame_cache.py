@@ -19,7 +19,7 @@ import os
 import threading
 from collections.abc import Callable
 from concurrent.futures import CancelledError, Future
-from dataclasses import astuple, dataclass
+from dataclasses import astuple, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -81,7 +81,7 @@ class FrameCache:
         self._pending: dict[tuple, Future] = {}
         self._bytes = 0
         self._lock = threading.Lock()
-        self._hits = self._misses = self._evicted = 0
+        self._counts = dict.fromkeys((f.name for f in fields(CacheCounts)), 0)
 
     def read(self, path: str | Path, reader: Callable[[Path], np.ndarray]) -> np.ndarray:
         """``reader(path)``'s array, read-only, decoded once while it stays in the budget.
@@ -110,7 +110,7 @@ class FrameCache:
         path = Path(path)
         if self.budget == 0:
             with self._lock:
-                self._misses += 1
+                self._counts["misses"] += 1
             future = Future()
             return future, Decode(self, None, path, reader, future)
         key = (*_identity(path), reader)
@@ -118,29 +118,28 @@ class FrameCache:
             frame = self._frames.get(key)
             if frame is not None:
                 self._frames.move_to_end(key)
-                self._hits += 1
+                self._counts["hits"] += 1
                 done = Future()
                 done.set_result(frame)
                 return done, None
             pending = self._pending.get(key)
             if pending is not None:
-                self._hits += 1
+                self._counts["hits"] += 1
                 return pending, None
             self._pending[key] = mine = Future()
-            self._misses += 1
+            self._counts["misses"] += 1
         return mine, Decode(self, key, path, reader, mine)
 
     def counts(self) -> CacheCounts:
         """The hits, misses and evictions so far."""
         with self._lock:
-            return CacheCounts(self._hits, self._misses, self._evicted)
+            return CacheCounts(**self._counts)
 
     def add(self, counts: CacheCounts) -> None:
         """Count what a cache elsewhere did as this one's (``--devices``: each worker's share)."""
         with self._lock:
-            self._hits += counts.hits
-            self._misses += counts.misses
-            self._evicted += counts.evicted
+            for name in self._counts:
+                self._counts[name] += getattr(counts, name)
 
     def _settled(self, key: tuple, frame: np.ndarray | None) -> None:
         """A decode of ``key`` ended: no longer pending, its frame (if any) kept."""
@@ -158,7 +157,7 @@ class FrameCache:
         while self._bytes > self.budget:
             _, dropped = self._frames.popitem(last=False)
             self._bytes -= dropped.nbytes
-            self._evicted += 1
+            self._counts["evicted"] += 1
 
 
 class Decode:

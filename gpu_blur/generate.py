@@ -370,8 +370,8 @@ def _stage(ahead: deque[_Inputs], staging: PinnedStaging, pool: Executor,
     """Give free slots to the oldest runs of batchable samples not yet staged."""
     run: list[_Inputs] = []
     for waiting in [*ahead, None]:
-        if waiting is not None and waiting.slot is None and waiting.batchable and (
-                len(run) < staging.batch):
+        stageable = waiting is not None and waiting.slot is None and waiting.batchable
+        if stageable and len(run) < staging.batch:
             run.append(waiting)
             continue
         if run:
@@ -381,7 +381,7 @@ def _stage(ahead: deque[_Inputs], staging: PinnedStaging, pool: Executor,
             for position, member in enumerate(run):
                 member.stage(staging, slot, position, pool, times)
             run = []
-        if waiting is not None and waiting.slot is None and waiting.batchable:
+        if stageable:
             run.append(waiting)  # the next run starts where a full one ended
 
 
