@@ -259,7 +259,6 @@ class _Inputs:
         self.slot: int | None = None
         self.position = 0
         self.reads = not spec.problem and bool(spec.inputs)
-        self._pool, self._times = pool, times
         self._images: list = [None] * len(spec.inputs)
         self._left, self._lock = len(spec.inputs), threading.Lock()
         self._claiming = True
@@ -273,7 +272,11 @@ class _Inputs:
         for i, path in enumerate(spec.inputs):
             frame, decode = _claim(path, reader, cache)
             if decode is not None:
-                self.tasks.append((pool.submit(times.run, "decode", decode), decode))
+                try:
+                    self.tasks.append((pool.submit(times.run, "decode", decode), decode))
+                except RuntimeError:  # the pool is shut down: no sample waits for this file
+                    decode.abandon()
+                    raise
             frame.add_done_callback(functools.partial(self._arrived, i))
         with self._lock:
             self._claiming = False
@@ -290,7 +293,7 @@ class _Inputs:
         return self.reads and not self.spec.roles and self.jpeg is None
 
     def _arrived(self, i: int, frame: Future) -> None:
-        """File ``i`` decoded (or failed: None), in the thread that decoded it."""
+        """File ``i`` decoded (or failed: None), in the thread that decoded it (or here)."""
         image = None if frame.cancelled() or frame.exception() is not None else frame.result()
         with self._lock:
             self._images[i] = image

@@ -132,6 +132,23 @@ def test_samples_sharing_a_file_take_no_io_thread_to_wait_for_its_decode(tmp_pat
     assert cache.counts() == CacheCounts(hits=1, misses=3, evicted=0)
 
 
+def test_an_abandoned_decode_fails_its_waiters_and_the_next_claim_decodes_again(tmp_path):
+    from concurrent.futures import CancelledError
+
+    (path,) = frames(tmp_path, 1)
+    cache, reader = FrameCache(1 << 20), CountingReader()
+    first, decode = cache.claim(path, reader)
+    waiting, none = cache.claim(path, reader)  # in flight: the same future, nothing to run
+    assert waiting is first and none is None
+    decode.abandon()  # its task was cancelled: the run stopped
+    with pytest.raises(CancelledError, match="not decoded, the run stopped"):
+        waiting.result(timeout=1)
+    again, decode = cache.claim(path, reader)
+    assert decode is not None and again is not first
+    decode()
+    assert again.result(timeout=1)[0, 0, 0] == 1 and reader.calls == ["0.png"]
+
+
 def test_a_failed_decode_reaches_every_waiter_and_is_not_kept(tmp_path):
     (path,) = frames(tmp_path, 1)
     cache, reader = FrameCache(1 << 20), CountingReader(delay=0.2, fail=True)
