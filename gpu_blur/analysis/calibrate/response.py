@@ -13,7 +13,6 @@ import math
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import nnls
 
 from gpu_blur.analysis.calibrate.chart_fit import condition_number
 from gpu_blur.reference.transfer import polynomial_crf
@@ -103,6 +102,14 @@ def _least_squares_with_inequalities(e, f, g, h) -> np.ndarray:
     is solved by non-negative least squares (:func:`scipy.optimize.nnls`). ``e`` must have full
     column rank (checked by the caller's condition number).
     """
+    try:  # imported here: scipy.optimize takes 0.2-0.3 s, which gpu-blur --help paid
+        from scipy.optimize import nnls
+    except ModuleNotFoundError as err:
+        if (err.name or "").partition(".")[0] != "scipy":  # scipy's own dependencies
+            raise
+        raise ModuleNotFoundError(
+            f"the camera response fit needs scipy, a dependency of gpu_blur, which could not be "
+            f"imported ({err}): pip install scipy, or reinstall gpu_blur", name=err.name) from None
     q, r = np.linalg.qr(e)
     r_inv = np.linalg.inv(r)
     f1 = q.T @ f
