@@ -10,8 +10,6 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from tqdm import tqdm
-
 from gpu_blur.analysis.bench.host import (
     choose_backends,
     cpu_name,
@@ -112,6 +110,8 @@ def run_benchmark(size: tuple[int, int] | None = None, backends: Sequence[str] |
         ValueError: bad size, runs or backend names, or a report in ``save_to`` from a run
             with other options (naming the first that differs).
     """
+    from tqdm import tqdm  # here: gpu-blur --help builds this command's options from this module
+
     import gpu_blur
 
     width, height = size or (QUICK_SIZE if quick else DEFAULT_SIZE)
