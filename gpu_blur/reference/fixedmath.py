@@ -8,6 +8,10 @@ machine: ``+ - * /``, ``sqrt``, ``rint``, ``floor``, comparisons, selections and
 operations on the bits (exponents are read and powers of two made through ``view``, not
 ``frexp``/``ldexp``), each a separate numpy ufunc call in a fixed order (so no compiler can
 fuse a product into a sum). A sample's draws and pixels then have the same bits on any CPU.
+The functions work chunk by chunk with in-place steps, which change no rounding (IEEE sums
+and products commute exactly; no operation is regrouped), and fix up special values on the
+elements that have them; tests/reference/test_fixedmath.py holds the plain formulas (one new
+array per operation, every selection over the whole array) and checks the bits against them.
 
 Methods (formulas and coefficients from the literature; the code is ours):
 
@@ -35,6 +39,8 @@ are rounded once more (a relative error up to half their coarser ulp).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -125,54 +131,97 @@ _COS_COEFFS = (
 
 
 def _horner(x: np.ndarray, coeffs: tuple[float, ...]) -> np.ndarray:
-    """``c0 + x (c1 + x (c2 + ...))`` from the innermost term out."""
-    acc = np.full_like(x, coeffs[-1])
-    for c in coeffs[-2::-1]:
-        acc = acc * x + c
+    """``c0 + x (c1 + x (c2 + ...))`` from the innermost term out (two coefficients or more).
+
+    One array updated in place; its first product is ``x * c`` for ``c * x`` (IEEE products,
+    like sums, commute exactly).
+    """
+    acc = x * coeffs[-1]
+    acc += coeffs[-2]
+    for c in coeffs[-3::-1]:
+        acc *= x
+        acc += c
     return acc
 
 
 # -- error-free transformations ------------------------------------------------------------
+# Each returns new arrays and leaves its arguments alone. The in-place steps are the
+# docstrings' formulas, operation for operation in the same order; ``t += s`` stands for
+# ``s + t`` (exact commutation), never for a regrouping.
 
 
 def _two_sum(a, b):
-    """``(s, e)`` with ``s = fl(a + b)`` and ``s + e = a + b`` exactly (Knuth)."""
+    """``(s, e)`` with ``s = fl(a + b)`` and ``s + e = a + b`` exactly (Knuth).
+
+    ``bb = s - a``, ``e = (a - (s - bb)) + (b - bb)``.
+    """
     s = a + b
     bb = s - a
-    return s, (a - (s - bb)) + (b - bb)
+    e = s - bb
+    np.subtract(a, e, out=e)
+    np.subtract(b, bb, out=bb)
+    e += bb
+    return s, e
 
 
 def _fast_two_sum(a, b):
-    """``(s, e)`` with ``s + e = a + b`` exactly, for ``|a| >= |b|`` (Dekker)."""
+    """``(s, e)`` with ``s + e = a + b`` exactly, for ``|a| >= |b|`` (Dekker).
+
+    ``e = b - (s - a)``.
+    """
     s = a + b
-    return s, b - (s - a)
+    e = s - a
+    np.subtract(b, e, out=e)
+    return s, e
 
 
 def _split(a):
-    """Veltkamp's split: ``a = hi + lo`` with 26-bit halves (``|a| < 2**996``)."""
-    c = _SPLITTER * a
-    hi = c - (c - a)
-    return hi, a - hi
+    """Veltkamp's split: ``a = hi + lo`` with 26-bit halves (``|a| < 2**996``).
+
+    ``c = SPLITTER a``, ``hi = c - (c - a)``, ``lo = a - hi``.
+    """
+    hi = a * _SPLITTER
+    lo = hi - a
+    np.subtract(hi, lo, out=hi)
+    np.subtract(a, hi, out=lo)
+    return hi, lo
 
 
 def _two_prod(a, b):
-    """``(p, e)`` with ``p = fl(a b)`` and ``p + e = a b`` exactly (Dekker; no FMA)."""
+    """``(p, e)`` with ``p = fl(a b)`` and ``p + e = a b`` exactly (Dekker; no FMA).
+
+    ``e = ((ah bh - p) + ah bl + al bh) + al bl``; a square (``b is a``) is split once.
+    """
     p = a * b
     ah, al = _split(a)
-    bh, bl = _split(b)
-    return p, ((ah * bh - p) + ah * bl + al * bh) + al * bl
+    bh, bl = (ah, al) if b is a else _split(b)
+    e = ah * bh
+    e -= p
+    t = ah * bl
+    e += t
+    np.multiply(al, bh, out=t)
+    e += t
+    np.multiply(al, bl, out=t)
+    e += t
+    return p, e
 
 
 def _pow2(k: np.ndarray) -> np.ndarray:
-    """``2.0**k`` for integer ``k`` in ``[-1022, 1023]``, made from its bits."""
-    return ((k.astype(np.int64) + 1023) << 52).view(np.float64)
+    """``2.0**k`` for int64 ``k`` in ``[-1022, 1023]``, made from its bits."""
+    bits = k + 1023
+    bits <<= 52
+    return bits.view(np.float64)
 
 
 def _scale(m: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """``m * 2**k`` rounded once, for ``m`` in ``[0.5, 2)`` and integer ``k`` in ``[-1080, 1030]``.
+    """``m * 2**k`` rounded once, for ``m`` in ``[0.5, 2)`` and int64 ``k`` in ``[-1080, 1030]``.
 
-    Two power-of-two products; only the last one can round.
+    ``(m 2**k1) 2**(k - k1)`` with ``k1 = clip(k, -1000, 1000)``: two power-of-two products;
+    only the last one can round. Where every ``k`` is inside the clip the second factor is 1,
+    and that exact product is left out.
     """
+    if not k.size or (k.min() >= -1000 and k.max() <= 1000):
+        return m * _pow2(k)
     k1 = np.clip(k, -1000, 1000)
     return (m * _pow2(k1)) * _pow2(k - k1)
 
@@ -185,17 +234,28 @@ CHUNK = 1 << 13
 def _chunked(fn, *arrays):
     """``fn`` over broadcast float64 arrays, ``CHUNK`` elements at a time.
 
-    For elementwise functions only (each result element depends on its own inputs alone);
-    returns a tuple of outputs of the broadcast shape.
+    For elementwise functions only (each result element depends on its own inputs alone) that
+    leave their arguments unchanged; returns a tuple of outputs of the broadcast shape, each
+    filled chunk by chunk. A single value broadcast over the others goes in as a chunk-long
+    constant.
     """
-    arrays = np.broadcast_arrays(*arrays)
-    shape = arrays[0].shape
-    flat = [np.ascontiguousarray(a).reshape(-1) for a in arrays]
-    n = flat[0].size
+    shape = np.broadcast_shapes(*(a.shape for a in arrays))
+    n = math.prod(shape)
     if n <= CHUNK:
+        flat = [np.ascontiguousarray(np.broadcast_to(a, shape)).reshape(-1) for a in arrays]
         return tuple(o.reshape(shape) for o in fn(*flat))
-    parts = [fn(*(a[i:i + CHUNK] for a in flat)) for i in range(0, n, CHUNK)]
-    return tuple(np.concatenate(p).reshape(shape) for p in zip(*parts, strict=True))
+    flat = [(np.full(CHUNK, a.reshape(-1)[0]), True) if a.size == 1
+            else (np.ascontiguousarray(np.broadcast_to(a, shape)).reshape(-1), False)
+            for a in arrays]
+    outs = None
+    for i in range(0, n, CHUNK):
+        size = min(CHUNK, n - i)
+        parts = fn(*(a[:size] if const else a[i:i + size] for a, const in flat))
+        if outs is None:
+            outs = [np.empty(n, dtype=part.dtype) for part in parts]
+        for o, part in zip(outs, parts, strict=True):
+            o[i:i + size] = part
+    return tuple(o.reshape(shape) for o in outs)
 
 
 def _as_float(x) -> tuple[np.ndarray, bool]:
@@ -210,20 +270,29 @@ def _result(out: np.ndarray, scalar: bool):
 # -- exp ---------------------------------------------------------------------------------
 
 
-def _exp_dd(zh: np.ndarray, zl: np.ndarray) -> np.ndarray:
+def _exp_dd(zh: np.ndarray, zl) -> np.ndarray:
     """``exp(zh + zl)`` for ``zh`` in ``[EXP_UNDERFLOW, EXP_OVERFLOW]``, ``|zl| < ulp(zh)``.
 
     ``k = rint(zh / ln2)``; ``r = (zh - k LN2_HI) + (zl - k LN2_LO)`` (the first difference is
     exact: Sterbenz), kept as ``rh + rl``; ``exp(r) = 1 + rh + (s + rl (1 + rh))`` with
     ``s = rh^2 (1/2 + rh/6 + ... + rh^12 / 14!)``, ``1 + rh`` error-free; times ``2**k``.
+    ``zl`` may be the scalar 0.0 (``exp`` of a plain float64).
     """
-    k = np.rint(zh * INV_LN2)
-    a = zh - k * LN2_HI
-    b = zl - k * LN2_LO
+    k = zh * INV_LN2
+    np.rint(k, out=k)
+    a = k * LN2_HI
+    np.subtract(zh, a, out=a)
+    b = k * LN2_LO
+    np.subtract(zl, b, out=b)
     rh, rl = _two_sum(a, b)
-    s = (rh * rh) * _horner(rh, _EXP_COEFFS)
+    s = rh * rh
+    s *= _horner(rh, _EXP_COEFFS)
     h, lo = _fast_two_sum(1.0, rh)
-    m = h + (lo + (s + rl * (1.0 + rh)))
+    m = rh + 1.0  # h + (lo + (s + rl (1 + rh)))
+    m *= rl
+    m += s
+    m += lo
+    m += h
     return _scale(m, k.astype(np.int64))
 
 
@@ -244,9 +313,13 @@ def exp(x):
 
 def _exp(x):
     ok = (x >= EXP_UNDERFLOW) & (x <= EXP_OVERFLOW)
-    z = np.where(ok, x, 0.0)
-    out = _exp_dd(z, np.zeros_like(z))
-    return (np.where(ok, out, np.where(x > 0.0, np.inf, np.where(x < 0.0, 0.0, np.nan))),)
+    if ok.all():
+        return (_exp_dd(x, 0.0),)
+    out = _exp_dd(np.where(ok, x, 0.0), 0.0)
+    bad = ~ok
+    xb = x[bad]
+    out[bad] = np.where(xb > 0.0, np.inf, np.where(xb < 0.0, 0.0, np.nan))
+    return (out,)
 
 
 # -- log ---------------------------------------------------------------------------------
@@ -258,28 +331,44 @@ def _log_dd(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Error about 2**-100 absolute plus 2**-62 of ``log m`` (``|log m| <= 0.35``).
     """
     sub = x < 2.0**-1022
-    xs = x * np.where(sub, _TWO54, 1.0)  # subnormals become normal, exactly
-    bits = xs.view(np.int64)
-    e = ((bits >> 52) & 0x7FF) - 1023 - np.where(sub, 54, 0)
+    if sub.any():
+        bits = (x * np.where(sub, _TWO54, 1.0)).view(np.int64)  # subnormals become normal
+        e = (bits >> 52) - 1023 - np.where(sub, 54, 0)  # (sign bit 0: x > 0)
+    else:
+        bits = x.view(np.int64)
+        e = (bits >> 52) - 1023
     m = ((bits & _MANTISSA) | _EXP_ONE).view(np.float64)  # in [1, 2)
     big = m >= SQRT2
     m = np.where(big, m * 0.5, m)  # now in [sqrt(1/2), sqrt(2))
-    e = (e + big).astype(np.float64)
+    e += big
+    e = e.astype(np.float64)
     # f = (m - 1) / (m + 1) as fh + fl; m - 1 is exact (Sterbenz)
     num = m - 1.0
     dh, dl = _two_sum(m, 1.0)
     fh = num / dh
     ph, pl = _two_prod(fh, dh)
-    fl = (((num - ph) - pl) - fh * dl) / dh
-    # log m = 2 atanh f = 2 f + t, t = f w (2/3 + w (2/5 + ...)), w = f^2
+    fl = num - ph  # (((num - ph) - pl) - fh dl) / dh
+    fl -= pl
+    np.multiply(fh, dl, out=dl)
+    fl -= dl
+    fl /= dh
+    # log m = 2 atanh f = 2 f + t, t = f w (2/3 + w (2/5 + ...)) + (2 w) fl, w = f^2
     w = fh * fh
-    t = (fh * w) * _horner(w, _LOG_COEFFS) + (2.0 * w) * fl
-    sh, sl = _two_sum(2.0 * fh, t)
-    sl = sl + 2.0 * fl
-    # + e ln2 (e LN2_HI exact)
+    t = fh * w
+    t *= _horner(w, _LOG_COEFFS)
+    w *= 2.0
+    w *= fl
+    t += w
+    np.multiply(fh, 2.0, out=fh)
+    sh, sl = _two_sum(fh, t)
+    fl *= 2.0
+    sl += fl  # sl + 2 fl
+    # + e ln2 (e LN2_HI exact): hl + (sl + e LN2_LO)
     hh, hl = _two_sum(e * LN2_HI, sh)
-    lo = hl + (sl + e * LN2_LO)
-    return _fast_two_sum(hh, lo)
+    e *= LN2_LO
+    e += sl
+    hl += e
+    return _fast_two_sum(hh, hl)
 
 
 def log(x):
@@ -298,10 +387,14 @@ def log(x):
 
 def _log(x):
     ok = (x > 0.0) & (x < np.inf)
-    hi, lo = _log_dd(np.where(ok, x, 1.0))
-    out = hi + lo
-    return (np.where(ok, out, np.where(x == 0.0, -np.inf,
-                                       np.where(x == np.inf, np.inf, np.nan))),)
+    every = ok.all()
+    hi, lo = _log_dd(x if every else np.where(ok, x, 1.0))
+    hi += lo
+    if not every:
+        bad = ~ok
+        xb = x[bad]
+        hi[bad] = np.where(xb == 0.0, -np.inf, np.where(xb == np.inf, np.inf, np.nan))
+    return (hi,)
 
 
 # -- power -------------------------------------------------------------------------------
@@ -329,52 +422,88 @@ def power(x, y):
 
 def _power(x, y):
     ok = (x > 0.0) & (x < np.inf) & np.isfinite(y)
-    lh, ll = _log_dd(np.where(ok, x, 1.0))
-    yy = np.where(ok, y, 0.0)
+    every = ok.all()
+    lh, ll = _log_dd(x if every else np.where(ok, x, 1.0))
+    yy = y if every else np.where(ok, y, 0.0)
     ph, pl = _two_prod(yy, lh)
-    pl = pl + yy * ll
+    ll *= yy
+    pl += ll  # pl + yy ll
     zh, zl = _fast_two_sum(ph, pl)
     # decided on ph = fl(y hi): zh may be NaN where the split of a huge y overflowed
     inside = ok & (ph >= EXP_UNDERFLOW) & (ph <= EXP_OVERFLOW)
-    out = _exp_dd(np.where(inside, zh, 0.0), np.where(inside, zl, 0.0))
-    out = np.where(inside, out, np.where(ph > 0.0, np.inf, 0.0))
-    # bases 0 and inf, exponent 0, NaN
-    edge = np.where(y > 0.0, np.where(x == 0.0, 0.0, np.inf), np.where(x == 0.0, np.inf, 0.0))
-    out = np.where(ok, out, np.where((x == 0.0) | (x == np.inf), edge, np.nan))
-    out = np.where(y == 0.0, 1.0, out)
-    return (np.where(np.isnan(x) | np.isnan(y) | (x < 0.0), np.nan, out),)
+    if inside.all():
+        out = _exp_dd(zh, zl)
+    else:
+        out = _exp_dd(np.where(inside, zh, 0.0), np.where(inside, zl, 0.0))
+    # the rest: outside exp's range, exponent 0, bases 0 and inf, NaN (none of them is inside)
+    rest = np.flatnonzero(~inside | (y == 0.0))
+    if rest.size:
+        xr, yr, okr = x[rest], y[rest], ok[rest]
+        o = np.where(inside[rest], out[rest], np.where(ph[rest] > 0.0, np.inf, 0.0))
+        edge = np.where(yr > 0.0, np.where(xr == 0.0, 0.0, np.inf),
+                        np.where(xr == 0.0, np.inf, 0.0))
+        o = np.where(okr, o, np.where((xr == 0.0) | (xr == np.inf), edge, np.nan))
+        o = np.where(yr == 0.0, 1.0, o)
+        out[rest] = np.where(np.isnan(xr) | np.isnan(yr) | (xr < 0.0), np.nan, o)
+    return (out,)
 
 
 # -- sin and cos -------------------------------------------------------------------------
 
 
 def _reduce(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``x = q pi/2 + (rh + rl)`` with ``|rh + rl| <= pi/4`` (about); ``q mod 4`` as int64."""
-    q = np.rint(x * TWO_OVER_PI)
-    a = x - q * PIO2_1  # exact: q PIO2_1 is exact and close to x
-    rh, rl = _two_sum(a, -(q * PIO2_2))  # q PIO2_2 exact
-    rl = rl - q * PIO2_3
+    """``x = q pi/2 + (rh + rl)`` with ``|rh + rl| <= pi/4`` (about); ``q mod 4`` as int64.
+
+    ``a = x - q PIO2_1`` (exact: ``q PIO2_1`` is exact and close to ``x``), ``(rh, rl) =
+    TwoSum(a, -(q PIO2_2))`` (``q PIO2_2`` exact), ``rl - q PIO2_3``, renormalized.
+    """
+    q = x * TWO_OVER_PI
+    np.rint(q, out=q)
+    a = q * PIO2_1
+    np.subtract(x, a, out=a)
+    b = q * PIO2_2
+    np.negative(b, out=b)
+    rh, rl = _two_sum(a, b)
+    np.multiply(q, PIO2_3, out=b)
+    rl -= b
     rh, rl = _fast_two_sum(rh, rl)
     return rh, rl, q.astype(np.int64) & 3
 
 
 def _sin_poly(rh, rl):
-    """sin(rh + rl), ``|rh| <= pi/4``: ``rh + (rh w P(w) + rl)``, ``w = rh^2``."""
+    """sin(rh + rl), ``|rh| <= pi/4``: ``rh + ((rh w) P(w) + rl (1 - w/2))``, ``w = rh^2``."""
     w = rh * rh
-    return rh + ((rh * w) * _horner(w, _SIN_COEFFS) + rl * (1.0 - 0.5 * w))
+    s = rh * w
+    s *= _horner(w, _SIN_COEFFS)
+    w *= 0.5
+    np.subtract(1.0, w, out=w)
+    w *= rl
+    s += w
+    s += rh
+    return s
 
 
 def _cos_poly(rh, rl):
     """cos(rh + rl), ``|rh| <= pi/4``: ``1 - w/2 + w^2 Q(w)``.
 
-    ``w = rh^2 + 2 rh rl`` is a double-double and ``1 - w/2`` error-free.
+    ``w = rh^2 + 2 rh rl`` is a double-double and ``1 - w/2`` error-free:
+    ``c + ((corr - wl/2) + wh^2 Q(wh))`` with ``c = 1 - wh/2``, ``corr = (1 - c) - wh/2``.
     """
     wh, wl = _two_prod(rh, rh)
-    wl = wl + 2.0 * rh * rl
+    t = 2.0 * rh  # wl + (2 rh) rl
+    t *= rl
+    wl += t
     half = 0.5 * wh
     c = 1.0 - half
-    corr = (1.0 - c) - half  # exact (Sterbenz, Fast2Sum)
-    return c + ((corr - 0.5 * wl) + (wh * wh) * _horner(wh, _COS_COEFFS))
+    corr = 1.0 - c  # exact (Sterbenz, Fast2Sum)
+    corr -= half
+    wl *= 0.5
+    corr -= wl
+    np.multiply(wh, wh, out=t)
+    t *= _horner(wh, _COS_COEFFS)
+    corr += t
+    corr += c
+    return corr
 
 
 def _check_trig(x: np.ndarray) -> None:
@@ -407,16 +536,28 @@ def sincos(x) -> tuple:
 
 def _sincos(x):
     finite = np.isfinite(x)
-    rh, rl, q = _reduce(np.where(finite, x, 0.0))
+    every = finite.all()
+    rh, rl, q = _reduce(x if every else np.where(finite, x, 0.0))
     s, c = _sin_poly(rh, rl), _cos_poly(rh, rl)
-    swap = (q & 1) == 1
+    swap = (q & 1).astype(bool)
     sin_x = np.where(swap, c, s)
     cos_x = np.where(swap, s, c)
-    sin_x = np.where((q == 2) | (q == 3), -sin_x, sin_x)
-    cos_x = np.where((q == 1) | (q == 2), -cos_x, cos_x)
-    sin_x = np.where(x == 0.0, x, sin_x)
-    sin_x = np.where(finite, sin_x, np.nan)
-    return sin_x, np.where(finite, cos_x, np.nan)
+    # negations as sign-bit flips (what -x is): sin in quadrants 2 and 3, cos in 1 and 2
+    flip = q >> 1
+    flip <<= 63
+    np.bitwise_xor(sin_x.view(np.int64), flip, out=sin_x.view(np.int64))
+    q += 1
+    q &= 2
+    q <<= 62
+    np.bitwise_xor(cos_x.view(np.int64), q, out=cos_x.view(np.int64))
+    zero = x == 0.0
+    if zero.any():
+        np.copyto(sin_x, x, where=zero)  # sin(+-0) = +-0
+    if not every:
+        bad = ~finite
+        sin_x[bad] = np.nan
+        cos_x[bad] = np.nan
+    return sin_x, cos_x
 
 
 def sin(x):

@@ -2,8 +2,10 @@
 
 Accuracy is measured in ulps of the exact value, computed with 50-digit :mod:`decimal`
 arithmetic. The recorded digests fix the functions' bits on fixed grids, so any change of
-evaluation order shows. The ``bits`` tests run the draws of every blur mode and numpy-backend
-samples in subprocesses with and without numpy's AVX-512 and AVX2 paths and compare digests.
+evaluation order shows; fixedmath must also give the bits of its plain formulas (as it had
+them before it worked in place) on random and edge inputs, special values included. The
+``bits`` tests run the draws of every blur mode and numpy-backend samples in subprocesses with
+and without numpy's AVX-512 and AVX2 paths and compare digests.
 
 Run as a script (``python tests/reference/test_fixedmath.py``) this module prints those digests
 as JSON.
@@ -171,6 +173,248 @@ def test_matrix_helpers_agree_with_numpy_to_rounding():
     np.testing.assert_allclose(fm.det3(a), np.linalg.det(a), rtol=1e-13)
     np.testing.assert_allclose(fm.inverse3(a), np.linalg.inv(a), rtol=0, atol=1e-13)
     np.testing.assert_array_equal(fm.inverse3(np.eye(3)), np.eye(3))
+
+
+# -- the same bits as the plain formulas ---------------------------------------------------
+# fixedmath works in place, chunk by chunk, and fixes up special values on the few elements
+# that have them. The functions below are its formulas written out plainly, one new array per
+# operation and every selection over the whole array, as fixedmath had them before: the
+# optimized code must give their bits on any input, special values included.
+
+
+def _plain_horner(x, coeffs):
+    acc = np.full_like(x, coeffs[-1])
+    for c in coeffs[-2::-1]:
+        acc = acc * x + c
+    return acc
+
+
+def _plain_two_sum(a, b):
+    s = a + b
+    bb = s - a
+    return s, (a - (s - bb)) + (b - bb)
+
+
+def _plain_fast_two_sum(a, b):
+    s = a + b
+    return s, b - (s - a)
+
+
+def _plain_split(a):
+    c = fm._SPLITTER * a
+    hi = c - (c - a)
+    return hi, a - hi
+
+
+def _plain_two_prod(a, b):
+    p = a * b
+    ah, al = _plain_split(a)
+    bh, bl = _plain_split(b)
+    return p, ((ah * bh - p) + ah * bl + al * bh) + al * bl
+
+
+def _plain_pow2(k):
+    return ((k.astype(np.int64) + 1023) << 52).view(np.float64)
+
+
+def _plain_exp_dd(zh, zl):
+    k = np.rint(zh * fm.INV_LN2)
+    rh, rl = _plain_two_sum(zh - k * fm.LN2_HI, zl - k * fm.LN2_LO)
+    s = (rh * rh) * _plain_horner(rh, fm._EXP_COEFFS)
+    h, lo = _plain_fast_two_sum(1.0, rh)
+    m = h + (lo + (s + rl * (1.0 + rh)))
+    k = k.astype(np.int64)
+    k1 = np.clip(k, -1000, 1000)
+    return (m * _plain_pow2(k1)) * _plain_pow2(k - k1)
+
+
+def _plain_exp(x):
+    ok = (x >= fm.EXP_UNDERFLOW) & (x <= fm.EXP_OVERFLOW)
+    z = np.where(ok, x, 0.0)
+    out = _plain_exp_dd(z, np.zeros_like(z))
+    return np.where(ok, out, np.where(x > 0.0, np.inf, np.where(x < 0.0, 0.0, np.nan)))
+
+
+def _plain_log_dd(x):
+    sub = x < 2.0**-1022
+    bits = (x * np.where(sub, fm._TWO54, 1.0)).view(np.int64)
+    e = ((bits >> 52) & 0x7FF) - 1023 - np.where(sub, 54, 0)
+    m = ((bits & fm._MANTISSA) | fm._EXP_ONE).view(np.float64)
+    big = m >= fm.SQRT2
+    m = np.where(big, m * 0.5, m)
+    e = (e + big).astype(np.float64)
+    num = m - 1.0
+    dh, dl = _plain_two_sum(m, 1.0)
+    fh = num / dh
+    ph, pl = _plain_two_prod(fh, dh)
+    fl = (((num - ph) - pl) - fh * dl) / dh
+    w = fh * fh
+    t = (fh * w) * _plain_horner(w, fm._LOG_COEFFS) + (2.0 * w) * fl
+    sh, sl = _plain_two_sum(2.0 * fh, t)
+    sl = sl + 2.0 * fl
+    hh, hl = _plain_two_sum(e * fm.LN2_HI, sh)
+    return _plain_fast_two_sum(hh, hl + (sl + e * fm.LN2_LO))
+
+
+def _plain_log(x):
+    ok = (x > 0.0) & (x < np.inf)
+    hi, lo = _plain_log_dd(np.where(ok, x, 1.0))
+    return np.where(ok, hi + lo, np.where(x == 0.0, -np.inf,
+                                          np.where(x == np.inf, np.inf, np.nan)))
+
+
+def _plain_power(x, y):
+    x, y = np.broadcast_arrays(x, y)
+    ok = (x > 0.0) & (x < np.inf) & np.isfinite(y)
+    lh, ll = _plain_log_dd(np.where(ok, x, 1.0))
+    yy = np.where(ok, y, 0.0)
+    ph, pl = _plain_two_prod(yy, lh)
+    zh, zl = _plain_fast_two_sum(ph, pl + yy * ll)
+    inside = ok & (ph >= fm.EXP_UNDERFLOW) & (ph <= fm.EXP_OVERFLOW)
+    out = _plain_exp_dd(np.where(inside, zh, 0.0), np.where(inside, zl, 0.0))
+    out = np.where(inside, out, np.where(ph > 0.0, np.inf, 0.0))
+    edge = np.where(y > 0.0, np.where(x == 0.0, 0.0, np.inf), np.where(x == 0.0, np.inf, 0.0))
+    out = np.where(ok, out, np.where((x == 0.0) | (x == np.inf), edge, np.nan))
+    out = np.where(y == 0.0, 1.0, out)
+    return np.where(np.isnan(x) | np.isnan(y) | (x < 0.0), np.nan, out)
+
+
+def _plain_sincos(x):
+    finite = np.isfinite(x)
+    z = np.where(finite, x, 0.0)
+    q = np.rint(z * fm.TWO_OVER_PI)
+    rh, rl = _plain_two_sum(z - q * fm.PIO2_1, -(q * fm.PIO2_2))
+    rh, rl = _plain_fast_two_sum(rh, rl - q * fm.PIO2_3)
+    q = q.astype(np.int64) & 3
+    w = rh * rh
+    s = rh + ((rh * w) * _plain_horner(w, fm._SIN_COEFFS) + rl * (1.0 - 0.5 * w))
+    wh, wl = _plain_two_prod(rh, rh)
+    wl = wl + 2.0 * rh * rl
+    half = 0.5 * wh
+    c = 1.0 - half
+    corr = (1.0 - c) - half
+    c = c + ((corr - 0.5 * wl) + (wh * wh) * _plain_horner(wh, fm._COS_COEFFS))
+    swap = (q & 1) == 1
+    sin_x, cos_x = np.where(swap, c, s), np.where(swap, s, c)
+    sin_x = np.where((q == 2) | (q == 3), -sin_x, sin_x)
+    cos_x = np.where((q == 1) | (q == 2), -cos_x, cos_x)
+    sin_x = np.where(x == 0.0, x, sin_x)
+    return np.where(finite, sin_x, np.nan), np.where(finite, cos_x, np.nan)
+
+
+def _assert_same_bits(got, want):
+    got, want = np.asarray(got), np.asarray(want)
+    assert got.dtype == want.dtype == np.float64 and got.shape == want.shape
+    differ = got.view(np.int64) != want.view(np.int64)
+    assert not differ.any(), (f"{int(differ.sum())} of {differ.size} differ, e.g. "
+                              f"{got[differ][:3]!r} for {want[differ][:3]!r}")
+
+
+def _near(values, ulps: int = 3) -> np.ndarray:
+    """``values`` and their float64 neighbours up to ``ulps`` away on each side."""
+    out = [np.asarray(values, dtype=np.float64)]
+    up, down = out[0], out[0]
+    for _ in range(ulps):
+        up, down = np.nextafter(up, np.inf), np.nextafter(down, -np.inf)
+        out += [up, down]
+    return np.concatenate(out)
+
+
+def _random_doubles(rng, n: int) -> np.ndarray:
+    """Every finite float64 equally likely by its bits (any exponent, subnormals, both signs)."""
+    bits = rng.integers(0, 0x7FF0000000000000, n, dtype=np.int64)
+    return bits.view(np.float64) * np.where(rng.random(n) < 0.5, -1.0, 1.0)
+
+
+_SPECIALS = [0.0, -0.0, 5e-324, -5e-324, 2.0**-1022, 1.0, -1.0, 1.7976931348623157e308,
+             np.inf, -np.inf, np.nan]
+
+
+def _exp_inputs() -> np.ndarray:
+    rng = np.random.default_rng(31)
+    k = np.arange(-1080, 1030)
+    return np.concatenate([
+        rng.uniform(-746.0, 710.0, 60000), rng.uniform(-1.0, 1.0, 20000),
+        rng.uniform(-1e-8, 1e-8, 5000), _random_doubles(rng, 5000),
+        _near([fm.EXP_OVERFLOW, fm.EXP_UNDERFLOW, -708.4, -709.1, 709.0, 0.0], 8),
+        _near((k + 0.5) * math.log(2.0)), _near(k * math.log(2.0)), _SPECIALS])
+
+
+def _positive_inputs() -> np.ndarray:
+    rng = np.random.default_rng(32)
+    twos = 2.0 ** np.arange(-1074, 1024, dtype=np.float64)
+    return np.concatenate([
+        np.abs(_random_doubles(rng, 60000)), rng.uniform(0.0, 2.0, 20000),
+        rng.integers(1, 2**52, 5000).view(np.float64),  # subnormals
+        _near(twos), _near(fm.SQRT2 * twos[:-1]), _near(twos * 1.5), _near([1.0], 64),
+        rng.uniform(0.04, 1.1, 20000), _SPECIALS, -rng.uniform(0.0, 1.0, 100)])
+
+
+@pytest.mark.bits
+def test_exp_log_keep_the_bits_of_the_plain_formulas():
+    x = _exp_inputs()
+    _assert_same_bits(fm.exp(x), _plain_exp(x))
+    p = _positive_inputs()
+    _assert_same_bits(fm.log(p), _plain_log(p))
+    # each size and layout: one chunk, chunks with a partial last one, strided, 0-d, empty
+    for a in (x[:fm.CHUNK], x[:3 * fm.CHUNK + 5], x[::3], x[:5000].reshape(50, 100).T):
+        _assert_same_bits(fm.exp(a), _plain_exp(a))
+        _assert_same_bits(fm.log(np.abs(a)), _plain_log(np.abs(a)))
+    for v in (0.5, 800.0, np.nan, -0.0):
+        assert fm.exp(v).tobytes() == _plain_exp(np.float64(v)).tobytes()
+        assert fm.log(v).tobytes() == _plain_log(np.float64(v)).tobytes()
+    assert fm.exp(np.zeros((0, 3))).shape == (0, 3) and fm.log(np.zeros(0)).shape == (0,)
+
+
+@pytest.mark.bits
+@pytest.mark.parametrize("y", [2.4, 1 / 2.4, 2.2, 1 / 2.2, -3.7, 15.9, 0.0, -0.0, 1.0, -1.0,
+                               0.5, 1e300, -1e300, 1e306, 5e-324, np.inf, -np.inf, np.nan])
+def test_power_keeps_the_bits_of_the_plain_formulas(y):
+    x = _positive_inputs()
+    with np.errstate(all="ignore"):  # a huge y overflows Veltkamp's split, in both alike
+        _assert_same_bits(fm.power(x, y), _plain_power(x, np.float64(y)))
+        _assert_same_bits(fm.power(x[:7777], y), _plain_power(x[:7777], np.float64(y)))
+
+
+@pytest.mark.bits
+def test_power_keeps_the_bits_of_the_plain_formulas_over_both_arguments():
+    rng = np.random.default_rng(33)
+    x = _positive_inputs()
+    n = x.size
+    ys = (rng.uniform(-2.0, 2.0, n), rng.uniform(-20.0, 20.0, n), _random_doubles(rng, n),
+          rng.choice(np.array(_SPECIALS + [2.4, 0.5, -3.0]), n))
+    with np.errstate(all="ignore"):  # huge exponents overflow the split, in both alike
+        for y in ys:
+            _assert_same_bits(fm.power(x, y), _plain_power(x, y))
+        # broadcasting: a column of bases against a row of exponents, a scalar base
+        xb, yb = x[:3000:7, None], np.array(_SPECIALS + [2.4, -0.7, 1e-300, 33.0])
+        _assert_same_bits(fm.power(xb, yb), _plain_power(xb, yb))
+        yw = rng.uniform(-50.0, 50.0, 3 * fm.CHUNK + 1)
+        for base in (0.3, 0.0, np.inf, 7.0):
+            _assert_same_bits(fm.power(base, yw), _plain_power(np.float64(base), yw))
+    assert fm.power(2.0, 0.5).tobytes() == _plain_power(np.float64(2.0), 0.5).tobytes()
+
+
+@pytest.mark.bits
+def test_sincos_keeps_the_bits_of_the_plain_formulas():
+    rng = np.random.default_rng(34)
+    k = np.arange(-4000, 4000)
+    x = np.concatenate([
+        rng.uniform(-fm.TRIG_ARGUMENT_MAX, fm.TRIG_ARGUMENT_MAX, 40000),
+        rng.uniform(-8.0, 8.0, 40000), rng.uniform(-1e-6, 1e-6, 5000),
+        2.0 * math.pi * (np.arange(1, 2**24, 2 * 1021) * 2.0**-24),
+        _near(k * (math.pi / 4)), _near(k * (math.pi / 2)),
+        [fm.TRIG_ARGUMENT_MAX, -fm.TRIG_ARGUMENT_MAX],
+        _near([5e-324, 1e-300, 2.0**-1022]), _SPECIALS[:7], [np.inf, -np.inf, np.nan]])
+    s, c = fm.sincos(x)
+    ps, pc = _plain_sincos(x)
+    _assert_same_bits(s, ps)
+    _assert_same_bits(c, pc)
+    for a in (x[:100], x[1::2], x[:6000].reshape(3, 2000)):
+        s, c = fm.sincos(a)
+        ps, pc = _plain_sincos(a)
+        _assert_same_bits(s, ps)
+        _assert_same_bits(c, pc)
 
 
 # -- bits --------------------------------------------------------------------------------
