@@ -627,9 +627,14 @@ def inverse3(m) -> np.ndarray:
     The determinant is the first row's expansion, each cofactor ``a d - b c``. For the
     well-conditioned colour matrices and homographies it serves (condition numbers well under
     1e6) as accurate as LU; a singular matrix gives inf or NaN entries (callers check the
-    determinant).
+    determinant). A single matrix is worked in Python floats (IEEE float64, the same
+    operations in the same order, without numpy's per-call cost).
     """
     m = np.asarray(m, dtype=np.float64)
+    if m.shape == (3, 3):
+        out = _inverse3_one(m.tolist())
+        if out is not None:
+            return np.array(out)
     adj = np.empty(m.shape)
     for i in range(3):
         for j in range(3):
@@ -640,3 +645,25 @@ def inverse3(m) -> np.ndarray:
     det = (m[..., 0, 0] * adj[..., 0, 0] + m[..., 0, 1] * adj[..., 1, 0]) \
         + m[..., 0, 2] * adj[..., 2, 0]
     return adj / det[..., None, None]
+
+
+def _inverse3_one(m: list) -> list | None:
+    """:func:`inverse3` of one matrix given as nested lists of floats.
+
+    None unless the determinant is nonzero and every entry finite: numpy then makes the inf
+    and NaN entries, with its warnings, as for a stack.
+    """
+    adj = [[0.0] * 3 for _ in range(3)]
+    for i in range(3):
+        for j in range(3):
+            r0, r1 = [r for r in range(3) if r != j]
+            c0, c1 = [c for c in range(3) if c != i]
+            minor = m[r0][c0] * m[r1][c1] - m[r0][c1] * m[r1][c0]
+            adj[i][j] = -minor if (i + j) % 2 else minor
+    det = (m[0][0] * adj[0][0] + m[0][1] * adj[1][0]) + m[0][2] * adj[2][0]
+    if det == 0.0 or not math.isfinite(det):
+        return None
+    out = [[a / det for a in row] for row in adj]
+    if not all(math.isfinite(v) for row in out for v in row):
+        return None
+    return out
