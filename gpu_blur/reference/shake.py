@@ -269,21 +269,22 @@ def _check_in_front(homographies: np.ndarray, height: int, width: int) -> None:
 SHAKE_BAND_ROWS = 32
 
 
-def _positions(homography: np.ndarray, height: int, width: int,
+def _positions(inverse: np.ndarray, height: int, width: int,
                rows: range | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Where each output pixel samples: ``H^-1 (x, y, 1)`` dehomogenised, ``(px, py)``.
 
-    ``rows``: only those output rows (default all ``height``).
+    ``inverse`` is ``H^-1`` (3 x 3), inverted once per pose by the caller (the same inverse
+    for every band of rows). ``rows``: only those output rows (default all ``height``).
+    Returns two ``len(rows) x width`` arrays.
     """
-    inv = fixedmath.inverse3(homography)
     rows = range(height) if rows is None else rows
     xs = np.arange(width, dtype=np.float64)[None, :]
     ys = np.arange(rows.start, rows.stop, dtype=np.float64)[:, None]
-    den = inv[2, 0] * xs + inv[2, 1] * ys + inv[2, 2]
+    den = inverse[2, 0] * xs + inverse[2, 1] * ys + inverse[2, 2]
     if not (den > 0).all():
         raise ValueError("homography maps part of the image through infinity (w <= 0)")
-    px = (inv[0, 0] * xs + inv[0, 1] * ys + inv[0, 2]) / den
-    py = (inv[1, 0] * xs + inv[1, 1] * ys + inv[1, 2]) / den
+    px = (inverse[0, 0] * xs + inverse[0, 1] * ys + inverse[0, 2]) / den
+    py = (inverse[1, 0] * xs + inverse[1, 1] * ys + inverse[1, 2]) / den
     if not (np.isfinite(px).all() and np.isfinite(py).all()):
         raise ValueError("homography maps pixels to non-finite positions")
     if max(np.abs(px).max(), np.abs(py).max()) >= 2.0**52:
@@ -294,7 +295,7 @@ def _positions(homography: np.ndarray, height: int, width: int,
 def _warp_stack(stack: np.ndarray, homography: np.ndarray) -> np.ndarray:
     """Warp an ``H x W x C`` float64 stack by a validated 3 x 3 homography (see warp_homography)."""
     h, w, c = stack.shape
-    px, py = _positions(homography, h, w)
+    px, py = _positions(fixedmath.inverse3(homography), h, w)
     out = bilinear_sample(stack.reshape(h * w, c), h, w, px, py)
     return out.reshape(h, w, c)
 
@@ -302,47 +303,84 @@ def _warp_stack(stack: np.ndarray, homography: np.ndarray) -> np.ndarray:
 def _inside_share(first: np.ndarray, frac: np.ndarray, n: int) -> np.ndarray:
     """The weight of the taps ``first``, ``first + 1`` (``1 - frac``, ``frac``) inside ``[0, n)``.
 
-    Exactly 1 when both are inside: a sample that reads only the image keeps its weight.
+    Exactly 1 when both are inside (``0 <= first < n - 1``): a sample that reads only the
+    image keeps its weight. Only the few samples with a tap outside are looked at further:
+    ``frac`` when just the second tap is inside (``first = -1``), ``1 - frac`` when just the
+    first is (``first = n - 1``), else 0.
     """
-    in0 = (first >= 0) & (first < n)
-    in1 = (first >= -1) & (first < n - 1)
-    return np.where(in0 & in1, 1.0, np.where(in1, frac, np.where(in0, 1.0 - frac, 0.0)))
+    share = np.ones(first.shape)
+    edge = (first < 0) | (first >= n - 1)
+    if edge.any():
+        at, f = first[edge], frac[edge]
+        share[edge] = np.where(at == -1, f, np.where(at == n - 1, 1.0 - f, 0.0))
+    return share
 
 
-def _warp_inside(stack: np.ndarray, homography: np.ndarray,
-                 rows: range) -> tuple[np.ndarray, np.ndarray]:
-    """Warp a stack reading only pixels inside the image: ``(values, weights)`` of ``rows``.
+def _planes(stack: np.ndarray) -> np.ndarray:
+    """The stack and its saturation indicator as planes: ``(2 C, H W + 1)`` float64.
 
-    ``values`` is the bilinear sample of the image extended by zeros, interpolated as
-    :func:`~gpu_blur.reference.sampling.bilinear_sample` does (``a + f (b - a)`` along x, then
-    y), and ``weights`` (``H x W x 1``) the share of the sample's bilinear weight that falls
-    on pixels of the image: the bilinear sample of a certainty that is 1 inside, 0 outside.
-    A sample whose four taps are inside gives the bilinear sample itself and weight exactly 1.
+    Row ``k < C`` is channel ``k`` of ``stack`` (``H x W x C``) in row-major pixel order, row
+    ``C + k`` its indicator ``[x >= 1]``; the last column is 0 in every row. Why this layout:
+    a tap is one gather of a column per pixel (``np.take(..., axis=1)``), so the
+    interpolation's products and sums run along long rows of pixels instead of over ``2 C``
+    channels at a time; and a tap outside the image reads the zero column instead of being
+    multiplied by an inside mask (which would make it ``x * 0``, ``-0`` for a negative finite
+    ``x``: a sign that could not reach the output either, see :func:`_warp_inside`).
     """
     h, w, c = stack.shape
-    px, py = _positions(homography, h, w, rows)
+    n = h * w
+    channels = stack.reshape(n, c).T
+    planes = np.zeros((2 * c, n + 1))
+    planes[:c, :n] = channels
+    planes[c:, :n] = saturation_indicator(channels)
+    return planes
+
+
+def _warp_inside(planes: np.ndarray, inverse: np.ndarray, height: int, width: int,
+                 rows: range) -> tuple[np.ndarray, np.ndarray]:
+    """Warp the planes reading only pixels inside the image: ``(values, weights)`` of ``rows``.
+
+    ``planes`` as :func:`_planes` lays them out, ``(P, H W + 1)``; ``inverse`` the pose's
+    ``H^-1``. ``values`` (``P x len(rows) W``, the rows' pixels in row-major order) is the
+    bilinear sample of the image extended by zeros, interpolated as
+    :func:`~gpu_blur.reference.sampling.bilinear_sample` does (``a + f (b - a)`` along x, then
+    y), and ``weights`` (``len(rows) W``) the share of the sample's bilinear weight that falls
+    on pixels of the image: the bilinear sample of a certainty that is 1 inside, 0 outside.
+    A sample whose four taps are inside gives the bilinear sample itself and weight exactly 1.
+
+    A tap outside reads +0. Every value this makes differs from one made with a tap of -0
+    (a masked ``x * 0``) only in the sign of a zero (``a + f (b - a)`` with a zero ``a`` or
+    ``b`` is exact or a zero), and :func:`shake_blur`'s sums start at +0, which adding -0
+    leaves +0 (a sum is -0 only when both terms are), so the sums never hold -0 and a zero's
+    sign never shows.
+    """
+    outside = height * width  # the zero column of ``planes``
+    px, py = _positions(inverse, height, width, rows)
+    px, py = px.ravel(), py.ravel()
     x0, y0 = np.floor(px), np.floor(py)
     fx, fy = px - x0, py - y0
     xi, yi = x0.astype(np.intp), y0.astype(np.intp)
-    flat = stack.reshape(h * w, c)
-    # each tap's row and column: (inside the image, clamped offset), shared by two taps
-    xs = [((x >= 0) & (x < w), np.clip(x, 0, w - 1)) for x in (xi, xi + 1)]
-    ys = [((y >= 0) & (y < h), np.clip(y, 0, h - 1) * w) for y in (yi, yi + 1)]
+    # each tap's column and row: (inside the image, clamped offset), shared by two taps
+    tap_cols = [((x >= 0) & (x < width), np.clip(x, 0, width - 1)) for x in (xi, xi + 1)]
+    tap_rows = [((y >= 0) & (y < height), np.clip(y, 0, height - 1) * width)
+                for y in (yi, yi + 1)]
 
     def taps(row: tuple, col: tuple) -> np.ndarray:
-        return np.take(flat, row[1] + col[1], axis=0) * (row[0] & col[0])[..., None]
+        index = row[1] + col[1]
+        index[~(row[0] & col[0])] = outside
+        return np.take(planes, index, axis=1)
 
     def lerp(a: np.ndarray, b: np.ndarray, f: np.ndarray) -> np.ndarray:
         b -= a
-        b *= f[..., None]
+        b *= f
         a += b
         return a
 
-    top = lerp(taps(ys[0], xs[0]), taps(ys[0], xs[1]), fx)
-    bottom = lerp(taps(ys[1], xs[0]), taps(ys[1], xs[1]), fx)
+    top = lerp(taps(tap_rows[0], tap_cols[0]), taps(tap_rows[0], tap_cols[1]), fx)
+    bottom = lerp(taps(tap_rows[1], tap_cols[0]), taps(tap_rows[1], tap_cols[1]), fx)
     values = lerp(top, bottom, fy)
-    weights = _inside_share(xi, fx, w) * _inside_share(yi, fy, h)
-    return values, weights[..., None]
+    weights = _inside_share(xi, fx, width) * _inside_share(yi, fy, height)
+    return values, weights
 
 
 def _as_homography(homography) -> np.ndarray:
@@ -426,25 +464,26 @@ def shake_blur(image, homographies) -> tuple[np.ndarray, np.ndarray]:
     if hom.ndim != 3 or hom.shape[1:] != (3, 3) or hom.shape[0] < 1:
         raise ValueError(f"homographies must be (steps >= 1, 3, 3); got {hom.shape}")
     stack = img if img.ndim == 3 else img[:, :, None]
-    c = stack.shape[2]
-    both = np.concatenate([stack, saturation_indicator(stack)], axis=2)
-    total = np.zeros_like(both)
-    weight = np.zeros(both.shape[:2] + (1,))
+    h, w, c = stack.shape
     poses = [_as_homography(m) for m in hom]
-    h = both.shape[0]
+    inverses = [fixedmath.inverse3(m) for m in poses]
+    planes = _planes(stack)  # (2 C, H W + 1): image then indicator, one plane per channel
+    total = np.zeros((2 * c, h * w))
+    weight = np.zeros(h * w)
     # a band of rows through every pose at a time keeps its temporaries in cache; each
     # pixel's sum still runs over the poses in order
     for start in range(0, h, SHAKE_BAND_ROWS):
         rows = range(start, min(h, start + SHAKE_BAND_ROWS))
-        for m in poses:
-            values, weights = _warp_inside(both, m, rows)
-            total[start:rows.stop] += values
-            weight[start:rows.stop] += weights
+        pixels = slice(start * w, rows.stop * w)
+        for inverse in inverses:
+            values, weights = _warp_inside(planes, inverse, h, w, rows)
+            total[:, pixels] += values
+            weight[pixels] += weights
     seen = np.broadcast_to(weight > 0.0, total.shape)
     total = np.divide(total, weight, out=np.zeros_like(total), where=seen)
     return (
-        np.ascontiguousarray(total[:, :, :c]).reshape(img.shape),
-        np.ascontiguousarray(total[:, :, c:]).reshape(img.shape),
+        np.ascontiguousarray(total[:c].T).reshape(img.shape),
+        np.ascontiguousarray(total[c:].T).reshape(img.shape),
     )
 
 
