@@ -396,8 +396,9 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
     """Make the samples in this thread, in order, while ``pool`` decodes the next ones' inputs.
 
     At most ``depth`` samples are decoded or being decoded ahead of the one being made, each
-    file a task of its own (so the frames that overlapping windows share are decoded in
-    parallel, not one after another by the first window's thread). With ``staging`` (a GPU)
+    file a task of its own, and a file that an earlier sample already asked for none (so the
+    frames that overlapping windows share are decoded once, in parallel, and no thread waits
+    for another's decode: :class:`_Inputs`). With ``staging`` (a GPU)
     the pool also copies the next samples into its page-locked slots, a batch to a slot, and
     a slot's samples are made as one batch (:func:`make_batch`; one by one where they cannot
     be). The results are :func:`run_serial`'s, in order; the time this thread waits for inputs
