@@ -20,23 +20,8 @@ from gpu_blur.reference.sampling import as_image
 from gpu_blur.reference.shake import SHAKE_UNIFORMS, camera_shake_homographies, shake_blur
 
 
-# -- the oracle: shake_blur as it was, per pixel, channels last ----------------------------
-def plain_positions(homography, height, width, rows):
-    inv = fixedmath.inverse3(homography)
-    xs = np.arange(width, dtype=np.float64)[None, :]
-    ys = np.arange(rows.start, rows.stop, dtype=np.float64)[:, None]
-    den = inv[2, 0] * xs + inv[2, 1] * ys + inv[2, 2]
-    if not (den > 0).all():
-        raise ValueError("homography maps part of the image through infinity (w <= 0)")
-    px = (inv[0, 0] * xs + inv[0, 1] * ys + inv[0, 2]) / den
-    py = (inv[1, 0] * xs + inv[1, 1] * ys + inv[1, 2]) / den
-    if not (np.isfinite(px).all() and np.isfinite(py).all()):
-        raise ValueError("homography maps pixels to non-finite positions")
-    if max(np.abs(px).max(), np.abs(py).max()) >= 2.0**52:
-        raise ValueError("homography maps pixels too far outside the image to mirror exactly")
-    return px, py
-
-
+# -- the oracle: shake_blur as it was, per pixel, channels last -----------------------------
+# (where a pixel samples is shake._positions', unchanged, of the pose inverted per band)
 def plain_inside_share(first, frac, n):
     in0 = (first >= 0) & (first < n)
     in1 = (first >= -1) & (first < n - 1)
@@ -45,7 +30,7 @@ def plain_inside_share(first, frac, n):
 
 def plain_warp_inside(stack, homography, rows):
     h, w, c = stack.shape
-    px, py = plain_positions(homography, h, w, rows)
+    px, py = shake._positions(fixedmath.inverse3(homography), h, w, rows)
     x0, y0 = np.floor(px), np.floor(py)
     fx, fy = px - x0, py - y0
     xi, yi = x0.astype(np.intp), y0.astype(np.intp)
