@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from gpu_blur.reference import fixedmath
+from gpu_blur.reference.lazy_scipy import scipy_function
 from gpu_blur.reference.sampling import as_image, as_uniforms
 
 __all__ = [
@@ -140,7 +141,7 @@ def convolve_kernel(image, kernel) -> np.ndarray:
     stack = img if img.ndim == 3 else img[:, :, None]
     h, w, _ = stack.shape
     padded = np.pad(stack, ((ry, ry), (rx, rx), (0, 0)), mode="reflect")
-    next_fast_len = _next_fast_len()
+    next_fast_len = scipy_function("scipy.fft", "next_fast_len", "convolve_kernel")
     fft_shape = (next_fast_len(h + 2 * ry), next_fast_len(w + 2 * rx))
     spectrum = np.fft.rfft2(padded, s=fft_shape, axes=(0, 1))
     kernel_spectrum = np.fft.rfft2(k, s=fft_shape)[:, :, None]
@@ -154,23 +155,6 @@ def convolve_kernel(image, kernel) -> np.ndarray:
     # circular index n = y + 2 r_y reads padded rows n - i in [0, h + 2 r_y): no wrap-around
     out = np.ascontiguousarray(full[2 * ry : 2 * ry + h, 2 * rx : 2 * rx + w])
     return out.reshape(img.shape)
-
-
-def _next_fast_len():
-    """``scipy.fft.next_fast_len``, imported on first use.
-
-    Importing ``scipy.fft`` takes 0.3-0.7 s, which every ``import gpu_blur`` paid while this
-    module imported it.
-    """
-    try:
-        from scipy.fft import next_fast_len
-    except ModuleNotFoundError as e:
-        if (e.name or "").partition(".")[0] != "scipy":  # scipy's own dependencies: as they are
-            raise
-        raise ModuleNotFoundError(
-            f"convolve_kernel needs scipy, a dependency of gpu_blur, which could not be imported "
-            f"({e}): pip install scipy, or reinstall gpu_blur", name=e.name) from None
-    return next_fast_len
 
 
 def kernel_walk_values(uniforms) -> np.ndarray:

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from gpu_blur.analysis.calibrate.chart_fit import condition_number
+from gpu_blur.reference.lazy_scipy import scipy_function
 from gpu_blur.reference.transfer import polynomial_crf
 
 __all__ = ["CRF_CLIP_MARGIN", "DEFAULT_CRF_ORDER", "INVERSE_TABLE_NODES", "MAX_CRF_CONDITION",
@@ -102,14 +103,7 @@ def _least_squares_with_inequalities(e, f, g, h) -> np.ndarray:
     is solved by non-negative least squares (:func:`scipy.optimize.nnls`). ``e`` must have full
     column rank (checked by the caller's condition number).
     """
-    try:  # imported here: scipy.optimize takes 0.2-0.3 s, which gpu-blur --help paid
-        from scipy.optimize import nnls
-    except ModuleNotFoundError as err:
-        if (err.name or "").partition(".")[0] != "scipy":  # scipy's own dependencies
-            raise
-        raise ModuleNotFoundError(
-            f"the camera response fit needs scipy, a dependency of gpu_blur, which could not be "
-            f"imported ({err}): pip install scipy, or reinstall gpu_blur", name=err.name) from None
+    nnls = scipy_function("scipy.optimize", "nnls", "the camera response fit")
     q, r = np.linalg.qr(e)
     r_inv = np.linalg.inv(r)
     f1 = q.T @ f
