@@ -368,6 +368,33 @@ def _synthesizer(job: Job) -> Synthesizer:
                        with_mask=job.with_mask, with_raw=job.with_raw)
 
 
+#: Pixels a side of the crop of the first sample that :func:`_warm` makes a batch of.
+WARM_SIDE = 32
+
+
+def _warm(job: Job, synthesizer: Synthesizer, spec: SampleSpec, images: tuple[np.ndarray, ...],
+          batch: int) -> None:
+    """Launch the batch path's kernels once, on a crop of the first sample (making thread).
+
+    Kernel backends build or load a kernel at its first launch (Warp: ~110 ms of module
+    hashing and loading in a run on an H100's host), and the run's first batch would wait
+    for that after its slot's memory; here it happens while the slots are being allocated
+    (:meth:`~gpu_blur.staging.PinnedStaging.size_for`). A batch of ``batch`` copies of the
+    top-left :data:`WARM_SIDE` square of ``images`` (``spec``'s decoded inputs, so the
+    kernels built are those of the run's dtype and frame count), drawn as ``spec``; its
+    results are dropped. What it fails at, the real batches meet again and report.
+    """
+    crop = [image[:WARM_SIDE, :WARM_SIDE] for image in images]
+    one = np.stack(crop) if job.scene.blur.mode == "average" else crop[0]
+    window = spec.window
+    try:
+        synthesizer(np.stack([one] * batch), indices=[spec.index] * batch,
+                     codes=bool(job.bits),
+                     sequences=None if window is None else [window.sequence_index] * batch)
+    except (ValueError, OSError, cv2.error, MemoryError):
+        pass
+
+
 def _stage(ahead: deque[_Inputs], staging: PinnedStaging, pool: Executor,
            times: PoolTimes) -> None:
     """Give free slots to the oldest runs of batchable samples not yet staged."""
@@ -424,6 +451,8 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
                     first = ahead[0].checked.result()
                     if first:
                         staging.size_for(first)
+                        synthesizer = synthesizer or _synthesizer(job)
+                        _warm(job, synthesizer, ahead[0].spec, first, staging.batch)
                 _stage(ahead, staging, pool, times)
             slot = ahead[0].slot
             group = ([w for w in itertools.islice(ahead, staging.batch) if w.slot == slot]
