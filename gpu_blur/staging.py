@@ -24,9 +24,9 @@ __all__ = ["PinnedStaging"]
 class PinnedStaging:
     """Slots of page-locked host memory, each for a batch of up to ``batch`` samples.
 
-    The slots' first memory is allocated by a thread of their own once the first sample is
-    decoded (:meth:`size_for`; page-locking 250 MB takes ~120 ms, which the making thread
-    spends loading kernels meanwhile), later growth on the making thread (:meth:`release`).
+    The slots' first memory is allocated by a thread of their own while the first samples
+    are decoded (:meth:`size_for`; page-locking 250 MB takes ~100 ms on an H100's host),
+    later growth on the making thread (:meth:`release`).
     :meth:`fill` waits for its slot's first memory; for a sample larger than the slot's
     stride it hands the images back as they are. Sample ``p`` of a slot lies at ``p``
     strides from its start.
@@ -97,15 +97,15 @@ class PinnedStaging:
         """Whether the slots' first memory is allocated or being allocated (:meth:`size_for`)."""
         return self._first is not None
 
-    def size_for(self, images: tuple[np.ndarray, ...]) -> None:
-        """Start allocating every slot's room for samples like ``images`` (making thread).
+    def size_for(self, nbytes: int) -> None:
+        """Start allocating every slot's room for samples of ``nbytes`` (making thread).
 
-        Called with the first sample decoded, so that no batch goes one by one while its
-        slot is allocated. A thread of its own allocates them, slot after slot, under the
-        backend's device (its ``pinned``); an allocation that fails is raised on the making
-        thread (:meth:`batch_of`, :meth:`release`), its slot's samples left unstaged.
+        Called before the first sample is decoded (its size from its files' headers) or
+        with it, so that no batch goes one by one while its slot is allocated. A thread of
+        its own allocates them, slot after slot, under the backend's device (its
+        ``pinned``); an allocation that fails is raised on the making thread
+        (:meth:`batch_of`, :meth:`release`), its slot's samples left unstaged.
         """
-        nbytes = sum(image.nbytes for image in images)
         self._first = [Future() for _ in self._buffers]
         for slot in range(len(self._buffers)):
             self._wanted[slot] = max(self._wanted[slot], nbytes)
