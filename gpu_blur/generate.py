@@ -32,7 +32,7 @@ from gpu_blur.discovery import SampleSpec
 from gpu_blur.frame_cache import Decode, FrameCache
 from gpu_blur.gpu_jpeg import JpegBatches
 from gpu_blur.image_arrays import check_image
-from gpu_blur.image_reading import decoded_layout, opencv_reason, read_image
+from gpu_blur.image_reading import opencv_reason, read_image
 from gpu_blur.reference.output import to_integers
 from gpu_blur.scene import Scene
 from gpu_blur.scheduler import Schedule
@@ -368,50 +368,6 @@ def _synthesizer(job: Job) -> Synthesizer:
                        with_mask=job.with_mask, with_raw=job.with_raw)
 
 
-def _sample_layout(first: _Inputs) -> tuple[int, np.dtype] | None:
-    """(bytes, dtype) of a sample's decoded inputs: from its first file's header, else decoded.
-
-    Known from the header (:func:`~gpu_blur.image_reading.decoded_layout`, PNG files), the
-    slots are page-locked and the kernels loaded while the first samples decode; otherwise
-    the sample is waited for (None if it failed its checks).
-    """
-    paths = first.spec.inputs
-    layout = decoded_layout(paths[0])
-    if layout is not None:
-        shape, dtype = layout
-        return len(paths) * int(np.prod(shape)) * dtype.itemsize, dtype
-    images = first.checked.result()
-    return (sum(image.nbytes for image in images), images[0].dtype) if images else None
-
-
-#: Pixels a side of the frames of the batch :func:`_warm` makes.
-WARM_SIDE = 32
-
-
-def _warm(job: Job, synthesizer: Synthesizer, spec: SampleSpec, dtype: np.dtype,
-          batch: int) -> None:
-    """Launch the batch path's kernels once, on a small batch of zeros (making thread).
-
-    Kernel backends build or load a kernel at its first launch (Warp: ~150 ms of module
-    hashing and loading in a run on an H100's host), which the run's first batch would
-    wait for; here it happens while the first samples are decoded and the slots page-locked
-    (:meth:`~gpu_blur.staging.PinnedStaging.size_for`). ``batch`` samples of ``spec``'s
-    frame count in ``dtype`` (so the kernels built are the run's), :data:`WARM_SIDE` pixels
-    a side, drawn as ``spec``; the results are dropped. What it fails at, the real batches
-    meet again and report.
-    """
-    shape = (WARM_SIDE, WARM_SIDE, 3)
-    if job.scene.blur.mode == "average":  # a stack of frames a sample
-        shape = (len(spec.inputs), *shape)
-    zeros = np.zeros((batch, *shape), dtype)
-    window = spec.window
-    try:
-        synthesizer(zeros, indices=[spec.index] * batch, codes=bool(job.bits),
-                    sequences=None if window is None else [window.sequence_index] * batch)
-    except (ValueError, OSError, cv2.error, MemoryError):
-        pass
-
-
 def _stage(ahead: deque[_Inputs], staging: PinnedStaging, pool: Executor,
            times: PoolTimes) -> None:
     """Give free slots to the oldest runs of batchable samples not yet staged."""
@@ -465,11 +421,9 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
                 return
             if staging is not None:
                 if not staging.sized and ahead[0].batchable:  # its size is the slots' stride
-                    layout = _sample_layout(ahead[0])
-                    if layout:
-                        staging.size_for(layout[0])
-                        synthesizer = synthesizer or _synthesizer(job)
-                        _warm(job, synthesizer, ahead[0].spec, layout[1], staging.batch)
+                    first = ahead[0].checked.result()
+                    if first:
+                        staging.size_for(first)
                 _stage(ahead, staging, pool, times)
             slot = ahead[0].slot
             group = ([w for w in itertools.islice(ahead, staging.batch) if w.slot == slot]

@@ -20,8 +20,8 @@ from gpu_blur import limits
 from gpu_blur.image_arrays import swap_red_blue
 from gpu_blur.png_codecs import decode_png
 
-__all__ = ["READ_FORMATS", "WAY_OUT", "decode_file", "decoded_layout", "opencv_reason",
-           "read_checked", "read_image", "too_many_pixels"]
+__all__ = ["READ_FORMATS", "WAY_OUT", "decode_file", "opencv_reason", "read_checked", "read_image",
+           "too_many_pixels"]
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: The way out a bad input file's message ends with.
@@ -471,29 +471,6 @@ def read_image(path: str | Path) -> np.ndarray:
                          "opaque RGBA images: convert it to RGB first")
     return np.ascontiguousarray(image)
 
-
-
-def decoded_layout(path: str | Path) -> tuple[tuple[int, int, int], np.dtype] | None:
-    """The (shape, dtype) :func:`read_image` gives for a PNG file, from its IHDR chunk alone.
-
-    Every PNG it reads comes back H x W x 3 (grey expanded, opaque alpha dropped, a palette
-    expanded by OpenCV), uint16 for a bit depth of 16, else uint8 (PNG spec, 11.2.2). None
-    for any other format, a damaged header or a file that cannot be opened as a regular file:
-    nothing is decoded or checked here, so a file may still be refused when it is read.
-    """
-    from gpu_blur.files import open_regular
-
-    try:
-        with open_regular(path, str(path)) as f:
-            head = f.read(25)
-    except (OSError, ValueError):
-        return None
-    if not head.startswith(_PNG_SIGNATURE) or len(head) < 25 or head[12:16] != b"IHDR":
-        return None
-    width, height = struct.unpack(">II", head[16:24])
-    if not width or not height:
-        return None
-    return (height, width, 3), np.dtype(np.uint16 if head[24] == 16 else np.uint8)
 
 
 def opencv_reason(error: cv2.error) -> str:

@@ -14,7 +14,6 @@ the rates before and after.
 from __future__ import annotations
 
 import threading
-from concurrent.futures import Future
 
 import numpy as np
 
@@ -24,12 +23,10 @@ __all__ = ["PinnedStaging"]
 class PinnedStaging:
     """Slots of page-locked host memory, each for a batch of up to ``batch`` samples.
 
-    The slots' first memory is allocated by a thread of their own while the first samples
-    are decoded (:meth:`size_for`; page-locking 250 MB takes ~100 ms on an H100's host),
-    later growth on the making thread (:meth:`release`).
-    :meth:`fill` waits for its slot's first memory; for a sample larger than the slot's
-    stride it hands the images back as they are. Sample ``p`` of a slot lies at ``p``
-    strides from its start.
+    A slot's memory is allocated on the making thread when a sample first needs it
+    (:meth:`release`; page-locking is slow, and device APIs want their own thread): until
+    then, and for a sample larger than the slot's stride, :meth:`fill` hands the images back
+    as they are. Sample ``p`` of a slot lies at ``p`` strides from its start.
 
     Args:
         backend: the kernel backend that makes the samples (its ``pinned``).
@@ -43,7 +40,6 @@ class PinnedStaging:
         self._stride = [0] * slots  # bytes a sample may take in each slot
         self._wanted = [0] * slots  # bytes a sample needed that its slot did not have
         self._lock = threading.Lock()
-        self._first: list[Future] | None = None  # each slot's first memory (size_for)
         self.free = list(range(slots))
 
     def fill(self, slot: int, position: int, images: tuple[np.ndarray, ...] | None
@@ -55,8 +51,6 @@ class PinnedStaging:
         """
         if not images or len({(i.shape, i.dtype) for i in images}) > 1:
             return images
-        if self._first is not None and self._first[slot].exception() is not None:
-            return images  # the making thread raises it (:meth:`batch_of`, :meth:`release`)
         nbytes = sum(image.nbytes for image in images)
         buffer, stride = self._buffers[slot], self._stride[slot]
         if buffer is None or nbytes > stride:
@@ -77,7 +71,6 @@ class PinnedStaging:
         with one shape and dtype and filling its stride; ``frames``: each sample is a stack of
         frames (B x F x H x W x 3), else one image (B x H x W x 3).
         """
-        self._allocated(slot)
         buffer, stride = self._buffers[slot], self._stride[slot]
         if buffer is None or any(s is None for s in samples):
             return None
@@ -94,37 +87,20 @@ class PinnedStaging:
 
     @property
     def sized(self) -> bool:
-        """Whether the slots' first memory is allocated or being allocated (:meth:`size_for`)."""
-        return self._first is not None
+        """Whether every slot has memory yet."""
+        return all(buffer is not None for buffer in self._buffers)
 
-    def size_for(self, nbytes: int) -> None:
-        """Start allocating every slot's room for samples of ``nbytes`` (making thread).
+    def size_for(self, images: tuple[np.ndarray, ...]) -> None:
+        """Give every free slot room for samples like ``images`` (on the making thread).
 
-        Called before the first sample is decoded (its size from its files' headers) or
-        with it, so that no batch goes one by one while its slot is allocated. A thread of
-        its own allocates them, slot after slot, under the backend's device (its
-        ``pinned``); an allocation that fails is raised on the making thread
-        (:meth:`batch_of`, :meth:`release`), its slot's samples left unstaged.
+        Called with the first sample decoded, so that no batch goes one by one while its
+        slot is allocated.
         """
-        self._first = [Future() for _ in self._buffers]
-        for slot in range(len(self._buffers)):
-            self._wanted[slot] = max(self._wanted[slot], nbytes)
-        threading.Thread(target=self._allocate_first, name="gpu-blur-pinned",
-                         daemon=True).start()
-
-    def _allocate_first(self) -> None:
-        for slot, done in enumerate(self._first):
-            try:
-                self._grow(slot)
-            except Exception as error:  # raised on the making thread
-                done.set_exception(error)
-            else:
-                done.set_result(None)
-
-    def _allocated(self, slot: int) -> None:
-        """Wait for ``slot``'s first memory, if it is being allocated; raise its failure."""
-        if self._first is not None:
-            self._first[slot].result()
+        nbytes = sum(image.nbytes for image in images)
+        for slot in self.free:
+            with self._lock:
+                self._wanted[slot] = max(self._wanted[slot], nbytes)
+            self._grow(slot)
 
     def release(self, slot: int, failed: bool = False) -> None:
         """``slot`` free again once its samples are made (on the making thread).
@@ -134,7 +110,6 @@ class PinnedStaging:
         """
         if failed:
             self.backend.wait()
-        self._allocated(slot)
         self._grow(slot)
         self.free.append(slot)
 

@@ -14,7 +14,6 @@ copy stream that overlaps the summing of the previous frames.
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import functools
 import os
@@ -536,11 +535,9 @@ class WarpBackend(KernelBackend):
                         device="cpu")
 
     def _pinned_bytes(self, nbytes: int) -> tuple:
-        # page-locked where a CUDA device copies it; on the CPU device plain memory serves.
-        # Under the device's context, which any thread may allocate in (only it is pushed)
-        device = wp.get_device(self.wp_device)
-        with device.context_guard if device.is_cuda else contextlib.nullcontext():
-            buffer = wp.empty(nbytes, dtype=wp.uint8, device="cpu", pinned=device.is_cuda)
+        # page-locked where a CUDA device copies it; on the CPU device plain memory serves
+        pinned = wp.get_device(self.wp_device).is_cuda
+        buffer = wp.empty(nbytes, dtype=wp.uint8, device="cpu", pinned=pinned)
         return buffer, buffer.ptr
 
     def accumulate(self, plan: Plan, params: dict, frames, mask, region: Region
