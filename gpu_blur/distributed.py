@@ -205,7 +205,8 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
     as :func:`~gpu_blur.generate.for_driver` leaves it; with ``shared`` its arrays are in
     the shared-memory block ``layout`` names, :class:`gpu_blur.shared_results.Outbox`, else
     ``layout`` is None; ``counts``: the frame cache's counts since the last message, or None;
-    ``times``: the decoding threads' :class:`~gpu_blur.timings.PoolTimes` so far, or None)
+    ``times``: the decoding threads' :class:`~gpu_blur.timings.PoolTimes` so far, with the
+    hand-off's packing, none for a worker that decodes in turn)
     or ``("error", traceback)`` for an exception that is no fault of the sample (a bug: the
     driver stops the run with it). The driver closing its end of the pipe ends the worker.
     ``cwd``: the driver's folder, where relative paths lead (a worker may start elsewhere:
@@ -235,7 +236,8 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
     if opened[0] == "error":
         return
     pool = ThreadPoolExecutor(threads, "gpu-blur-decode") if threads > 1 else None
-    times = PoolTimes(threads) if pool is not None else None
+    # its decoding threads' times (none without a pool) and its hand-off's
+    times = PoolTimes(threads if pool is not None else 0)
     cache = FrameCache(cache_bytes) if cache_bytes > 0 else None
     arrived: deque[SampleSpec] = deque()  # samples sent, not yet taken by the pipeline
     outbox = Outbox(conn, arrived.append) if shared else None
@@ -266,9 +268,11 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
             samples = run_serial(job, iter(lambda: arrived.popleft() if receive(True)
                                            and arrived else None, None), cache)
         for spec, result, error in samples:
+            start = time.perf_counter()
             result, layout = for_driver(job, result), None
             if outbox is not None:
                 result, layout = outbox.pack(result)
+            times.add_handoff(packing=time.perf_counter() - start)
             counts = None
             if cache is not None:  # what the driver's summary has not counted yet
                 now = cache.counts()
@@ -450,7 +454,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
         queued: list[deque[SampleSpec]] = [deque() for _ in devices]
         # each worker's decoding threads as it last sent them, from the start: a worker sent
         # no sample has them too (with one thread, none: it decodes in turn)
-        pools = [PoolTimes(threads) if threads > 1 else None for _ in devices]
+        pools = [PoolTimes(threads if threads > 1 else 0) for _ in devices]
 
         def feed(worker: int) -> None:
             spec = runs.next(worker)
@@ -467,8 +471,15 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
         for worker in range(len(devices)):
             for _ in range(depth):
                 feed(worker)
+        # the driver's thread: waiting for the workers, and taking their results
+        waiting = receiving = 0.0
+        taken = 0
         while any(queued):
-            for conn in wait([c for c, q in zip(conns, queued, strict=True) if q]):
+            start = time.perf_counter()
+            ready = wait([c for c, q in zip(conns, queued, strict=True) if q])
+            waiting += time.perf_counter() - start
+            for conn in ready:
+                start = time.perf_counter()
                 worker = conns.index(conn)
                 try:
                     kind, value = conn.recv()
@@ -481,6 +492,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
                     ) from None
                 if kind == ASK:  # a shared-memory block for its results
                     blocks.answer(conn, *value)
+                    receiving += time.perf_counter() - start
                     continue
                 spec = queued[worker].popleft()
                 if kind != "sample":
@@ -494,10 +506,13 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
                 if counts is not None and frame_cache is not None:
                     frame_cache.add(counts)
                 feed(worker)
+                receiving += time.perf_counter() - start
+                taken += 1
                 yield spec, result, error  # the driver's own spec object
-        for times in pools:
-            if times is not None and pool_times is not None:
+        if pool_times is not None:
+            for times in pools:
                 pool_times.add(times)
+            pool_times.add_handoff(receiving=receiving, waiting=waiting, samples=taken)
         finished = True
     finally:
         for conn in conns:  # an idle worker ends when its pipe closes

@@ -629,6 +629,9 @@ class _Run:
         lines += totals.summary(took, on_host=self.backend.name == "numpy")
         if io is not None:
             lines.append(io.summary(took))
+            handoff = io.handoff_summary()
+            if handoff:
+                lines.append(handoff)
         if cache is not None:
             lines.append(cache.counts().summary())
         if self.jpeg:

@@ -201,6 +201,11 @@ class PoolTimes:
         samples: samples whose inputs the pool decoded.
         waited_for_inputs: seconds the driver thread waited for decoded inputs (summed over
             the workers' threads that make samples, with ``--devices``).
+        handoff: ``--devices`` results on their way to the driver: seconds the workers'
+            making threads spent handing them over (``packing``: converting them and copying
+            them into shared memory, a free block waited for), seconds the driver's thread
+            spent taking them (``receiving``: the pipe read, the arrays copied out) and
+            waiting for any (``waiting``), and the ``samples`` taken.
     """
 
     def __init__(self, threads: int):
@@ -209,6 +214,7 @@ class PoolTimes:
         self.calls = {"decode": 0, "write": 0}
         self.samples = 0
         self.waited_for_inputs = 0.0
+        self.handoff = {"packing": 0.0, "receiving": 0.0, "waiting": 0.0, "samples": 0}
         self._lock = threading.Lock()
 
     def run(self, stage: str, work: Callable[..., Any], *args, counted: bool = True) -> Any:
@@ -234,11 +240,19 @@ class PoolTimes:
                 self.calls[stage] += other.calls[stage]
             self.samples += other.samples
             self.waited_for_inputs += other.waited_for_inputs
+            for key, value in other.handoff.items():
+                self.handoff[key] += value
+
+    def add_handoff(self, **figures) -> None:
+        """Add figures to :attr:`handoff` (``packing=...``, ``samples=...``)."""
+        with self._lock:
+            for key, value in figures.items():
+                self.handoff[key] += value
 
     def __getstate__(self) -> dict:
         with self._lock:
             return {**self.__dict__, "busy": dict(self.busy), "calls": dict(self.calls),
-                    "_lock": None}
+                    "handoff": dict(self.handoff), "_lock": None}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state, _lock=threading.Lock())
@@ -262,6 +276,21 @@ class PoolTimes:
     def busy_share(self, wall: float) -> float:
         """Percent of the threads' time over ``wall`` seconds they spent working."""
         return 100 * sum(self.busy.values()) / max(self.threads * wall, 1e-12)
+
+    def handoff_summary(self) -> str | None:
+        """One line on ``--devices`` results handed to the driver (:attr:`handoff`), or None.
+
+        Where the driver's thread takes results about as fast as they come (little
+        waiting), it, not the devices, bounds the run.
+        """
+        h = self.handoff
+        if not h["samples"]:
+            return None
+        each = 1e3 / h["samples"]
+        return (f"hand-off: the workers' making threads {h['packing']:.2f} s "
+                f"({h['packing'] * each:.1f} ms a sample) handing results over, the driver's "
+                f"thread {h['receiving']:.2f} s ({h['receiving'] * each:.1f} ms a sample) "
+                f"taking them and {h['waiting']:.2f} s waiting for the workers")
 
     def summary(self, wall: float) -> str:
         """One line: the threads, what they did, and how busy they were."""

@@ -31,6 +31,7 @@ from gpu_blur.file_writing import write_image
 from gpu_blur.generate import Job, for_driver, run_serial
 from gpu_blur.scene import load_scene, scene_from_dict
 from gpu_blur.testhooks import TEST_FAIL_ONCE
+from gpu_blur.timings import PoolTimes
 
 
 def _opencl_usable():
@@ -164,6 +165,31 @@ def test_a_devices_run_s_summary_counts_its_workers_decoding(tmp_path, photos, m
     assert files and decoded, (threads, cache)
     assert files[1] == decoded[1] and int(decoded[1]) + int(decoded[2]) == 6
     assert report.bound.startswith("bound by: ") and report.summary[-1] == report.bound
+    # what handing the results to the driver cost each side, a sample at a time
+    handoff = next(line for line in report.summary if line.startswith("hand-off"))
+    assert re.fullmatch(
+        r"hand-off: the workers' making threads [\d.]+ s \([\d.]+ ms a sample\) handing "
+        r"results over, the driver's thread [\d.]+ s \([\d.]+ ms a sample\) taking them "
+        r"and [\d.]+ s waiting for the workers", handoff), handoff
+
+
+def test_a_devices_run_times_both_sides_of_handing_each_sample_to_the_driver(
+        photos, monkeypatch):
+    monkeypatch.setattr(distributed, "default_io_threads", lambda: 4)  # 2 a worker
+    folder, scene_path = photos
+    job = Job(load_scene(scene_path), 0, "numpy", bits=8)
+    specs = find_samples(folder, "trajectory", 1, 2).take()
+    times = PoolTimes(2)
+    made = list(run_devices(job, specs, ["numpy", "numpy"], pool_times=times))
+    handoff = times.handoff
+    assert handoff["samples"] == len(made) == len(specs)
+    # the workers' packing (into shared memory), the driver's taking and its waits
+    assert handoff["packing"] > 0 and handoff["receiving"] > 0 and handoff["waiting"] > 0
+    again = pickle.loads(pickle.dumps(times))  # as a worker's pool crosses to the driver
+    total = PoolTimes(1)
+    total.add(again)
+    total.add(again)
+    assert total.handoff == {key: 2 * value for key, value in handoff.items()}
 
 
 def test_a_worker_sends_the_codes_the_writer_writes_and_no_unsaved_mask(tmp_path, photos):
