@@ -362,7 +362,8 @@ def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str],
     :data:`RUN_SAMPLES` consecutive ones; with ``frame_cache`` each worker decodes through a
     cache of its own, an equal share of ``frame_cache.budget``, so a frame is decoded once per
     worker, and the workers' counts are added to ``frame_cache``'s. The workers' decoding
-    threads, their work and waits are added to ``pool_times`` when the run ends.
+    threads, their work and waits are added to ``pool_times`` when the run ends, with what
+    handing the samples to this thread cost both sides (``PoolTimes.handoff``).
 
     The host's threads: each worker decodes the inputs of the samples sent ahead to it in
     ``default_io_threads() // len(devices)`` threads (at least one), so the workers together

@@ -204,8 +204,8 @@ class PoolTimes:
         handoff: ``--devices`` results on their way to the driver: seconds the workers'
             making threads spent handing them over (``packing``: converting them and copying
             them into shared memory, a free block waited for), seconds the driver's thread
-            spent taking them (``receiving``: the pipe read, the arrays copied out) and
-            waiting for any (``waiting``), and the ``samples`` taken.
+            spent taking them (``receiving``: the pipe read, the arrays copied out, the next
+            sample sent) and waiting for any (``waiting``), and the ``samples`` taken.
     """
 
     def __init__(self, threads: int):
