@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CacheCounts", "Decode", "FrameCache", "default_budget"]
+__all__ = ["CacheCounts", "Decode", "FrameCache", "default_budget", "uncached"]
 
 #: The share of the host's physical memory :func:`default_budget` gives the cache.
 MEMORY_SHARE = 1 / 8
@@ -111,8 +111,7 @@ class FrameCache:
         if self.budget == 0:
             with self._lock:
                 self._counts["misses"] += 1
-            future = Future()
-            return future, Decode(self, None, path, reader, future)
+            return uncached(path, reader)
         key = (*_identity(path), reader)
         with self._lock:
             frame = self._frames.get(key)
@@ -197,6 +196,15 @@ class Decode:
             self.future.set_result(frame)
         else:
             self.future.set_exception(error)
+
+
+def uncached(path: str | Path, reader: Callable[[Path], np.ndarray]) -> tuple[Future, Decode]:
+    """(a future, the :class:`Decode` that sets it): one file's decode, kept nowhere.
+
+    The reader's array as it is, for one sample alone (a cache of budget 0, or none).
+    """
+    future = Future()
+    return future, Decode(None, None, Path(path), reader, future)
 
 
 def _identity(path: Path) -> tuple:

@@ -23,13 +23,12 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor, Future
-from pathlib import Path
 
 import cv2
 import numpy as np
 
 from gpu_blur.discovery import SampleSpec
-from gpu_blur.frame_cache import Decode, FrameCache
+from gpu_blur.frame_cache import Decode, FrameCache, uncached
 from gpu_blur.gpu_jpeg import JpegBatches
 from gpu_blur.image_arrays import check_image
 from gpu_blur.image_reading import opencv_reason, read_image
@@ -352,8 +351,7 @@ def _claim(path, reader: Callable, cache: FrameCache | None) -> tuple[Future, De
     A file that cannot be looked at gives a future holding that error.
     """
     if cache is None:
-        future = Future()
-        return future, Decode(None, None, Path(path), reader, future)
+        return uncached(path, reader)
     try:
         return cache.claim(path, reader)
     except OSError as error:
