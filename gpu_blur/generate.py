@@ -32,10 +32,10 @@ from gpu_blur.frame_cache import Decode, FrameCache, uncached
 from gpu_blur.gpu_jpeg import JpegBatches
 from gpu_blur.image_arrays import check_image
 from gpu_blur.image_reading import opencv_reason, read_image
-from gpu_blur.reference.output import to_integers
+from gpu_blur.reference.output import code_dtype, to_integers
 from gpu_blur.scene import Scene
 from gpu_blur.scheduler import Schedule
-from gpu_blur.staging import PinnedStaging
+from gpu_blur.staging import LentResults, PinnedStaging
 from gpu_blur.synthesis import Synthesis, Synthesizer, synthesize
 from gpu_blur.timings import PoolTimes
 
@@ -213,20 +213,26 @@ def pinned_staging(job: Job) -> PinnedStaging | None:
     return PinnedStaging(backend, STAGED_BATCHES, BATCH)
 
 
-def make_batch(job: Job, synthesizer: Synthesizer, specs: list[SampleSpec], batch: np.ndarray
-               ) -> list[tuple] | None:
+def make_batch(job: Job, synthesizer: Synthesizer, specs: list[SampleSpec], batch: np.ndarray,
+               results: LentResults | None = None) -> list[tuple] | None:
     """Samples made as one batch: :func:`make_sample`'s tuples, or None if the batch failed.
 
     ``batch``: their inputs, B x F x H x W x 3 (mode average) or B x H x W x 3, in the
-    synthesizer's pinned memory. A batch's sample is ``synthesize``'s, bit for bit
+    synthesizer's pinned memory; ``results``: where the results go (page-locked arrays lent
+    for ``out=``; None: new arrays). A batch's sample is ``synthesize``'s, bit for bit
     (:class:`~gpu_blur.synthesis.Synthesizer`); so is each sample of a batch that fails,
     made again on its own by the caller, whose reason then names its file.
     """
     windows = [spec.window for spec in specs]
     try:
+        out = None
+        if results is not None:
+            shape = synthesizer.result_shape(batch.shape)
+            code = code_dtype(job.scene.output.bits) if job.bits else np.float32
+            out = results.take([(shape, code)] * 2 + [(shape, np.float32)] * job.with_mask)
         made = synthesizer(batch, indices=[spec.index for spec in specs], codes=bool(job.bits),
                            sequences=([w.sequence_index for w in windows] if all(windows)
-                                      else None))
+                                      else None), out=out)
     except (ValueError, OSError, cv2.error, MemoryError):
         return None
     share = {category: seconds / len(specs) for category, seconds in made.timings.items()}
@@ -396,15 +402,16 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
     At most ``depth`` samples are decoded or being decoded ahead of the one being made, each
     file a task of its own, and a file that an earlier sample already asked for none (so the
     frames that overlapping windows share are decoded once, in parallel, and no thread waits
-    for another's decode: :class:`_Inputs`). With ``staging`` (a GPU)
-    the pool also copies the next samples into its page-locked slots, a batch to a slot, and
-    a slot's samples are made as one batch (:func:`make_batch`; one by one where they cannot
-    be). The results are :func:`run_serial`'s, in order; the time this thread waits for inputs
-    is added to ``times.waited_for_inputs``, the pool's decoding and staging to
-    ``times.busy["decode"]``. ``more``: for samples that arrive while the run goes (a device
-    worker's): ``specs`` ends when none is waiting, and ``more()`` waits for the next one
-    when nothing is ahead (False: there are no more). ``jpeg``: samples of JPEG files are
-    read as bytes and decoded in groups of :data:`BATCH` on the GPU (``--jpeg-decoder gpu``).
+    for another's decode: :class:`_Inputs`). With ``staging`` (a GPU) the pool also copies
+    the next samples into its page-locked slots, a batch to a slot, and a slot's samples are
+    made as one batch (:func:`make_batch`; one by one where they cannot be), into
+    page-locked arrays it lends (``staging.results``). The results are :func:`run_serial`'s,
+    in order; the time this thread waits for inputs is added to ``times.waited_for_inputs``,
+    the pool's decoding and staging to ``times.busy["decode"]``. ``more``: for samples that
+    arrive while the run goes (a device worker's): ``specs`` ends when none is waiting, and
+    ``more()`` waits for the next one when nothing is ahead (False: there are no more).
+    ``jpeg``: samples of JPEG files are read as bytes and decoded in groups of :data:`BATCH`
+    on the GPU (``--jpeg-decoder gpu``).
     """
     rest = iter(specs)
     ahead: deque[_Inputs] = deque()
@@ -444,7 +451,7 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
                 batch = staging.batch_of(slot, inputs, job.scene.blur.mode == "average")
                 if batch is not None:
                     synthesizer = synthesizer or _synthesizer(job)
-                    made = make_batch(job, synthesizer, specs_made, batch)
+                    made = make_batch(job, synthesizer, specs_made, batch, staging.results)
             if made is None:
                 made = [make_sample(job, spec, given)
                         for spec, given in zip(specs_made, inputs, strict=True)]

@@ -9,15 +9,27 @@ of one stack (:func:`gpu_blur.backends.pinned_stack` finds it again). Only where
 staged does anything change; the bytes made are the same either way
 (tests/synthesis/test_generate_pipeline.py). docs/performance.md, "Whole sets from disk", has
 the rates before and after.
+
+The batch's results come back the same way: :class:`LentResults` lends it page-locked arrays
+for ``out=``, which the device writes at the bus's rate, and takes each block back once the
+I/O threads have written its samples and dropped their arrays.
 """
 
 from __future__ import annotations
 
 import threading
+import weakref
 
 import numpy as np
 
-__all__ = ["PinnedStaging"]
+from gpu_blur.backends import PinnedHost
+
+__all__ = ["LENT_RESULTS_BYTES", "LentResults", "PinnedStaging"]
+
+#: Page-locked bytes :class:`LentResults` holds at most: the results of the batches a run has
+#: in flight (made, waiting to be written). 1 GiB holds 18 batches of four 1920 x 1200
+#: samples' 8-bit blurred and sharp images; a run that needs more gets plain arrays past it.
+LENT_RESULTS_BYTES = 1 << 30
 
 
 class PinnedStaging:
@@ -36,6 +48,8 @@ class PinnedStaging:
 
     def __init__(self, backend, slots: int, batch: int):
         self.backend, self.batch = backend, batch
+        #: page-locked arrays for the batches' results (``Synthesizer``'s ``out=``)
+        self.results = LentResults(backend)
         self._buffers: list[np.ndarray | None] = [None] * slots
         self._stride = [0] * slots  # bytes a sample may take in each slot
         self._wanted = [0] * slots  # bytes a sample needed that its slot did not have
@@ -120,3 +134,64 @@ class PinnedStaging:
             self._buffers[slot] = self.backend.pinned((self.batch * self._wanted[slot],),
                                                       np.uint8)
         self._wanted[slot] = 0
+
+
+class LentResults:
+    """Page-locked arrays for a batch's results, each block lent until its arrays are gone.
+
+    The device copies results into page-locked memory at the bus's rate; into plain arrays
+    a backend copies them through its own staging on the making thread, 20 ms a batch of
+    four 1920 x 1200 samples on an H100 host whose cores are busy decoding and encoding.
+    Page-locking is slow too (about 12 ms for those 27 MB), so a block is locked once and lent
+    again: :meth:`take` wraps it in a new :class:`~gpu_blur.backends.PinnedHost`, and when the
+    last array over that wrapper is dropped (the I/O threads wrote its samples) a finalizer
+    gives the block back. So nothing reads a block lent again: its arrays are gone. Nor does
+    the device write into it late: a batch's results are waited for before they are returned,
+    and a failed batch's copies run before any later batch's on the device's one stream.
+
+    Args:
+        backend: the kernel backend whose :meth:`pinned` memory it lends.
+        limit: page-locked bytes held at most; past them :meth:`take` gives None.
+    """
+
+    def __init__(self, backend, limit: int = LENT_RESULTS_BYTES):
+        self.backend, self.limit = backend, limit
+        self._free: list[np.ndarray] = []  # blocks given back, flat uint8
+        self._held = 0  # bytes page-locked, lent or free
+        self._lock = threading.Lock()
+
+    def take(self, arrays: list[tuple[tuple[int, ...], object]]) -> list[np.ndarray] | None:
+        """An uninitialized page-locked array per ``(shape, dtype)``, or None past the limit."""
+        sizes = [int(np.prod(shape)) * np.dtype(dtype).itemsize for shape, dtype in arrays]
+        blocks = []
+        with self._lock:
+            for nbytes in sizes:
+                fits = [i for i, b in enumerate(self._free) if b.nbytes >= nbytes]
+                if fits:
+                    blocks.append(self._free.pop(min(fits, key=lambda i: self._free[i].nbytes)))
+                else:
+                    blocks.append(nbytes)  # to page-lock
+            new = sum(b for b in blocks if isinstance(b, int))
+            if self._held + new > self.limit:
+                self._free += [b for b in blocks if not isinstance(b, int)]
+                return None
+            self._held += new
+        try:
+            blocks = [self.backend.pinned((b,), np.uint8) if isinstance(b, int) else b
+                      for b in blocks]
+        except BaseException:
+            with self._lock:
+                self._held -= new
+            raise
+        return [self._lend(block, nbytes).view(dtype).reshape(shape)
+                for block, nbytes, (shape, dtype) in zip(blocks, sizes, arrays, strict=True)]
+
+    def _lend(self, block: np.ndarray, nbytes: int) -> np.ndarray:
+        """The first ``nbytes`` of ``block`` over a new wrapper that gives it back when gone."""
+        lent = PinnedHost(self.backend, block, block.ctypes.data, nbytes)
+        weakref.finalize(lent, self._given_back, block).atexit = False
+        return np.asarray(lent)
+
+    def _given_back(self, block: np.ndarray) -> None:
+        with self._lock:
+            self._free.append(block)

@@ -33,10 +33,11 @@ from gpu_blur.synthesis.inputs import (
     checked,
     checked_on_host,
     gather,
+    kept_size,
     sample_indices,
 )
 from gpu_blur.synthesis.resident import ResidentPath
-from gpu_blur.synthesis.results import Batch, Synthesis
+from gpu_blur.synthesis.results import Batch, Synthesis, inner
 from gpu_blur.timings import current, since, timer
 
 __all__ = ["Synthesizer", "synthesize"]
@@ -190,13 +191,27 @@ class Synthesizer:
         Example (RSBlur: 9 frames a sample, results cropped by 4 pixels a side)::
 
             frames = synth.pinned((16, 9, 1200, 1920, 3), np.uint8)
-            out = [synth.pinned((16, 1192, 1912, 3)) for _ in range(2)]  # blurred, sharp
+            shape = synth.result_shape(frames.shape)  # 16 x 1192 x 1912 x 3
+            out = [synth.pinned(shape) for _ in range(2)]  # blurred, sharp
             np.stack(decoded, out=frames)
             synth(frames, out=out)
         """
         if is_resident(self.runner):
             return self.runner.pinned(tuple(shape), dtype)
         return np.empty(shape, dtype)
+
+    def result_shape(self, batch_shape) -> tuple[int, ...]:
+        """The shape of each result (blurred, sharp, mask) of a batch of ``batch_shape``.
+
+        What ``out=`` arrays take: B x H' x W' x 3 (B x 3 x H' x W' with ``channels_first``),
+        the inputs' size kept (even sides for the RAW round trip) less ``output.crop`` pixels
+        a side. ``batch_shape``: the batch's, as :meth:`__call__` takes it.
+        """
+        shape = tuple(int(n) for n in batch_shape)
+        size = (*shape[-2:], 3) if self.channels_first else shape[-3:]
+        region = inner(kept_size(self.scene, size), self.scene.output.crop)
+        return ((shape[0], 3, region.h, region.w) if self.channels_first
+                else (shape[0], region.h, region.w, 3))
 
     def sample(self, inputs, sample_index: int = 0, *, on_device: bool = False,
                codes: bool = False, sequence_index: int | None = None) -> Synthesis:

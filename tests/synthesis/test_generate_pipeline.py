@@ -266,6 +266,32 @@ def test_pinned_stack_finds_frames_staged_one_after_another_in_one_block():
 
 
 @pytest.mark.skipif(not KERNEL_BACKEND_SPECS, reason="no kernel backend here")
+def test_lent_results_are_lent_again_only_once_every_array_over_them_is_gone(monkeypatch):
+    from gpu_blur.backends import pinned_owner
+    from gpu_blur.staging import LentResults
+
+    _, backend = kernel_backend()
+    locked, pinned = [], backend.pinned
+    monkeypatch.setattr(backend, "pinned",
+                        lambda shape, dtype: locked.append(shape) or pinned(shape, dtype))
+    results = LentResults(backend, limit=400)
+    codes, floats = ((2, 4, 5, 3), np.uint8), ((2, 4, 5), np.float32)  # 120 and 160 bytes
+    first = results.take([codes, floats])
+    assert [(a.shape, a.dtype) for a in first] == [(codes[0], np.uint8), (floats[0], np.float32)]
+    assert all(pinned_owner(a) is backend for a in first)
+    a, b = (x.ctypes.data for x in first)
+    kept = first[0][1]  # a view of one sample keeps block a lent
+    del first
+    (second,) = results.take([codes])
+    assert second.ctypes.data == b  # the free block that fits; a is still lent
+    assert results.take([floats]) is None  # a third block would pass the 400 bytes
+    del kept, second
+    again = results.take([codes, floats])
+    assert [x.ctypes.data for x in again] == [a, b]  # each the smallest free block that fits
+    assert locked == [(120,), (160,)]  # page-locked once each
+
+
+@pytest.mark.skipif(not KERNEL_BACKEND_SPECS, reason="no kernel backend here")
 @pytest.mark.parametrize("batch_fails, draws", [(False, "per-sample"), (True, "per-sample"),
                                                 (False, "per-sequence")])
 def test_inputs_staged_in_pinned_memory_make_the_bytes_of_unstaged_ones(
@@ -284,16 +310,24 @@ def test_inputs_staged_in_pinned_memory_make_the_bytes_of_unstaged_ones(
     name, backend = kernel_backend()
     run = ("--backend", name, "--samples-per-sequence", "8", "--save", "mask")
     assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
-    batches, stacks = [], []
+    batches, stacks, lent = [], [], []
     make_batch, stack = gpu_blur.generate.make_batch, gpu_blur.backends.pinned_stack
     module = gpu_blur.backends.warp if name.startswith("warp") else gpu_blur.backends.opencl
 
-    def refusing(*a, **k):
-        raise ValueError("sample 1 of 3: refused")
+    class Refusing:  # a Synthesizer whose batches fail
+        def __init__(self, synthesizer):
+            self.result_shape = synthesizer.result_shape
 
-    def batched(job, synthesizer, specs, batch):
-        made = make_batch(job, refusing if batch_fails else synthesizer, specs, batch)
+        def __call__(self, *args, **kwargs):
+            raise ValueError("sample 1 of 3: refused")
+
+    def batched(job, synthesizer, specs, batch, results=None):
+        made = make_batch(job, Refusing(synthesizer) if batch_fails else synthesizer, specs,
+                          batch, results)
         batches.append(len(specs) if made else 0)
+        for _, result, _ in made or []:  # the results lie in page-locked memory lent for them
+            lent.append(gpu_blur.backends.pinned_owner(result.blurred) is backend
+                        and gpu_blur.backends.pinned_owner(result.mask) is backend)
         return made
 
     def spied(frames, owner):
@@ -308,6 +342,7 @@ def test_inputs_staged_in_pinned_memory_make_the_bytes_of_unstaged_ones(
     assert main(args(folder, scene, tmp_path / "staged", *run, "--io-threads", "3")) == 1
     assert len(batches) >= 2  # the first batch of each slot goes one by one (allocating)
     assert (sum(batches) == 0) if batch_fails else (sum(batches) >= 6)
+    assert all(lent) and len(lent) == sum(batches)
     if batch_fails:
         assert sum(stacks) >= 6  # one by one, each from its staged stack
     assert_same_set(tmp_path / "staged", tmp_path / "one")

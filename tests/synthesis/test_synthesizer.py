@@ -398,6 +398,19 @@ def test_channels_first_out_arrays_take_channels_first_results(spec):
     assert np.array_equal(out[0], ref.blurred) and np.array_equal(out[1], ref.sharp)
 
 
+@pytest.mark.parametrize("mode, size, channels_first", [
+    ("average", (H, W), False), ("none", (H - 1, W + 3), False), ("kernel", (H, W), True)])
+def test_result_shape_is_the_shape_of_the_results_out_arrays_take(mode, size, channels_first):
+    scene = scene_for(mode, precision="float32")  # realblur_j for none: RAW round trip, crop 4
+    given = batch_for(mode, 2, np.random.default_rng(6))
+    given = {k: v[..., :size[0], :size[1], :] for k, v in given.items()}  # odd sides too
+    if channels_first:
+        given = {k: np.ascontiguousarray(np.moveaxis(v, -1, -3)) for k, v in given.items()}
+    synth = gpu_blur.Synthesizer(scene, backend="numpy", channels_first=channels_first)
+    got = synth(**given)
+    assert synth.result_shape(given["batch"].shape) == got.blurred.shape == got.sharp.shape
+
+
 @pytest.mark.parametrize("bad, words", [
     (lambda shape: [np.zeros(shape, np.float32)], "out= takes 2 arrays, (blurred, sharp)"),
     (lambda shape: [np.zeros(shape, np.float64)] * 2, "needs a writeable float32 numpy"),
