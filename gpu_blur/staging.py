@@ -140,14 +140,14 @@ class LentResults:
     """Page-locked arrays for a batch's results, each block lent until its arrays are gone.
 
     The device copies results into page-locked memory at the bus's rate; into plain arrays
-    a backend copies them through its own staging on the making thread, 20 ms a batch of
-    four 1920 x 1200 samples on an H100 host whose cores are busy decoding and encoding.
-    Page-locking is slow too (about 12 ms for those 27 MB), so a block is locked once and lent
-    again: :meth:`take` wraps it in a new :class:`~gpu_blur.backends.PinnedHost`, and when the
-    last array over that wrapper is dropped (the I/O threads wrote its samples) a finalizer
-    gives the block back. So nothing reads a block lent again: its arrays are gone. Nor does
-    the device write into it late: a batch's results are waited for before they are returned,
-    and a failed batch's copies run before any later batch's on the device's one stream.
+    a backend copies them through its own staging on the making thread, slowly while the I/O
+    threads keep the cores busy. Page-locking is slow too, so a block is locked once and lent
+    again (docs/performance.md, "Lent results", has the times): :meth:`take` wraps it in a new
+    :class:`~gpu_blur.backends.PinnedHost`, and when the last array over that wrapper is
+    dropped (the I/O threads wrote its samples) a finalizer gives the block back. So nothing
+    reads a block lent again: its arrays are gone. Nor does the device write into it late: a
+    batch's results are waited for before they are returned, and a failed batch's copies run
+    before any later batch's, in the order they were queued on the device.
 
     Args:
         backend: the kernel backend whose :meth:`pinned` memory it lends.
@@ -179,9 +179,10 @@ class LentResults:
         try:
             blocks = [self.backend.pinned((b,), np.uint8) if isinstance(b, int) else b
                       for b in blocks]
-        except BaseException:
+        except BaseException:  # nothing lent: the free blocks back, the new ones unlocked
             with self._lock:
                 self._held -= new
+                self._free += [b for b in blocks if not isinstance(b, int)]
             raise
         return [self._lend(block, nbytes).view(dtype).reshape(shape)
                 for block, nbytes, (shape, dtype) in zip(blocks, sizes, arrays, strict=True)]

@@ -398,12 +398,15 @@ def bench_generate_windows(name: str = "generate_windows_h200") -> str:
     """``generate`` over distinct and overlapping windows, a commit before and this one.
 
     Files of ``--repeats`` runs add each rate's range over the repeats and the measured bound
-    (the codecs alone through one thread per core); older files render as they did.
+    (the codecs alone through one thread per core), newer ones the rate from the first
+    output written to the last; older files render as they did.
     """
     data, path = load(name)
     cases = data["cases"].values()
     measured = any("bound_now_measured" in case for case in cases)
     spread = any("samples_per_s_each" in run for case in cases for run in case["runs"].values())
+    written = all("written_samples_per_s" in run for case in cases
+                  for run in case["runs"].values())
 
     def rate(run: dict | None):
         if run is None or "samples_per_s_each" not in run:
@@ -416,16 +419,21 @@ def bench_generate_windows(name: str = "generate_windows_h200") -> str:
         before, now = case["runs"].get("before"), case["runs"]["now"]
         bound = case["bound_now"]
         rows.append([windows, case["frames_in_sequence"], case["samples"],
-                     rate(before), before and before["in_run_samples_per_s"],
-                     rate(now), now["in_run_samples_per_s"], case.get("speedup"),
+                     rate(before), before and before["in_run_samples_per_s"]]
+                    + ([before and before["written_samples_per_s"]] if written else [])
+                    + [rate(now), now["in_run_samples_per_s"]]
+                    + ([now["written_samples_per_s"]] if written else [])
+                    + [case.get("speedup"),
                      bound["samples_per_s"], bound["decodes_per_sample"],
                      case["ratio_to_bound_now"]]
                     + ([case.get("bound_now_measured", {}).get("samples_per_s"),
                         case.get("ratio_to_measured_bound_now")] if measured else [])
                     + [case["same_pixels"]])
-    table = _table(["windows", "frames", "samples", "before", "before, in the run", "now",
-                    "now, in the run", "speed-up", "bound now", "decodes a sample",
-                    "share of the bound"]
+    table = _table(["windows", "frames", "samples", "before", "before, in the run"]
+                   + (["before, first to last written"] if written else [])
+                   + ["now", "now, in the run"]
+                   + (["now, first to last written"] if written else [])
+                   + ["speed-up", "bound now", "decodes a sample", "share of the bound"]
                    + (["measured bound now", "share of the measured bound"] if measured else [])
                    + ["same pixels"], rows)
     device = data["machine"]

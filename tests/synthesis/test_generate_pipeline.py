@@ -292,6 +292,24 @@ def test_lent_results_are_lent_again_only_once_every_array_over_them_is_gone(mon
 
 
 @pytest.mark.skipif(not KERNEL_BACKEND_SPECS, reason="no kernel backend here")
+def test_lent_results_that_cannot_be_page_locked_lend_nothing_and_keep_their_free_blocks(
+        monkeypatch):
+    from gpu_blur.staging import LentResults
+
+    _, backend = kernel_backend()
+    results = LentResults(backend, limit=400)
+    codes = ((2, 4, 5, 3), np.uint8)  # 120 bytes
+    free = results.take([codes])[0].ctypes.data  # page-locked, then given back
+    monkeypatch.setattr(backend, "pinned", lambda shape, dtype: (_ for _ in ()).throw(
+        MemoryError("no page-locked memory left")))
+    with pytest.raises(MemoryError):
+        results.take([codes, codes])  # the free block, and one that cannot be locked
+    monkeypatch.undo()
+    again = results.take([codes, codes, codes])  # the limit still holds 280 more bytes
+    assert again[0].ctypes.data == free and results.take([codes]) is None
+
+
+@pytest.mark.skipif(not KERNEL_BACKEND_SPECS, reason="no kernel backend here")
 @pytest.mark.parametrize("batch_fails, draws", [(False, "per-sample"), (True, "per-sample"),
                                                 (False, "per-sequence")])
 def test_inputs_staged_in_pinned_memory_make_the_bytes_of_unstaged_ones(
