@@ -196,9 +196,16 @@ def pixel_digest(out: Path) -> str:
     return digest.hexdigest()
 
 
-def compare(args, cores: int) -> dict:
-    """``--windows`` and ``--against``: each kind of windows with both checkouts, side by side."""
+def compare(args, cores: int, save=None) -> dict:
+    """``--windows`` and ``--against``: each kind of windows with both checkouts, side by side.
+
+    Each case is printed, and the results so far passed to ``save``, as soon as it is done:
+    a run stopped by a time limit keeps the cases it finished.
+    """
     cases = {}
+    result = {"backend": args.backend, "cores": cores, "image": [W, H], "frames": FRAMES,
+              "repeats": args.repeats, "against": args.against and Path(args.against).name,
+              "cases": cases}
     for windows in args.windows.split(","):
         if windows not in ("overlapping", "distinct"):
             raise SystemExit(f"--windows {windows}: overlapping or distinct")
@@ -233,33 +240,44 @@ def compare(args, cores: int) -> dict:
             if args.against:
                 case["speedup"] = now / case["runs"]["before"]["samples_per_s"]
         cases[windows] = case
-    for windows, case in cases.items():
-        runs = ", ".join(f"{name} {run['samples_per_s']:.2f} (in the run "
-                         f"{_num(run['in_run_samples_per_s'], '.3g')})"
-                         for name, run in case["runs"].items())
-        speed = f" ({case['speedup']:.2f}x)" if "speedup" in case else ""
-        measured = case["bound_now_measured"]
-        print(f"{windows}: samples/s {runs}{speed}; bound now "
-              f"{case['bound_now']['samples_per_s']:.1f}/s "
-              f"({100 * case['ratio_to_bound_now']:.0f} % of it), before "
-              f"{case['bound_before']['samples_per_s']:.1f}/s; same pixels: "
-              f"{case['same_pixels']}")
-        for name, run in case["runs"].items():
-            print(f"  {name}, {run['repeats']} repeats: samples/s "
-                  f"{_spread(run['samples_per_s_each'], '.2f')}, t(1) "
-                  f"{_spread(run['start_seconds_each'], '.2f')} s, t({args.samples}) "
-                  f"{_spread(run['seconds_each'], '.2f')} s, in the run "
-                  f"{_spread(run['in_run_each'], '')}, first to last written "
-                  f"{_spread(run['written_each'], '.1f')}")
-        print(f"  measured bound now: {measured['samples_per_s']:.1f} samples/s "
-              f"({100 * case['ratio_to_measured_bound_now']:.0f} % of it; {cores} threads, "
-              f"{measured['decodes']} decodes and {measured['encodes']} encodes in "
-              f"{measured['seconds']:.2f} s, decode-only {measured['decode_seconds']:.2f} s, "
-              f"encode-only {measured['encode_seconds']:.2f} s)")
-        print("\n".join(case["runs"]["now"]["summary"]))
-    return {"backend": args.backend, "cores": cores, "image": [W, H], "frames": FRAMES,
-            "repeats": args.repeats, "against": args.against and Path(args.against).name,
-            "cases": cases}
+        _print_case(windows, case, args.samples, cores)
+        if save is not None:
+            save(result)
+    return result
+
+
+def _print_case(windows: str, case: dict, samples: int, cores: int) -> None:
+    """One ``--windows`` case's rates, bounds and its median "now" run's summary."""
+    runs = ", ".join(f"{name} {run['samples_per_s']:.2f} (in the run "
+                     f"{_num(run['in_run_samples_per_s'], '.3g')})"
+                     for name, run in case["runs"].items())
+    speed = f" ({case['speedup']:.2f}x)" if "speedup" in case else ""
+    measured = case["bound_now_measured"]
+    print(f"{windows}: samples/s {runs}{speed}; bound now "
+          f"{case['bound_now']['samples_per_s']:.1f}/s "
+          f"({100 * case['ratio_to_bound_now']:.0f} % of it), before "
+          f"{case['bound_before']['samples_per_s']:.1f}/s; same pixels: "
+          f"{case['same_pixels']}")
+    for name, run in case["runs"].items():
+        print(f"  {name}, {run['repeats']} repeats: samples/s "
+              f"{_spread(run['samples_per_s_each'], '.2f')}, t(1) "
+              f"{_spread(run['start_seconds_each'], '.2f')} s, t({samples}) "
+              f"{_spread(run['seconds_each'], '.2f')} s, in the run "
+              f"{_spread(run['in_run_each'], '')}, first to last written "
+              f"{_spread(run['written_each'], '.1f')}")
+    print(f"  measured bound now: {measured['samples_per_s']:.1f} samples/s "
+          f"({100 * case['ratio_to_measured_bound_now']:.0f} % of it; {cores} threads, "
+          f"{measured['decodes']} decodes and {measured['encodes']} encodes in "
+          f"{measured['seconds']:.2f} s, decode-only {measured['decode_seconds']:.2f} s, "
+          f"encode-only {measured['encode_seconds']:.2f} s)")
+    print("\n".join(case["runs"]["now"]["summary"]), flush=True)
+
+
+def _write_json(path: Path, result: dict) -> None:
+    """``result`` in ``path``, replaced whole (a reader never sees half a file)."""
+    part = path.with_name(path.name + ".part")
+    part.write_text(json.dumps(result, indent=1))
+    part.replace(path)
 
 
 def _num(value: float | None, spec: str) -> str:
@@ -306,13 +324,16 @@ def generate_each(outs: dict[str, tuple[Path, str | None]], root: Path, backend:
     for out, tree in outs.values():
         _run(root, out, backend, 1, threads, extra, tree)
     each = {name: {"start": [], "wall": [], "summary": [], "written": []} for name in outs}
-    for _ in range(repeats):
+    for repeat in range(repeats):
         for name, (out, tree) in outs.items():
             each[name]["start"].append(_run(root, out, backend, 1, threads, extra, tree)[0])
             wall, summary = _run(root, out, backend, samples, threads, extra, tree)
             each[name]["wall"].append(wall)
             each[name]["summary"].append(summary)
             each[name]["written"].append(written_rate(out, samples))
+            print(f"  {name}, repeat {repeat + 1} of {repeats}: t(1) "
+                  f"{each[name]['start'][-1]:.2f} s, t({samples}) {wall:.2f} s",
+                  file=sys.stderr, flush=True)
     runs = {}
     for name, got in each.items():
         starts, walls = got["start"], got["wall"]
@@ -406,9 +427,7 @@ def main(argv=None) -> int:
     if args.repeats < 1:
         raise SystemExit("--repeats: 1 or more")
     if args.windows:
-        result = compare(args, cores)
-        if args.json:
-            Path(args.json).write_text(json.dumps(result, indent=1))
+        compare(args, cores, args.json and partial(_write_json, Path(args.json)))
         return 0
     devices = {}
     with tempfile.TemporaryDirectory() as tmp:
