@@ -24,6 +24,7 @@ from gpu_blur import limits
 from gpu_blur.constants import GAUSSIAN_SRGB_NOISE_STD
 from gpu_blur.files import parse_settings, read_text
 from gpu_blur.limits import Limit
+from gpu_blur.png_codecs import PNG_MODES
 from gpu_blur.reference.flow import (
     FLOW_METHODS,
     INTERPOLATION_AUTO,
@@ -185,8 +186,9 @@ FIELDS: dict[str, dict[str, Field]] = {
         "png": Field("fast", "how PNG outputs are compressed, the same pixels either way: "
                      "'fast' (numpy's Sub filter, ISA-L deflate at level 1), 'small' (the "
                      "smallest of OpenCV's libpng files and the fast one: slower, a few % "
-                     "smaller); the performance page gives ms and MB an image",
-                     choices=("fast", "small")),
+                     "smaller), 'stored' (no compression: the largest files, written and "
+                     "read the fastest); the performance page gives ms and MB an image",
+                     choices=tuple(PNG_MODES)),
         "jpeg_quality": Field(None, "[low, high]: a JPEG round trip of the blurred output as "
                               "the last stage (OpenCV, 4:2:0 chroma), at a quality drawn per "
                               "sample in the range; needs output.bits = 8; absent: no JPEG",

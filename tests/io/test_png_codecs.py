@@ -142,8 +142,25 @@ def test_small_is_never_larger_than_fast(bits):
     assert png_codecs.encode_png(grey_alpha, "small") == png_codecs.encode_png(grey_alpha)
 
 
+@pytest.mark.parametrize("size", [0, 1, 65_534, 65_535, 65_536, 3 * 65_535 + 7])
+def test_stored_blocks_make_the_zlib_stream_of_the_data(size):
+    data = np.random.default_rng(size).integers(0, 256, size, np.uint8).tobytes()
+    stream = png_codecs.stored_zlib(data)
+    assert zlib.decompress(stream) == data
+    blocks = max(1, -(-size // 65_535))
+    assert len(stream) == 2 + 5 * blocks + size + 4  # header, block heads, data, Adler-32
+
+
+def test_stored_files_are_the_unfiltered_rows_uncompressed():
+    source = codes(16, (37, 53, 3), seed=4)
+    data = png_codecs.encode_png(source, "stored")
+    rows = png_codecs.filtered_rows(source, "none").tobytes()
+    assert rows in data and len(data) < len(rows) + 100  # the rows as they are, once
+    assert np.array_equal(png_codecs.decode_png(data), source)
+
+
 def test_an_unknown_png_mode_is_refused_naming_the_modes():
-    with pytest.raises(ValueError, match="PNG mode 'tiny': expected one of fast, small"):
+    with pytest.raises(ValueError, match="PNG mode 'tiny': expected one of fast, small, stored"):
         encode_image(codes(8), 8, png="tiny")
     with pytest.raises(SceneError, match="output.png"):
         scene_from_dict({"output": {"png": "tiny"}})
@@ -290,13 +307,15 @@ def test_generate_writes_the_same_pixels_in_either_mode(tmp_path, bits):
                      str(scene), "--save", "mask", "--quiet"]) == 0
         made[mode] = {p.relative_to(out).as_posix(): p.read_bytes()
                       for p in sorted(out.rglob("*.png"))}
-    fast, small = made["fast"], made["small"]
-    assert sorted(fast) == sorted(small) and len(fast) == 6  # blur, sharp, mask of 2 samples
-    assert all(fast[name] == png_codecs.encode_png(opencv_rgb(fast[name]), "fast")
-               for name in fast)  # written by the fast mode
-    for name in fast:
-        assert np.array_equal(opencv_rgb(fast[name]), opencv_rgb(small[name])), name
-    assert any(fast[name] != small[name] for name in fast)
+    fast = made["fast"]
+    assert len(fast) == 6  # blur, sharp, mask of 2 samples
+    for mode, files in made.items():
+        assert sorted(files) == sorted(fast)
+        assert all(files[name] == png_codecs.encode_png(opencv_rgb(files[name]), mode)
+                   for name in files)  # written by that mode
+        for name in fast:
+            assert np.array_equal(opencv_rgb(fast[name]), opencv_rgb(files[name])), name
+        assert mode == "fast" or any(fast[name] != files[name] for name in fast)
 
 
 def test_only_a_stored_idat_crc_damaged_decodes_to_the_intact_pixels(inflater):
