@@ -643,6 +643,12 @@ class _Run:
                  totals.bound(took, io, len(devices)) if devices and io else None)
         if bound is not None:
             lines.append(bound)
+            output = self.scene.output
+            if (bound.startswith("bound by: encode/write") and output.bits in (8, 16)
+                    and output.png != "stored"):
+                lines.append(f'  output.png = "stored" (now "{output.png}") would write these '
+                             "PNGs uncompressed: several times faster to write and to read, "
+                             "files about half as large again (docs: performance, PNG codecs)")
         return SetReport(output=o.output, manifest=Path(writer.manifest_path),
                          device=self.backend.device, made=self.made, failed=tuple(self.failed),
                          skipped=self.done, to_make=len(self.todo), seconds=took,

@@ -215,6 +215,9 @@ def test_the_summary_says_which_stage_bounded_the_run(tmp_path, photos, monkeypa
     assert main(args(folder, scene, tmp_path / "out", "--io-threads", threads)) == 0
     out = capsys.readouterr().out
     assert bound in out, out
+    # an encode-bound run of compressed PNGs is told of the stored mode
+    assert ('output.png = "stored" (now "fast") would write' in out) == (
+        slow == "encode_image" and threads == "2")
     wall = float(re.search(r"where the time went \(([\d.]+) s\):", out)[1])
     spent = re.findall(r"^  [a-z]+ +([\d.]+) s +[\d.]+ %", out, re.MULTILINE)
     assert len(spent) == 6 and sum(map(float, spent)) == pytest.approx(wall, abs=0.01)
