@@ -648,7 +648,7 @@ class _Run:
                     and output.png != "stored"):
                 lines.append(f'  output.png = "stored" (now "{output.png}") would write these '
                              "PNGs uncompressed: several times faster to write and to read, "
-                             "files about half as large again (docs: performance, PNG codecs)")
+                             "larger files (docs: performance, PNG codecs)")
         return SetReport(output=o.output, manifest=Path(writer.manifest_path),
                          device=self.backend.device, made=self.made, failed=tuple(self.failed),
                          skipped=self.done, to_make=len(self.todo), seconds=took,
