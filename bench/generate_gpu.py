@@ -13,7 +13,9 @@ the same images, codecs assumed to scale linearly with cores).
     PYTHONPATH=$PWD python3 bench/generate_gpu.py --backend warp --samples 32 --json out.json
 
 ``--workers 1,2,4`` adds runs of ``--devices`` with that many worker processes sharing
-``--backend``'s device, and checks that every set holds the same bytes.
+``--backend``'s device, and checks that every set holds the same bytes. ``--png stored`` (or
+``small``) writes the outputs that way (the rsblur scene with ``output.png`` set), and
+measures this tree's encode time and bound with it.
 
 ``--windows overlapping,distinct`` runs both kinds of windows: ``overlapping`` (the default:
 ``--samples`` windows of one 36-frame sequence, each frame read by up to 16 samples, where a
@@ -110,11 +112,11 @@ def single_core_seconds(paths: list[Path]) -> dict:
     return {"decode": statistics.median(decode), "encode": statistics.median(encode)}
 
 
-def gpu_blur_codec_seconds(paths: list[Path]) -> dict:
+def gpu_blur_codec_seconds(paths: list[Path], png: str = "fast") -> dict:
     """:func:`single_core_seconds` for this checkout's own read and write paths.
 
     ``read_image`` (ISA-L and numpy for the Sub-filtered files OpenCV writes by default) and
-    ``encode_image`` with the default ``output.png``; one thread, OpenCV on one core.
+    ``encode_image`` with ``output.png = png``; one thread, OpenCV on one core.
     """
     from gpu_blur.file_writing import encode_image
     from gpu_blur.image_reading import read_image
@@ -129,7 +131,7 @@ def gpu_blur_codec_seconds(paths: list[Path]) -> dict:
     encode = []
     for _ in range(5):
         start = time.perf_counter()
-        encode_image(image, 8)
+        encode_image(image, 8, png=png)
         encode.append(time.perf_counter() - start)
     return {"decode": statistics.median(decode), "encode": statistics.median(encode)}
 
@@ -144,12 +146,13 @@ def decode_encode_bound(per: dict, cores: int, decodes: float = FRAMES) -> float
 
 
 def measured_codec_bound(paths: list[Path], decodes: int, out: Path, samples: int,
-                         threads: int, repeats: int) -> dict:
+                         threads: int, repeats: int, png: str = "fast") -> dict:
     """Samples per second this checkout's codecs alone reach through ``threads`` threads.
 
-    ``decodes`` reads of ``paths`` (in turn) with ``read_image`` and 2 ``encode_image(.., 8)``
-    a sample of the output set ``out`` read back, mixed as the samples run; the pool's wall
-    seconds, the median of ``repeats`` (each job also decode-only and encode-only).
+    ``decodes`` reads of ``paths`` (in turn) with ``read_image`` and 2 ``encode_image(.., 8,
+    png=png)`` a sample of the output set ``out`` read back, mixed as the samples run; the
+    pool's wall seconds, the median of ``repeats`` (each job also decode-only and
+    encode-only).
     """
     from gpu_blur.file_writing import encode_image
     from gpu_blur.image_reading import read_image
@@ -158,7 +161,8 @@ def measured_codec_bound(paths: list[Path], decodes: int, out: Path, samples: in
     outputs = sorted(out.rglob("*.png"), key=lambda path: (path.name, path.parent.name))
     images = [read_image(path) for path in outputs[:ENCODED]]
     decode = [partial(read_image, paths[i % len(paths)]) for i in range(decodes)]
-    encode = [partial(encode_image, images[i % len(images)], 8) for i in range(2 * samples)]
+    encode = [partial(encode_image, images[i % len(images)], 8, png=png)
+              for i in range(2 * samples)]
     order = sorted([(i / len(decode), 0, i) for i in range(len(decode))]
                    + [(i / len(encode), 1, i) for i in range(len(encode))])
     both = [(decode, encode)[kind][i] for _, kind, i in order]
@@ -184,6 +188,22 @@ def measured_codec_bound(paths: list[Path], decodes: int, out: Path, samples: in
             "samples_per_s": samples / seconds["seconds"]}
 
 
+def scene_file(folder: str | Path, png: str) -> str:
+    """The built-in rsblur scene with ``output.png = png``: its name where png is its own."""
+    if png == "fast":
+        return "rsblur"
+    from gpu_blur.scene import load_scene
+
+    text = Path(load_scene("rsblur").path).read_text()  # the built-in scene's file
+    if "\n[output]\n" not in text:
+        raise SystemExit("--png: the rsblur scene's file has no [output] table to set it in")
+    path = Path(folder) / f"rsblur_png_{png}.toml"
+    path.write_text(text.replace("\n[output]\n", f'\n[output]\npng = "{png}"\n', 1))
+    if load_scene(str(path)).output.png != png:
+        raise SystemExit(f"--png {png}: the scene written does not say it")
+    return str(path)
+
+
 def pixel_digest(out: Path) -> str:
     """sha256 over the decoded pixels of every image of a set (names and codes).
 
@@ -205,7 +225,7 @@ def compare(args, cores: int, save=None) -> dict:
     cases = {}
     result = {"backend": args.backend, "cores": cores, "image": [W, H], "frames": FRAMES,
               "repeats": args.repeats, "against": args.against and Path(args.against).name,
-              "cases": cases}
+              "png": args.png, "cases": cases}
     for windows in args.windows.split(","):
         if windows not in ("overlapping", "distinct"):
             raise SystemExit(f"--windows {windows}: overlapping or distinct")
@@ -215,7 +235,8 @@ def compare(args, cores: int, save=None) -> dict:
             paths = write_sequence(root, frames)
             # the new tree reads each frame once where a cache holds it; the old reads 9
             new_decodes = min(FRAMES, frames / args.samples)
-            old_per, new_per = single_core_seconds(paths), gpu_blur_codec_seconds(paths)
+            old_per = single_core_seconds(paths)
+            new_per = gpu_blur_codec_seconds(paths, args.png)
             case = {"frames_in_sequence": frames, "samples": args.samples,
                     "bound_before": {"single_core_seconds": old_per, "decodes_per_sample":
                                      FRAMES, "samples_per_s":
@@ -227,12 +248,12 @@ def compare(args, cores: int, save=None) -> dict:
             trees = ([("before", args.against)] if args.against else []) + [("now", None)]
             outs = {name: (Path(tmp) / f"out_{name}", tree) for name, tree in trees}
             case["runs"] = generate_each(outs, root, args.backend, args.samples, cores,
-                                         repeats=args.repeats)
+                                         repeats=args.repeats, scene=scene_file(tmp, args.png))
             case["pixel_digests"] = {name: pixel_digest(out) for name, (out, _) in outs.items()}
             case["same_pixels"] = len(set(case["pixel_digests"].values())) == 1
             case["bound_now_measured"] = measured_codec_bound(
                 paths, round(new_decodes * args.samples), outs["now"][0], args.samples, cores,
-                args.repeats)
+                args.repeats, args.png)
             now = case["runs"]["now"]["samples_per_s"]
             case["ratio_to_bound_now"] = now / case["bound_now"]["samples_per_s"]
             case["ratio_to_measured_bound_now"] = (
@@ -292,10 +313,10 @@ def _spread(values: list, spec: str) -> str:
 
 
 def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
-         extra: tuple[str, ...] = (), tree: str | None = None):
+         extra: tuple[str, ...] = (), tree: str | None = None, scene: str = "rsblur"):
     """Wall seconds of one ``gpu-blur generate`` into a new ``out``, and its summary lines."""
     command = [sys.executable, "-m", "gpu_blur.cli", "generate", "--input", str(root),
-               "--output", str(out), "--scene", "rsblur", "--backend", backend,
+               "--output", str(out), "--scene", scene, "--backend", backend,
                "--samples-per-sequence", str(samples), "--io-threads", str(threads),
                "--quiet", "--overwrite", *extra]
     env = dict(os.environ)
@@ -315,19 +336,20 @@ def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
 
 def generate_each(outs: dict[str, tuple[Path, str | None]], root: Path, backend: str,
                   samples: int, threads: int, extra: tuple[str, ...] = (),
-                  repeats: int = 1) -> dict[str, dict]:
+                  repeats: int = 1, scene: str = "rsblur") -> dict[str, dict]:
     """:func:`generate` for several checkouts, ``name: (output folder, tree)``, in turn.
 
     Each tree's uncounted 1-sample run first, then ``repeats`` rounds of each tree's t(1) and
     t(N) in the order given; rates from the medians (the module's docstring has the keys).
     """
     for out, tree in outs.values():
-        _run(root, out, backend, 1, threads, extra, tree)
+        _run(root, out, backend, 1, threads, extra, tree, scene)
     each = {name: {"start": [], "wall": [], "summary": [], "written": []} for name in outs}
     for repeat in range(repeats):
         for name, (out, tree) in outs.items():
-            each[name]["start"].append(_run(root, out, backend, 1, threads, extra, tree)[0])
-            wall, summary = _run(root, out, backend, samples, threads, extra, tree)
+            each[name]["start"].append(
+                _run(root, out, backend, 1, threads, extra, tree, scene)[0])
+            wall, summary = _run(root, out, backend, samples, threads, extra, tree, scene)
             each[name]["wall"].append(wall)
             each[name]["summary"].append(summary)
             each[name]["written"].append(written_rate(out, samples))
@@ -372,14 +394,16 @@ def written_rate(out: Path, samples: int) -> float:
 
 
 def generate(root: Path, out: Path, backend: str, samples: int, threads: int,
-             extra: tuple[str, ...] = (), tree: str | None = None) -> dict:
+             extra: tuple[str, ...] = (), tree: str | None = None,
+             scene: str = "rsblur") -> dict:
     """Samples per second of ``gpu-blur generate`` without its fixed start, and its summary.
 
     A first 1-sample run warms the file cache and the kernel caches and is not counted: a
     cold start can take longer than the whole run that follows. ``tree``: a checkout whose
     ``gpu_blur`` runs instead of this one. One t(1) and one t(N).
     """
-    return generate_each({"": (out, tree)}, root, backend, samples, threads, extra)[""]
+    return generate_each({"": (out, tree)}, root, backend, samples, threads, extra,
+                         scene=scene)[""]
 
 
 def set_digest(out: Path) -> str:
@@ -421,6 +445,9 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=3, help="with --windows: times each tree's "
                    "t(1) and t(N), and the measured bound, are measured; rates from the "
                    "medians (default 3)")
+    p.add_argument("--png", default="fast", help="the outputs' output.png (fast, small, "
+                   "stored): the rsblur scene with it (default fast, the scene's own; a tree "
+                   "older than output.png takes fast only)")
     p.add_argument("--json", help="write the results here")
     args = p.parse_args(argv)
     cores = len(os.sched_getaffinity(0))
@@ -436,16 +463,18 @@ def main(argv=None) -> int:
         per = single_core_seconds(paths)
         bound = decode_encode_bound(per, cores)
         threads = [cores if t == "all" else int(t) for t in args.threads.split(",")]
-        runs = [generate(root, Path(tmp) / f"out{t}", args.backend, args.samples, t)
-                for t in threads]
+        scene = scene_file(tmp, args.png)
+        runs = [generate(root, Path(tmp) / f"out{t}", args.backend, args.samples, t,
+                         scene=scene) for t in threads]
         digests = {"serial": set_digest(Path(tmp) / f"out{threads[-1]}")}
         for n in [int(v) for v in args.workers.split(",") if v]:
             out = Path(tmp) / f"workers{n}"
             devices[n] = generate(root, out, args.backend, args.samples, cores,
-                                  ("--devices", ",".join([args.backend] * n)))
+                                  ("--devices", ",".join([args.backend] * n)), scene=scene)
             digests[f"{n} workers"] = set_digest(out)
     result = {"backend": args.backend, "cores": cores, "image": [W, H], "frames": FRAMES,
-              "single_core_seconds": per, "bound_samples_per_s": bound, "runs": runs,
+              "png": args.png, "single_core_seconds": per, "bound_samples_per_s": bound,
+              "runs": runs,
               "ratio_to_bound": runs[-1]["samples_per_s"] / bound,
               "devices_workers": devices, "set_digests": digests,
               "same_bytes": len(set(digests.values())) == 1}
