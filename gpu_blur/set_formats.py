@@ -186,9 +186,10 @@ def png_level(mode: str, bits: int) -> int:
     """The zlib level of a ``bits``-bit PNG written in ``mode`` (``png_codecs.PNG_MODES``).
 
     meta_info.txt's last column, as BasicSR writes the ``compress_level`` it encoded with
-    (its readers do not read it): 6 for 16-bit ``small``, else 1.
+    (its readers do not read it): 0 for ``stored`` (no compression), 6 for 16-bit ``small``,
+    else 1.
     """
-    return 6 if mode == "small" and bits == 16 else 1
+    return 0 if mode == "stored" else 6 if mode == "small" and bits == 16 else 1
 
 
 # -- WebDataset ----------------------------------------------------------------------------------

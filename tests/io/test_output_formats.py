@@ -114,6 +114,15 @@ def test_an_lmdb_set_holds_the_png_sets_bytes_under_basicsrs_keys(made, png_set)
     assert not (out / "blur").exists() and temporaries(out) == []
 
 
+@pytest.mark.parametrize("mode, bits, level", [("fast", 8, 1), ("fast", 16, 1), ("small", 8, 1),
+                                               ("small", 16, 6), ("stored", 8, 0),
+                                               ("stored", 16, 0)])
+def test_meta_info_names_the_zlib_level_each_png_mode_writes(mode, bits, level):
+    from gpu_blur.set_formats import png_level
+
+    assert png_level(mode, bits) == level
+
+
 def basicsr_pairs(lq_folder: str, gt_folder: str):
     """BasicSR's paired LMDB reading, its convention written out here (BasicSR itself does not
     install quickly: it builds CUDA extensions and pins torch).
