@@ -155,9 +155,11 @@ def copy_bound(gpus: int, reps: int = 16) -> dict:
     return {"gpus": gpus, "gb_s_each_way": gpus * reps * COPY_BYTES / seconds / 1e9}
 
 
-def from_disk(backend: str, gpus: int, root: Path, out: Path, samples: int, cores: int) -> dict:
+def from_disk(backend: str, gpus: int, root: Path, out: Path, samples: int, cores: int,
+              scene: str = "rsblur") -> dict:
     devices = ",".join(device_spec(backend, g) for g in range(gpus))
-    run = generate_gpu.generate(root, out, backend, samples, cores, ("--devices", devices))
+    run = generate_gpu.generate(root, out, backend, samples, cores, ("--devices", devices),
+                                scene=scene)
     return {"gpus": gpus, **run, "digest": generate_gpu.set_digest(out)}
 
 
@@ -175,13 +177,15 @@ def main(argv=None) -> int:
                    help="memory: the frames and outputs in pageable numpy arrays, in each "
                    "GPU's pinned memory (Synthesizer.pinned), or both (default both)")
     p.add_argument("--skip", default="", help="leave out 'memory' or 'disk'")
+    p.add_argument("--png", default="fast", help="disk: the outputs' output.png (fast, small, "
+                   "stored), in the rsblur scene and the measured bound (default fast)")
     p.add_argument("--json", help="write the results here")
     args = p.parse_args(argv)
     counts = [int(v) for v in args.gpus.split(",")]
     cores = len(os.sched_getaffinity(0))
     result = {"what": __doc__.split("\n\n")[0], "backend": args.backend, "cores": cores,
               "cpu": platform.processor() or platform.machine(), "image": [W, H],
-              "frames": FRAMES, "memory": [], "disk": []}
+              "frames": FRAMES, "png": args.png, "memory": [], "disk": []}
     result["devices"] = [get_backend(device_spec(args.backend, g)).device
                          for g in range(max(counts))]
     kinds = [k for k in ("pageable", "pinned") if k in args.memory.split(",")]
@@ -209,9 +213,10 @@ def main(argv=None) -> int:
             per = generate_gpu.single_core_seconds(paths)
             result["disk_bound_samples_per_s"] = generate_gpu.decode_encode_bound(per, cores)
             result["single_core_seconds"] = per
+            scene = generate_gpu.scene_file(tmp, args.png)
             for n in counts:
                 row = from_disk(args.backend, n, root, Path(tmp) / f"out{n}", args.samples,
-                                cores)
+                                cores, scene)
                 result["disk"].append(row)
                 print(f"disk, {n} GPU(s): {row['samples_per_s']:.1f} samples/s (in the run, "
                       f"workers' start included: {row.get('in_run_samples_per_s')}; first to "
@@ -220,7 +225,7 @@ def main(argv=None) -> int:
             # cache's run) and each sample's two images encoded: the host's own ceiling
             result["disk_bound_measured"] = generate_gpu.measured_codec_bound(
                 paths, len(paths), Path(tmp) / f"out{counts[-1]}", args.samples, cores,
-                repeats=3)
+                repeats=3, png=args.png)
     sources = {"disk": result["disk"]}
     for kind in kinds:
         sources["memory" if kind == "pageable" else "memory_pinned"] = [
