@@ -331,7 +331,7 @@ def test_inputs_staged_in_pinned_memory_make_the_bytes_of_unstaged_ones(
     name, backend = kernel_backend()
     run = ("--backend", name, "--samples-per-sequence", "8", "--save", "mask")
     assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
-    batches, stacks, lent = [], [], []
+    batches, stacks, lent, lent_bytes = [], [], [], []
     make_batch, stack = gpu_blur.generate.make_batch, gpu_blur.backends.pinned_stack
     module = gpu_blur.backends.warp if name.startswith("warp") else gpu_blur.backends.opencl
 
@@ -349,6 +349,7 @@ def test_inputs_staged_in_pinned_memory_make_the_bytes_of_unstaged_ones(
         for _, result, _ in made or []:  # the results lie in page-locked memory lent for them
             lent.append(gpu_blur.backends.pinned_owner(result.blurred) is backend
                         and gpu_blur.backends.pinned_owner(result.mask) is backend)
+            lent_bytes.append(result.blurred.nbytes + result.sharp.nbytes + result.mask.nbytes)
         return made
 
     def spied(frames, owner):
@@ -358,12 +359,15 @@ def test_inputs_staged_in_pinned_memory_make_the_bytes_of_unstaged_ones(
 
     monkeypatch.setattr(gpu_blur.generate, "make_batch", batched)
     monkeypatch.setattr(module, "pinned_stack", spied)
-    monkeypatch.setattr(gpu_blur.generate, "pinned_staging",
-                        lambda job: gpu_blur.staging.PinnedStaging(backend, 2, 3))
+    staged = []
+    monkeypatch.setattr(gpu_blur.generate, "pinned_staging", lambda job: staged.append(
+        gpu_blur.staging.PinnedStaging(backend, 2, 3)) or staged[-1])
     assert main(args(folder, scene, tmp_path / "staged", *run, "--io-threads", "3")) == 1
     assert len(batches) >= 2  # the first batch of each slot goes one by one (allocating)
     assert (sum(batches) == 0) if batch_fails else (sum(batches) >= 6)
     assert all(lent) and len(lent) == sum(batches)
+    if not batch_fails:  # blocks come back once written (at most 6 samples wait to be):
+        assert staged[0].results._held < sum(lent_bytes)  # later batches reuse them
     if batch_fails:
         assert sum(stacks) >= 6  # one by one, each from its staged stack
     assert_same_set(tmp_path / "staged", tmp_path / "one")
