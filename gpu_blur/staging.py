@@ -158,7 +158,9 @@ class LentResults:
         self.backend, self.limit = backend, limit
         self._free: list[np.ndarray] = []  # blocks given back, flat uint8
         self._held = 0  # bytes page-locked, lent or free
-        self._lock = threading.Lock()
+        # reentrant: a wrapper in a reference cycle is finalized whenever the cyclic GC runs,
+        # which may be inside take() on the thread that holds the lock
+        self._lock = threading.RLock()
 
     def take(self, arrays: list[tuple[tuple[int, ...], object]]) -> list[np.ndarray] | None:
         """An uninitialized page-locked array per ``(shape, dtype)``, or None past the limit."""

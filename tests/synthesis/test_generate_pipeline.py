@@ -295,6 +295,34 @@ def test_lent_results_are_lent_again_only_once_every_array_over_them_is_gone(mon
 
 
 @pytest.mark.skipif(not KERNEL_BACKEND_SPECS, reason="no kernel backend here")
+def test_lent_results_taken_back_by_the_cyclic_gc_inside_a_take_do_not_deadlock():
+    import gc
+
+    from gpu_blur.staging import LentResults
+
+    _, backend = kernel_backend()
+    results = LentResults(backend, limit=1000)
+    codes = ((2, 4, 5, 3), np.uint8)
+    cycle = [results.take([codes])[0]]
+    cycle.append(cycle)  # only the cyclic GC frees it, whenever it runs
+    address = cycle[0].ctypes.data
+    del cycle
+
+    class Collecting(list):  # the GC runs while take() walks the free blocks, lock held
+        def __iter__(self):
+            gc.collect()
+            return super().__iter__()
+
+    results._free = Collecting(results._free)
+    got = []
+    taking = threading.Thread(target=lambda: got.append(results.take([codes])), daemon=True)
+    taking.start()
+    taking.join(10)
+    assert not taking.is_alive(), "take() deadlocked on its own lock"
+    assert got[0][0].ctypes.data == address  # the block the GC gave back, lent again
+
+
+@pytest.mark.skipif(not KERNEL_BACKEND_SPECS, reason="no kernel backend here")
 def test_lent_results_that_cannot_be_page_locked_lend_nothing_and_keep_their_free_blocks(
         monkeypatch):
     from gpu_blur.staging import LentResults
