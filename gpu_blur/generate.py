@@ -32,7 +32,7 @@ from gpu_blur.frame_cache import Decode, FrameCache, uncached
 from gpu_blur.gpu_jpeg import JpegBatches
 from gpu_blur.image_arrays import check_image
 from gpu_blur.image_reading import opencv_reason, read_image
-from gpu_blur.reference.output import code_dtype, to_integers
+from gpu_blur.reference.output import to_integers
 from gpu_blur.scene import Scene
 from gpu_blur.scheduler import Schedule
 from gpu_blur.staging import LentResults, PinnedStaging
@@ -228,8 +228,8 @@ def make_batch(job: Job, synthesizer: Synthesizer, specs: list[SampleSpec], batc
         out = None
         if results is not None:
             shape = synthesizer.result_shape(batch.shape)
-            code = code_dtype(job.scene.output.bits) if job.bits else np.float32
-            out = results.take([(shape, code)] * 2 + [(shape, np.float32)] * job.with_mask)
+            out = results.take([(shape, dtype)
+                                for dtype in synthesizer.result_dtypes(codes=bool(job.bits))])
         made = synthesizer(batch, indices=[spec.index for spec in specs], codes=bool(job.bits),
                            sequences=([w.sequence_index for w in windows] if all(windows)
                                       else None), out=out)

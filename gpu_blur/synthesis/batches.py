@@ -44,6 +44,14 @@ class BatchIO:
         self.scene, self.runner, self.resident = scene, runner, resident
         self.channels_first, self.with_mask = channels_first, with_mask
 
+    def result_dtypes(self, bits: int = 0) -> list:
+        """The results' dtypes, blurred and sharp (and the mask, float32, ``with_mask``).
+
+        ``bits`` 8 or 16: blurred and sharp as those codes' dtype; 0: float32.
+        """
+        code = code_dtype(bits) if bits else np.float32
+        return [code, code, np.float32][:3 if self.with_mask else 2]
+
     def split(self, batch, mask, sharp, lib: str) -> list[Inputs]:
         """The batch as per-sample inputs: views of device arrays, else host arrays."""
         mode = self.scene.blur.mode
@@ -223,9 +231,7 @@ class BatchIO:
         made = [to_integers(x, bits) for x in host[:2]] + host[2:]
         if given is None:
             return made
-        code = code_dtype(bits)
-        views = self.given_outputs(given, made[0].shape, lib,
-                                   [code, code, np.float32][:len(made)])
+        views = self.given_outputs(given, made[0].shape, lib, self.result_dtypes(bits))
         for view, x in zip(views, made, strict=True):
             np.copyto(view, x)
         return views

@@ -18,7 +18,6 @@ from gpu_blur.backends import Drawn, OnDevice, ResidentBackend, Slots, pinned_ow
 from gpu_blur.cameras import Camera
 from gpu_blur.params import batch_uniforms
 from gpu_blur.planning import StageName, raw_round_trip
-from gpu_blur.reference.output import code_dtype
 from gpu_blur.scene import Scene
 from gpu_blur.synthesis.batches import BatchIO
 from gpu_blur.synthesis.draws import Draws
@@ -243,10 +242,8 @@ class ResidentPath:
                     out = self._handed_over(done, batch, lib, bits)
                     continue
                 if out is None:
-                    code = code_dtype(bits) if bits else np.float32
                     out = self.io.outputs(count, done.out, batch, lib,
-                                          [code, code, np.float32][:3 if self.with_mask else 2],
-                                          given)
+                                          self.io.result_dtypes(bits), given)
                 self._export(done, out if step == count else
                              [o[start:start + len(part)] for o in out], bits)
             if not handed:

@@ -213,6 +213,15 @@ class Synthesizer:
         return ((shape[0], 3, region.h, region.w) if self.channels_first
                 else (shape[0], region.h, region.w, 3))
 
+    def result_dtypes(self, codes: bool = False) -> list:
+        """The dtype of each result (blurred, sharp, mask): what ``out=`` arrays take.
+
+        float32, or with ``codes`` blurred and sharp as ``output.bits``' codes (uint8 or
+        uint16); the mask (``with_mask``) float32.
+        """
+        check_codes(self.scene, codes)
+        return self._io.result_dtypes(self.scene.output.bits if codes else 0)
+
     def sample(self, inputs, sample_index: int = 0, *, on_device: bool = False,
                codes: bool = False, sequence_index: int | None = None) -> Synthesis:
         """One sample from :func:`synthesize`'s ``inputs`` (arrays or paths)."""

@@ -366,6 +366,7 @@ def test_inputs_staged_in_pinned_memory_make_the_bytes_of_unstaged_ones(
     class Refusing:  # a Synthesizer whose batches fail
         def __init__(self, synthesizer):
             self.result_shape = synthesizer.result_shape
+            self.result_dtypes = synthesizer.result_dtypes
 
         def __call__(self, *args, **kwargs):
             raise ValueError("sample 1 of 3: refused")

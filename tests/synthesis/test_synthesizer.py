@@ -400,15 +400,19 @@ def test_channels_first_out_arrays_take_channels_first_results(spec):
 
 @pytest.mark.parametrize("mode, size, channels_first", [
     ("average", (H, W), False), ("none", (H - 1, W + 3), False), ("kernel", (H, W), True)])
-def test_result_shape_is_the_shape_of_the_results_out_arrays_take(mode, size, channels_first):
+def test_result_shape_and_dtypes_are_those_of_the_results_out_arrays_take(mode, size, channels_first):
     scene = scene_for(mode, precision="float32")  # realblur_j for none: RAW round trip, crop 4
     given = batch_for(mode, 2, np.random.default_rng(6))
     given = {k: v[..., :size[0], :size[1], :] for k, v in given.items()}  # odd sides too
     if channels_first:
         given = {k: np.ascontiguousarray(np.moveaxis(v, -1, -3)) for k, v in given.items()}
-    synth = gpu_blur.Synthesizer(scene, backend="numpy", channels_first=channels_first)
-    got = synth(**given)
-    assert synth.result_shape(given["batch"].shape) == got.blurred.shape == got.sharp.shape
+    synth = gpu_blur.Synthesizer(scene, backend="numpy", channels_first=channels_first,
+                                 with_mask=True)
+    for codes in (False, True) if scene.output.bits else (False,):  # realblur_j: floats
+        got = synth(**given, codes=codes)
+        results = [got.blurred, got.sharp, got.mask]
+        assert {r.shape for r in results} == {synth.result_shape(given["batch"].shape)}
+        assert [r.dtype for r in results] == synth.result_dtypes(codes)
 
 
 @pytest.mark.parametrize("bad, words", [
