@@ -745,8 +745,10 @@ def bench_png_codecs(name: str = "png_codecs_intel-xeon", part: str = "picks",
     enc, dec = data["encode"], data["decode"]
     default = "opencv: no parameters"
     if part == "picks":
+        from gpu_blur.png_codecs import PNG_MODES
+
         # gpu_blur's modes in this file (older files have no stored mode)
-        modes = [m for m in ("fast", "small", "stored")
+        modes = [m for m in PNG_MODES
                  if any(r["encoder"].endswith(f"output.png = {m}") for r in enc)]
         rows = []
         for image in data["images"]:
@@ -756,16 +758,14 @@ def bench_png_codecs(name: str = "png_codecs_intel-xeon", part: str = "picks",
                 rows.append([PNG_IMAGES.get(image, image), label, *_png_cells(enc, image, pick)])
             rows.append([PNG_IMAGES.get(image, image), "write: OpenCV's default (before)",
                          *_png_cells(enc, image, lambda r: r["encoder"].startswith(default))])
-            reads = [("read: `read_image`", "read_image", default),
-                     ("read: OpenCV `imdecode`", "opencv", default)]
-            if "stored" in modes:
-                reads += [(f"read a `\"stored\"` file: {what}", decoder, "gpu_blur")
-                          for what, decoder in (("`read_image`", "read_image"),
-                                                ("OpenCV `imdecode`", "opencv"))]
+            files = {"read: ": default} | ({"read a `\"stored\"` file: ": "output.png = stored"}
+                                           if "stored" in modes else {})
+            reads = [(f"{what}{reader}", decoder, file) for what, file in files.items()
+                     for reader, decoder in (("`read_image`", "read_image"),
+                                             ("OpenCV `imdecode`", "opencv"))]
             for label, decoder, file in reads:
                 cells = _png_cells(dec, image, lambda r, d=decoder, f=file: d in r["decoder"]
-                                   and r["file"].startswith(f)
-                                   and (f == default or r["file"].endswith("= stored")))
+                                   and f in r["file"])
                 rows.append([PNG_IMAGES.get(image, image), label, cells[0], None, cells[1],
                              None])
         header = ["image", "what", "8-bit ms", "8-bit MB", "16-bit ms", "16-bit MB"]
