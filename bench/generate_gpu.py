@@ -315,8 +315,9 @@ def _spread(values: list, spec: str) -> str:
 def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
          extra: tuple[str, ...] = (), tree: str | None = None, scene: str = "rsblur"):
     """Wall seconds of one ``gpu-blur generate`` into a new ``out``, and its summary lines."""
+    # another checkout takes the built-in scene: one older than output.png rejects the key
     command = [sys.executable, "-m", "gpu_blur.cli", "generate", "--input", str(root),
-               "--output", str(out), "--scene", scene, "--backend", backend,
+               "--output", str(out), "--scene", "rsblur" if tree else scene, "--backend", backend,
                "--samples-per-sequence", str(samples), "--io-threads", str(threads),
                "--quiet", "--overwrite", *extra]
     env = dict(os.environ)
