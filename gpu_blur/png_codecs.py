@@ -54,7 +54,7 @@ PNG_MODES = {
     "small": "the smallest of OpenCV's libpng (a filter chosen per row, level 1 with "
              "run-length matches; 16-bit also level 6) and the fast file",
     "stored": "rows unfiltered in stored (uncompressed) deflate blocks: the largest files, "
-              "written and read the fastest",
+              "the least CPU to write and to read",
 }
 DEFAULT_PNG_MODE = "fast"
 

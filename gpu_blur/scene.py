@@ -186,8 +186,8 @@ FIELDS: dict[str, dict[str, Field]] = {
         "png": Field("fast", "how PNG outputs are compressed, the same pixels either way: "
                      "'fast' (numpy's Sub filter, ISA-L deflate at level 1), 'small' (the "
                      "smallest of OpenCV's libpng files and the fast one: slower, a few % "
-                     "smaller), 'stored' (no compression: the largest files, written and "
-                     "read the fastest); the performance page gives ms and MB an image",
+                     "smaller), 'stored' (no compression: the largest files, the least CPU "
+                     "to write and read); the performance page gives ms and MB an image",
                      choices=tuple(PNG_MODES)),
         "jpeg_quality": Field(None, "[low, high]: a JPEG round trip of the blurred output as "
                               "the last stage (OpenCV, 4:2:0 chroma), at a quality drawn per "

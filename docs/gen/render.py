@@ -446,9 +446,9 @@ def bench_generate_windows(name: str = "generate_windows_h200") -> str:
     return table + "\n\n" + provenance(path, device, _named(data))
 
 
-def bench_devices_host() -> str:
+def bench_devices_host(name: str = "generate_devices_h200x2") -> str:
     """``generate`` on a 2-GPU host: one process against ``--devices`` workers."""
-    data, path = load("generate_devices_h200x2")
+    data, path = load(name)
     one = data["one_process"]["runs"][-1]
     rows = [[f"one process, {one['threads']} I/O threads, one GPU", one["samples_per_s"],
              one.get("written_samples_per_s"), one["in_run_samples_per_s"]]]

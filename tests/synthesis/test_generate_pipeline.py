@@ -216,7 +216,7 @@ def test_the_summary_says_which_stage_bounded_the_run(tmp_path, photos, monkeypa
     out = capsys.readouterr().out
     assert bound in out, out
     # an encode-bound run of compressed PNGs is told of the stored mode
-    assert ('output.png = "stored" (now "fast") would write' in out) == (
+    assert ('output.png = "stored" (now "fast") writes these' in out) == (
         slow == "encode_image" and threads == "2")
     wall = float(re.search(r"where the time went \(([\d.]+) s\):", out)[1])
     spent = re.findall(r"^  [a-z]+ +([\d.]+) s +[\d.]+ %", out, re.MULTILINE)
