@@ -647,7 +647,7 @@ class _Run:
             if (bound.startswith("bound by: encode/write") and output.bits in (8, 16)
                     and output.png != "stored"):
                 lines.append(f'  output.png = "stored" (now "{output.png}") writes these PNGs '
-                             "uncompressed: several times less CPU a file, about 1.7 times the "
+                             "uncompressed: several times less CPU a file, up to 1.7 times the "
                              "bytes; faster only where memory and disk keep up, so measure "
                              "(docs: performance, PNG codecs)")
         return SetReport(output=o.output, manifest=Path(writer.manifest_path),

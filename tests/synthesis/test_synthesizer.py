@@ -400,7 +400,8 @@ def test_channels_first_out_arrays_take_channels_first_results(spec):
 
 @pytest.mark.parametrize("mode, size, channels_first", [
     ("average", (H, W), False), ("none", (H - 1, W + 3), False), ("kernel", (H, W), True)])
-def test_result_shape_and_dtypes_are_those_of_the_results_out_arrays_take(mode, size, channels_first):
+def test_result_shape_and_dtypes_are_those_of_the_results_out_arrays_take(mode, size,
+                                                                         channels_first):
     scene = scene_for(mode, precision="float32")  # realblur_j for none: RAW round trip, crop 4
     given = batch_for(mode, 2, np.random.default_rng(6))
     given = {k: v[..., :size[0], :size[1], :] for k, v in given.items()}  # odd sides too
