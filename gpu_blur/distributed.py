@@ -474,7 +474,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
                 feed(worker)
         # the driver's thread: waiting for the workers, and taking their results
         waiting = receiving = 0.0
-        taken = 0
+        taken = piped = 0
         while any(queued):
             start = time.perf_counter()
             ready = wait([c for c, q in zip(conns, queued, strict=True) if q])
@@ -504,6 +504,8 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
                 pools[worker] = times
                 if layout is not None:  # copied out of the block, which goes back
                     result = blocks.receive(conn, result, layout)
+                elif result is not None:  # whole through the pipe: no block to be had
+                    piped += 1
                 if counts is not None and frame_cache is not None:
                     frame_cache.add(counts)
                 feed(worker)
@@ -513,7 +515,8 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
         if pool_times is not None:
             for times in pools:
                 pool_times.add(times)
-            pool_times.add_handoff(receiving=receiving, waiting=waiting, samples=taken)
+            pool_times.add_handoff(receiving=receiving, waiting=waiting, samples=taken,
+                                   piped=piped)
         finished = True
     finally:
         for conn in conns:  # an idle worker ends when its pipe closes

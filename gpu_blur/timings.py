@@ -205,7 +205,8 @@ class PoolTimes:
             making threads spent handing them over (``packing``: converting them and copying
             them into shared memory, a free block waited for), seconds the driver's thread
             spent taking them (``receiving``: the pipe read, the arrays copied out, the next
-            sample sent) and waiting for any (``waiting``), and the ``samples`` taken.
+            sample sent) and waiting for any (``waiting``), the ``samples`` taken, and how
+            many of them came whole through a pipe (``piped``: no shared memory to be had).
     """
 
     def __init__(self, threads: int):
@@ -214,7 +215,8 @@ class PoolTimes:
         self.calls = {"decode": 0, "write": 0}
         self.samples = 0
         self.waited_for_inputs = 0.0
-        self.handoff = {"packing": 0.0, "receiving": 0.0, "waiting": 0.0, "samples": 0}
+        self.handoff = {"packing": 0.0, "receiving": 0.0, "waiting": 0.0, "samples": 0,
+                        "piped": 0}
         self._lock = threading.Lock()
 
     def run(self, stage: str, work: Callable[..., Any], *args, counted: bool = True) -> Any:
@@ -240,14 +242,16 @@ class PoolTimes:
                 self.calls[stage] += other.calls[stage]
             self.samples += other.samples
             self.waited_for_inputs += other.waited_for_inputs
-            for key, value in other.handoff.items():
-                self.handoff[key] += value
+            self._add_handoff(other.handoff)
 
     def add_handoff(self, **figures) -> None:
         """Add figures to :attr:`handoff` (``packing=...``, ``samples=...``)."""
         with self._lock:
-            for key, value in figures.items():
-                self.handoff[key] += value
+            self._add_handoff(figures)
+
+    def _add_handoff(self, figures: dict) -> None:  # with the lock held
+        for key, value in figures.items():
+            self.handoff[key] = self.handoff.get(key, 0) + value
 
     def __getstate__(self) -> dict:
         with self._lock:
@@ -287,10 +291,16 @@ class PoolTimes:
         if not h["samples"]:
             return None
         each = 1e3 / h["samples"]
-        return (f"hand-off: the workers' making threads {h['packing']:.2f} s "
+        line = (f"hand-off: the workers' making threads {h['packing']:.2f} s "
                 f"({h['packing'] * each:.1f} ms a sample) handing results over, the driver's "
                 f"thread {h['receiving']:.2f} s ({h['receiving'] * each:.1f} ms a sample) "
                 f"taking them and {h['waiting']:.2f} s waiting for the workers")
+        piped = h.get("piped", 0)
+        if piped:  # slower: pickled through a pipe into the driver's one thread
+            line += (f"; {piped} of {h['samples']} samples came through the workers' pipes, "
+                     "no shared memory being had (a full or small /dev/shm? `df -h /dev/shm`; "
+                     "in Docker, `--shm-size`)")
+        return line
 
     def summary(self, wall: float) -> str:
         """One line: the threads, what they did, and how busy they were."""

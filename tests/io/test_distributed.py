@@ -173,6 +173,20 @@ def test_a_devices_run_s_summary_counts_its_workers_decoding(tmp_path, photos, m
         r"and [\d.]+ s waiting for the workers", handoff), handoff
 
 
+def test_a_devices_run_whose_shared_memory_is_refused_says_its_samples_came_through_pipes(
+        tmp_path, photos, monkeypatch, capsys, reference):
+    monkeypatch.setattr(shared_results, "SharedMemory", FullSharedMemory)  # the driver's
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--devices", "numpy,numpy")) == 1  # c.png's samples fail
+    assert_same_set(out, reference("numpy"))
+    handoff = next(line for line in capsys.readouterr().out.splitlines()
+                   if line.startswith("hand-off"))
+    # the 4 made samples, of the 6 taken (the 2 failed ones are small messages anyway)
+    assert handoff.endswith("; 4 of 6 samples came through the workers' pipes, no shared "
+                            "memory being had (a full or small /dev/shm? `df -h /dev/shm`; "
+                            "in Docker, `--shm-size`)"), handoff
+
+
 def test_a_devices_run_times_both_sides_of_handing_each_sample_to_the_driver(
         photos, monkeypatch):
     monkeypatch.setattr(distributed, "default_io_threads", lambda: 4)  # 2 a worker
@@ -183,6 +197,7 @@ def test_a_devices_run_times_both_sides_of_handing_each_sample_to_the_driver(
     made = list(run_devices(job, specs, ["numpy", "numpy"], pool_times=times))
     handoff = times.handoff
     assert handoff["samples"] == len(made) == len(specs)
+    assert handoff["piped"] == 0  # every sample through shared memory
     # the workers' packing (into shared memory), the driver's taking and its waits
     assert handoff["packing"] > 0 and handoff["receiving"] > 0 and handoff["waiting"] > 0
     again = pickle.loads(pickle.dumps(times))  # as a worker's pool crosses to the driver
@@ -444,15 +459,18 @@ def test_a_result_through_shared_memory_is_the_made_result_byte_for_byte(
     assert left_behind(blocks_made) == []
 
 
+class FullSharedMemory(SharedMemory):
+    """Shared memory where /dev/shm is full: making a block fails (posix_fallocate's ENOSPC)."""
+
+    def __init__(self, name=None, create=False, size=0):
+        if create:
+            raise OSError(28, "No space left on device")
+        super().__init__(name, create, size)
+
+
 def test_where_no_shared_memory_can_be_had_results_go_whole_through_the_pipe(photos,
                                                                             monkeypatch):
-    class Full(SharedMemory):  # /dev/shm full: posix_fallocate's ENOSPC
-        def __init__(self, name=None, create=False, size=0):
-            if create:
-                raise OSError(28, "No space left on device")
-            super().__init__(name, create, size)
-
-    monkeypatch.setattr(shared_results, "SharedMemory", Full)
+    monkeypatch.setattr(shared_results, "SharedMemory", FullSharedMemory)
     folder, _ = photos
     job = Job(scene_from_dict(RAW_SCENE), 5, "numpy", bits=8, with_mask=False)
     specs = find_samples(folder, "trajectory", 1, 1).take()
