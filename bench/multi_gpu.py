@@ -15,7 +15,9 @@ written to the last), its summary saying what bounds it and what handing the sam
 driver cost, and the host's decode-plus-encode bound: from one core's codec times with 9
 decodes a sample (``disk_bound_samples_per_s``), and measured (``disk_bound_measured``: this
 checkout's codecs alone through one thread per core, each frame decoded once as a frame cache
-does, each sample's two images encoded).
+does, each sample's two images encoded). ``shared_memory_bytes``: the size of /dev/shm, where
+the workers' result blocks live (a small one sends samples through the pipes, which the
+summary's hand-off line counts).
 
 Copy bound (Warp): one process per GPU copying pinned host memory to and from its GPU at
 once; the host's aggregate rate bounds the memory runs (a sample moves 62 MB in and 55 MB out).
@@ -34,6 +36,7 @@ import json
 import multiprocessing
 import os
 import platform
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -163,6 +166,17 @@ def from_disk(backend: str, gpus: int, root: Path, out: Path, samples: int, core
     return {"gpus": gpus, **run, "digest": generate_gpu.set_digest(out)}
 
 
+def shared_memory_bytes() -> int | None:
+    """The size of /dev/shm, where --devices' result blocks live (Linux), or None.
+
+    A small one (a container's 64 MB) sends the samples through the workers' pipes.
+    """
+    try:
+        return shutil.disk_usage("/dev/shm").total
+    except OSError:
+        return None
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--backend", default="warp", help="warp or opencl: one process per GPU "
@@ -185,7 +199,10 @@ def main(argv=None) -> int:
     cores = len(os.sched_getaffinity(0))
     result = {"what": __doc__.split("\n\n")[0], "backend": args.backend, "cores": cores,
               "cpu": platform.processor() or platform.machine(), "image": [W, H],
-              "frames": FRAMES, "png": args.png, "memory": [], "disk": []}
+              "frames": FRAMES, "png": args.png, "memory": [], "disk": [],
+              "shared_memory_bytes": shared_memory_bytes()}
+    if result["shared_memory_bytes"] is not None:
+        print(f"/dev/shm: {result['shared_memory_bytes'] / 1e9:.2f} GB", flush=True)
     result["devices"] = [get_backend(device_spec(args.backend, g)).device
                          for g in range(max(counts))]
     kinds = [k for k in ("pageable", "pinned") if k in args.memory.split(",")]
