@@ -134,6 +134,7 @@ def main(argv=None) -> int:
                         "python or a path)")
     args = p.parse_args(argv)
     command = given = args.command[1:] if args.command[:1] == ["--"] else args.command
+    returncode = 0
     if args.raw:
         raw = Path(args.raw).read_text().splitlines()
     else:
@@ -152,12 +153,14 @@ def main(argv=None) -> int:
             if not out.exists():
                 raise SystemExit(f"py-spy wrote nothing (exit {done.returncode})")
             raw = out.read_text().splitlines()
+            returncode = done.returncode  # py-spy's own: it does not pass on the command's
     rows = summarize(raw, args.rate, args.top)
     print(render(rows))
     if args.json:
         Path(args.json).write_text(json.dumps({"command": given, "rate": args.rate,
-                                               "rows": rows}, indent=1) + "\n")
-    return 0
+                                               "returncode": returncode, "rows": rows},
+                                              indent=1) + "\n")
+    return returncode
 
 
 if __name__ == "__main__":
