@@ -251,7 +251,7 @@ class PoolTimes:
 
     def _add_handoff(self, figures: dict) -> None:  # with the lock held
         for key, value in figures.items():
-            self.handoff[key] = self.handoff.get(key, 0) + value
+            self.handoff[key] += value
 
     def __getstate__(self) -> dict:
         with self._lock:
@@ -295,7 +295,7 @@ class PoolTimes:
                 f"({h['packing'] * each:.1f} ms a sample) handing results over, the driver's "
                 f"thread {h['receiving']:.2f} s ({h['receiving'] * each:.1f} ms a sample) "
                 f"taking them and {h['waiting']:.2f} s waiting for the workers")
-        piped = h.get("piped", 0)
+        piped = h["piped"]
         if piped:  # slower: pickled through a pipe into the driver's one thread
             line += (f"; {piped} of {h['samples']} samples came through the workers' pipes, "
                      "no shared memory being had (a full or small /dev/shm? `df -h /dev/shm`; "
