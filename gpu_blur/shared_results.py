@@ -31,35 +31,45 @@ tracker, which keeps a set of names: a worker's attach re-registers the driver's
 the one unlink (which unregisters it) leaves the tracker nothing to clean or warn about.
 Nothing here unregisters a name twice (the tracker would print a KeyError).
 
-Portability: only :mod:`multiprocessing.shared_memory`, no /dev/shm path. On Windows a block
+Portability: :mod:`multiprocessing.shared_memory`, no /dev/shm path. On Windows a block
 lives while a handle to it is open: the driver holds one until it unlinks. Where
 ``os.posix_fallocate`` exists (Linux) a block's pages are allocated as it is made, so a /dev/shm
-too small for it (a container's 64 MB default) is refused there, not met as SIGBUS in the worker
-writing to it; refused, a worker sends its samples through the pipe, as before.
+too small for it (a Docker container's is 64 MB unless ``--shm-size`` says more) is refused
+there, not met as SIGBUS in the worker writing to it. Refused, the driver makes the block as an
+anonymous file instead where the system has ``memfd_create`` (Linux, :class:`MemfdBlock`: no
+name, its descriptor passed to the worker through the pipe, gone with the last descriptor, so
+nothing to unlink, and its pages count against memory, not /dev/shm); where that fails too, a
+worker sends its samples through the pipe, as before (slower: the summary counts them).
 
 Messages, besides those of :mod:`gpu_blur.distributed`:
 
 * worker to driver: ``(ASK, (bytes, retired))``: a block of at least ``bytes``, the worker
   giving back ``retired`` (one too small; None for none);
 * driver to worker: ``(GRANT, (name, bytes))``, or ``(GRANT, (None, why))`` when no block can be
-  made; ``(FREE, name)``: the driver has copied the sample out of block ``name``.
+  made; a :class:`MemfdBlock`'s grant is followed at once by its file descriptor
+  (:func:`multiprocessing.reduction.send_handle`); ``(FREE, name)``: the driver has copied
+  the sample out of block ``name``.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import itertools
+import mmap
 import os
+import sys
 import weakref
 from collections.abc import Callable
+from multiprocessing import reduction
 from multiprocessing.shared_memory import SharedMemory
 
 import numpy as np
 
 from gpu_blur import notices
 
-__all__ = ["ALIGN", "ASK", "BLOCKS_PER_WORKER", "FIELDS", "FREE", "GRAIN", "GRANT", "Blocks",
-           "Layout", "Outbox", "send"]
+__all__ = ["ALIGN", "ASK", "BLOCKS_PER_WORKER", "FIELDS", "FREE", "GRAIN", "GRANT", "MEMFD",
+           "Blocks", "Layout", "MemfdBlock", "Outbox", "send"]
 
 ASK, GRANT, FREE = "block?", "block", "free"
 #: Blocks a worker may hold: one the driver copies a sample out of while the worker writes the
@@ -72,6 +82,60 @@ FIELDS = ("blurred", "sharp", "_mask", "_raw")
 ALIGN = 64
 #: Bytes a block's size is a multiple of.
 GRAIN = 1 << 16
+#: Whether a block /dev/shm has no room for may be an anonymous file (:class:`MemfdBlock`):
+#: Linux, whose pipes between processes are sockets that can pass a file descriptor.
+MEMFD = sys.platform == "linux" and hasattr(os, "memfd_create")
+
+
+class MemfdBlock:
+    """A block of shared memory in an anonymous file (``memfd_create``), where /dev/shm is full.
+
+    It has a name only for the messages (``memfd-<pid>-<n>``): the driver sends the worker its
+    file descriptor through the pipe, and the memory is freed once every descriptor and mapping
+    of it is closed, by whichever process ends last. Its pages are taken when it is made
+    (``posix_fallocate``), so a host without the memory says so then. The attributes the
+    module uses of a :class:`SharedMemory`: ``name``, ``buf``, :meth:`close`, :meth:`unlink`.
+    """
+
+    _made = itertools.count()
+
+    def __init__(self, fd: int, size: int, name: str):
+        self.name, self.size, self._fd = name, size, fd
+        self._mmap = mmap.mmap(fd, size)
+        self.buf: memoryview | None = memoryview(self._mmap)
+
+    @classmethod
+    def create(cls, size: int) -> MemfdBlock:
+        """A new block of ``size`` bytes, its pages taken. OSError where there is no room."""
+        fd = os.memfd_create("gpu-blur-results", os.MFD_CLOEXEC)
+        try:
+            os.ftruncate(fd, size)
+            os.posix_fallocate(fd, 0, size)
+            return cls(fd, size, f"memfd-{os.getpid()}-{next(cls._made)}")
+        except BaseException:
+            os.close(fd)
+            raise
+
+    @staticmethod
+    def named(name: str) -> bool:
+        """Whether a granted block's ``name`` is a MemfdBlock's (its descriptor follows)."""
+        return name.startswith("memfd-")
+
+    def fileno(self) -> int:
+        """Its file descriptor."""
+        return self._fd
+
+    def close(self) -> None:
+        """Unmap it and close its descriptor; BufferError while arrays over it live."""
+        if self.buf is None:
+            return
+        self.buf.release()  # BufferError if any array still uses it: nothing closed
+        self.buf = None
+        self._mmap.close()
+        os.close(self._fd)
+
+    def unlink(self) -> None:
+        """Nothing: an anonymous file goes with its last descriptor."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,7 +258,10 @@ class Outbox:
             self.refused = detail
             return None
         try:
-            block = SharedMemory(name)
+            if MemfdBlock.named(name):  # its descriptor comes right after the grant
+                block = MemfdBlock(reduction.recv_handle(self._conn), detail, name)
+            else:
+                block = SharedMemory(name)
         except OSError as e:  # the driver unlinks it at the end
             self.refused = f"cannot open shared memory block {name}: {e}"
             return None
@@ -235,10 +302,12 @@ class Blocks:
     """
 
     def __init__(self):
-        self._made: dict[str, SharedMemory] = {}
+        self._made: dict[str, SharedMemory | MemfdBlock] = {}
         self._finalizer = weakref.finalize(self, _unlink_all, self._made)
         #: Why a block could not be made (the workers then use the pipe), or None.
         self.refused: str | None = None
+        #: Why /dev/shm refused a block (later ones are anonymous files), or None.
+        self.shm_refused: str | None = None
 
     def __len__(self) -> int:
         """Blocks made and not yet unlinked."""
@@ -264,8 +333,28 @@ class Blocks:
             reply = (block.name, need)
         with contextlib.suppress(EOFError):
             send(conn, (GRANT, reply))
+            if reply[0] is not None and isinstance(block, MemfdBlock):
+                try:
+                    reduction.send_handle(conn, block.fileno(), None)
+                except OSError:  # the worker is gone: its next message says so
+                    pass
 
-    def _make(self, size: int) -> SharedMemory:
+    def _make(self, size: int) -> SharedMemory | MemfdBlock:
+        if self.shm_refused is None:
+            try:
+                return self._make_shm(size)
+            except (OSError, ValueError) as e:
+                if not MEMFD:
+                    raise
+                self.shm_refused = f"{type(e).__name__}: {e}"
+                if notices.verbosity() >= notices.NORMAL:
+                    notices.say(f"--devices: /dev/shm has no room for results "
+                                f"({self.shm_refused}); anonymous shared memory instead")
+        block = MemfdBlock.create(size)
+        self._made[block.name] = block
+        return block
+
+    def _make_shm(self, size: int) -> SharedMemory:
         block = SharedMemory(create=True, size=size)
         self._made[block.name] = block
         fd = getattr(block, "_fd", -1)  # POSIX: the shm_open descriptor

@@ -173,18 +173,23 @@ def test_a_devices_run_s_summary_counts_its_workers_decoding(tmp_path, photos, m
         r"and [\d.]+ s waiting for the workers", handoff), handoff
 
 
-def test_a_devices_run_whose_shared_memory_is_refused_says_its_samples_came_through_pipes(
-        tmp_path, photos, monkeypatch, capsys, reference):
+@pytest.mark.parametrize("memfd", [True, False], ids=["anonymous-file", "no-anonymous-file"])
+def test_a_devices_run_with_a_full_dev_shm_writes_the_serial_set_and_says_how_it_went(
+        tmp_path, photos, monkeypatch, capsys, reference, memfd):
+    if memfd and not shared_results.MEMFD:
+        pytest.skip("anonymous files: Linux")
     monkeypatch.setattr(shared_results, "SharedMemory", FullSharedMemory)  # the driver's
+    monkeypatch.setattr(shared_results, "MEMFD", memfd)
     out = tmp_path / "out"
     assert main(args(photos, out, "--devices", "numpy,numpy")) == 1  # c.png's samples fail
     assert_same_set(out, reference("numpy"))
     handoff = next(line for line in capsys.readouterr().out.splitlines()
                    if line.startswith("hand-off"))
-    # the 4 made samples, of the 6 taken (the 2 failed ones are small messages anyway)
-    assert handoff.endswith("; 4 of 6 samples came through the workers' pipes, no shared "
-                            "memory being had (a full or small /dev/shm? `df -h /dev/shm`; "
-                            "in Docker, `--shm-size`)"), handoff
+    # in anonymous files, nothing through the pipes; else the 4 made samples, of the 6 taken
+    # (the 2 failed ones are small messages anyway)
+    piped = ("; 4 of 6 samples came through the workers' pipes, no shared memory being had "
+             "(a full or small /dev/shm? `df -h /dev/shm`; in Docker, `--shm-size`)")
+    assert handoff.endswith(piped) != memfd, handoff
 
 
 def test_a_devices_run_times_both_sides_of_handing_each_sample_to_the_driver(
@@ -468,9 +473,27 @@ class FullSharedMemory(SharedMemory):
         super().__init__(name, create, size)
 
 
+@pytest.mark.skipif(not shared_results.MEMFD, reason="anonymous files: Linux")
+def test_where_dev_shm_is_full_results_go_through_anonymous_shared_memory_and_leave_nothing(
+        photos, monkeypatch):
+    monkeypatch.setattr(shared_results, "SharedMemory", FullSharedMemory)
+    folder, _ = photos
+    job = Job(scene_from_dict(RAW_SCENE), 5, "numpy", bits=8, with_mask=False)
+    specs = find_samples(folder, "trajectory", 1, 1).take()
+    made = [for_driver(job, result) for _, result, _ in run_serial(job, specs)]
+    descriptors = len(os.listdir("/proc/self/fd"))
+    got, in_use = handed_over(made)
+    assert in_use == 2  # the two blocks, anonymous files passed to the worker's side
+    for g, want in zip(got, made, strict=True):
+        assert_same_result(g, want)
+    del got  # the arrays were copied out; every descriptor of the blocks is closed
+    assert len(os.listdir("/proc/self/fd")) == descriptors
+
+
 def test_where_no_shared_memory_can_be_had_results_go_whole_through_the_pipe(photos,
                                                                             monkeypatch):
     monkeypatch.setattr(shared_results, "SharedMemory", FullSharedMemory)
+    monkeypatch.setattr(shared_results, "MEMFD", False)  # nor an anonymous file
     folder, _ = photos
     job = Job(scene_from_dict(RAW_SCENE), 5, "numpy", bits=8, with_mask=False)
     specs = find_samples(folder, "trajectory", 1, 1).take()
