@@ -100,9 +100,15 @@ class MemfdBlock:
     _made = itertools.count()
 
     def __init__(self, fd: int, size: int, name: str):
+        """Map ``fd``, which the block owns from now on (closed here if it cannot be mapped)."""
         self.name, self.size, self._fd = name, size, fd
-        self._mmap = mmap.mmap(fd, size)
-        self.buf: memoryview | None = memoryview(self._mmap)
+        self.buf: memoryview | None = None
+        try:
+            self._mmap = mmap.mmap(fd, size)
+        except BaseException:
+            os.close(fd)
+            raise
+        self.buf = memoryview(self._mmap)
 
     @classmethod
     def create(cls, size: int) -> MemfdBlock:
@@ -111,10 +117,10 @@ class MemfdBlock:
         try:
             os.ftruncate(fd, size)
             os.posix_fallocate(fd, 0, size)
-            return cls(fd, size, f"memfd-{os.getpid()}-{next(cls._made)}")
         except BaseException:
             os.close(fd)
             raise
+        return cls(fd, size, f"memfd-{os.getpid()}-{next(cls._made)}")
 
     @staticmethod
     def named(name: str) -> bool:
@@ -136,6 +142,10 @@ class MemfdBlock:
 
     def unlink(self) -> None:
         """Nothing: an anonymous file goes with its last descriptor."""
+
+    def __del__(self):  # as SharedMemory's: a block dropped on an error path is closed too
+        with contextlib.suppress(BufferError, OSError, AttributeError):
+            self.close()
 
 
 @dataclasses.dataclass(frozen=True)
