@@ -16,8 +16,9 @@ docs/performance.md, "PNG codecs"):
     ``fast`` file (16-bit noise, where libpng finds little more); so never the larger.
   - ``stored``: the rows unfiltered in stored deflate blocks (:func:`stored_zlib`): no
     compression, so files the size of the raw codes (on noisy 8-bit images 1.7 times
-    ``fast``'s), but written in a few ms and read back as fast (what a data loader decodes
-    too). For hosts whose encoders bound.
+    ``fast``'s), but a core writes them in a few ms and reads them back as fast (what a data
+    loader decodes too). Whether that makes a run faster depends on the host's memory and
+    disk: on an H100 host ``generate`` ran slower with it (docs/performance.md).
 
 * reading (:func:`decode_png`): files whose rows are filtered with None, Sub or Up only (as
   OpenCV's default and ``fast`` write them) are inflated by libdeflate (``deflate``), else by

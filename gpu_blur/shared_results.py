@@ -331,6 +331,7 @@ class Blocks:
         """
         if retired is not None:
             _unlink(self._made.pop(retired, None))
+        handle = None  # an anonymous block's descriptor, sent after the grant
         try:
             block = self._make(need)
         except (OSError, ValueError) as e:
@@ -341,11 +342,13 @@ class Blocks:
             self.refused = reply[1]
         else:
             reply = (block.name, need)
+            if isinstance(block, MemfdBlock):
+                handle = block.fileno()
         with contextlib.suppress(EOFError):
             send(conn, (GRANT, reply))
-            if reply[0] is not None and isinstance(block, MemfdBlock):
+            if handle is not None:
                 try:
-                    reduction.send_handle(conn, block.fileno(), None)
+                    reduction.send_handle(conn, handle, None)
                 except OSError:  # the worker is gone: its next message says so
                     pass
 
