@@ -5,13 +5,16 @@ Its inputs are found by :mod:`gpu_blur.discovery`.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import io
 import json
 import math
+import os
 import re
 import stat
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -26,8 +29,9 @@ from gpu_blur.params import ARRAY_PARAMS
 from gpu_blur.png_codecs import DEFAULT_PNG_MODE
 from gpu_blur.run_record import check_run, jsonable
 
-__all__ = ["ARRAY_CONVENTIONS", "DatasetWriter", "EXTRAS", "LOCK", "NAME_BYTES", "PATHS",
-           "SAVED_ARRAYS", "SUBFOLDERS", "arrays_bytes", "save_arrays"]
+__all__ = ["ARRAY_CONVENTIONS", "DatasetWriter", "EXTRAS", "FolderWrites", "LOCK", "NAME_BYTES",
+           "PATHS", "SAVED_ARRAYS", "SUBFOLDERS", "SampleFiles", "arrays_bytes", "sample_record",
+           "save_arrays"]
 
 #: The lock file a run holds (:mod:`gpu_blur.locking`) while it writes its output folder; a run
 #: that closes its set removes it (:meth:`DatasetWriter.close`).
@@ -208,6 +212,111 @@ def _sample_files(out: Path, earlier) -> list[Path]:
     return ours
 
 
+def sample_record(record: dict, result) -> dict:
+    """The run's fields of a made sample's manifest line: ``record``, with the device model
+    that made the sample (``result.device``, where the backend names one)."""
+    return {**record, "device": result.device or record["device"]}
+
+
+@dataclasses.dataclass(frozen=True)
+class SampleFiles:
+    """A made sample's files and manifest line, as any process encodes them (picklable).
+
+    ``out``, ``bits``, ``png``, ``extras``: the set's (:class:`DatasetWriter`'s); ``pid``: the
+    process whose id the temporary files bear, the writer's (the one its lock file records).
+    """
+
+    out: Path
+    bits: int
+    png: str
+    extras: tuple[str, ...]
+    pid: int
+
+    def encode(self, spec: SampleSpec, result, record: dict,
+               paths: dict[str, str]) -> tuple[dict, dict[str, bytes]]:
+        """A sample's manifest line and its files' bytes, keyed as the line names them.
+
+        ``paths``: where its files go (:func:`_paths`, or a container's names). The line
+        holds, besides ``record``, how many tiles the sample ran in and how many of them were
+        spot-checked (``spot_check`` "passed", or "none" when no tile was checked: a failed
+        check fails the sample), the stages that ran and why each other one did not
+        (``skipped``); its arrays' file holds each array's convention. With :attr:`extras`,
+        the sample's saturation mask (``mask``: a 16-bit PNG, codes ``round(m * 65535)``) and
+        RAW mosaic (``raw``: a 16-bit DNG, and ``raw_info``, its
+        :func:`gpu_blur.outputs.raw_metadata`) are written too, cropped like the pair.
+        """
+        data = {key: encode_image(image, self.bits, str(self.out / paths[key]), self.png)
+                for key, image in (("blurred", result.blurred), ("sharp", result.sharp))}
+        arrays = {k: result.params[k] for k in SAVED_ARRAYS if k in result.params}
+        line = {
+            "index": spec.index,
+            "name": spec.name,
+            **_inputs(spec),
+            "blurred": paths["blurred"],
+            "sharp": paths["sharp"],
+            **record,
+            "tiles": result.tiles,
+            "spot_checked_tiles": result.spot_checks,
+            "spot_check": "passed" if result.spot_checks else "none",
+            "status": "ok",
+            "params": {k: jsonable(v) for k, v in result.params.items() if k not in arrays},
+            "stages": [s.name for s in result.plan.stages if s.kept],
+            "skipped": {s.name: s.reason for s in result.plan.stages if not s.kept},
+        }
+        if arrays:
+            data["arrays"] = arrays_bytes(arrays | {
+                f"{k}_convention": ARRAY_CONVENTIONS[k] for k in arrays})
+            line["arrays"] = paths["arrays"]
+        if "mask" in self.extras:  # as gpu_blur.outputs.write_mask writes it
+            data["mask"] = encode_image(result.mask, 16, str(self.out / paths["mask"]),
+                                         self.png)
+            line["mask"] = paths["mask"]
+        if "raw" in self.extras:
+            data["raw"] = dng_bytes(result.raw, result.raw_info)
+            line["raw"] = paths["raw"]
+            line["raw_info"] = result.raw_info
+        # what a resume checks the files against (a file cut by a crash is made again)
+        line["bytes"] = {k: len(data[k]) for k in PATHS if k in line}
+        return line, data
+
+    def store(self, line: dict, data: dict[str, bytes],
+              check: Callable[[Path], None] | None = None) -> None:
+        """Put a sample's encoded files where ``line`` names them (threads may call at once).
+
+        ``check``: as :func:`~gpu_blur.file_writing.write_whole`'s, before each rename.
+        """
+        for key, blob in data.items():
+            path = self.out / line[key]
+            path.parent.mkdir(exist_ok=True)
+            write_whole(path, blob, check, self.pid)
+
+    def temporaries(self, spec: SampleSpec) -> list[Path]:
+        """Every temporary file a write of ``spec``'s files may leave (those it names)."""
+        return [temporary_path(self.out / path, self.pid)
+                for path in _paths(spec.index, spec.name, self.bits).values()]
+
+
+@dataclasses.dataclass(frozen=True)
+class FolderWrites:
+    """How another process writes the samples it makes into a set of files (picklable).
+
+    ``--devices`` workers do (:func:`gpu_blur.distributed.run_devices`), so a sample's
+    images never cross to the driver, which writes only the manifest lines they send.
+    ``record``: the run's part of each line (:func:`sample_record`).
+    """
+
+    files: SampleFiles
+    record: dict
+
+    def write(self, spec: SampleSpec, result,
+              check: Callable[[Path], None] | None = None) -> dict:
+        """Write a made sample's files as :meth:`DatasetWriter.save` does; its line back."""
+        line, data = self.files.encode(spec, result, sample_record(self.record, result),
+                                       _paths(spec.index, spec.name, self.files.bits))
+        self.files.store(line, data, check)
+        return line
+
+
 class DatasetWriter:
     """Writes ``blur/`` and ``sharp/`` PNGs, array parameters, ``manifest.jsonl`` and ``run.json``.
 
@@ -266,6 +375,10 @@ class DatasetWriter:
         OSError: naming the folder when it cannot be created or written.
     """
 
+    #: Whether each sample is files of its own in the set's folders, which any process may
+    #: write (:meth:`folder_writes`); a container format's writer says no.
+    FILES_ANY_PROCESS = True
+
     def __init__(self, out: Path, bits: int, run: dict | None = None, *,
                  overwrite: bool = False, resume: bool = False,
                  specs: list[SampleSpec] | None = None, total: int | None = None,
@@ -279,6 +392,7 @@ class DatasetWriter:
             raise ValueError("--overwrite and --resume exclude each other: --resume finishes "
                              "an interrupted set, --overwrite starts it again")
         self.out, self.bits, self.png = out, bits, png
+        self.files = SampleFiles(out, bits, png, self.extras, os.getpid())
         self.manifest_path = out / MANIFEST
         self.done: dict[int, dict] = {}
         self.retry = 0  # failed samples whose lines were dropped, to be tried again
@@ -410,10 +524,7 @@ class DatasetWriter:
 
     def _store(self, line: dict, data: dict[str, bytes]) -> None:
         """Put a sample's encoded files where ``line`` names them (threads may call at once)."""
-        for key, blob in data.items():
-            path = self.out / line[key]
-            path.parent.mkdir(exist_ok=True)
-            write_whole(path, blob)
+        self.files.store(line, data)
 
     def _make_folders(self) -> None:
         try:
@@ -545,53 +656,26 @@ class DatasetWriter:
     def save(self, spec: SampleSpec, result, record: dict) -> dict:
         """Write one sample's files; returns its manifest line, for :meth:`add` to write.
 
-        The line holds, besides ``record``, how many tiles the sample ran in and how many of
-        them were spot-checked (``spot_check`` "passed", or "none" when no tile was checked:
-        a failed check fails the sample), the stages that ran and why each other one did not
-        (``skipped``); its arrays' file holds each array's convention.
-        With :attr:`extras`, the sample's saturation mask (``mask``: a 16-bit PNG, codes
-        ``round(m * 65535)``) and RAW mosaic (``raw``: a 16-bit DNG, and ``raw_info``, its
-        :func:`gpu_blur.outputs.raw_metadata`) are written too, cropped like the pair.
-        Threads may save different samples at once (each file has its own temporary name);
-        only :meth:`add` and :meth:`fail` touch the manifest, from one thread. The files are
-        encoded first, then stored (:meth:`_store`: files here, a container in
-        :mod:`gpu_blur.set_formats`), so every format holds the same bytes.
+        The files and line are :meth:`SampleFiles.encode`'s; threads may save different
+        samples at once (each file has its own temporary name); only :meth:`add` and
+        :meth:`fail` touch the manifest, from one thread. The files are encoded first, then
+        stored (:meth:`_store`: files here, a container in :mod:`gpu_blur.set_formats`), so
+        every format holds the same bytes.
         """
-        paths = self._names(spec.index, spec.name)
-        data = {key: encode_image(image, self.bits, str(self.out / paths[key]), self.png)
-                for key, image in (("blurred", result.blurred), ("sharp", result.sharp))}
-        arrays = {k: result.params[k] for k in SAVED_ARRAYS if k in result.params}
-        line = {
-            "index": spec.index,
-            "name": spec.name,
-            **_inputs(spec),
-            "blurred": paths["blurred"],
-            "sharp": paths["sharp"],
-            **record,
-            "tiles": result.tiles,
-            "spot_checked_tiles": result.spot_checks,
-            "spot_check": "passed" if result.spot_checks else "none",
-            "status": "ok",
-            "params": {k: jsonable(v) for k, v in result.params.items() if k not in arrays},
-            "stages": [s.name for s in result.plan.stages if s.kept],
-            "skipped": {s.name: s.reason for s in result.plan.stages if not s.kept},
-        }
-        if arrays:
-            data["arrays"] = arrays_bytes(arrays | {
-                f"{k}_convention": ARRAY_CONVENTIONS[k] for k in arrays})
-            line["arrays"] = paths["arrays"]
-        if "mask" in self.extras:  # as gpu_blur.outputs.write_mask writes it
-            data["mask"] = encode_image(result.mask, 16, str(self.out / paths["mask"]),
-                                         self.png)
-            line["mask"] = paths["mask"]
-        if "raw" in self.extras:
-            data["raw"] = dng_bytes(result.raw, result.raw_info)
-            line["raw"] = paths["raw"]
-            line["raw_info"] = result.raw_info
-        # what a resume checks the files against (a file cut by a crash is made again)
-        line["bytes"] = {k: len(data[k]) for k in PATHS if k in line}
+        line, data = self.files.encode(spec, result, record,
+                                       self._names(spec.index, spec.name))
         self._store(line, data)
         return line
+
+    def folder_writes(self, record: dict) -> FolderWrites | None:
+        """What lets other processes write made samples into this set, or None.
+
+        A set of files (PNG format): each sample's files are written under their own names,
+        so a ``--devices`` worker can write the samples it makes (``record`` is the run's
+        part of each line, :func:`sample_record`). A container format stores through this
+        writer alone: None.
+        """
+        return FolderWrites(self.files, record) if self.FILES_ANY_PROCESS else None
 
     def add(self, line: dict) -> dict:
         """Write the manifest line of a sample :meth:`save` wrote; returns it."""

@@ -38,10 +38,14 @@ from multiprocessing.connection import wait
 
 from gpu_blur import caches, testhooks
 from gpu_blur.backends import usable_devices
+from gpu_blur.dataset import FolderWrites
 from gpu_blur.discovery import SampleSpec
 from gpu_blur.frame_cache import CacheCounts, FrameCache
 from gpu_blur.generate import (
+    QUEUE_PER_THREAD,
     Job,
+    Saved,
+    WriteBehind,
     default_io_threads,
     for_driver,
     make_sample,
@@ -188,7 +192,8 @@ def _children_skip_cwd():
 
 
 def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | None = None,
-                   shared: bool = False, cache_bytes: int = 0) -> None:
+                   shared: bool = False, cache_bytes: int = 0,
+                   writes: FolderWrites | None = None) -> None:
     """A device worker process: open the device, then make each sample the driver sends.
 
     With ``threads`` > 1 the worker runs the one-device pipeline
@@ -198,11 +203,14 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
     :data:`gpu_blur.generate.BATCH`; the samples are made and sent in the order they came.
     ``cache_bytes`` > 0: the files are decoded through a frame cache of that many bytes of
     this worker's own (:class:`~gpu_blur.frame_cache.FrameCache`), so windows of a sequence
-    that overlap decode a frame once.
+    that overlap decode a frame once. With ``writes`` the worker writes each made sample's
+    files itself, in the same threads (:class:`~gpu_blur.generate.WriteBehind`, as a run on
+    one device does), and sends the driver only the manifest line.
 
     Messages to the driver: ``("open", device description)`` or ``("error", why)`` first,
     then per sample ``("sample", (spec, result, error, layout, counts, times))`` (``result``
-    as :func:`~gpu_blur.generate.for_driver` leaves it; with ``shared`` its arrays are in
+    as :func:`~gpu_blur.generate.for_driver` leaves it, or with ``writes`` a
+    :class:`~gpu_blur.generate.Saved`; with ``shared`` its arrays are in
     the shared-memory block ``layout`` names, :class:`gpu_blur.shared_results.Outbox`, else
     ``layout`` is None; ``counts``: the frame cache's counts since the last message, or None;
     ``times``: the decoding threads' :class:`~gpu_blur.timings.PoolTimes` so far, with the
@@ -259,25 +267,53 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
         return True
 
     counted = CacheCounts(0, 0, 0)  # the frame cache's counts sent so far
+
+    def sent(spec, result, error, layout=None) -> None:
+        nonlocal counted
+        counts = None
+        if cache is not None:  # what the driver's summary has not counted yet
+            now = cache.counts()
+            counts, counted = now - counted, now
+        send(conn, ("sample", (spec, result, error, layout, counts, times)))
+
+    behind = (WriteBehind(functools.partial(_write_made, writes, driver), pool,
+                          QUEUE_PER_THREAD * threads, times) if writes is not None else None)
+
+    def written(waiting: Iterator[tuple]) -> None:
+        """Send the samples ``behind`` hands back written, timing this thread's wait."""
+        start = time.perf_counter()
+        for spec, error, saved in waiting:
+            times.waited_for_writes += time.perf_counter() - start
+            sent(spec, saved, error)
+            start = time.perf_counter()
+        times.waited_for_writes += time.perf_counter() - start
+
+    def more() -> bool:
+        """Wait for the driver's next sample; False once it closed its end."""
+        if behind is not None:  # it sends one for each it gets: those written go first
+            written(behind.drain())
+        return receive(True) and bool(arrived)
+
     try:
         if pool is not None:  # this device's one-device pipeline (batches, staging on a GPU)
             samples = run_pipelined(job, _Arrived(arrived, receive), pool, times,
                                     worker_depth(threads), cache, pinned_staging(job),
-                                    more=lambda: receive(True) and bool(arrived))
+                                    more=more)
         else:
-            samples = run_serial(job, iter(lambda: arrived.popleft() if receive(True)
-                                           and arrived else None, None), cache)
+            samples = run_serial(job, iter(lambda: arrived.popleft() if more() else None,
+                                           None), cache)
         for spec, result, error in samples:
+            if behind is not None:  # its files written here: the line goes to the driver
+                written(behind.put(spec, result, error))
+                continue
             start = time.perf_counter()
             result, layout = for_driver(job, result), None
             if outbox is not None:
                 result, layout = outbox.pack(result)
             times.add_handoff(packing=time.perf_counter() - start)
-            counts = None
-            if cache is not None:  # what the driver's summary has not counted yet
-                now = cache.counts()
-                counts, counted = now - counted, now
-            send(conn, ("sample", (spec, result, error, layout, counts, times)))
+            sent(spec, result, error, layout)
+        if behind is not None:
+            written(behind.drain())
     except EOFError:  # the driver closed its end (or was killed): the run is over
         return
     except Exception:  # no fault of a sample (make_sample returns those): a bug, reported
@@ -288,6 +324,22 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
             outbox.close()
         if pool is not None:
             pool.shutdown(cancel_futures=True)
+
+
+def _write_made(writes: FolderWrites, driver: int, spec: SampleSpec, result) -> Saved:
+    """A made sample's files, written in a worker (an I/O thread); what the driver gets.
+
+    Each file is renamed into place only while ``driver`` is this process's parent: a worker
+    whose driver was killed (which released the folder's lock) leaves no file behind it.
+    """
+    def driver_alive(_temporary) -> None:
+        if os.getppid() != driver:
+            raise OSError("the driver process is gone: the folder is no longer this run's")
+
+    try:
+        return Saved(writes.write(spec, result, driver_alive), result.timings)
+    except OSError as e:  # a full disk, a folder gone: the driver stops the run with it
+        return Saved(None, result.timings, e)
 
 
 class _Arrived:
@@ -309,9 +361,15 @@ class _Arrived:
         return self._arrived.popleft()
 
 
-def worker_depth(threads: int) -> int:
-    """Samples sent ahead to a device worker with ``threads`` decoding threads."""
-    return DEVICE_DEPTH + (2 * threads if threads > 1 else 0)
+def worker_depth(threads: int, writing: bool = False) -> int:
+    """Samples sent ahead to a device worker with ``threads`` I/O threads.
+
+    ``writing``: the worker writes its samples' files (``writes``): in threads, up to
+    :data:`~gpu_blur.generate.QUEUE_PER_THREAD` a thread wait behind the one it makes.
+    """
+    if threads == 1:  # it decodes, makes and writes in turn
+        return DEVICE_DEPTH
+    return DEVICE_DEPTH + 2 * threads + (QUEUE_PER_THREAD * threads if writing else 0)
 
 
 #: Signals a device worker ignores: Ctrl-C and a closed terminal, which the driver handles.
@@ -352,7 +410,8 @@ def _exit_without(driver: int, held: list | None = None) -> None:
 
 def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str],
                 frame_cache: FrameCache | None = None,
-                pool_times: PoolTimes | None = None) -> Iterator[tuple]:
+                pool_times: PoolTimes | None = None, writes: FolderWrites | None = None,
+                io_threads: int | None = None) -> Iterator[tuple]:
     """Make the samples in one worker process per entry of ``devices``, yielding as they finish.
 
     Workers are started with ``spawn`` (OpenCL and CUDA contexts do not survive a fork),
@@ -365,16 +424,21 @@ def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str],
     threads, their work and waits are added to ``pool_times`` when the run ends, with what
     handing the samples to this thread cost both sides (``PoolTimes.handoff``).
 
-    The host's threads: each worker decodes the inputs of the samples sent ahead to it in
-    ``default_io_threads() // len(devices)`` threads (at least one), so the workers together
-    decode in about as many threads as the host has cores (at most 32), besides their main
-    threads (which drive the devices); the driver encodes and writes the files in its own
-    pool (``--io-threads``, as many again). The two pools take turns on each sample's cores
-    (OpenCV, zlib and file I/O release the GIL), decoding where the frames are needed and
-    writing where the folder is owned.
+    With ``writes`` (a set of files, :meth:`gpu_blur.dataset.DatasetWriter.folder_writes`)
+    each worker writes the files of the samples it makes, as a run on one device does, and
+    yields ``(spec, Saved, error)``: a sample's images never cross to the driver, which only
+    writes the manifest lines (on the H200 pair, handing 14 MB samples over took the
+    workers' making threads 7 ms and the driver's one thread 5 ms a sample, a ceiling of
+    about 200 samples/s however many GPUs). Each worker decodes and writes in
+    ``io_threads // len(devices)`` threads (default :func:`default_io_threads`, at least
+    one), so the workers together use about as many as the host has cores. Temporary files
+    bear the driver's process id (the one the folder's lock records); those of samples
+    still being made when the run stops are removed once the workers are gone.
 
-    A worker writes each result's arrays into shared memory and the driver copies them out
-    (:mod:`gpu_blur.shared_results`); every block is unlinked when the run ends, however it
+    Without ``writes`` each worker decodes in ``default_io_threads() // len(devices)``
+    threads, writes each result's arrays into shared memory and the driver copies them out
+    (:mod:`gpu_blur.shared_results`), to encode and store them itself (``--io-threads`` of
+    its own: a container format); every block is unlinked when the run ends, however it
     ends. A device that cannot be opened stops the run before any sample. When the run stops
     early (Ctrl-C, SIGTERM, an error, the caller closing this generator) the workers are
     terminated, not waited for; a worker whose driver dies exits by itself within
@@ -387,7 +451,8 @@ def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str],
     """
     if not devices:
         raise ValueError("run_devices needs at least one device")
-    return _device_results(job, list(specs), list(devices), frame_cache, pool_times)
+    return _device_results(job, list(specs), list(devices), frame_cache, pool_times, writes,
+                           io_threads)
 
 
 class _Runs:
@@ -421,7 +486,8 @@ class _Runs:
 
 def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
                     frame_cache: FrameCache | None = None,
-                    pool_times: PoolTimes | None = None):
+                    pool_times: PoolTimes | None = None, writes: FolderWrites | None = None,
+                    io_threads: int | None = None):
     if not todo:
         return
     runs = _Runs(todo, len(devices))
@@ -429,8 +495,11 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
     workers, conns = [], []
     blocks = Blocks()
     finished = False
-    threads = max(1, default_io_threads() // len(devices))  # each worker's decoding threads
-    depth = worker_depth(threads)
+    # each worker's I/O threads: decoding, and with writes writing too
+    threads = max(1, ((io_threads if writes is not None and io_threads else None)
+                      or default_io_threads()) // len(devices))
+    depth = worker_depth(threads, writes is not None)
+    queued: list[deque[SampleSpec]] = [deque() for _ in devices]
     share = frame_cache.budget // len(devices) if frame_cache is not None else 0
     try:
         cwd = os.getcwd()
@@ -438,7 +507,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
             conn, child = context.Pipe()
             worker = context.Process(target=_device_worker, daemon=True, args=(
                 dataclasses.replace(job, backend=device), os.getpid(), child, threads, cwd,
-                True, share))
+                writes is None, share, writes))
             with _children_skip_cwd(), _driver_signals_blocked():
                 worker.start()
             child.close()  # the worker's end is the worker's: its death closes the pipe
@@ -452,7 +521,6 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
                                    "opening the device") from None
             if kind != "open":
                 raise RuntimeError(f"--devices {device}: {value}")
-        queued: list[deque[SampleSpec]] = [deque() for _ in devices]
         # each worker's decoding threads as it last sent them, from the start: a worker sent
         # no sample has them too (with one thread, none: it decodes in turn)
         pools = [PoolTimes(threads if threads > 1 else 0) for _ in devices]
@@ -474,7 +542,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
                 feed(worker)
         # the driver's thread: waiting for the workers, and taking their results
         waiting = receiving = 0.0
-        taken = piped = 0
+        taken = piped = saved = 0
         while any(queued):
             start = time.perf_counter()
             ready = wait([c for c, q in zip(conns, queued, strict=True) if q])
@@ -504,6 +572,8 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
                 pools[worker] = times
                 if layout is not None:  # copied out of the block, which goes back
                     result = blocks.receive(conn, result, layout)
+                elif isinstance(result, Saved):  # its files written by the worker
+                    saved += 1
                 elif result is not None:  # whole through the pipe: no block to be had
                     piped += 1
                 if counts is not None and frame_cache is not None:
@@ -516,7 +586,7 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
             for times in pools:
                 pool_times.add(times)
             pool_times.add_handoff(receiving=receiving, waiting=waiting, samples=taken,
-                                   piped=piped)
+                                   piped=piped, written=saved)
         finished = True
     finally:
         for conn in conns:  # an idle worker ends when its pipe closes
@@ -526,6 +596,11 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
                 worker.terminate()
             worker.join()
         blocks.close()  # once no worker can attach any more
+        if writes is not None:  # what the stopped workers were writing: gone with them
+            for spec in (spec for sent in queued for spec in sent):
+                for temporary in writes.files.temporaries(spec):
+                    with contextlib.suppress(OSError):
+                        temporary.unlink(missing_ok=True)
 
 
 # -- Ray ------------------------------------------------------------------------------------

@@ -21,13 +21,16 @@ __all__ = ["encode_image", "temporary_path", "write_image", "write_new", "write_
            "write_whole"]
 
 
-def temporary_path(path: Path) -> Path:
+def temporary_path(path: Path, pid: int | None = None) -> Path:
     """Where ``path`` is written before it is renamed into place.
 
     ``.<name>.<pid>.part<suffix>`` beside it: the process id keeps two processes apart, the
-    suffix keeps the format. Written with :func:`write_new`.
+    suffix keeps the format. Written with :func:`write_new`. ``pid``: the process whose name
+    it bears, default this one's (a ``--devices`` worker writes under its driver's, the pid
+    the set's lock file records, so a later run knows a file it left for the driver's).
     """
-    return path.with_name(f".{path.name}.{os.getpid()}.part{path.suffix}")
+    return path.with_name(f".{path.name}.{os.getpid() if pid is None else pid}.part"
+                          f"{path.suffix}")
 
 
 def write_new(path: Path, data: bytes) -> Path:
@@ -49,14 +52,15 @@ def write_new(path: Path, data: bytes) -> Path:
     return path
 
 
-def write_whole(path: Path, data: bytes, check: Callable[[Path], None] | None = None) -> None:
+def write_whole(path: Path, data: bytes, check: Callable[[Path], None] | None = None,
+                pid: int | None = None) -> None:
     """``data`` as the file ``path``, which appears complete or not at all.
 
-    Written to :func:`temporary_path` (:func:`write_new`), then renamed onto ``path``; the
+    Written to :func:`temporary_path` (``pid`` as there), then renamed onto ``path``; the
     temporary file is removed on failure. ``check``: called with the temporary file before
     the rename; what it raises leaves ``path`` as it was.
     """
-    tmp = temporary_path(path)
+    tmp = temporary_path(path, pid)
     try:
         write_new(tmp, data)
         if check is not None:

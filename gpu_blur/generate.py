@@ -40,7 +40,7 @@ from gpu_blur.synthesis import Synthesis, Synthesizer, synthesize
 from gpu_blur.timings import PoolTimes
 
 __all__ = ["BATCH", "Job", "MAX_DEFAULT_IO_THREADS", "QUEUE_PER_THREAD", "STAGED_BATCHES",
-           "WriteBehind", "checked_inputs", "decode", "default_io_threads", "for_driver",
+           "Saved", "WriteBehind", "checked_inputs", "decode", "default_io_threads", "for_driver",
            "make_batch", "make_sample", "pinned_staging", "read_input", "run_pipelined",
            "run_serial"]
 
@@ -78,6 +78,20 @@ class Job:
     with_raw: bool = False  # keep each sample's RAW mosaic (generate --save raw)
     bits: int = 0  # the set's PNG bits: workers in other processes send these codes
     with_mask: bool = True  # the set saves masks (generate --save mask)
+
+
+@dataclasses.dataclass(frozen=True)
+class Saved:
+    """A made sample whose files a ``--devices`` worker wrote itself, as the driver gets it.
+
+    ``line``: its manifest line (:meth:`gpu_blur.dataset.FolderWrites.write`), None when
+    writing failed with ``error`` (the OSError, for the driver to report and stop on);
+    ``timings``: the :class:`~gpu_blur.synthesis.Synthesis`' seconds per step.
+    """
+
+    line: dict | None
+    timings: dict
+    error: OSError | None = None
 
 
 def for_driver(job: Job, result: Synthesis | None) -> Synthesis | None:

@@ -477,13 +477,20 @@ class _Run:
         self.made = 0
 
     def save(self, spec, result) -> dict:
-        """A made sample's files (in an I/O thread if there are), its manifest line back."""
-        try:  # the model of device that made it
-            return self.writer.save(spec, result, {**self.record,
-                                                   "device": result.device
-                                                   or self.record["device"],
-                                                   **(self.jpeg.record(spec) if self.jpeg
-                                                      else {})})
+        """A made sample's files (in an I/O thread if there are), its manifest line back.
+
+        A ``--devices`` worker that wrote them itself sent the line (:class:`Saved`).
+        """
+        from gpu_blur.dataset import sample_record
+        from gpu_blur.generate import Saved
+
+        try:
+            if isinstance(result, Saved):
+                if result.error is not None:
+                    raise result.error
+                return result.line
+            return self.writer.save(spec, result, sample_record(self.record, result) | (
+                self.jpeg.record(spec) if self.jpeg else {}))
         except OSError as e:
             raise _cannot_write(self.o.output, spec, e) from None
 
@@ -532,26 +539,33 @@ class _Run:
 
         o, scene, writer = self.o, self.scene, self.writer
         totals, writing = RunTotals(), current().seconds["writing"]
+        devices = getattr(self.executor, "func", None) is run_devices
+        # --devices into a set of files: the workers write them, in their threads
+        writes = writer.folder_writes(self.record) if devices else None
         threads = o.io_threads or default_io_threads()
-        io = PoolTimes(threads) if threads > 1 else None  # else one thread does every step
-        pool = ThreadPoolExecutor(threads, thread_name_prefix="gpu-blur-io") if io else None
+        if writes is not None:  # the workers' threads are counted as they report them
+            io, pool = PoolTimes(0), None
+        else:
+            io = PoolTimes(threads) if threads > 1 else None  # else one thread does every step
+            pool = ThreadPoolExecutor(threads, thread_name_prefix="gpu-blur-io") if io else None
         behind = WriteBehind(self.save, pool, QUEUE_PER_THREAD * threads, io)
         stop: StrictStop | SetInterrupted | None = None
-        watched, ended = None, False
+        samples = watched = None
+        ended = False
         start = time.perf_counter()
         try:
             job = Job(scene, o.seed, o.backend, self.schedule, "raw" in self.extras,
                       bits=scene.output.bits, with_mask="mask" in self.extras)
             # one device: the pool also decodes ahead; devices and ray workers decode their
             # own inputs (device workers through shares of the frame cache), and the pool
-            # encodes and writes what they make
-            devices = getattr(self.executor, "func", None) is run_devices
+            # encodes and writes what they make, unless device workers write it themselves
             cache = self.frame_cache() if self.executor is run_serial or devices else None
             samples = (run_pipelined(job, self.todo, pool, io, QUEUE_PER_THREAD * threads, cache,
                                      pinned_staging(job), jpeg=self.jpeg)
                        if io and self.executor is run_serial else
                        run_serial(job, self.todo, cache) if self.executor is run_serial else
-                       self.executor(job, self.todo, frame_cache=cache, pool_times=io)
+                       self.executor(job, self.todo, frame_cache=cache, pool_times=io,
+                                     writes=writes, io_threads=o.io_threads)
                        if devices else
                        self.executor(job, self.todo))
             # kept in a name: after a strict stop the progress bar closes once the stop is
@@ -584,7 +598,10 @@ class _Run:
                     self.finish(*written)
             stop, ended = SetInterrupted(self.made, e), True
         finally:
-            if pool is not None:  # no thread may write once the folder's lock is released
+            # no thread or worker may write once the folder's lock is released
+            if samples is not None:  # an executor's workers stop (device workers write)
+                samples.close()
+            if pool is not None:
                 pool.shutdown(cancel_futures=True)
             if not ended:  # the error that stopped the run is the one to report, not a flush
                 with contextlib.suppress(OSError):
@@ -593,7 +610,8 @@ class _Run:
         if stop is not None:
             raise stop from getattr(stop, "cause", None)
         took = time.perf_counter() - start
-        totals.add({"writing": current().seconds["writing"] - writing,
+        totals.add({"writing": current().seconds["writing"] - writing
+                    + (io.waited_for_writes if io else 0.0),
                     "reading": io.waited_for_inputs if io else 0.0})
         return self._report(took, totals, io, run_serial, cache)
 
@@ -622,6 +640,8 @@ class _Run:
 
     def _report(self, took: float, totals, io, run_serial, cache=None) -> SetReport:
         o, writer = self.o, self.writer
+        if io is not None and not io.threads:  # device workers of one thread each, in turn
+            io = None
         before = f", {self.done} were done before" if self.done else ""
         lines = [f"wrote {self.made} samples ({len(self.failed)} failed) to {o.output} in "
                  f"{took:.1f} s ({self.made / max(took, 1e-9):.2f} samples/s){before}; "

@@ -426,6 +426,7 @@ class LmdbWriter(SetWriter):
     """
 
     FORMAT = "lmdb"
+    FILES_ANY_PROCESS = False  # stored through this writer's environments
 
     def __init__(self, *args, **kwargs):
         self._pending: dict[int, dict[str, tuple[str, bytes]]] = {}
@@ -510,6 +511,7 @@ class ShardWriter(SetWriter):
     """
 
     FORMAT = "webdataset"
+    FILES_ANY_PROCESS = False  # stored through this writer's shard in writing
 
     def __init__(self, *args, shard_size: int = DEFAULT_SHARD_SIZE, **kwargs):
         self.shard_size = shard_size

@@ -168,10 +168,12 @@ class RunTotals:
         are the driver's waits for the pool, and the stage it waited on most is the bound,
         with the pool's own figure for it (:meth:`PoolTimes.ceiling`): what more cores give.
         With ``devices`` worker processes (``--devices``) each waits for its own inputs:
-        ``reading`` holds their waits summed, and the bound takes their mean.
+        ``reading`` holds their waits summed, and the bound takes their mean; so for
+        ``writing`` where the workers wrote their samples' files (``pool.handoff["written"]``).
         """
+        written = pool is not None and pool.handoff["written"] > 0
         spent = {"decode": self.seconds["reading"] / devices,
-                 "encode/write": self.seconds["writing"]}
+                 "encode/write": self.seconds["writing"] / (devices if written else 1)}
         spent["synthesis"] = max(wall - sum(spent.values()), 0.0)
         stage = max(spent, key=spent.get)
         share = 100 * spent[stage] / max(wall, 1e-12)
@@ -201,12 +203,15 @@ class PoolTimes:
         samples: samples whose inputs the pool decoded.
         waited_for_inputs: seconds the driver thread waited for decoded inputs (summed over
             the workers' threads that make samples, with ``--devices``).
+        waited_for_writes: with ``--devices`` workers that write their samples' files, the
+            seconds their making threads waited for those writes, summed.
         handoff: ``--devices`` results on their way to the driver: seconds the workers'
             making threads spent handing them over (``packing``: converting them and copying
             them into shared memory, a free block waited for), seconds the driver's thread
             spent taking them (``receiving``: the pipe read, the arrays copied out, the next
             sample sent) and waiting for any (``waiting``), the ``samples`` taken, and how
-            many of them came whole through a pipe (``piped``: no shared memory to be had).
+            many of them came whole through a pipe (``piped``: no shared memory to be had) or
+            as a manifest line, their files written by the worker (``written``).
     """
 
     def __init__(self, threads: int):
@@ -215,8 +220,9 @@ class PoolTimes:
         self.calls = {"decode": 0, "write": 0}
         self.samples = 0
         self.waited_for_inputs = 0.0
+        self.waited_for_writes = 0.0
         self.handoff = {"packing": 0.0, "receiving": 0.0, "waiting": 0.0, "samples": 0,
-                        "piped": 0}
+                        "piped": 0, "written": 0}
         self._lock = threading.Lock()
 
     def run(self, stage: str, work: Callable[..., Any], *args, counted: bool = True) -> Any:
@@ -242,6 +248,7 @@ class PoolTimes:
                 self.calls[stage] += other.calls[stage]
             self.samples += other.samples
             self.waited_for_inputs += other.waited_for_inputs
+            self.waited_for_writes += other.waited_for_writes
             self._add_handoff(other.handoff)
 
     def add_handoff(self, **figures) -> None:
@@ -291,6 +298,10 @@ class PoolTimes:
         if not h["samples"]:
             return None
         each = 1e3 / h["samples"]
+        if h["written"]:  # only manifest lines crossed (a run writes one way)
+            return (f"hand-off: the workers wrote their samples' files; the driver's thread "
+                    f"{h['receiving']:.2f} s ({h['receiving'] * each:.1f} ms a sample) taking "
+                    f"their manifest lines and {h['waiting']:.2f} s waiting for the workers")
         line = (f"hand-off: the workers' making threads {h['packing']:.2f} s "
                 f"({h['packing'] * each:.1f} ms a sample) handing results over, the driver's "
                 f"thread {h['receiving']:.2f} s ({h['receiving'] * each:.1f} ms a sample) "

@@ -28,7 +28,7 @@ from gpu_blur.cli import main
 from gpu_blur.discovery import SampleSpec, find_samples
 from gpu_blur.distributed import parse_devices, run_devices, run_ray
 from gpu_blur.file_writing import write_image
-from gpu_blur.generate import Job, for_driver, run_serial
+from gpu_blur.generate import Job, Saved, for_driver, run_serial
 from gpu_blur.scene import load_scene, scene_from_dict
 from gpu_blur.testhooks import TEST_FAIL_ONCE
 from gpu_blur.timings import PoolTimes
@@ -99,6 +99,11 @@ def ray_local():
     ray.shutdown()
 
 
+def shards(out):
+    """{name: bytes} of a WebDataset set's shards."""
+    return {p.name: p.read_bytes() for p in sorted(out.glob("shard-*.tar"))}
+
+
 def assert_same_set(out, reference):
     assert files(out) == files(reference)
     assert (out / "manifest.jsonl").read_bytes() == (reference / "manifest.jsonl").read_bytes()
@@ -150,21 +155,41 @@ def test_a_device_worker_decoding_ahead_in_threads_writes_the_serial_run_s_set(
     assert_same_set(out, reference("numpy"))
 
 
-def test_a_devices_run_s_summary_counts_its_workers_decoding(tmp_path, photos, monkeypatch):
-    monkeypatch.setattr(distributed, "default_io_threads", lambda: 4)  # 2 a worker
+def test_device_workers_writing_a_png_set_count_their_decoding_and_writing_in_the_summary(
+        tmp_path, photos):
     folder, scene = photos
     report = gpu_blur.generate_set(tmp_path / "out", input=folder, scene=scene,
-                                   samples_per_photo=2, devices="numpy,numpy", io_threads=2)
+                                   samples_per_photo=2, devices="numpy,numpy", io_threads=4)
     threads = next(line for line in report.summary if line.startswith("I/O threads"))
     cache = next(line for line in report.summary if line.startswith("frame cache"))
-    # the driver's 2 writing threads and each worker's 2 decoding threads; the files that
-    # the workers' caches decoded (a photo read by both of its samples in one worker, once)
-    files = re.match(r"I/O threads \(6\): decoding [\d.]+ s \((\d+) files, [\d.]+ ms each\)",
-                     threads)
+    # --io-threads shared by the workers, 2 each, decoding and writing; the files that the
+    # workers' caches decoded (a photo read by both of its samples in one worker, once)
+    files = re.match(r"I/O threads \(4\): decoding [\d.]+ s \((\d+) files, [\d.]+ ms each\), "
+                     r"encoding and writing ([\d.]+) s", threads)
     decoded = re.match(r"frame cache: (\d+) decoded, (\d+) served decoded", cache)
     assert files and decoded, (threads, cache)
     assert files[1] == decoded[1] and int(decoded[1]) + int(decoded[2]) == 6
+    assert float(files[2]) > 0  # the 4 made samples' files, in the workers
     assert report.bound.startswith("bound by: ") and report.summary[-1] == report.bound
+    # the images never crossed: only the lines
+    handoff = next(line for line in report.summary if line.startswith("hand-off"))
+    assert re.fullmatch(
+        r"hand-off: the workers wrote their samples' files; the driver's thread [\d.]+ s "
+        r"\([\d.]+ ms a sample\) taking their manifest lines and [\d.]+ s waiting for the "
+        r"workers", handoff), handoff
+
+
+def test_a_devices_run_into_a_container_counts_its_workers_decoding_and_its_hand_off(
+        tmp_path, photos, monkeypatch):
+    monkeypatch.setattr(distributed, "default_io_threads", lambda: 4)  # 2 a worker
+    folder, scene = photos
+    report = gpu_blur.generate_set(tmp_path / "out", input=folder, scene=scene,
+                                   samples_per_photo=2, devices="numpy,numpy", io_threads=2,
+                                   format="webdataset")
+    threads = next(line for line in report.summary if line.startswith("I/O threads"))
+    # the driver's 2 writing threads (a shard is written through the driver) and each
+    # worker's 2 decoding threads
+    assert re.match(r"I/O threads \(6\): decoding [\d.]+ s \(\d+ files", threads), threads
     # what handing the results to the driver cost each side, a sample at a time
     handoff = next(line for line in report.summary if line.startswith("hand-off"))
     assert re.fullmatch(
@@ -175,14 +200,19 @@ def test_a_devices_run_s_summary_counts_its_workers_decoding(tmp_path, photos, m
 
 @pytest.mark.parametrize("memfd", [True, False], ids=["anonymous-file", "no-anonymous-file"])
 def test_a_devices_run_with_a_full_dev_shm_writes_the_serial_set_and_says_how_it_went(
-        tmp_path, photos, monkeypatch, capsys, reference, memfd):
+        tmp_path, photos, monkeypatch, capsys, memfd):
     if memfd and not shared_results.MEMFD:
         pytest.skip("anonymous files: Linux")
+    # a container's samples go through the driver: a PNG set's are written by the workers
+    serial = tmp_path / "serial"
+    assert main(args(photos, serial, "--format", "webdataset")) == 1
     monkeypatch.setattr(shared_results, "SharedMemory", FullSharedMemory)  # the driver's
     monkeypatch.setattr(shared_results, "MEMFD", memfd)
     out = tmp_path / "out"
-    assert main(args(photos, out, "--devices", "numpy,numpy")) == 1  # c.png's samples fail
-    assert_same_set(out, reference("numpy"))
+    capsys.readouterr()
+    assert main(args(photos, out, "--format", "webdataset", "--devices", "numpy,numpy")) == 1
+    assert shards(out) == shards(serial) and len(shards(out)) == 1
+    assert (out / "manifest.jsonl").read_bytes() == (serial / "manifest.jsonl").read_bytes()
     handoff = next(line for line in capsys.readouterr().out.splitlines()
                    if line.startswith("hand-off"))
     # in anonymous files, nothing through the pipes; else the 4 made samples, of the 6 taken
@@ -548,6 +578,92 @@ def test_a_worker_killed_mid_run_stops_it_and_leaves_no_shared_memory(photos, bl
         list(results)
     assert not any(w.is_alive() for w in workers)
     assert left_behind(blocks_made) == []
+
+
+def folder_writes(out, bits=8):
+    """What the driver hands device workers to write a PNG set in ``out`` (its pid)."""
+    from gpu_blur.dataset import FolderWrites, SampleFiles
+
+    return FolderWrites(SampleFiles(out, bits, "fast", (), os.getpid()),
+                        {"seed": 0, "backend": "numpy", "device": "host"})
+
+
+def test_device_workers_writing_a_png_set_send_no_image_through_shared_memory(
+        tmp_path, photos, reference, blocks_made):
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--backend", "numpy", "--devices", "numpy,numpy",
+                     "--io-threads", "4")) == 1
+    assert_same_set(out, reference("numpy"))
+    assert blocks_made == []  # the images never left the workers
+
+
+def test_device_workers_send_each_written_sample_s_line_and_write_its_files(tmp_path, photos):
+    folder, scene_path = photos
+    job = Job(load_scene(scene_path), 0, "numpy", bits=8)
+    specs = find_samples(folder, "trajectory", 1, 2).take()
+    out = tmp_path / "out"
+    (out / "blur").mkdir(parents=True)
+    (out / "sharp").mkdir()
+    made = sorted(run_devices(job, specs, ["numpy", "numpy"], writes=folder_writes(out),
+                              io_threads=4), key=lambda sample: sample[0].index)
+    written = [(spec, saved) for spec, saved, error in made if error is None]
+    assert len(written) == 4 and all(isinstance(saved, Saved) for _, saved in written)
+    for spec, saved in written:
+        assert saved.error is None and saved.line["index"] == spec.index
+        for key in ("blurred", "sharp"):  # the files the line names, of the sizes it says
+            assert (out / saved.line[key]).stat().st_size == saved.line["bytes"][key]
+    assert not [p for p in out.rglob(".*") if p.is_file()]  # no temporary file left
+
+
+def test_a_worker_that_cannot_write_sends_the_error_for_the_driver_to_stop_on(
+        tmp_path, photos):
+    folder, scene_path = photos
+    job = Job(load_scene(scene_path), 0, "numpy", bits=8)
+    specs = find_samples(folder, "trajectory", 1, 2).take()[:2]
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "blur").write_text("a file where the blur/ folder goes")
+    made = list(run_devices(job, specs, ["numpy"], writes=folder_writes(out)))
+    assert len(made) == 2
+    for spec, saved, error in made:
+        assert error is None and saved.line is None
+        assert isinstance(saved.error, FileExistsError), saved.error
+
+
+def test_a_worker_whose_driver_is_gone_renames_no_file_into_the_folder(tmp_path, photos):
+    folder, scene_path = photos
+    job = Job(load_scene(scene_path), 0, "numpy", bits=8)
+    spec = find_samples(folder, "trajectory", 1, 2).take()[0]
+    _, result, _ = next(run_serial(job, [spec]))
+    out = tmp_path / "out"
+    out.mkdir()  # the driver's writer made it
+    # the driver that started this "worker" is not its parent any more (it was killed)
+    saved = distributed._write_made(folder_writes(out), os.getppid() + 1, spec, result)
+    assert saved.line is None and "driver process is gone" in str(saved.error)
+    assert [p for p in out.rglob("*") if p.is_file()] == []  # nor its temporary file
+    kept = distributed._write_made(folder_writes(out), os.getppid(), spec, result)
+    assert kept.error is None and (out / kept.line["blurred"]).is_file()
+
+
+def test_a_stopped_run_removes_the_temporary_files_of_the_samples_its_workers_were_writing(
+        tmp_path, photos):
+    folder, scene_path = photos
+    job = Job(load_scene(scene_path), 0, "numpy", bits=8)
+    specs = find_samples(folder, "trajectory", 1, 2).take()[:4]  # a's and b's
+    out = tmp_path / "out"
+    for sub in ("blur", "sharp"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    writes = folder_writes(out)
+    # one thread a worker: each is sent two samples at once, so all four are out
+    results = run_devices(job, specs, ["numpy", "numpy"], writes=writes, io_threads=2)
+    first, _, _ = next(results)
+    # what a worker terminated mid-write leaves: temporary files of the samples in flight
+    planted = [t for spec in specs if spec is not first for t in writes.files.temporaries(spec)
+               if t.parent.name in ("blur", "sharp")]
+    for temporary in planted:
+        temporary.write_bytes(b"cut")
+    results.close()  # Ctrl-C, an error in the driver
+    assert len(planted) == 6 and not [p for p in out.rglob(".*") if p.is_file()]
 
 
 def test_samples_sharing_inputs_go_to_one_worker_in_runs_of_consecutive_samples():
