@@ -213,8 +213,11 @@ def _sample_files(out: Path, earlier) -> list[Path]:
 
 
 def sample_record(record: dict, result) -> dict:
-    """The run's fields of a made sample's manifest line: ``record``, with the device model
-    that made the sample (``result.device``, where the backend names one)."""
+    """The run's fields of a made sample's manifest line.
+
+    ``record``, with the device model that made the sample (``result.device``, where the
+    backend names one).
+    """
     return {**record, "device": result.device or record["device"]}
 
 

@@ -625,7 +625,7 @@ def test_a_worker_that_cannot_write_sends_the_error_for_the_driver_to_stop_on(
     (out / "blur").write_text("a file where the blur/ folder goes")
     made = list(run_devices(job, specs, ["numpy"], writes=folder_writes(out)))
     assert len(made) == 2
-    for spec, saved, error in made:
+    for _, saved, error in made:
         assert error is None and saved.line is None
         assert isinstance(saved.error, FileExistsError), saved.error
 
