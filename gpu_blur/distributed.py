@@ -3,7 +3,8 @@
 Both executors keep the contract of :func:`gpu_blur.generate.run_serial`: they take a
 :class:`~gpu_blur.generate.Job` and the samples' specs and yield ``(spec, result, error)`` as
 samples finish, in any order; the driver (``gpu-blur generate``) writes the files and the
-manifest. A sample depends only on (seed, index, scene), so the files are those of a serial
+manifest, except that device workers making a set of PNG files write their samples' files
+themselves and send the manifest lines (:func:`run_devices`' ``writes``). A sample depends only on (seed, index, scene), so the files are those of a serial
 run, byte for byte, whichever worker makes which sample (on devices of one model: two GPU
 models, or a GPU and a CPU, may differ in a float32 last bit).
 
@@ -12,8 +13,8 @@ What crosses a process boundary: the job (a few hundred bytes, once per worker),
 :class:`~gpu_blur.synthesis.Synthesis` with only what the set writes,
 :func:`~gpu_blur.generate.for_driver`: blurred and sharp as the set's integer codes, the mask
 and the RAW mosaic if saved, the drawn parameters and the plan; 14 MB for a 1920 x 1200 sample
-at 8 bits). A device worker on this host writes a result's arrays into shared memory and sends
-the rest through its pipe (:mod:`gpu_blur.shared_results`: a pipe took 31 such samples a second
+at 8 bits). A device worker on this host that does not write the files writes a result's
+arrays into shared memory and sends the rest through its pipe (:mod:`gpu_blur.shared_results`: a pipe took 31 such samples a second
 into the driver's one receiving thread); a Ray task returns its results through Ray's object
 store. Workers read the inputs themselves from the spec's paths, so on a Ray cluster the
 inputs (and gpu_blur, in the same version) must be at the same paths on every node.
