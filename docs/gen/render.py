@@ -447,7 +447,7 @@ def bench_generate_windows(name: str = "generate_windows_h200") -> str:
 
 
 def bench_devices_host(name: str = "generate_devices_h200x2") -> str:
-    """``generate`` on a 2-GPU host: one process against ``--devices`` workers."""
+    """``generate`` on a host of several GPUs: one process against ``--devices`` workers."""
     data, path = load(name)
     one = data["one_process"]["runs"][-1]
     rows = [[f"one process, {one['threads']} I/O threads, one GPU", one["samples_per_s"],
