@@ -4,9 +4,10 @@ Both executors keep the contract of :func:`gpu_blur.generate.run_serial`: they t
 :class:`~gpu_blur.generate.Job` and the samples' specs and yield ``(spec, result, error)`` as
 samples finish, in any order; the driver (``gpu-blur generate``) writes the files and the
 manifest, except that device workers making a set of PNG files write their samples' files
-themselves and send the manifest lines (:func:`run_devices`' ``writes``). A sample depends only on (seed, index, scene), so the files are those of a serial
-run, byte for byte, whichever worker makes which sample (on devices of one model: two GPU
-models, or a GPU and a CPU, may differ in a float32 last bit).
+themselves and send the manifest lines (:func:`run_devices`' ``writes``). A sample depends
+only on (seed, index, scene), so the files are those of a serial run, byte for byte,
+whichever worker makes which sample (on devices of one model: two GPU models, or a GPU and a
+CPU, may differ in a float32 last bit).
 
 What crosses a process boundary: the job (a few hundred bytes, once per worker), each
 :class:`~gpu_blur.discovery.SampleSpec` (index, name, input paths) and each result (the
@@ -14,10 +15,11 @@ What crosses a process boundary: the job (a few hundred bytes, once per worker),
 :func:`~gpu_blur.generate.for_driver`: blurred and sharp as the set's integer codes, the mask
 and the RAW mosaic if saved, the drawn parameters and the plan; 14 MB for a 1920 x 1200 sample
 at 8 bits). A device worker on this host that does not write the files writes a result's
-arrays into shared memory and sends the rest through its pipe (:mod:`gpu_blur.shared_results`: a pipe took 31 such samples a second
-into the driver's one receiving thread); a Ray task returns its results through Ray's object
-store. Workers read the inputs themselves from the spec's paths, so on a Ray cluster the
-inputs (and gpu_blur, in the same version) must be at the same paths on every node.
+arrays into shared memory and sends the rest through its pipe (:mod:`gpu_blur.shared_results`:
+a pipe took 31 such samples a second into the driver's one receiving thread); a Ray task
+returns its results through Ray's object store. Workers read the inputs themselves from the
+spec's paths, so on a Ray cluster the inputs (and gpu_blur, in the same version) must be at
+the same paths on every node.
 """
 
 from __future__ import annotations
@@ -58,7 +60,7 @@ from gpu_blur.shared_results import ASK, Blocks, Outbox, send
 from gpu_blur.timings import PoolTimes
 
 __all__ = ["DEVICE_DEPTH", "DRIVER_SIGNALS", "GPU_BATCH", "PARENT_CHECK_S", "RAY_INSTALL",
-           "RUN_SAMPLES", "all_devices", "family", "import_ray", "parse_devices",
+           "RUN_SAMPLES", "DeviceWorkers", "all_devices", "family", "import_ray", "parse_devices",
            "pick_executor", "run_devices", "run_ray", "uses_cuda"]
 
 RAY_INSTALL = "pip install 'gpu_blur[ray]'"
@@ -192,10 +194,12 @@ def _children_skip_cwd():
             os.chdir(here)
 
 
-def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | None = None,
-                   shared: bool = False, cache_bytes: int = 0,
-                   writes: FolderWrites | None = None) -> None:
+def _device_worker(job: Job, driver: int, conn, threads: int = 1,
+                   cwd: str | None = None) -> None:
     """A device worker process: open the device, then make each sample the driver sends.
+
+    Once the device is open the driver sends the run's part that was not known when the
+    worker started (:meth:`DeviceWorkers.open`): ``("setup", (shared, cache_bytes, writes))``.
 
     With ``threads`` > 1 the worker runs the one-device pipeline
     (:func:`gpu_blur.generate.run_pipelined`, as a run on one device does): that many
@@ -243,6 +247,10 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1, cwd: str | Non
     except EOFError:  # the driver is gone
         return
     if opened[0] == "error":
+        return
+    try:
+        _, (shared, cache_bytes, writes) = conn.recv()
+    except EOFError:  # the run ended before it began (a set-up error, nothing to make)
         return
     pool = ThreadPoolExecutor(threads, "gpu-blur-decode") if threads > 1 else None
     # its decoding threads' times (none without a pool) and its hand-off's
@@ -409,10 +417,74 @@ def _exit_without(driver: int, held: list | None = None) -> None:
     os._exit(1)
 
 
+class DeviceWorkers:
+    """The worker processes of a ``--devices`` run, one per device, each opening its device.
+
+    Started as soon as the job is known, so that their imports and devices open while the
+    driver sets up the run (:func:`gpu_blur.generation.generate_set` does, for a list of
+    devices), and handed to :func:`run_devices`. Each decodes (and, writing a set of files,
+    writes) in ``io_threads // len(devices)`` threads, at least one (default
+    :func:`default_io_threads`). :meth:`stop` ends them whenever the run ends, however.
+    """
+
+    def __init__(self, job: Job, devices: list[str], io_threads: int | None = None):
+        self.job, self.devices = job, list(devices)
+        self.threads = max(1, (io_threads or default_io_threads()) // len(self.devices))
+        self.processes: list = []
+        self.conns: list = []
+        context = multiprocessing.get_context("spawn")
+        cwd = os.getcwd()
+        try:
+            for device in self.devices:
+                conn, child = context.Pipe()
+                worker = context.Process(target=_device_worker, daemon=True, args=(
+                    dataclasses.replace(job, backend=device), os.getpid(), child,
+                    self.threads, cwd))
+                with _children_skip_cwd(), _driver_signals_blocked():
+                    worker.start()
+                child.close()  # the worker's end is the worker's: its death closes the pipe
+                self.processes.append(worker)
+                self.conns.append(conn)
+        except BaseException:
+            self.stop()
+            raise
+
+    def open(self, shared: bool, cache_bytes: int, writes: FolderWrites | None) -> None:
+        """Wait until every worker has opened its device, then send it the run's set-up.
+
+        Raises:
+            RuntimeError: naming a device that could not be opened, or whose worker died.
+        """
+        for device, conn in zip(self.devices, self.conns, strict=True):
+            try:
+                kind, value = conn.recv()
+            except (EOFError, OSError):
+                raise RuntimeError(f"--devices {device}: its worker process died while "
+                                   "opening the device") from None
+            if kind != "open":
+                raise RuntimeError(f"--devices {device}: {value}")
+        for conn in self.conns:
+            conn.send(("setup", (shared, cache_bytes, writes)))
+
+    def stop(self, finished: bool = False) -> None:
+        """End the workers (safe to call again).
+
+        An idle worker ends when its pipe closes; unless ``finished`` each is terminated,
+        the samples it was making dropped.
+        """
+        for conn in self.conns:
+            conn.close()
+        for worker in self.processes:
+            if not finished:
+                worker.terminate()
+            worker.join()
+
+
 def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str],
                 frame_cache: FrameCache | None = None,
                 pool_times: PoolTimes | None = None, writes: FolderWrites | None = None,
-                io_threads: int | None = None) -> Iterator[tuple]:
+                io_threads: int | None = None,
+                workers: DeviceWorkers | None = None) -> Iterator[tuple]:
     """Make the samples in one worker process per entry of ``devices``, yielding as they finish.
 
     Workers are started with ``spawn`` (OpenCL and CUDA contexts do not survive a fork),
@@ -425,22 +497,24 @@ def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str],
     threads, their work and waits are added to ``pool_times`` when the run ends, with what
     handing the samples to this thread cost both sides (``PoolTimes.handoff``).
 
-    With ``writes`` (a set of files, :meth:`gpu_blur.dataset.DatasetWriter.folder_writes`)
-    each worker writes the files of the samples it makes, as a run on one device does, and
-    yields ``(spec, Saved, error)``: a sample's images never cross to the driver, which only
-    writes the manifest lines (on the H200 pair, handing 14 MB samples over took the
-    workers' making threads 7 ms and the driver's one thread 5 ms a sample, a ceiling of
-    about 200 samples/s however many GPUs). Each worker decodes and writes in
-    ``io_threads // len(devices)`` threads (default :func:`default_io_threads`, at least
-    one), so the workers together use about as many as the host has cores. Temporary files
-    bear the driver's process id (the one the folder's lock records); those of samples
-    still being made when the run stops are removed once the workers are gone.
+    ``workers``: the :class:`DeviceWorkers` started for ``job`` and ``devices`` (else they
+    are started here); each decodes in ``io_threads // len(devices)`` threads (default
+    :func:`default_io_threads`, at least one), so the workers together use about as many as
+    the host has cores, besides their main threads (which drive the devices).
 
-    Without ``writes`` each worker decodes in ``default_io_threads() // len(devices)``
-    threads, writes each result's arrays into shared memory and the driver copies them out
-    (:mod:`gpu_blur.shared_results`), to encode and store them itself (``--io-threads`` of
-    its own: a container format); every block is unlinked when the run ends, however it
-    ends. A device that cannot be opened stops the run before any sample. When the run stops
+    With ``writes`` (a set of files, :meth:`gpu_blur.dataset.DatasetWriter.folder_writes`)
+    each worker writes the files of the samples it makes in those threads too, as a run on
+    one device does, and yields ``(spec, Saved, error)``: a sample's images never cross to
+    the driver, which only writes the manifest lines (on the H200 pair, handing 14 MB
+    samples over took the workers' making threads 7 ms and the driver's one thread 5 ms a
+    sample, a ceiling of about 200 samples/s however many GPUs). Temporary files bear the
+    driver's process id (the one the folder's lock records); those of samples still being
+    made when the run stops are removed once the workers are gone.
+
+    Without ``writes`` a worker writes each result's arrays into shared memory and the
+    driver copies them out (:mod:`gpu_blur.shared_results`), to encode and store them in
+    its own pool (a container format); every block is unlinked when the run ends, however
+    it ends. A device that cannot be opened stops the run before any sample. When the run stops
     early (Ctrl-C, SIGTERM, an error, the caller closing this generator) the workers are
     terminated, not waited for; a worker whose driver dies exits by itself within
     :data:`PARENT_CHECK_S`.
@@ -452,8 +526,10 @@ def run_devices(job: Job, specs: Iterable[SampleSpec], devices: list[str],
     """
     if not devices:
         raise ValueError("run_devices needs at least one device")
+    if workers is not None and (workers.job != job or workers.devices != list(devices)):
+        raise ValueError("run_devices: the workers were started for another job or devices")
     return _device_results(job, list(specs), list(devices), frame_cache, pool_times, writes,
-                           io_threads)
+                           io_threads, workers)
 
 
 class _Runs:
@@ -488,40 +564,22 @@ class _Runs:
 def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
                     frame_cache: FrameCache | None = None,
                     pool_times: PoolTimes | None = None, writes: FolderWrites | None = None,
-                    io_threads: int | None = None):
+                    io_threads: int | None = None, workers: DeviceWorkers | None = None):
     if not todo:
+        if workers is not None:
+            workers.stop(finished=True)
         return
     runs = _Runs(todo, len(devices))
-    context = multiprocessing.get_context("spawn")
-    workers, conns = [], []
     blocks = Blocks()
     finished = False
-    # each worker's I/O threads: decoding, and with writes writing too
-    threads = max(1, ((io_threads if writes is not None and io_threads else None)
-                      or default_io_threads()) // len(devices))
-    depth = worker_depth(threads, writes is not None)
     queued: list[deque[SampleSpec]] = [deque() for _ in devices]
     share = frame_cache.budget // len(devices) if frame_cache is not None else 0
     try:
-        cwd = os.getcwd()
-        for device in devices:
-            conn, child = context.Pipe()
-            worker = context.Process(target=_device_worker, daemon=True, args=(
-                dataclasses.replace(job, backend=device), os.getpid(), child, threads, cwd,
-                writes is None, share, writes))
-            with _children_skip_cwd(), _driver_signals_blocked():
-                worker.start()
-            child.close()  # the worker's end is the worker's: its death closes the pipe
-            workers.append(worker)
-            conns.append(conn)
-        for device, conn in zip(devices, conns, strict=True):
-            try:
-                kind, value = conn.recv()
-            except (EOFError, OSError):
-                raise RuntimeError(f"--devices {device}: its worker process died while "
-                                   "opening the device") from None
-            if kind != "open":
-                raise RuntimeError(f"--devices {device}: {value}")
+        if workers is None:
+            workers = DeviceWorkers(job, devices, io_threads)
+        conns, threads = workers.conns, workers.threads
+        depth = worker_depth(threads, writes is not None)
+        workers.open(writes is None, share, writes)
         # each worker's decoding threads as it last sent them, from the start: a worker sent
         # no sample has them too (with one thread, none: it decodes in turn)
         pools = [PoolTimes(threads if threads > 1 else 0) for _ in devices]
@@ -590,12 +648,8 @@ def _device_results(job: Job, todo: list[SampleSpec], devices: list[str],
                                    piped=piped, written=saved)
         finished = True
     finally:
-        for conn in conns:  # an idle worker ends when its pipe closes
-            conn.close()
-        for worker in workers:
-            if not finished:  # stopped early: the samples still being made are dropped
-                worker.terminate()
-            worker.join()
+        if workers is not None:  # stopped early: the samples still being made are dropped
+            workers.stop(finished)
         blocks.close()  # once no worker can attach any more
         if writes is not None:  # what the stopped workers were writing: gone with them
             for spec in (spec for sent in queued for spec in sent):

@@ -252,6 +252,25 @@ def _check_jpeg_decoder(o) -> None:
                          "--io-threads 2 or more, or leave --jpeg-decoder at cpu")
 
 
+def early_workers(o, job):
+    """The ``--devices`` workers, started before the run's set-up when the list names them.
+
+    They import gpu_blur and open their devices (a second each on a GPU: Warp's import and
+    start-up, a CUDA context) while the driver opens its own, reads the input and the output
+    folder. ``--devices all`` starts them later, once the devices are counted; so does a run
+    without ``--devices`` or with ``--ray`` (None). The names are checked afterwards, as
+    before (:func:`gpu_blur.distributed.parse_devices`): a bad one stops them.
+    """
+    from gpu_blur.distributed import DeviceWorkers
+
+    if o.devices is None or o.ray is not None or o.devices.strip() == "all":
+        return None
+    names = [name.strip() for name in o.devices.split(",")]
+    if not all(names):
+        return None  # refused by parse_devices, naming the empty name
+    return DeviceWorkers(job, names, o.io_threads)
+
+
 def check_setup(o, scene) -> None:
     """Fail before any sample for what every sample would fail on (``o``: the options)."""
     from gpu_blur.cameras import scene_camera
@@ -407,21 +426,39 @@ class _Run:
     """One :func:`generate_set` call: set up, make the samples, sum up."""
 
     def __init__(self, o, progress: Progress, on_device, on_resume, on_input=None):
+        from gpu_blur.generate import Job
+        from gpu_blur.scene import load_scene
+        from gpu_blur.scheduler import Schedule
+
+        self.o, self.progress = o, progress
+        scene = self.scene = load_scene(o.scene)
+        check_setup(o, scene)
+        # the Schedule rides in Job.tile (tile, memory budget, spot checks; see pipeline)
+        self.schedule = Schedule(tuple(o.tile) if o.tile else None, o.max_device_memory,
+                                 o.verify)
+        self.extras = extras(o.save)
+        self.job = Job(scene, o.seed, o.backend, self.schedule, "raw" in self.extras,
+                       bits=scene.output.bits, with_mask="mask" in self.extras)
+        self.workers = early_workers(o, self.job)
+        try:
+            self._set_up(on_device, on_resume, on_input)
+        except BaseException:  # the workers started for nothing
+            if self.workers is not None:
+                self.workers.stop()
+            raise
+
+    def _set_up(self, on_device, on_resume, on_input) -> None:
         from gpu_blur.backends import get_backend
         from gpu_blur.discovery import BUILT_IN_INPUT, check_layout, find_samples
         from gpu_blur.distributed import pick_executor
         from gpu_blur.gpu_jpeg import for_backend
         from gpu_blur.run_record import library_versions
-        from gpu_blur.scene import load_scene
-        from gpu_blur.scheduler import Schedule
         from gpu_blur.set_formats import format_record, writer
 
-        self.o, self.progress = o, progress
-        scene = self.scene = load_scene(o.scene)
+        o, scene = self.o, self.scene
         self.backend = get_backend(o.backend, scene.output.precision)  # fails before any work
         if on_device is not None:
             on_device(self.backend.device)
-        check_setup(o, scene)
         self.jpeg = (for_backend(self.backend, scene.blur.mode == "average")
                      if o.jpeg_decoder == "gpu" else None)
         self.executor = pick_executor(o, scene.output.precision)  # serial, devices or ray
@@ -440,9 +477,6 @@ class _Run:
                      average_gopro_large_sharp=o.average_gopro_large_sharp,
                      frames_as_photos=o.frames_as_photos)
         specs = found.take(o.limit)
-        # the Schedule rides in Job.tile (tile, memory budget, spot checks; see pipeline)
-        self.schedule = Schedule(tuple(o.tile) if o.tile else None, o.max_device_memory,
-                                 o.verify)
         # how samples run, never what they give: recorded, not checked by resume
         how = {"tile": list(self.schedule.tile) if self.schedule.tile else None,
                "max_device_memory": self.schedule.max_device_memory,
@@ -459,7 +493,6 @@ class _Run:
         if self.jpeg:  # absent for the CPU's decoder, as sets made before the option record it
             run["jpeg_decoder"] = o.jpeg_decoder
             run["libraries"].update(self.jpeg.libraries)
-        self.extras = extras(o.save)
         if self.extras:  # absent without save, as sets made before it record it
             run["save"] = list(self.extras)
         run.update(format_record(o.format, o.shard_size))  # absent for PNG, as sets before
@@ -527,7 +560,6 @@ class _Run:
         from gpu_blur.distributed import run_devices
         from gpu_blur.generate import (
             QUEUE_PER_THREAD,
-            Job,
             WriteBehind,
             default_io_threads,
             pinned_staging,
@@ -537,7 +569,7 @@ class _Run:
         from gpu_blur.scheduler import SPOT_CHECK_FAILED
         from gpu_blur.timings import PoolTimes, RunTotals, current, timer
 
-        o, scene, writer = self.o, self.scene, self.writer
+        o, writer = self.o, self.writer
         totals, writing = RunTotals(), current().seconds["writing"]
         devices = getattr(self.executor, "func", None) is run_devices
         # --devices into a set of files: the workers write them, in their threads
@@ -553,9 +585,8 @@ class _Run:
         samples = watched = None
         ended = False
         start = time.perf_counter()
+        job = self.job
         try:
-            job = Job(scene, o.seed, o.backend, self.schedule, "raw" in self.extras,
-                      bits=scene.output.bits, with_mask="mask" in self.extras)
             # one device: the pool also decodes ahead; devices and ray workers decode their
             # own inputs (device workers through shares of the frame cache), and the pool
             # encodes and writes what they make, unless device workers write it themselves
@@ -565,7 +596,8 @@ class _Run:
                        if io and self.executor is run_serial else
                        run_serial(job, self.todo, cache) if self.executor is run_serial else
                        self.executor(job, self.todo, frame_cache=cache, pool_times=io,
-                                     writes=writes, io_threads=o.io_threads)
+                                     writes=writes, io_threads=o.io_threads,
+                                     workers=self.workers)
                        if devices else
                        self.executor(job, self.todo))
             # kept in a name: after a strict stop the progress bar closes once the stop is
@@ -601,6 +633,8 @@ class _Run:
             # no thread or worker may write once the folder's lock is released
             if samples is not None:  # an executor's workers stop (device workers write)
                 samples.close()
+            if self.workers is not None:  # started, though never handed the samples
+                self.workers.stop()
             if pool is not None:
                 pool.shutdown(cancel_futures=True)
             if not ended:  # the error that stopped the run is the one to report, not a flush

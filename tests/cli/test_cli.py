@@ -234,6 +234,7 @@ def test_a_device_worker_whose_driver_is_gone_ends_quietly(tmp_path, capfd):
 
     worker, conn, specs = device_worker(tmp_path, size=(400, 600))  # about 1 s a sample
     assert conn.recv()[0] == "open"
+    conn.send(("setup", (False, 0, None)))  # no shared memory, frame cache or writing
     conn.send(specs[0])
     time.sleep(0.3)
     conn.close()  # the driver is gone while the worker makes the sample
@@ -252,6 +253,7 @@ def test_ctrl_c_while_a_device_worker_starts_prints_no_traceback(tmp_path, capfd
     while time.monotonic() < end and not conn.poll(0.01):
         os.kill(worker.pid, signal.SIGINT)
     assert conn.recv()[0] == "open"
+    conn.send(("setup", (False, 0, None)))  # no shared memory, frame cache or writing
     os.kill(worker.pid, signal.SIGINT)  # ignored once it runs
     conn.send(specs[0])
     assert conn.recv()[0] == "sample"

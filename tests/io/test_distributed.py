@@ -180,16 +180,15 @@ def test_device_workers_writing_a_png_set_count_their_decoding_and_writing_in_th
 
 
 def test_a_devices_run_into_a_container_counts_its_workers_decoding_and_its_hand_off(
-        tmp_path, photos, monkeypatch):
-    monkeypatch.setattr(distributed, "default_io_threads", lambda: 4)  # 2 a worker
+        tmp_path, photos):
     folder, scene = photos
     report = gpu_blur.generate_set(tmp_path / "out", input=folder, scene=scene,
-                                   samples_per_photo=2, devices="numpy,numpy", io_threads=2,
+                                   samples_per_photo=2, devices="numpy,numpy", io_threads=4,
                                    format="webdataset")
     threads = next(line for line in report.summary if line.startswith("I/O threads"))
-    # the driver's 2 writing threads (a shard is written through the driver) and each
-    # worker's 2 decoding threads
-    assert re.match(r"I/O threads \(6\): decoding [\d.]+ s \(\d+ files", threads), threads
+    # the driver's 4 writing threads (a shard is written through the driver) and each
+    # worker's 2 decoding threads (--io-threads shared by the workers)
+    assert re.match(r"I/O threads \(8\): decoding [\d.]+ s \(\d+ files", threads), threads
     # what handing the results to the driver cost each side, a sample at a time
     handoff = next(line for line in report.summary if line.startswith("hand-off"))
     assert re.fullmatch(
@@ -349,6 +348,30 @@ def test_bad_device_options_are_refused_before_any_work(tmp_path, photos, capsys
     assert main(args(photos, out, *extra)) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
+    assert not multiprocessing.active_children()  # workers started early were stopped
+
+
+def test_devices_workers_start_before_the_set_up_and_stop_when_it_refuses_the_run(
+        tmp_path, photos, reference, monkeypatch):
+    started = []
+
+    class Recorded(distributed.DeviceWorkers):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            started.append(self)
+
+    monkeypatch.setattr(distributed, "DeviceWorkers", Recorded)
+    out = tmp_path / "out"
+    assert main(args(photos, out, "--devices", "numpy,numpy")) == 1
+    assert_same_set(out, reference("numpy"))  # made by the workers started early
+    assert len(started) == 1 and not multiprocessing.active_children()
+    # the folder holds a set now: refused after the workers started, which stop
+    assert main(args(photos, out, "--devices", "numpy,numpy")) == 2
+    assert len(started) == 2 and not multiprocessing.active_children()
+    # a resume makes the two failed samples again (c.png is still cut)
+    assert main(args(photos, out, "--devices", "numpy,numpy", "--resume")) == 1
+    assert len(started) == 3 and not multiprocessing.active_children()
+    assert_same_set(out, reference("numpy"))
 
 
 def test_devices_and_ray_exclude_each_other(tmp_path, photos):

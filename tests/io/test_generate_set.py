@@ -57,6 +57,9 @@ def test_generate_set_raises_what_the_command_prints(tmp_path, capsys):
     devices = []
     with pytest.raises(ValueError, match=r"--seed -1: must lie in \[0, 2\*\*64\)"):
         gpu_blur.generate_set(tmp_path / "set", seed=-1, on_device=devices.append)
+    assert devices == []  # the options are checked before the device is opened
+    gpu_blur.generate_set(tmp_path / "set", limit=1, scene={"blur": {"steps": 3}},
+                          on_device=devices.append)
     assert devices == [get_backend("numpy").device]
     with pytest.raises(ValueError, match="--save shiny: 'shiny' is not an output"):
         gpu_blur.generate_set(tmp_path / "set", save=["shiny"])
