@@ -449,6 +449,7 @@ class DatasetWriter:
         self.manifest = open(self.manifest_path, "a")
         self._specs, self._next = specs, 0  # lines go out in this order (see _append)
         self._waiting: dict[int, str] = {}
+        self._waiting_made: set[int] = set()  # those of made samples (status "ok")
         self._last = max(self.done, default=-1)  # the highest index listed so far
         self._sorted = True  # whether the manifest's lines are in index order
 
@@ -637,14 +638,22 @@ class DatasetWriter:
             self._write_line(line["index"], text)
         else:
             self._waiting[line["index"]] = text
+            if line["status"] == "ok":
+                self._waiting_made.add(line["index"])
             while self._next < len(self._specs):
                 index = self._specs[self._next].index
                 if index not in self.done:
                     if index not in self._waiting:
                         break
                     self._write_line(index, self._waiting.pop(index))
+                    self._waiting_made.discard(index)
                 self._next += 1
         self.manifest.flush()
+
+    @property
+    def held_back(self) -> int:
+        """Made samples whose lines still wait for an earlier sample's (dropped at close)."""
+        return len(self._waiting_made)
 
     def _write_line(self, index: int, text: str) -> None:
         """Append a line, noting whether the manifest is still in index order."""

@@ -628,7 +628,8 @@ class _Run:
             with contextlib.suppress(KeyboardInterrupt, OSError):
                 for written in behind.drain():
                     self.finish(*written)
-            stop, ended = SetInterrupted(self.made, e), True
+            # those whose lines wait for an earlier sample's are dropped: made again on resume
+            stop, ended = SetInterrupted(self.made - writer.held_back, e), True
         finally:
             # no thread or worker may write once the folder's lock is released
             if samples is not None:  # an executor's workers stop (device workers write)

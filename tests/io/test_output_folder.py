@@ -294,6 +294,25 @@ def test_manifest_lines_are_written_in_sample_order_whatever_order_samples_finis
     assert [json.loads(x)["index"] for x in lines] == [0, 1, 2, 3]
 
 
+def test_made_samples_whose_lines_wait_are_not_counted_as_written(tmp_path):
+    # what a stop reports: "interrupted after N new samples" counts the lines listed, not
+    # those that wait for an earlier sample (dropped at close, made again on resume)
+    specs = [SampleSpec(i, f"p{i}", (tmp_path / f"p{i}.png",)) for i in range(4)]
+    writer = DatasetWriter(tmp_path / "out", 8, specs=specs)
+    made = [{"index": i, "name": f"p{i}", "status": "ok"} for i in range(4)]
+    writer.add(made[2])
+    assert writer.held_back == 1
+    writer.add(made[0])  # listed; 2 still waits for 1
+    assert writer.held_back == 1
+    writer.fail(specs[3], "bad input", {})  # a failed sample waits too, but was not made
+    assert writer.held_back == 1
+    writer.add(made[1])  # 1, 2 and 3 listed
+    assert writer.held_back == 0
+    writer.close()
+    lines = (tmp_path / "out" / "manifest.jsonl").read_text().splitlines()
+    assert [json.loads(x)["index"] for x in lines] == [0, 1, 2, 3]
+
+
 @pytest.mark.parametrize("kind", ["symlink", "hardlink"])
 def test_a_lock_file_that_leads_to_another_file_is_refused_and_that_file_kept(
         tmp_path, photos, capsys, kind):
