@@ -12,7 +12,8 @@ it can; the driver receives them in one thread, as ``gpu_blur.distributed`` does
 The rate counts from the moment every worker is ready (imports and array set-up left out) to
 the last sample received; ``driver ms`` is the receiving thread's CPU time per sample, which
 bounds its rate at any number of workers. Synthesis, decoding and writing files are left out:
-this is the hand-off alone.
+this is the hand-off alone. Since 543c36e only LMDB and WebDataset sets hand their samples
+over this way; the workers of a PNG set write its files themselves and send only the lines.
 
     PYTHONPATH=$PWD python3 bench/devices_handoff.py --workers 1,2,4 --json handoff.json
 """
