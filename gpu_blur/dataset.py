@@ -331,7 +331,8 @@ class DatasetWriter:
       process; :meth:`close` and a refusal remove the file (a killed run leaves it, blocking
       nothing, as the record of its temporary files).
     * Nothing half-written under a final name: each file is written under a temporary name
-      unique to the process (:func:`gpu_blur.file_writing.temporary_path`) and renamed, and a
+      unique to the process (:func:`gpu_blur.file_writing.temporary_path`; a ``--devices``
+      worker's bear its driver's id, and no two processes write one sample) and renamed, and a
       sample's line is appended and flushed only after its files, so the manifest lists
       only finished samples whatever moment a run is killed.
     * The manifest in sample order: lines are written in the order of ``specs`` however the
@@ -378,8 +379,9 @@ class DatasetWriter:
         OSError: naming the folder when it cannot be created or written.
     """
 
-    #: Whether each sample is files of its own in the set's folders, which any process may
-    #: write (:meth:`folder_writes`); a container format's writer says no.
+    #: Whether each sample is files of its own in the set's folders, named by :func:`_paths`,
+    #: which any process may write (:meth:`folder_writes`); a container format's writer (its
+    #: own names and store) says no.
     FILES_ANY_PROCESS = True
 
     def __init__(self, out: Path, bits: int, run: dict | None = None, *,
