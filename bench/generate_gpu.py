@@ -152,10 +152,14 @@ def measured_codec_bound(paths: list[Path], decodes: int, out: Path, samples: in
     ``decodes`` reads of ``paths`` (in turn) with ``read_image`` and 2 ``encode_image(.., 8,
     png=png)`` a sample of the output set ``out`` read back, mixed as the samples run; the
     pool's wall seconds, the median of ``repeats`` (each job also decode-only and
-    encode-only).
+    encode-only). glibc's malloc set as ``gpu-blur generate`` sets it
+    (:mod:`gpu_blur.allocator`); the result's ``malloc`` says how.
     """
+    from gpu_blur.allocator import keep_freed_memory
     from gpu_blur.file_writing import encode_image
     from gpu_blur.image_reading import read_image
+
+    malloc = keep_freed_memory()
 
     # the blurred and sharp images of each sample in turn
     outputs = sorted(out.rglob("*.png"), key=lambda path: (path.name, path.parent.name))
@@ -184,7 +188,7 @@ def measured_codec_bound(paths: list[Path], decodes: int, out: Path, samples: in
                 each[key].append(wall(tasks))
     seconds = {key.removesuffix("_each"): statistics.median(v) for key, v in each.items()}
     return {"threads": threads, "decodes": len(decode), "encodes": len(encode),
-            "images_encoded": len(images), **seconds, **each,
+            "images_encoded": len(images), "malloc": malloc, **seconds, **each,
             "samples_per_s": samples / seconds["seconds"]}
 
 

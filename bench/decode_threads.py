@@ -1,0 +1,142 @@
+"""PNG frames decoded by a pool of threads, with glibc's malloc as gpu_blur sets it and as is.
+
+Writes ``--frames`` frames of 1920 x 1200 (``generate_gpu.write_sequence``: the built-in
+photo panned 2 px a frame, saved with OpenCV's defaults, as a user's frames most often are),
+then ``--rounds`` times, each setting of ``GPU_BLUR_MALLOC`` in turn (``glibc``: glibc's own;
+``keep``: :func:`gpu_blur.allocator.keep_freed_memory`'s, what ``gpu-blur generate`` runs
+with), a fresh process that decodes every frame through ``--threads`` threads
+(``read_image``, as ``generate``'s I/O threads do) after decoding ``2 x threads`` of them
+uncounted. Each run: the pool's wall seconds, frames a second, and the milliseconds a frame
+took a thread (threads x seconds / frames).
+
+``--generate N --backend warp`` adds ``gpu-blur generate`` over N distinct windows of the
+first ``9 N`` frames (each frame read by one sample, as ``generate_gpu.py --windows
+distinct``) with each setting in turn, ``--rounds`` times: its own rate (its ``wrote`` line)
+and its I/O threads' decoding line.
+
+    PYTHONPATH=$PWD python3 bench/decode_threads.py --frames 2304 --generate 256 \\
+        --backend warp --json bench/results/decode_threads_h200.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import generate_gpu  # noqa: E402  (this folder's benches: the frames, the runs, the host)
+import png_codecs  # noqa: E402
+
+SETTINGS = ("glibc", "keep")
+
+#: The decoding process: its setting from GPU_BLUR_MALLOC, then the pool, timed.
+_DECODE = """
+import sys, time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from gpu_blur.allocator import keep_freed_memory
+from gpu_blur.image_reading import read_image
+said = keep_freed_memory()
+paths, threads = sorted(Path(sys.argv[1]).rglob("*.png")), int(sys.argv[2])
+with ThreadPoolExecutor(threads) as pool:
+    list(pool.map(lambda p: read_image(p).shape, paths[:2 * threads]))
+    start = time.perf_counter()
+    list(pool.map(lambda p: read_image(p).shape, paths))
+    print(time.perf_counter() - start, len(paths), said, sep="\\t")
+"""
+
+
+def decode_run(root: Path, threads: int, setting: str) -> dict:
+    """One decoding process with ``setting``: seconds, frames/s, ms a frame a thread."""
+    env = dict(os.environ, GPU_BLUR_MALLOC=setting)
+    done = subprocess.run([sys.executable, "-c", _DECODE, str(root), str(threads)], env=env,
+                          capture_output=True, text=True, check=False)
+    if done.returncode:
+        raise RuntimeError(done.stderr[-2000:])
+    seconds, frames, said = done.stdout.strip().split("\t")
+    seconds, frames = float(seconds), int(frames)
+    return {"seconds": seconds, "frames_per_s": frames / seconds,
+            "ms_a_frame_a_thread": 1e3 * threads * seconds / frames, "malloc": said}
+
+
+def generate_run(root: Path, out: Path, backend: str, samples: int, threads: int,
+                 setting: str) -> dict:
+    """``gpu-blur generate`` over ``samples`` windows with ``setting``: its rate and lines."""
+    os.environ["GPU_BLUR_MALLOC"] = setting  # the run's process inherits it
+    try:
+        wall, lines = generate_gpu._run(root, out, backend, samples, threads)
+    finally:
+        del os.environ["GPU_BLUR_MALLOC"]
+    rate = re.search(r"\(([\d.]+) samples/s\)", lines[0])
+    decoding = next((line for line in lines if line.startswith("I/O threads")), "")
+    each = re.search(r"([\d.]+) ms each", decoding)
+    return {"seconds": wall, "in_run_samples_per_s": float(rate.group(1)) if rate else None,
+            "decode_ms_each": float(each.group(1)) if each else None, "summary": lines}
+
+
+def _medians(runs: dict[str, list[dict]], key: str) -> dict[str, float]:
+    return {setting: statistics.median(run[key] for run in each)
+            for setting, each in runs.items()}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--frames", type=int, default=2304, help="frames to write and decode "
+                   "(default 2304: 256 samples of 9)")
+    p.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)),
+                   help="decoding threads (default: the cores this process may run on)")
+    p.add_argument("--rounds", type=int, default=2, help="times each setting runs, in turn")
+    p.add_argument("--generate", type=int, metavar="N", default=0,
+                   help="also gpu-blur generate over N distinct windows with each setting")
+    p.add_argument("--backend", default="warp", help="--generate's backend (default warp)")
+    p.add_argument("--json", type=Path, help="write the results here")
+    args = p.parse_args(argv)
+    frames = max(args.frames, 9 * args.generate)
+    root = Path(tempfile.mkdtemp(prefix="gpu_blur_decode_")) / "in"
+    generate_gpu.write_sequence(root, frames)
+    decodes: dict[str, list[dict]] = {s: [] for s in SETTINGS}
+    runs: dict[str, list[dict]] = {s: [] for s in SETTINGS}
+    for round_ in range(args.rounds):
+        for setting in SETTINGS:
+            decodes[setting].append(run := decode_run(root, args.threads, setting))
+            print(f"round {round_ + 1}, {setting}: {frames} frames through {args.threads} "
+                  f"threads in {run['seconds']:.2f} s, {run['ms_a_frame_a_thread']:.1f} ms "
+                  "a frame a thread", flush=True)
+            if args.generate:
+                runs[setting].append(made := generate_run(
+                    root, root.parent / "out", args.backend, args.generate, args.threads,
+                    setting))
+                print(f"  generate: {made['in_run_samples_per_s']} samples/s in the run, "
+                      f"decoding {made['decode_ms_each']} ms a file", flush=True)
+    result = {
+        "what": f"bench/decode_threads.py --frames {frames} --threads {args.threads} "
+                f"--rounds {args.rounds}"
+                + (f" --generate {args.generate} --backend {args.backend}"
+                   if args.generate else ""),
+        "machine": png_codecs.machine(),
+        "image": [generate_gpu.W, generate_gpu.H], "frames": frames, "threads": args.threads,
+        "decode": {"runs": decodes,
+                   "median_ms_a_frame_a_thread": _medians(decodes, "ms_a_frame_a_thread"),
+                   "median_frames_per_s": _medians(decodes, "frames_per_s")},
+    }
+    if args.generate:
+        result["generate"] = {"samples": args.generate, "backend": args.backend, "runs": runs,
+                              "median_in_run_samples_per_s":
+                                  _medians(runs, "in_run_samples_per_s")}
+    print(json.dumps({k: v for k, v in result["decode"].items() if k != "runs"}))
+    if args.generate:
+        print(json.dumps(result["generate"]["median_in_run_samples_per_s"]))
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
