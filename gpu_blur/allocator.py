@@ -6,10 +6,11 @@ and freed by many I/O threads at once. With glibc's defaults a thread's heap han
 freed at its top back to the kernel once more than twice the largest block freed so far lies
 there, so the next frame's pages are mapped and zeroed again. :data:`SETTINGS` keep freed
 memory in the process instead, for the next frame: on one H200's 16-core host
-(``bench/decode_threads.py``, 2,304 such frames through 16 threads) a frame took a thread
-45-48 ms with glibc's defaults and 30-35 ms with these settings (bench/results/
-decode_threads_h200.json). The process keeps the most it held (which the run's queues bound,
-:data:`gpu_blur.generate.QUEUE_PER_THREAD`) until it ends.
+(``bench/decode_threads.py``, 2,304 such frames through 16 threads, at 74843aa) a frame took
+a thread 42.8 ms with glibc's own settings and 26.7 ms with these (medians of two rounds;
+bench/results/decode_threads_h200.json); ``generate`` over 256 distinct windows gained less
+(docs/performance.md, "Whole sets from disk"). The process keeps the most it held (which the
+run's queues bound, :data:`gpu_blur.generate.QUEUE_PER_THREAD`) until it ends.
 
 ``gpu-blur generate`` and the device workers it starts call :func:`keep_freed_memory`;
 ``generate_set`` from Python leaves the calling process's allocator as it is. Set

@@ -550,6 +550,30 @@ def bench_float_inputs(name: str = "float_inputs_h200") -> str:
             + provenance(path, data["device"], _named(data)))
 
 
+def bench_decode_threads(name: str = "decode_threads_h200") -> str:
+    """PNG frames through a pool of threads with glibc's malloc as is and as gpu_blur sets it."""
+    data, path = load(name)
+    decode, made = data["decode"], data.get("generate")
+    rows = []
+    for setting in ("glibc", "keep"):
+        runs = decode["runs"][setting]
+        rows.append([setting, decode["median_ms_a_frame_a_thread"][setting],
+                     " / ".join(_fmt(run["ms_a_frame_a_thread"]) for run in runs),
+                     decode["median_frames_per_s"][setting]]
+                    + ([" / ".join(_fmt(run["in_run_samples_per_s"])
+                                   for run in made["runs"][setting]),
+                        " / ".join(_fmt(run["decode_ms_each"]) for run in made["runs"][setting])]
+                       if made else []))
+    heads = (["GPU_BLUR_MALLOC", "ms a frame a thread (median)", "each round",
+              "frames a second (median)"]
+             + ([f"generate, {made['samples']} distinct windows: samples/s in the run, each "
+                 "round", "its ms a frame decoded"] if made else []))
+    host = data["machine"]
+    device = (f"{host.get('host', host.get('cpu'))}; {data['frames']} frames of "
+              f"{data['image'][0]} x {data['image'][1]} through {data['threads']} threads")
+    return _table(heads, rows) + "\n\n" + provenance(path, device, _named(data))
+
+
 def bench_multi_gpu(name: str) -> str:
     """Samples per second on 1, 2, 4 GPUs of one host, by source."""
     data, path = load(name)
@@ -856,6 +880,7 @@ BENCH = {
     "generate-codes": bench_generate_codes,
     "generate-devices": bench_generate_devices,
     "generate-windows": bench_generate_windows,
+    "decode-threads": bench_decode_threads,
     "device-path-beside": bench_device_path_beside,
     "devices-host": bench_devices_host,
     "devices-handoff": bench_devices_handoff,
