@@ -115,6 +115,40 @@ def all_devices(backend: str, precision: str = "float32") -> list[str]:
     return names
 
 
+def counted_devices(backend: str) -> list[str] | None:
+    """What ``--devices all`` will most likely stand for, counted without opening a runtime.
+
+    For starting the workers early (:func:`gpu_blur.generation.early_workers`), before
+    :func:`all_devices` (which opens Warp or OpenCL, a second or so) says what it stands for.
+    numpy: :func:`all_devices`' list. warp: ``warp:cuda:N`` for each device the CUDA driver
+    counts (libcuda's ``cuDeviceGetCount``, ``CUDA_VISIBLE_DEVICES`` applied); None where
+    it counts none or cannot be loaded (``warp:cpu`` then, found late). opencl: None (no
+    count without the runtime). Workers started for a list :func:`all_devices` does not
+    confirm are stopped, and the right ones started.
+    """
+    kind = family(backend)
+    if kind == "numpy":
+        return all_devices(backend)
+    if kind != "warp":
+        return None
+    count = _cuda_device_count()
+    return [f"warp:cuda:{i}" for i in range(count)] if count else None
+
+
+def _cuda_device_count() -> int | None:
+    """CUDA devices the NVIDIA driver counts for this process, or None without a driver."""
+    import ctypes
+
+    try:
+        cuda = ctypes.CDLL("nvcuda.dll" if os.name == "nt" else "libcuda.so.1")
+    except OSError:
+        return None
+    count = ctypes.c_int(0)
+    if cuda.cuInit(0) != 0 or cuda.cuDeviceGetCount(ctypes.byref(count)) != 0:
+        return None  # CUDA_SUCCESS is 0 (cuda.h)
+    return count.value
+
+
 def _is_opencl_gpu(name: str) -> bool:
     from gpu_blur.backends.opencl import opencl_devices
 

@@ -253,19 +253,28 @@ def _check_jpeg_decoder(o) -> None:
 
 
 def early_workers(o, job):
-    """The ``--devices`` workers, started before the run's set-up when the list names them.
+    """The ``--devices`` workers, started before the run's set-up where the names are known.
 
     They import gpu_blur and open their devices (a second each on a GPU: Warp's import and
     start-up, a CUDA context) while the driver opens its own, reads the input and the output
-    folder. ``--devices all`` starts them later, once the devices are counted; so does a run
-    without ``--devices`` or with ``--ray`` (None). The names are checked afterwards, as
-    before (:func:`gpu_blur.distributed.parse_devices`): a bad one stops them.
+    folder. A list names them; ``--devices all`` as counted cheaply
+    (:func:`gpu_blur.distributed.counted_devices`: numpy, and Warp's CUDA devices), else
+    they start later, once the devices are known (an OpenCL backend, Warp without CUDA); so
+    does a run without ``--devices`` or with ``--ray`` (None). The names are checked
+    afterwards (:func:`gpu_blur.distributed.parse_devices`): a bad one stops them, and
+    workers started for another list than ``all`` stands for are stopped
+    (:meth:`_Run._set_up`).
     """
-    from gpu_blur.distributed import DeviceWorkers
+    from gpu_blur.distributed import DeviceWorkers, counted_devices
 
-    if o.devices is None or o.ray is not None or o.devices.strip() == "all":
+    if o.devices is None or o.ray is not None:
         return None
-    names = [name.strip() for name in o.devices.split(",")]
+    if o.devices.strip() == "all":
+        names = counted_devices(o.backend)
+        if names is None:
+            return None
+    else:
+        names = [name.strip() for name in o.devices.split(",")]
     if not all(names):
         return None  # refused by parse_devices, naming the empty name
     return DeviceWorkers(job, names, o.io_threads)
@@ -462,6 +471,10 @@ class _Run:
         self.jpeg = (for_backend(self.backend, scene.blur.mode == "average")
                      if o.jpeg_decoder == "gpu" else None)
         self.executor = pick_executor(o, scene.output.precision)  # serial, devices or ray
+        devices = getattr(self.executor, "keywords", {}).get("devices")
+        if self.workers is not None and self.workers.devices != devices:
+            self.workers.stop()  # --devices all stands for others than counted: started anew
+            self.workers = None
         per_photo = o.samples_per_photo or (1 if o.input else 4)
         where = (f"scene file {scene.path}" if scene.path
                  else "the default scene" if o.scene is None else "the scene")

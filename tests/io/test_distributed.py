@@ -374,6 +374,77 @@ def test_devices_workers_start_before_the_set_up_and_stop_when_it_refuses_the_ru
     assert_same_set(out, reference("numpy"))
 
 
+def test_devices_all_starts_its_workers_early_and_anew_when_counted_otherwise(
+        tmp_path, photos, reference, monkeypatch):
+    started, stops, out = [], [], tmp_path / "out"
+
+    class Recorded(distributed.DeviceWorkers):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            started.append((self, out.exists()))  # the set's folder: made by the set-up
+
+        def stop(self, finished=False):
+            stops.append((len(started), self.devices, finished))
+            super().stop(finished)
+
+    monkeypatch.setattr(distributed, "DeviceWorkers", Recorded)
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)  # --devices all: two numpy workers
+    assert main(args(photos, out, "--devices", "all")) == 1
+    assert_same_set(out, reference("numpy"))
+    # started before the set-up, as counted, and they made the set
+    assert [(w.devices, later) for w, later in started] == [(["numpy", "numpy"], False)]
+    # counted as one device where all stands for two: it stops, two start for the run
+    monkeypatch.setattr(distributed, "counted_devices", lambda backend: ["numpy"])
+    started.clear(), stops.clear()
+    out = tmp_path / "out2"
+    assert main(args(photos, out, "--devices", "all")) == 1
+    assert_same_set(out, reference("numpy"))
+    assert [(w.devices, later) for w, later in started] == [(["numpy"], False),
+                                                            (["numpy", "numpy"], True)]
+    assert stops[0] == (1, ["numpy"], False)  # stopped before the run's started
+    assert not multiprocessing.active_children()
+
+
+def test_counted_devices_guess_all_without_opening_a_runtime(monkeypatch):
+    monkeypatch.setattr(os, "cpu_count", lambda: 3)
+    assert distributed.counted_devices("numpy") == ["numpy"] * 3
+    assert distributed.counted_devices("opencl") is None
+    assert distributed.counted_devices("opencl:0:0") is None
+    for count, names in ((2, ["warp:cuda:0", "warp:cuda:1"]), (0, None), (None, None)):
+        monkeypatch.setattr(distributed, "_cuda_device_count", lambda count=count: count)
+        assert distributed.counted_devices("warp") == names
+        assert distributed.counted_devices("warp:cpu") == names
+
+
+class FakeCuda:
+    """libcuda's cuInit and cuDeviceGetCount answering ``init`` and ``count``."""
+
+    def __init__(self, init: int, count: int):
+        self.init, self.count = init, count
+
+    def cuInit(self, flags):  # noqa: N802 (the driver API's name)
+        return self.init
+
+    def cuDeviceGetCount(self, pointer):  # noqa: N802
+        pointer._obj.value = self.count
+        return 0
+
+
+def test_the_cuda_count_comes_from_the_driver_and_none_without_one(monkeypatch):
+    import ctypes
+
+    monkeypatch.setattr(ctypes, "CDLL", lambda name: FakeCuda(0, 4))
+    assert distributed._cuda_device_count() == 4
+    monkeypatch.setattr(ctypes, "CDLL", lambda name: FakeCuda(100, 0))  # no device
+    assert distributed._cuda_device_count() is None
+
+    def missing(name):
+        raise OSError(f"{name}: cannot open shared object file")
+
+    monkeypatch.setattr(ctypes, "CDLL", missing)
+    assert distributed._cuda_device_count() is None
+
+
 def test_devices_and_ray_exclude_each_other(tmp_path, photos):
     with pytest.raises(SystemExit):
         main(args(photos, tmp_path / "out", "--devices", "all", "--ray", "auto"))
