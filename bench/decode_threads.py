@@ -1,20 +1,25 @@
-"""PNG frames decoded by a pool of threads, with glibc's malloc as gpu_blur sets it and as is.
+"""PNG frames decoded by a pool of threads, with glibc's malloc as it comes and keeping memory.
 
 Writes ``--frames`` frames of 1920 x 1200 (``generate_gpu.write_sequence``: the built-in
 photo panned 2 px a frame, saved with OpenCV's defaults, as a user's frames most often are),
-then ``--rounds`` times, each setting of ``GPU_BLUR_MALLOC`` in turn (``glibc``: glibc's own;
-``keep``: :func:`gpu_blur.allocator.keep_freed_memory`'s, what ``gpu-blur generate`` runs
-with), a fresh process that decodes every frame through ``--threads`` threads
-(``read_image``, as ``generate``'s I/O threads do) after decoding ``2 x threads`` of them
-uncounted. Each run: the pool's wall seconds, frames a second, and the milliseconds a frame
-took a thread (threads x seconds / frames).
+then ``--rounds`` times, each setting of :data:`SETTINGS` in turn (``glibc``: glibc's own;
+``keep``: glibc's variables below, which keep freed memory in the process for the next frame
+where glibc would give it back to the kernel), a fresh process that decodes every frame
+through ``--threads`` threads (``read_image``, as ``generate``'s I/O threads do) after
+decoding ``2 x threads`` of them uncounted. Each run: the pool's wall seconds, frames a second,
+the milliseconds a frame took a thread (threads x seconds / frames) and the process's peak
+resident memory (MiB).
 
 ``--generate N --backend warp`` adds ``gpu-blur generate`` over N distinct windows of the
 first ``9 N`` frames (each frame read by one sample, as ``generate_gpu.py --windows
 distinct``) with each setting in turn, ``--rounds`` times, after one such run uncounted (the
 first run on a host builds or loads the kernels and meets cold caches: at 74843aa on an H200
-host it ran at less than half the later runs' rate): its own rate (its ``wrote`` line) and its
-I/O threads' decoding line.
+host it ran at less than half the later runs' rate): its own rate (its ``wrote`` line), its
+I/O threads' decoding line, and its peak resident memory.
+
+At 74843aa ``gpu-blur generate`` set ``keep`` itself (through ``mallopt``); it gained too
+little in the run for the memory it cost and was taken out (docs/performance.md, "Freed
+memory kept"). The variables set the same from the process's start.
 
     PYTHONPATH=$PWD python3 bench/decode_threads.py --frames 2304 --generate 256 \\
         --backend warp --json bench/results/decode_threads_h200.json
@@ -36,51 +41,84 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import generate_gpu  # noqa: E402  (this folder's benches: the frames, the runs, the host)
 import png_codecs  # noqa: E402
 
-SETTINGS = ("glibc", "keep")
+#: glibc's malloc variables of each setting (mallopt(3)): ``keep`` serves blocks up to 32 MiB
+#: from the heaps (a frame of 16-bit 1920 x 1200 RGB is 13.8 MB), returns a heap's memory to
+#: the kernel only past 1 GiB free at its top, and grows a heap 64 MiB more than it needs.
+SETTINGS = {
+    "glibc": {},
+    "keep": {"MALLOC_MMAP_THRESHOLD_": str(32 << 20), "MALLOC_TRIM_THRESHOLD_": str(1 << 30),
+             "MALLOC_TOP_PAD_": str(64 << 20)},
+}
 
-#: The decoding process: its setting from GPU_BLUR_MALLOC, then the pool, timed.
+#: The decoding process (its setting in its environment): the pool, timed.
 _DECODE = """
 import sys, time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from gpu_blur.allocator import keep_freed_memory
 from gpu_blur.image_reading import read_image
-said = keep_freed_memory()
 paths, threads = sorted(Path(sys.argv[1]).rglob("*.png")), int(sys.argv[2])
 with ThreadPoolExecutor(threads) as pool:
     list(pool.map(lambda p: read_image(p).shape, paths[:2 * threads]))
     start = time.perf_counter()
     list(pool.map(lambda p: read_image(p).shape, paths))
-    print(time.perf_counter() - start, len(paths), said, sep="\\t")
+    print(time.perf_counter() - start, len(paths), peak_kb(), sep="\\t")
 """
+#: The process's peak resident memory (Linux: KiB), for both children.
+_PEAK = """
+import resource
+def peak_kb():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+"""
+#: ``gpu-blur generate`` that says its peak memory after its summary.
+_GENERATE = """
+import sys
+from gpu_blur.cli import main
+status = main(sys.argv[1:])
+print(f"peak memory {peak_kb()} KiB", file=sys.stderr)  # last of its output
+sys.exit(status)
+"""
+
+
+def _environment(setting: str) -> dict[str, str]:
+    """This process's environment without glibc's malloc variables, plus ``setting``'s."""
+    return {**{k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")},
+            **SETTINGS[setting]}
 
 
 def decode_run(root: Path, threads: int, setting: str) -> dict:
     """One decoding process with ``setting``: seconds, frames/s, ms a frame a thread."""
-    env = dict(os.environ, GPU_BLUR_MALLOC=setting)
-    done = subprocess.run([sys.executable, "-c", _DECODE, str(root), str(threads)], env=env,
-                          capture_output=True, text=True, check=False)
+    env = _environment(setting)
+    done = subprocess.run([sys.executable, "-c", _PEAK + _DECODE, str(root), str(threads)],
+                          env=env, capture_output=True, text=True, check=False)
     if done.returncode:
         raise RuntimeError(done.stderr[-2000:])
-    seconds, frames, said = done.stdout.strip().split("\t")
+    seconds, frames, peak = done.stdout.strip().split("\t")
     seconds, frames = float(seconds), int(frames)
     return {"seconds": seconds, "frames_per_s": frames / seconds,
-            "ms_a_frame_a_thread": 1e3 * threads * seconds / frames, "malloc": said}
+            "ms_a_frame_a_thread": 1e3 * threads * seconds / frames,
+            "peak_memory_mib": int(peak) / 1024}
 
 
 def generate_run(root: Path, out: Path, backend: str, samples: int, threads: int,
                  setting: str) -> dict:
     """``gpu-blur generate`` over ``samples`` windows with ``setting``: its rate and lines."""
-    os.environ["GPU_BLUR_MALLOC"] = setting  # the run's process inherits it
+    before = dict(os.environ)
+    os.environ.clear()
+    os.environ.update(_environment(setting))  # the run's process inherits it
     try:
-        wall, lines = generate_gpu._run(root, out, backend, samples, threads)
+        wall, lines = generate_gpu._run(root, out, backend, samples, threads,
+                                        launcher=("-c", _PEAK + _GENERATE))
     finally:
-        del os.environ["GPU_BLUR_MALLOC"]
+        os.environ.clear()
+        os.environ.update(before)
     rate = re.search(r"\(([\d.]+) samples/s\)", lines[0])
     decoding = next((line for line in lines if line.startswith("I/O threads")), "")
     each = re.search(r"([\d.]+) ms each", decoding)
+    peak = re.search(r"^peak memory (\d+) KiB$", lines[-1])
     return {"seconds": wall, "in_run_samples_per_s": float(rate.group(1)) if rate else None,
-            "decode_ms_each": float(each.group(1)) if each else None, "summary": lines}
+            "decode_ms_each": float(each.group(1)) if each else None,
+            "peak_memory_mib": int(peak.group(1)) / 1024 if peak else None,
+            "summary": lines[:-1] if peak else lines}
 
 
 def _medians(runs: dict[str, list[dict]], key: str) -> dict[str, float]:
@@ -113,13 +151,14 @@ def main(argv=None) -> int:
             decodes[setting].append(run := decode_run(root, args.threads, setting))
             print(f"round {round_ + 1}, {setting}: {frames} frames through {args.threads} "
                   f"threads in {run['seconds']:.2f} s, {run['ms_a_frame_a_thread']:.1f} ms "
-                  "a frame a thread", flush=True)
+                  f"a frame a thread, peak memory {run['peak_memory_mib']:.0f} MiB", flush=True)
             if args.generate:
                 runs[setting].append(made := generate_run(
                     root, root.parent / "out", args.backend, args.generate, args.threads,
                     setting))
                 print(f"  generate: {made['in_run_samples_per_s']} samples/s in the run, "
-                      f"decoding {made['decode_ms_each']} ms a file", flush=True)
+                      f"decoding {made['decode_ms_each']} ms a file, peak memory "
+                      f"{made['peak_memory_mib']:.0f} MiB", flush=True)
     result = {
         "what": f"bench/decode_threads.py --frames {frames} --threads {args.threads} "
                 f"--rounds {args.rounds}"

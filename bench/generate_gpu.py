@@ -152,14 +152,10 @@ def measured_codec_bound(paths: list[Path], decodes: int, out: Path, samples: in
     ``decodes`` reads of ``paths`` (in turn) with ``read_image`` and 2 ``encode_image(.., 8,
     png=png)`` a sample of the output set ``out`` read back, mixed as the samples run; the
     pool's wall seconds, the median of ``repeats`` (each job also decode-only and
-    encode-only). glibc's malloc set as ``gpu-blur generate`` sets it
-    (:mod:`gpu_blur.allocator`); the result's ``malloc`` says how.
+    encode-only).
     """
-    from gpu_blur.allocator import keep_freed_memory
     from gpu_blur.file_writing import encode_image
     from gpu_blur.image_reading import read_image
-
-    malloc = keep_freed_memory()
 
     # the blurred and sharp images of each sample in turn
     outputs = sorted(out.rglob("*.png"), key=lambda path: (path.name, path.parent.name))
@@ -188,7 +184,7 @@ def measured_codec_bound(paths: list[Path], decodes: int, out: Path, samples: in
                 each[key].append(wall(tasks))
     seconds = {key.removesuffix("_each"): statistics.median(v) for key, v in each.items()}
     return {"threads": threads, "decodes": len(decode), "encodes": len(encode),
-            "images_encoded": len(images), "malloc": malloc, **seconds, **each,
+            "images_encoded": len(images), **seconds, **each,
             "samples_per_s": samples / seconds["seconds"]}
 
 
@@ -317,10 +313,15 @@ def _spread(values: list, spec: str) -> str:
 
 
 def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
-         extra: tuple[str, ...] = (), tree: str | None = None, scene: str = "rsblur"):
-    """Wall seconds of one ``gpu-blur generate`` into a new ``out``, and its summary lines."""
+         extra: tuple[str, ...] = (), tree: str | None = None, scene: str = "rsblur",
+         launcher: tuple[str, ...] = ("-m", "gpu_blur.cli")):
+    """Wall seconds of one ``gpu-blur generate`` into a new ``out``, and its summary lines.
+
+    ``launcher``: Python's arguments that run the CLI with the rest (``-c CODE`` runs
+    ``CODE`` instead, with the CLI's arguments in ``sys.argv[1:]``).
+    """
     # another checkout takes the built-in scene: one older than output.png rejects the key
-    command = [sys.executable, "-m", "gpu_blur.cli", "generate", "--input", str(root),
+    command = [sys.executable, *launcher, "generate", "--input", str(root),
                "--output", str(out), "--scene", "rsblur" if tree else scene, "--backend", backend,
                "--samples-per-sequence", str(samples), "--io-threads", str(threads),
                "--quiet", "--overwrite", *extra]

@@ -270,11 +270,9 @@ def _device_worker(job: Job, driver: int, conn, threads: int = 1,
         signal.pthread_sigmask(signal.SIG_UNBLOCK, DRIVER_SIGNALS)
     held: list[Outbox] = []  # what to unlink if the driver dies
     threading.Thread(target=_exit_without, args=(driver, held), daemon=True).start()
-    from gpu_blur.allocator import keep_freed_memory
     from gpu_blur.backends import get_backend
 
     try:
-        keep_freed_memory()  # a process of ours: for its decoding threads' frames
         opened = ("open", get_backend(job.backend, job.scene.output.precision).device)
     except Exception as e:  # any reason the device cannot be opened
         opened = ("error", str(e))

@@ -551,23 +551,30 @@ def bench_float_inputs(name: str = "float_inputs_h200") -> str:
 
 
 def bench_decode_threads(name: str = "decode_threads_h200") -> str:
-    """PNG frames through a pool of threads with glibc's malloc as is and as gpu_blur sets it."""
+    """PNG frames through a pool of threads with glibc's malloc as it comes and keeping memory."""
     data, path = load(name)
     decode, made = data["decode"], data.get("generate")
+    peaks = "peak_memory_mib" in decode["runs"]["keep"][0]
+
+    def each(runs: list[dict], key: str) -> str:
+        return " / ".join(_fmt(run[key]) for run in runs)
+
     rows = []
     for setting in ("glibc", "keep"):
         runs = decode["runs"][setting]
         rows.append([setting, decode["median_ms_a_frame_a_thread"][setting],
-                     " / ".join(_fmt(run["ms_a_frame_a_thread"]) for run in runs),
-                     decode["median_frames_per_s"][setting]]
-                    + ([" / ".join(_fmt(run["in_run_samples_per_s"])
-                                   for run in made["runs"][setting]),
-                        " / ".join(_fmt(run["decode_ms_each"]) for run in made["runs"][setting])]
-                       if made else []))
-    heads = (["GPU_BLUR_MALLOC", "ms a frame a thread (median)", "each round",
+                     each(runs, "ms_a_frame_a_thread"), decode["median_frames_per_s"][setting]]
+                    + ([each(runs, "peak_memory_mib")] if peaks else [])
+                    + ([each(made["runs"][setting], "in_run_samples_per_s"),
+                        each(made["runs"][setting], "decode_ms_each")] if made else [])
+                    + ([each(made["runs"][setting], "peak_memory_mib")]
+                       if made and peaks else []))
+    heads = (["glibc malloc", "ms a frame a thread (median)", "each round",
               "frames a second (median)"]
+             + (["peak memory, MiB, each round"] if peaks else [])
              + ([f"generate, {made['samples']} distinct windows: samples/s in the run, each "
-                 "round", "its ms a frame decoded"] if made else []))
+                 "round", "its ms a frame decoded"] if made else [])
+             + (["its peak memory, MiB"] if made and peaks else []))
     host = data["machine"]
     device = (f"{host.get('host', host.get('cpu'))}; {data['frames']} frames of "
               f"{data['image'][0]} x {data['image'][1]} through {data['threads']} threads")

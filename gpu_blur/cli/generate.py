@@ -199,10 +199,7 @@ def _say_input(found) -> None:
 
 def _generate(args) -> int:
     """Make the set; print what it did, or what stopped it; return the exit status."""
-    from gpu_blur.allocator import keep_freed_memory
     from gpu_blur.generation import SetInterrupted, StrictStop, generate_set
-
-    keep_freed_memory()  # this command's process: for its I/O threads' frames
 
     def say_resume(state) -> None:
         print(f"resuming {args.output}: {state.done} of {state.samples} samples done, "

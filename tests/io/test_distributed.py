@@ -471,15 +471,6 @@ def test_a_device_that_cannot_open_stops_the_run_before_any_sample(photos):
         next(run_devices(job, specs, ["numpy", "nosuch"]))
 
 
-def test_a_worker_takes_the_allocator_setting_and_refuses_a_wrong_one(photos, monkeypatch):
-    folder, scene_path = photos
-    job = Job(load_scene(scene_path), 0, "numpy")
-    specs = find_samples(folder, "trajectory", 1, 1).take()
-    monkeypatch.setenv("GPU_BLUR_MALLOC", "fast")  # the workers inherit it
-    with pytest.raises(RuntimeError, match="--devices numpy: GPU_BLUR_MALLOC='fast': use keep"):
-        next(run_devices(job, specs, ["numpy"]))
-
-
 def test_a_job_pickles(photos):
     _, scene_path = photos
     job = Job(load_scene(scene_path), 7, "opencl:0:0", (16, 16))
