@@ -392,12 +392,12 @@ class DatasetWriter:
         if unknown:
             raise ValueError(f"--save {unknown[0]!r}: unknown; allowed: {', '.join(EXTRAS)} "
                              "(comma-separated)")
-        self.extras = tuple(extras)
         if overwrite and resume:
             raise ValueError("--overwrite and --resume exclude each other: --resume finishes "
                              "an interrupted set, --overwrite starts it again")
-        self.out, self.bits, self.png = out, bits, png
-        self.files = SampleFiles(out, bits, png, self.extras, os.getpid())
+        #: the set's folder, bits, PNG mode and extra outputs, and the pid its temporary
+        #: files bear (this process's, the one its lock records)
+        self.files = SampleFiles(out, bits, png, tuple(extras), os.getpid())
         self.manifest_path = out / MANIFEST
         self.done: dict[int, dict] = {}
         self.retry = 0  # failed samples whose lines were dropped, to be tried again
@@ -410,6 +410,26 @@ class DatasetWriter:
         except BaseException as e:  # a refusal (ValueError) changed nothing: no file left
             release_lock(self._lock, self.out / LOCK, remove=isinstance(e, ValueError))
             raise
+
+    @property
+    def out(self) -> Path:
+        """The set's folder."""
+        return self.files.out
+
+    @property
+    def bits(self) -> int:
+        """The outputs' bits (8, 16; 0: float TIFF)."""
+        return self.files.bits
+
+    @property
+    def png(self) -> str:
+        """``output.png``: how PNG files are written (:data:`gpu_blur.png_codecs.PNG_MODES`)."""
+        return self.files.png
+
+    @property
+    def extras(self) -> tuple[str, ...]:
+        """``--save``'s extra outputs (:data:`EXTRAS`)."""
+        return self.files.extras
 
     def _open(self, run, overwrite, resume, specs, total) -> None:
         out = self.out
