@@ -55,6 +55,7 @@ from gpu_blur.generate import (
     pinned_staging,
     run_pipelined,
     run_serial,
+    usable_cores,
 )
 from gpu_blur.shared_results import ASK, Blocks, Outbox, send
 from gpu_blur.timings import PoolTimes
@@ -95,13 +96,14 @@ def family(backend: str) -> str:
 def all_devices(backend: str, precision: str = "float32") -> list[str]:
     """What ``--devices all`` stands for with a backend.
 
-    numpy: ``os.cpu_count()`` workers; opencl: every usable OpenCL GPU, or every usable
-    OpenCL device when there is no GPU (a CPU runtime beside GPUs would be slow, share the
-    driver's cores and round float32 differently); warp: every CUDA device, else ``warp:cpu``.
+    numpy: a worker per core this process may run on (:func:`usable_cores`); opencl: every
+    usable OpenCL GPU, or every usable OpenCL device when there is no GPU (a CPU runtime
+    beside GPUs would be slow, share the driver's cores and round float32 differently); warp:
+    every CUDA device, else ``warp:cpu``.
     """
     kind = family(backend)
     if kind == "numpy":
-        return ["numpy"] * (os.cpu_count() or 1)
+        return ["numpy"] * usable_cores()
     names, unusable = usable_devices(kind, precision)
     if kind == "opencl":
         gpus = [n for n in names if _is_opencl_gpu(n)]

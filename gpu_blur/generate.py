@@ -42,7 +42,7 @@ from gpu_blur.timings import PoolTimes
 __all__ = ["BATCH", "Job", "MAX_DEFAULT_IO_THREADS", "QUEUE_PER_THREAD", "STAGED_BATCHES",
            "Saved", "WriteBehind", "checked_inputs", "decode", "default_io_threads", "for_driver",
            "make_batch", "make_sample", "pinned_staging", "read_input", "run_pipelined",
-           "run_serial"]
+           "run_serial", "usable_cores"]
 
 #: Samples per I/O thread that may wait on each side of synthesis: decoded (or being decoded)
 #: ahead of the sample being made, and made but not yet written behind it. With N threads at
@@ -60,11 +60,20 @@ BATCH = 4
 STAGED_BATCHES = 2
 
 
-def default_io_threads() -> int:
-    """``--io-threads``' default: the cores this process may run on, at most 32."""
+def usable_cores() -> int:
+    """The cores this process may run on.
+
+    Its CPU affinity where the system keeps one (a container's or ``taskset``'s share), else
+    every core of the host.
+    """
     cores = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
              else os.cpu_count())
-    return max(1, min(cores or 1, MAX_DEFAULT_IO_THREADS))
+    return max(1, cores or 1)
+
+
+def default_io_threads() -> int:
+    """``--io-threads``' default: the cores this process may run on, at most 32."""
+    return min(usable_cores(), MAX_DEFAULT_IO_THREADS)
 
 
 @dataclasses.dataclass(frozen=True)

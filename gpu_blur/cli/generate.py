@@ -50,8 +50,9 @@ def add_parser(sub) -> None:
     spread.add_argument("--devices", metavar="LIST", help="one worker process per device of "
                         "this host: 'all' (every usable device of --backend: OpenCL GPUs, "
                         "else OpenCL devices; Warp's CUDA devices, else its CPU; numpy: one "
-                        "per CPU core) or a comma list of --backend's devices, repeatable "
-                        "(opencl:0:0,opencl:0:1; numpy,numpy); same files as one process")
+                        "per CPU core it may use) or a comma list of --backend's devices, "
+                        "repeatable (opencl:0:0,opencl:0:1; numpy,numpy); same files as one "
+                        "process")
     spread.add_argument("--ray", metavar="ADDRESS", help="tasks on a Ray cluster: 'auto' (the "
                         "running cluster: RAY_ADDRESS or `ray start`'s, else a new local one) "
                         "or an address for ray.init (host:6379, ray://host:10001); inputs and "

@@ -388,7 +388,7 @@ def test_devices_all_starts_its_workers_early_and_anew_when_counted_otherwise(
             super().stop(finished)
 
     monkeypatch.setattr(distributed, "DeviceWorkers", Recorded)
-    monkeypatch.setattr(os, "cpu_count", lambda: 2)  # --devices all: two numpy workers
+    monkeypatch.setattr(distributed, "usable_cores", lambda: 2)  # --devices all: two workers
     assert main(args(photos, out, "--devices", "all")) == 1
     assert_same_set(out, reference("numpy"))
     # started before the set-up, as counted, and they made the set
@@ -405,8 +405,15 @@ def test_devices_all_starts_its_workers_early_and_anew_when_counted_otherwise(
     assert not multiprocessing.active_children()
 
 
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity"), reason="no CPU affinity here")
+def test_devices_all_with_numpy_is_a_worker_per_core_this_process_may_use(monkeypatch):
+    monkeypatch.setattr(os, "cpu_count", lambda: 128)  # the host's; the process may use 2
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 5})
+    assert parse_devices("all", "numpy") == ["numpy", "numpy"]
+
+
 def test_counted_devices_guess_all_without_opening_a_runtime(monkeypatch):
-    monkeypatch.setattr(os, "cpu_count", lambda: 3)
+    monkeypatch.setattr(distributed, "usable_cores", lambda: 3)
     assert distributed.counted_devices("numpy") == ["numpy"] * 3
     assert distributed.counted_devices("opencl") is None
     assert distributed.counted_devices("opencl:0:0") is None
@@ -451,7 +458,7 @@ def test_devices_and_ray_exclude_each_other(tmp_path, photos):
 
 
 def test_devices_all_is_every_usable_device_of_the_backend():
-    assert parse_devices("all", "numpy") == ["numpy"] * os.cpu_count()
+    assert parse_devices("all", "numpy") == ["numpy"] * distributed.usable_cores()
     if OPENCL:
         from gpu_blur.backends.opencl import device_rank
 
