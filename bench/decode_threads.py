@@ -102,15 +102,9 @@ def decode_run(root: Path, threads: int, setting: str) -> dict:
 def generate_run(root: Path, out: Path, backend: str, samples: int, threads: int,
                  setting: str) -> dict:
     """``gpu-blur generate`` over ``samples`` windows with ``setting``: its rate and lines."""
-    before = dict(os.environ)
-    os.environ.clear()
-    os.environ.update(_environment(setting))  # the run's process inherits it
-    try:
-        wall, lines = generate_gpu._run(root, out, backend, samples, threads,
-                                        launcher=("-c", _PEAK + _GENERATE))
-    finally:
-        os.environ.clear()
-        os.environ.update(before)
+    wall, lines = generate_gpu._run(root, out, backend, samples, threads,
+                                    launcher=("-c", _PEAK + _GENERATE),
+                                    environ=_environment(setting))
     rate = re.search(r"\(([\d.]+) samples/s\)", lines[0])
     decoding = next((line for line in lines if line.startswith("I/O threads")), "")
     each = re.search(r"([\d.]+) ms each", decoding)

@@ -314,18 +314,19 @@ def _spread(values: list, spec: str) -> str:
 
 def _run(root: Path, out: Path, backend: str, samples: int, threads: int,
          extra: tuple[str, ...] = (), tree: str | None = None, scene: str = "rsblur",
-         launcher: tuple[str, ...] = ("-m", "gpu_blur.cli")):
+         launcher: tuple[str, ...] = ("-m", "gpu_blur.cli"), environ: dict | None = None):
     """Wall seconds of one ``gpu-blur generate`` into a new ``out``, and its summary lines.
 
     ``launcher``: Python's arguments that run the CLI with the rest (``-c CODE`` runs
-    ``CODE`` instead, with the CLI's arguments in ``sys.argv[1:]``).
+    ``CODE`` instead, with the CLI's arguments in ``sys.argv[1:]``). ``environ``: the run's
+    environment (default this process's).
     """
     # another checkout takes the built-in scene: one older than output.png rejects the key
     command = [sys.executable, *launcher, "generate", "--input", str(root),
                "--output", str(out), "--scene", "rsblur" if tree else scene, "--backend", backend,
                "--samples-per-sequence", str(samples), "--io-threads", str(threads),
                "--quiet", "--overwrite", *extra]
-    env = dict(os.environ)
+    env = dict(os.environ if environ is None else environ)
     if tree is not None:  # that checkout's gpu_blur first on the path
         env["PYTHONPATH"] = os.pathsep.join(filter(None, [tree, env.get("PYTHONPATH")]))
     shutil.rmtree(out, ignore_errors=True)  # not timed: no run removes an earlier one's files

@@ -471,8 +471,9 @@ class _Run:
         self.jpeg = (for_backend(self.backend, scene.blur.mode == "average")
                      if o.jpeg_decoder == "gpu" else None)
         self.executor = pick_executor(o, scene.output.precision)  # serial, devices or ray
-        devices = getattr(self.executor, "keywords", {}).get("devices")
-        if self.workers is not None and self.workers.devices != devices:
+        #: --devices' workers' devices (the executor is run_devices), else None
+        self.devices = getattr(self.executor, "keywords", {}).get("devices")
+        if self.workers is not None and self.workers.devices != self.devices:
             self.workers.stop()  # --devices all stands for others than counted: started anew
             self.workers = None
         per_photo = o.samples_per_photo or (1 if o.input else 4)
@@ -570,7 +571,6 @@ class _Run:
 
     def run(self) -> SetReport:
         """Make the samples to do, write them, and sum up."""
-        from gpu_blur.distributed import run_devices
         from gpu_blur.generate import (
             QUEUE_PER_THREAD,
             WriteBehind,
@@ -584,7 +584,7 @@ class _Run:
 
         o, writer = self.o, self.writer
         totals, writing = RunTotals(), current().seconds["writing"]
-        devices = getattr(self.executor, "func", None) is run_devices
+        devices = self.devices is not None
         # --devices into a set of files: the workers write them, in their threads
         writes = writer.folder_writes(self.record) if devices else None
         threads = o.io_threads or default_io_threads()
