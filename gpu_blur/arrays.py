@@ -10,12 +10,45 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["DTYPES", "as_real", "as_warp", "channels_first", "channels_last", "check_dense",
-           "cuda_device", "dtype_name", "from_numpy", "from_warp", "library", "on_warp_device",
-           "producer_stream", "to_numpy", "view_at", "warp_samples"]
+__all__ = ["DTYPES", "WarpFrames", "as_real", "as_warp", "channels_first", "channels_last",
+           "check_dense", "cuda_device", "dtype_name", "from_numpy", "from_warp", "library",
+           "on_warp_device", "producer_stream", "to_numpy", "view_at", "warp_samples"]
 
 #: Input dtypes a batch may have (floats are sRGB values in [0, 1]).
 DTYPES = ("uint8", "uint16", "float16", "float32", "float64")
+
+
+class WarpFrames:
+    """A B x F x H x W x C batch of frames in one flat ``wp.array``: a Warp batch.
+
+    Warp's arrays stop at four dimensions; ``generate`` puts batches of frames together on
+    its device (:class:`~gpu_blur.staging.DeviceFrames`) and hands them over in this, which
+    ``Synthesizer`` reads as it reads a ``wp.array`` (:func:`warp_samples` views).
+    """
+
+    is_contiguous = True
+
+    def __init__(self, flat, shape: tuple[int, ...]):
+        self.shape, self._flat = tuple(shape), flat
+
+    @property
+    def ndim(self) -> int:
+        """5."""
+        return len(self.shape)
+
+    @property
+    def dtype(self):
+        """The Warp dtype of its values."""
+        return self._flat.dtype
+
+    @property
+    def device(self):
+        """The Warp device it lies on."""
+        return self._flat.device
+
+    def flatten(self):
+        """The flat ``wp.array`` (no copy), as ``wp.array.flatten`` of a contiguous one."""
+        return self._flat
 
 
 def library(x) -> str:
@@ -26,6 +59,8 @@ def library(x) -> str:
     """
     if isinstance(x, np.ndarray):
         return "numpy"
+    if isinstance(x, WarpFrames):
+        return "warp"
     module = type(x).__module__.split(".")[0]
     if module in ("torch", "cupy", "warp"):
         return module

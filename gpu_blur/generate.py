@@ -35,7 +35,7 @@ from gpu_blur.image_reading import opencv_reason, read_image
 from gpu_blur.reference.output import to_integers
 from gpu_blur.scene import Scene
 from gpu_blur.scheduler import Schedule
-from gpu_blur.staging import LentResults, PinnedStaging
+from gpu_blur.staging import DeviceFrames, LentResults, PinnedStaging
 from gpu_blur.synthesis import Synthesis, Synthesizer, synthesize
 from gpu_blur.timings import PoolTimes
 
@@ -236,12 +236,26 @@ def pinned_staging(job: Job) -> PinnedStaging | None:
     return PinnedStaging(backend, STAGED_BATCHES, BATCH)
 
 
+def device_frames(job: Job, staging: PinnedStaging | None,
+                  cache: FrameCache | None) -> DeviceFrames | None:
+    """:class:`~gpu_blur.staging.DeviceFrames` for a staged run of cached frames, or None.
+
+    So where the scene averages frames, the frame cache keeps some, and the backend takes
+    batches on its device (Warp on CUDA); it keeps as many bytes as the frame cache.
+    """
+    if (staging is None or cache is None or not cache.budget
+            or job.scene.blur.mode != "average" or not staging.backend.device_arrays):
+        return None
+    return DeviceFrames(staging.backend, cache.budget)
+
+
 def make_batch(job: Job, synthesizer: Synthesizer, specs: list[SampleSpec], batch: np.ndarray,
                results: LentResults | None = None) -> list[tuple] | None:
     """Samples made as one batch: :func:`make_sample`'s tuples, or None if the batch failed.
 
     ``batch``: their inputs, B x F x H x W x 3 (mode average) or B x H x W x 3, in the
-    synthesizer's pinned memory; ``results``: where the results go (page-locked arrays lent
+    synthesizer's pinned memory or on its device (:class:`~gpu_blur.staging.DeviceFrames`);
+    ``results``: where the results go (page-locked arrays lent
     for ``out=``; None: new arrays). A batch's sample is ``synthesize``'s, bit for bit
     (:class:`~gpu_blur.synthesis.Synthesizer`); so is each sample of a batch that fails,
     made again on its own by the caller, whose reason then names its file.
@@ -286,6 +300,10 @@ class _Inputs:
         self.jpeg = jpeg if jpeg is not None and jpeg.takes(spec) else None
         self.slot: int | None = None
         self.position = 0
+        #: some file of it was claimed by an earlier sample (a frame it shares)
+        self.shared = False
+        #: made from frames kept on the device (:class:`~gpu_blur.staging.DeviceFrames`)
+        self.on_device = False
         self.reads = not spec.problem and bool(spec.inputs)
         self._images: list = [None] * len(spec.inputs)
         self._left, self._lock = len(spec.inputs), threading.Lock()
@@ -299,6 +317,7 @@ class _Inputs:
         reader = read_image if self.jpeg is None else self.jpeg.read
         for i, path in enumerate(spec.inputs):
             frame, decode = _claim(path, reader, cache)
+            self.shared |= decode is None and cache is not None
             if decode is not None:
                 try:
                     self.tasks.append((pool.submit(times.run, "decode", decode), decode))
@@ -400,7 +419,8 @@ def _stage(ahead: deque[_Inputs], staging: PinnedStaging, pool: Executor,
     """Give free slots to the oldest runs of batchable samples not yet staged."""
     run: list[_Inputs] = []
     for waiting in [*ahead, None]:
-        stageable = waiting is not None and waiting.slot is None and waiting.batchable
+        stageable = (waiting is not None and waiting.slot is None and waiting.batchable
+                     and not waiting.on_device)
         if stageable and len(run) < staging.batch:
             run.append(waiting)
             continue
@@ -428,21 +448,27 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
     for another's decode: :class:`_Inputs`). With ``staging`` (a GPU) the pool also copies
     the next samples into its page-locked slots, a batch to a slot, and a slot's samples are
     made as one batch (:func:`make_batch`; one by one where they cannot be), into
-    page-locked arrays it lends (``staging.results``). The results are :func:`run_serial`'s,
-    in order; the time this thread waits for inputs is added to ``times.waited_for_inputs``,
-    the pool's decoding and staging to ``times.busy["decode"]``. ``more``: for samples that
-    arrive while the run goes (a device worker's): ``specs`` ends when none is waiting, and
-    ``more()`` waits for the next one when nothing is ahead (False: there are no more).
+    page-locked arrays it lends (``staging.results``). A sample that shares a file with an
+    earlier one (overlapping windows) is not staged where :func:`device_frames` keeps frames
+    on the device: runs of such samples are made as batches put together there. The results
+    are :func:`run_serial`'s, in order; the time this thread waits for inputs is added to
+    ``times.waited_for_inputs``, the pool's decoding and staging to ``times.busy["decode"]``.
+    ``more``: for samples that arrive while the run goes (a device worker's): ``specs`` ends
+    when none is waiting, and ``more()`` waits for the next one when nothing is ahead (False:
+    there are no more).
     ``jpeg``: samples of JPEG files are read as bytes and decoded in groups of :data:`BATCH`
     on the GPU (``--jpeg-decoder gpu``).
     """
     rest = iter(specs)
     ahead: deque[_Inputs] = deque()
     synthesizer = None
+    frames = device_frames(job, staging, cache)
     try:
         while True:
             for spec in itertools.islice(rest, depth - len(ahead)):
-                ahead.append(_Inputs(spec, pool, times, cache, jpeg))
+                waiting = _Inputs(spec, pool, times, cache, jpeg)
+                waiting.on_device = frames is not None and waiting.shared and waiting.batchable
+                ahead.append(waiting)
             if not ahead:
                 if more is not None and more():
                     continue
@@ -456,6 +482,9 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
             slot = ahead[0].slot
             group = ([w for w in itertools.islice(ahead, staging.batch) if w.slot == slot]
                      if slot is not None else
+                     list(itertools.takewhile(lambda w: w.on_device,
+                                              itertools.islice(ahead, staging.batch)))
+                     if ahead[0].on_device else
                      list(itertools.takewhile(lambda w: w.jpeg, itertools.islice(ahead, BATCH)))
                      if ahead[0].jpeg else [ahead[0]])
             start = time.perf_counter()
@@ -470,6 +499,11 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
                 made = jpeg.make(specs_made, inputs,
                                  functools.partial(make_batch, job, synthesizer),
                                  functools.partial(make_sample, job))
+            elif group[0].on_device:
+                batch = frames.batch_of(inputs)
+                if batch is not None:
+                    synthesizer = synthesizer or _synthesizer(job)
+                    made = make_batch(job, synthesizer, specs_made, batch, staging.results)
             elif len(group) > 1:
                 batch = staging.batch_of(slot, inputs, job.scene.blur.mode == "average")
                 if batch is not None:

@@ -13,18 +13,25 @@ the rates before and after.
 The batch's results come back the same way: :class:`LentResults` lends it page-locked arrays
 for ``out=``, which the device writes at the bus's rate, and takes each block back once the
 I/O threads have written its samples and dropped their arrays.
+
+Where samples share frames (overlapping windows of a sequence) on a Warp GPU,
+:class:`DeviceFrames` keeps each shared frame on the device once and puts their batches
+together there, so those frames cross neither the I/O threads' copies nor the bus again.
 """
 
 from __future__ import annotations
 
 import threading
 import weakref
+from collections import OrderedDict
 
 import numpy as np
 
+from gpu_blur.arrays import WarpFrames
 from gpu_blur.backends import PinnedHost
+from gpu_blur.timings import timer
 
-__all__ = ["LENT_RESULTS_BYTES", "LentResults", "PinnedStaging"]
+__all__ = ["DeviceFrames", "LENT_RESULTS_BYTES", "LentResults", "PinnedStaging"]
 
 #: Page-locked bytes :class:`LentResults` holds at most: the results of the batches a run has
 #: in flight (made, waiting to be written). 1 GiB holds 18 batches of four 1920 x 1200
@@ -198,3 +205,77 @@ class LentResults:
     def _given_back(self, block: np.ndarray) -> None:
         with self._lock:
             self._free.append(block)
+
+
+class DeviceFrames:
+    """Decoded frames kept on a Warp device for the samples that share them.
+
+    Overlapping windows of a sequence use each frame in several samples. Each such frame is
+    uploaded once from the frame cache's array (which every sample that reads the file gets,
+    read-only), and a batch of those samples is put together on the device, one device copy
+    a frame, for ``Synthesizer`` to read where it lies: no page-locked slot to fill, and the
+    bus carries each frame once instead of once a sample. The bytes made are the same
+    (tests/synthesis/test_generate_pipeline.py). On the making thread only; the copies are
+    queued on the device's current stream, the one the backend launches on, so a batch's
+    buffer is written again only after the launches that read it.
+
+    Args:
+        backend: the Warp backend that makes the samples (``device_arrays``).
+        limit: bytes of frames kept on the device (and their host arrays kept alive) at
+            most; the least recently used go first.
+    """
+
+    def __init__(self, backend, limit: int):
+        self.backend, self.limit = backend, limit
+        #: id(host frame) -> (the host frame, kept so that its id stays its own; flat copy)
+        self._frames: OrderedDict[int, tuple[np.ndarray, object]] = OrderedDict()
+        self._held = 0
+        self._buffer = None  # the last batch's device buffer, flat, reused while it fits
+        self.uploads = 0  # frames copied to the device
+
+    def batch_of(self, samples: list[tuple[np.ndarray, ...] | None]) -> WarpFrames | None:
+        """The samples' frames as one B x F x H x W x C batch on the device, or None.
+
+        None where a sample has no frames (a failed decode), the frames differ in count,
+        shape or dtype, or a side is odd (the RAW round trip would crop it): the caller then
+        makes the samples one by one.
+        """
+        import warp as wp
+
+        if not samples or any(not sample for sample in samples):
+            return None
+        first = samples[0][0]
+        frames = [frame for sample in samples for frame in sample]
+        if len({len(sample) for sample in samples}) > 1 or first.ndim != 3 or any(
+                frame.shape != first.shape or frame.dtype != first.dtype for frame in frames
+        ) or first.shape[0] % 2 or first.shape[1] % 2:
+            return None
+        dtype, size = self.backend._wp_dtype(first.dtype), first.size
+        count = len(frames) * size
+        if (self._buffer is None or self._buffer.size < count
+                or self._buffer.dtype != dtype):
+            self._buffer = None  # freed before the larger one is made
+            self._buffer = wp.empty(count, dtype=dtype, device=self.backend.wp_device)
+        with timer("copies"):
+            for k, frame in enumerate(frames):
+                wp.copy(self._buffer, self._on_device(frame, dtype), dest_offset=k * size,
+                        count=size)
+        return WarpFrames(self._buffer[:count],
+                          (len(samples), len(samples[0]), *first.shape))
+
+    def _on_device(self, frame: np.ndarray, dtype):
+        import warp as wp
+
+        kept = self._frames.get(id(frame))
+        if kept is not None and kept[0] is frame:
+            self._frames.move_to_end(id(frame))
+            return kept[1]
+        on_device = wp.array(np.ascontiguousarray(frame).reshape(-1), dtype=dtype,
+                             device=self.backend.wp_device)
+        self.uploads += 1
+        self._frames[id(frame)] = (frame, on_device)
+        self._held += frame.nbytes
+        while self._held > self.limit and len(self._frames) > 1:
+            _, (old, _) = self._frames.popitem(last=False)
+            self._held -= old.nbytes
+        return on_device

@@ -173,20 +173,29 @@ class BatchIO:
         """
         shape = (count, region.h, region.w, 3)
         if given is not None:
-            return self.given_outputs(given, shape, lib, dtypes)
+            return self.given_outputs(given, shape, dtypes)
         if self.reaches(batch, lib):  # new batch buffers as (count, h, w, 3) device arrays
             runner, values = self.runner, region.h * region.w * 3
             return [runner.device_array(runner.stacked(runner.slots(count, values), shape[1:]))
                     for _ in dtypes]
         return [np.empty(shape, dtype) for dtype in dtypes]
 
-    def given_outputs(self, given: Sequence, shape: tuple, lib: str, dtypes: list) -> list:
+    def check_out(self, out, batch, lib: str) -> None:
+        """Refuse ``out=`` for a batch whose results come back where it lives.
+
+        ``out=`` takes numpy arrays, for numpy batches and for batches on the device this
+        backend runs on (``wp.array``, a torch CUDA tensor Warp reaches): their results are
+        copied into them.
+        """
+        if out is not None and lib != "numpy" and not self.reaches(batch, lib):
+            raise ValueError(f"out= is for numpy batches and batches on the backend's device "
+                             f"(the results of this {lib} batch are {lib} arrays made where "
+                             "it lives); leave it out for this batch")
+
+    def given_outputs(self, given: Sequence, shape: tuple, dtypes: list) -> list:
         """``out=``'s arrays checked against the results they take, as channels-last views."""
         n = len(dtypes)
         names = ("blurred", "sharp", "mask")[:n]
-        if lib != "numpy":
-            raise ValueError(f"out= is for numpy batches (the results are {lib} arrays made "
-                             "where the batch lives); leave it out for this batch")
         if not isinstance(given, (list, tuple)) or len(given) != n:
             raise ValueError(f"out= takes {n} arrays, ({', '.join(names)})"
                              + ("" if self.with_mask else "; with_mask=True adds the mask"))
@@ -231,7 +240,7 @@ class BatchIO:
         made = [to_integers(x, bits) for x in host[:2]] + host[2:]
         if given is None:
             return made
-        views = self.given_outputs(given, made[0].shape, lib, self.result_dtypes(bits))
+        views = self.given_outputs(given, made[0].shape, self.result_dtypes(bits))
         for view, x in zip(views, made, strict=True):
             np.copyto(view, x)
         return views

@@ -277,7 +277,8 @@ class Synthesizer:
             first_index: the first sample's index (0 <= index, index + B <= 2**32).
             indices: each sample's index instead (B ints, any order: a shuffled
                 DataLoader's; a list, or a numpy or torch integer array), for ``first_index``.
-            out: numpy batches: arrays to write the results into, (blurred, sharp) or
+            out: numpy batches, and batches on the backend's device (the results copied to
+                the host): numpy arrays to write the results into, (blurred, sharp) or
                 (blurred, sharp, mask) as ``with_mask`` asks, float32 (blurred and sharp in
                 the codes' dtype with ``codes``), each of the result's shape (B x H' x W' x 3,
                 or B x 3 x H' x W' with ``channels_first``), sharing no memory with each
@@ -307,6 +308,7 @@ class Synthesizer:
                              "(np.stack, torch.stack), and call once per size for mixed sizes")
         refuse_out_on_inputs(out, {"batch": batch, "mask": mask, "sharp": sharp})
         lib = arrays.library(batch)
+        self._io.check_out(out, batch, lib)
         with timer("reading"):
             items = self._io.split(batch, mask, sharp, lib)
         # a batch on the device is read only once written there, on the caller's stream

@@ -400,3 +400,72 @@ def test_inputs_staged_in_pinned_memory_make_the_bytes_of_unstaged_ones(
     if batch_fails:
         assert sum(stacks) >= 6  # one by one, each from its staged stack
     assert_same_set(tmp_path / "staged", tmp_path / "one")
+
+
+WARP_CPU = "warp:cpu/float32" in KERNEL_BACKEND_SPECS
+
+
+@pytest.mark.skipif(not WARP_CPU, reason="Warp's CPU device is not among the suite's backends")
+def test_overlapping_windows_made_from_frames_kept_on_the_device_give_the_bytes_of_one_thread(
+        tmp_path, bad_sequences, monkeypatch):
+    """On a Warp GPU, samples that share a frame with an earlier one are made from frames kept
+    on the device (each uploaded once) instead of page-locked slots; forced here on Warp's CPU
+    device: the same set as one thread, bad samples too."""
+    from gpu_blur.backends import get_backend
+
+    folder, scene = bad_sequences
+    rng = np.random.default_rng(3)
+    (folder / "d_long" / "sharp").mkdir(parents=True)
+    for i in range(10):
+        cv2.imwrite(str(folder / "d_long" / "sharp" / f"{i}.png"),
+                    rng.integers(0, 256, (24, 32, 3), np.uint8))
+    run = ("--backend", "warp:cpu", "--samples-per-sequence", "8", "--save", "mask")
+    assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
+    backend = get_backend("warp:cpu", "float32")
+    kept, device_batches = [], []
+    batch_of = gpu_blur.staging.DeviceFrames.batch_of
+
+    def spied(self, samples):
+        kept.append(self)
+        batch = batch_of(self, samples)
+        device_batches.append(0 if batch is None else len(samples))
+        return batch
+
+    monkeypatch.setattr(gpu_blur.staging.DeviceFrames, "batch_of", spied)
+    monkeypatch.setattr(gpu_blur.generate, "pinned_staging",
+                        lambda job: gpu_blur.staging.PinnedStaging(backend, 2, 3))
+    assert main(args(folder, scene, tmp_path / "kept", *run, "--io-threads", "3")) == 1
+    assert_same_set(tmp_path / "kept", tmp_path / "one")
+    # four sequences of 8 windows: all but each sequence's first share frames; the good ones
+    # (a_good, d_long) come from the device, the bad ones are made one by one and fail
+    assert sum(device_batches) >= 2 * 7 - 2
+    frames = 3 + 10  # a_good's and d_long's: each uploaded once (the cache keeps them all)
+    assert kept and kept[0].uploads <= frames
+
+
+@pytest.mark.skipif(not WARP_CPU, reason="Warp's CPU device is not among the suite's backends")
+def test_device_frames_upload_each_frame_once_and_keep_at_most_their_limit():
+    from gpu_blur.backends import get_backend
+    from gpu_blur.staging import DeviceFrames
+
+    rng = np.random.default_rng(4)
+    frames = [rng.integers(0, 256, (4, 6, 3), np.uint8) for _ in range(4)]
+    kept = DeviceFrames(get_backend("warp:cpu", "float32"), limit=3 * frames[0].nbytes)
+    windows = [tuple(frames[0:2]), tuple(frames[1:3])]
+    batch = kept.batch_of(windows)
+    assert batch.shape == (2, 2, 4, 6, 3)
+    assert np.array_equal(batch.flatten().numpy().reshape(batch.shape),
+                          np.stack([np.stack(w) for w in windows]))
+    assert kept.uploads == 3  # frames[1] once for both windows
+    assert np.array_equal(kept.batch_of([tuple(frames[1:4])]).flatten().numpy(),
+                          np.stack(frames[1:4]).reshape(-1))
+    assert kept.uploads == 4  # frames[3] new; frames[0], least recently used, goes
+    kept.batch_of([(frames[0],)])
+    assert kept.uploads == 5
+    same = np.array(frames[1])  # equal values, another array: another frame
+    kept.batch_of([(same,)])
+    assert kept.uploads == 6
+    assert kept.batch_of([(frames[0],), None]) is None
+    assert kept.batch_of([(frames[0],), (frames[0][:2],)]) is None  # two shapes
+    assert kept.batch_of([(frames[0][:, :5],)]) is None  # an odd side
+    assert kept.batch_of([(frames[0],), (frames[0], frames[1])]) is None  # two counts

@@ -537,11 +537,27 @@ def test_meta_and_sparse_tensors_are_refused_by_name(make, words):
         gpu_blur.synthesize([make(photos[0])], scene)
 
 
-def test_out_is_refused_for_batches_that_are_not_numpy():
+def test_out_is_refused_for_batches_that_are_neither_numpy_nor_on_the_backends_device():
     scene = scene_for("kernel", precision="float32")
     photos = torch.from_numpy(batch_for("kernel", 2, np.random.default_rng(4))["batch"])
-    with pytest.raises(ValueError, match="out= is for numpy batches"):
+    with pytest.raises(ValueError, match="out= is for numpy batches and batches on the "):
         gpu_blur.Synthesizer(scene, backend="numpy")(photos, out=[np.zeros(1)] * 2)
+
+
+@pytest.mark.parametrize("codes", [False, True])
+def test_a_batch_on_the_warp_device_fills_out_arrays_with_the_numpy_batchs_results(codes):
+    # what generate's frames kept on the GPU do: a device batch, results into host arrays
+    import warp as wp
+
+    scene = scene_for("kernel", precision="float32", bits=8)
+    photos = batch_for("kernel", 2, np.random.default_rng(4))["batch"]
+    synth = gpu_blur.Synthesizer(scene, backend="warp:cpu", seed=3)
+    ref = synth(photos, codes=codes)
+    shape = synth.result_shape(photos.shape)
+    out = [np.full(shape, 7, dtype) for dtype in synth.result_dtypes(codes=codes)]
+    got = synth(wp.array(photos, device="cpu"), out=out, codes=codes)
+    assert got.blurred is out[0] and got.sharp is out[1]
+    assert np.array_equal(out[0], ref.blurred) and np.array_equal(out[1], ref.sharp)
 
 
 def test_a_strided_destination_receives_every_copied_value():
