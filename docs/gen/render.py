@@ -467,6 +467,27 @@ def bench_devices_host(name: str = "generate_devices_h200x2") -> str:
     return table + "\n\n" + provenance(path, f"{data['machine']}; {same}", _named(data))
 
 
+def bench_device_frames(name: str = "generate_device_frames_h200x2_bf299bf") -> str:
+    """Overlapping windows made from frames kept on the device, against the tree before."""
+    data, path = load(name)
+    rows = [[r["tree"], r["run"], r["round"], r["in_run_samples_per_s"], r["wall_s"],
+             r["copies_s"], r["reading_s"], r["decode_ms_a_file"]] for r in data["runs"]]
+    runs = _table(["tree", "run", "round", "samples/s in the run", "wall s", "copies s",
+                   "waiting for inputs s", "decode ms a file"], rows, 2)
+    rows = []
+    for tree, devices in data["devices"].items():
+        bound = devices["disk_bound_measured"]["samples_per_s"]
+        rows += [[tree, r["gpus"], r["samples_per_s"], r.get("written_samples_per_s"),
+                  r["in_run_samples_per_s"], bound, 100 * r["samples_per_s"] / bound]
+                 for r in devices["disk"]]
+    gpus = _table(["tree", "`--devices` GPUs", "samples/s without the start",
+                   "first to last written", "in the run", "measured codec bound",
+                   "% of the bound"], rows, 1)
+    same = "every set the same bytes" if data["same_bytes_everywhere"] else "sets differ"
+    return (runs + "\n\n" + gpus + "\n\n"
+            + provenance(path, f"{data['machine']}; {same}", _named(data)))
+
+
 def bench_devices_handoff() -> str:
     """``--devices`` results to the driver: through the pipe against shared memory."""
     data, path = load("devices_handoff_h200x2")
@@ -890,6 +911,7 @@ BENCH = {
     "decode-threads": bench_decode_threads,
     "device-path-beside": bench_device_path_beside,
     "devices-host": bench_devices_host,
+    "device-frames": bench_device_frames,
     "devices-handoff": bench_devices_handoff,
     "float-inputs": bench_float_inputs,
     "multi-gpu": bench_multi_gpu,
