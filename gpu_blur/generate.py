@@ -27,6 +27,7 @@ from concurrent.futures import Executor, Future
 import cv2
 import numpy as np
 
+from gpu_blur.arrays import WarpFrames
 from gpu_blur.discovery import SampleSpec
 from gpu_blur.frame_cache import Decode, FrameCache, uncached
 from gpu_blur.gpu_jpeg import JpegBatches
@@ -249,14 +250,15 @@ def device_frames(job: Job, staging: PinnedStaging | None,
     return DeviceFrames(staging.backend, cache.budget)
 
 
-def make_batch(job: Job, synthesizer: Synthesizer, specs: list[SampleSpec], batch: np.ndarray,
-               results: LentResults | None = None) -> list[tuple] | None:
+def make_batch(job: Job, synthesizer: Synthesizer, specs: list[SampleSpec],
+               batch: np.ndarray | WarpFrames, results: LentResults | None = None
+               ) -> list[tuple] | None:
     """Samples made as one batch: :func:`make_sample`'s tuples, or None if the batch failed.
 
     ``batch``: their inputs, B x F x H x W x 3 (mode average) or B x H x W x 3, in the
     synthesizer's pinned memory or on its device (:class:`~gpu_blur.staging.DeviceFrames`);
-    ``results``: where the results go (page-locked arrays lent
-    for ``out=``; None: new arrays). A batch's sample is ``synthesize``'s, bit for bit
+    ``results``: where the results go (page-locked arrays lent for ``out=``; None: new
+    arrays). A batch's sample is ``synthesize``'s, bit for bit
     (:class:`~gpu_blur.synthesis.Synthesizer`); so is each sample of a batch that fails,
     made again on its own by the caller, whose reason then names its file.
     """
