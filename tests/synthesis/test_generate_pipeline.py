@@ -81,6 +81,15 @@ def assert_same_set(out, reference):
     assert written(out) == written(reference)  # manifest, run.json, samples; no stray file
 
 
+def add_long_sequence(folder, seed: int) -> None:
+    """A fourth sequence, ``d_long``: ten random 24 x 32 frames, so that windows overlap."""
+    rng = np.random.default_rng(seed)
+    (folder / "d_long" / "sharp").mkdir(parents=True)
+    for i in range(10):
+        cv2.imwrite(str(folder / "d_long" / "sharp" / f"{i}.png"),
+                    rng.integers(0, 256, (24, 32, 3), np.uint8))
+
+
 @pytest.mark.parametrize("backend", ["numpy", *KERNEL_BACKEND_SPECS[:1]])
 def test_io_threads_write_the_bytes_of_one_thread_and_fail_only_bad_photos(
         tmp_path, bad_photos, monkeypatch, backend):
@@ -349,11 +358,7 @@ def test_inputs_staged_in_pinned_memory_make_the_bytes_of_unstaged_ones(
     samples are made as one batch; forced here on a CPU kernel backend: the same set, bad
     samples too, and when a batch fails its samples are made one by one."""
     folder, scene = bad_sequences
-    rng = np.random.default_rng(2)
-    (folder / "d_long" / "sharp").mkdir(parents=True)
-    for i in range(10):
-        cv2.imwrite(str(folder / "d_long" / "sharp" / f"{i}.png"),
-                    rng.integers(0, 256, (24, 32, 3), np.uint8))
+    add_long_sequence(folder, seed=2)
     if draws == "per-sequence":  # a batch's samples keyed by their sequences
         scene.write_text(scene.read_text() + 'draws = "per-sequence"\n')
     name, backend = kernel_backend()
@@ -414,11 +419,7 @@ def test_overlapping_windows_made_from_frames_kept_on_the_device_give_the_bytes_
     from gpu_blur.backends import get_backend
 
     folder, scene = bad_sequences
-    rng = np.random.default_rng(3)
-    (folder / "d_long" / "sharp").mkdir(parents=True)
-    for i in range(10):
-        cv2.imwrite(str(folder / "d_long" / "sharp" / f"{i}.png"),
-                    rng.integers(0, 256, (24, 32, 3), np.uint8))
+    add_long_sequence(folder, seed=3)
     run = ("--backend", "warp:cpu", "--samples-per-sequence", "8", "--save", "mask")
     assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
     backend = get_backend("warp:cpu", "float32")
