@@ -416,6 +416,23 @@ def _synthesizer(job: Job) -> Synthesizer:
                        with_mask=job.with_mask, with_raw=job.with_raw)
 
 
+def _next_group(ahead: deque[_Inputs], staging: PinnedStaging | None) -> list[_Inputs]:
+    """The samples at the head of ``ahead`` made next, together where they can be.
+
+    A staged slot's samples; a run of samples made from frames on the device, at most a
+    slot's worth; a run of JPEG samples, at most :data:`BATCH`; else the first alone.
+    """
+    first = ahead[0]
+    if first.slot is not None:
+        return [w for w in itertools.islice(ahead, staging.batch) if w.slot == first.slot]
+    if first.on_device:
+        return list(itertools.takewhile(lambda w: w.on_device,
+                                        itertools.islice(ahead, staging.batch)))
+    if first.jpeg:
+        return list(itertools.takewhile(lambda w: w.jpeg, itertools.islice(ahead, BATCH)))
+    return [first]
+
+
 def _stage(ahead: deque[_Inputs], staging: PinnedStaging, pool: Executor,
            times: PoolTimes) -> None:
     """Give free slots to the oldest runs of batchable samples not yet staged."""
@@ -482,13 +499,7 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
                         staging.size_for(first)
                 _stage(ahead, staging, pool, times)
             slot = ahead[0].slot
-            group = ([w for w in itertools.islice(ahead, staging.batch) if w.slot == slot]
-                     if slot is not None else
-                     list(itertools.takewhile(lambda w: w.on_device,
-                                              itertools.islice(ahead, staging.batch)))
-                     if ahead[0].on_device else
-                     list(itertools.takewhile(lambda w: w.jpeg, itertools.islice(ahead, BATCH)))
-                     if ahead[0].jpeg else [ahead[0]])
+            group = _next_group(ahead, staging)
             start = time.perf_counter()
             inputs = [waiting.result() for waiting in group]
             times.waited_for_inputs += time.perf_counter() - start

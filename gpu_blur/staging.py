@@ -250,7 +250,7 @@ class DeviceFrames:
                 frame.shape != first.shape or frame.dtype != first.dtype for frame in frames
         ) or first.shape[0] % 2 or first.shape[1] % 2:
             return None
-        dtype, size = self.backend._wp_dtype(first.dtype), first.size
+        dtype, size = wp.dtype_from_numpy(first.dtype), first.size
         count = len(frames) * size
         if (self._buffer is None or self._buffer.size < count
                 or self._buffer.dtype != dtype):
