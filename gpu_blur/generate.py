@@ -319,7 +319,7 @@ class _Inputs:
         reader = read_image if self.jpeg is None else self.jpeg.read
         for i, path in enumerate(spec.inputs):
             frame, decode = _claim(path, reader, cache)
-            self.shared |= decode is None and cache is not None
+            self.shared |= decode is None  # without a cache every file has its own decode
             if decode is not None:
                 try:
                     self.tasks.append((pool.submit(times.run, "decode", decode), decode))
