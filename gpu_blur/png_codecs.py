@@ -6,9 +6,14 @@ docs/performance.md, "PNG codecs"):
 * writing (:func:`encode_png`), ``output.png`` in the scene (:data:`PNG_MODES`):
 
   - ``fast`` (the default): the rows filtered with Sub (each byte less the byte one pixel to
-    its left, the filter OpenCV's default also uses) in numpy, compressed by ISA-L's deflate
-    at level 1 (``isal``), the file put together here (IHDR, IDAT, IEND). Without ``isal``:
-    OpenCV's default (libpng, level 1, run-length matches, Sub).
+    its left, the filter OpenCV's default also uses) in numpy, compressed by libdeflate at
+    level 1 (``deflate``), the file put together here (IHDR, IDAT, IEND). Without
+    ``deflate``: OpenCV's default (libpng, level 1, run-length matches, Sub). Its bytes
+    depend on libdeflate's version alone.
+  - ``fastest``: the same rows compressed by ISA-L's deflate at level 1 (``isal``), 1.8 times
+    as fast on the host of two H200s, but its bytes are not always the same: there one file of
+    29,696 came out as another stream of the same rows (the same pixels). ``fast`` without
+    ``isal``. (bench/results/png_fast_libdeflate_h200x2.json)
   - ``small``: the smallest of a few files: OpenCV's libpng with its own filter choice per
     row at level 1 with run-length matches (on noisy images smaller than any level with the
     default strategy, whose longer matches rarely pay), for 16 bits also at level 6 (which
@@ -50,8 +55,11 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 #: ``output.png``: the mode and how it writes.
 PNG_MODES = {
-    "fast": "numpy's Sub filter and ISA-L's deflate at level 1 (isal; without it OpenCV's "
-            "default)",
+    "fast": "numpy's Sub filter and libdeflate at level 1 (deflate; without it OpenCV's "
+            "default): the same bytes wherever the same libdeflate writes them",
+    "fastest": "numpy's Sub filter and ISA-L's deflate at level 1 (isal; without it fast): "
+               "its deflate about 1.8 times as fast as fast's, but a file's bytes may differ "
+               "from run to run (its pixels never)",
     "small": "the smallest of OpenCV's libpng (a filter chosen per row, level 1 with "
              "run-length matches; 16-bit also level 6) and the fast file",
     "stored": "rows unfiltered in stored (uncompressed) deflate blocks: the largest files, "
@@ -142,7 +150,7 @@ def stored_zlib(data) -> bytes:
     return b"".join(parts)
 
 
-def png_file(codes: np.ndarray, idat: bytes) -> bytes:
+def png_file(codes: np.ndarray, idat: bytes | bytearray) -> bytes:
     """A PNG file of ``codes``' header and ``idat``, the zlib stream of its filtered rows."""
     height, width = codes.shape[:2]
     channels = codes.shape[2] if codes.ndim == 3 else 1
@@ -162,6 +170,14 @@ def _isal():
     return isal_zlib
 
 
+def _libdeflate():
+    try:
+        import deflate
+    except ImportError:
+        return None
+    return deflate
+
+
 def encode_png(codes: np.ndarray, mode: str = DEFAULT_PNG_MODE) -> bytes:
     """``codes`` as a PNG file: H x W x 3 (RGB) or 4 (RGBA), or H x W grey; uint8 or uint16.
 
@@ -178,12 +194,15 @@ def encode_png(codes: np.ndarray, mode: str = DEFAULT_PNG_MODE) -> bytes:
                          "PNG image (uint8 or uint16, 1 to 4 channels)")
     if mode == "stored":
         return png_file(codes, stored_zlib(filtered_rows(codes, "none")))
-    isal = _isal()
-    if mode == "fast" and isal is not None:
+    isal = _isal() if mode == "fastest" else None
+    if isal is not None:  # its bytes may vary (PNG_MODES)
         return png_file(codes, isal.compress(filtered_rows(codes, "sub"), 1))
+    libdeflate = _libdeflate()
+    if mode in ("fast", "fastest") and libdeflate is not None:
+        return png_file(codes, libdeflate.zlib_compress(filtered_rows(codes, "sub"), 1))
     import cv2
 
-    if mode == "fast":
+    if mode != "small":
         settings = [[]]  # OpenCV's own default: level 1, Z_RLE, Sub
     else:
         settings = [[cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY,
@@ -202,7 +221,7 @@ def encode_png(codes: np.ndarray, mode: str = DEFAULT_PNG_MODE) -> bytes:
             ok = False
         if ok:
             made.append(data.tobytes())
-    if mode == "small" and isal is not None:
+    if mode == "small" and libdeflate is not None:
         made.append(encode_png(codes, "fast"))  # also grey + alpha, which OpenCV cannot write
     if not made:
         raise ValueError(f"OpenCV could not encode a {' x '.join(map(str, codes.shape))} "
@@ -211,14 +230,16 @@ def encode_png(codes: np.ndarray, mode: str = DEFAULT_PNG_MODE) -> bytes:
 
 
 def encoder_name(mode: str) -> str:
-    """Which library writes ``mode`` here, e.g. ``isal 1.9.1 (ISA-L deflate, level 1)``."""
+    """Which library writes ``mode`` here, e.g. ``deflate 0.9.0 (libdeflate, level 1, ...)``."""
     if mode == "stored":
         return "gpu_blur (stored deflate blocks, rows unfiltered)"
-    isal = _isal() if mode == "fast" else None
-    if isal is not None:
-        from importlib.metadata import version
+    from importlib.metadata import version
 
-        return f"isal {version('isal')} (ISA-L deflate, level 1, numpy's Sub filter)"
+    if mode == "fastest" and _isal() is not None:
+        return (f"isal {version('isal')} (ISA-L deflate, level 1, numpy's Sub filter; bytes may "
+                "vary)")
+    if mode in ("fast", "fastest") and _libdeflate() is not None:
+        return f"deflate {version('deflate')} (libdeflate, level 1, numpy's Sub filter)"
     import cv2
 
     return f"OpenCV {cv2.__version__} (libpng)"
@@ -249,9 +270,8 @@ def _inflater():
 
 
 def _libdeflate_inflater():
-    try:
-        import deflate
-    except ImportError:
+    deflate = _libdeflate()
+    if deflate is None:
         return None
 
     def inflate(stream: bytes, size: int) -> bytes | None:

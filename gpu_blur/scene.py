@@ -184,7 +184,9 @@ FIELDS: dict[str, dict[str, Field]] = {
                            "the Gaussian normals; Poisson counts stay exact (accuracy knob)",
                            kind=bool),
         "png": Field("fast", "how PNG outputs are compressed, the same pixels either way: "
-                     "'fast' (numpy's Sub filter, ISA-L deflate at level 1), 'small' (the "
+                     "'fast' (numpy's Sub filter, libdeflate at level 1), 'fastest' (ISA-L's "
+                     "deflate instead: faster, but a file's bytes may differ between runs, "
+                     "never its pixels), 'small' (the "
                      "smallest of OpenCV's libpng files and the fast one: slower, a few % "
                      "smaller), 'stored' (no compression: the largest files, the least CPU "
                      "to write and read); the performance page gives ms and MB an image",

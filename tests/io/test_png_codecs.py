@@ -1,12 +1,13 @@
 """PNG codecs (issue 39): every write mode and every decoder give back the source's codes.
 
-Writing: ``output.png`` = fast (numpy's Sub filter + ISA-L, or OpenCV's default without
-isal) or small (the smallest of OpenCV's libpng files and the fast one). Reading: libdeflate's
+Writing: ``output.png`` = fast (numpy's Sub filter + libdeflate, or OpenCV's default without
+deflate) or small (the smallest of OpenCV's libpng files and the fast one). Reading: libdeflate's
 or ISA-L's inflate and numpy for files of None/Sub/Up rows, OpenCV for the rest and for
 anything they refuse. Each test runs with each inflater and, with deflate and isal patched
 away, without them, so it passes either way.
 """
 
+import hashlib
 import struct
 import zlib
 
@@ -42,11 +43,12 @@ def inflater(request, monkeypatch):
 def libraries(request, monkeypatch):
     """Decoding by libdeflate's or ISA-L's inflate, or with both missing (OpenCV only).
 
-    "absent" also treats isal as missing for writing (OpenCV's encoder); the others write
-    with isal as installed.
+    "absent" also treats deflate and isal as missing for writing (OpenCV's encoder); the
+    others write with deflate as installed.
     """
     if request.param != "absent":
         return use_inflater(request.param, monkeypatch)
+    monkeypatch.setattr(png_codecs, "_libdeflate", lambda: None)
     monkeypatch.setattr(png_codecs, "_isal", lambda: None)
     monkeypatch.setattr(png_codecs, "_inflater", lambda: None)
     return request.param
@@ -131,8 +133,8 @@ def test_fast_is_the_default_and_small_is_the_smaller_on_a_smooth_16_bit_image()
 
 @pytest.mark.parametrize("bits", [8, 16])
 def test_small_is_never_larger_than_fast(bits):
-    if png_codecs._isal() is None:
-        pytest.skip("isal is not installed: fast is OpenCV's default, small another setting")
+    if png_codecs._libdeflate() is None:
+        pytest.skip("deflate is not installed: fast is OpenCV's default, small another setting")
     noise = codes(bits, (64, 96, 3), seed=5)  # all noise: libpng's level 6 finds little
     noise[:] = np.random.default_rng(5).integers(0, 2**bits, noise.shape)
     for source in (noise, codes(bits, (64, 96, 3))):
@@ -140,6 +142,43 @@ def test_small_is_never_larger_than_fast(bits):
         assert len(small) <= len(fast)
     grey_alpha = codes(bits, (8, 9, 2))  # OpenCV writes no grey + alpha: small is fast's file
     assert png_codecs.encode_png(grey_alpha, "small") == png_codecs.encode_png(grey_alpha)
+
+
+#: sha256 (first 32 hex digits) of the fast file of codes(bits, (64, 96, 3), seed=11), by the
+#: deflate package's version (the libdeflate it carries): the same on every CPU.
+FAST_FILE_DIGESTS = {"0.9.0": {8: "7c07ecccd0776aba9b3a84bb64468607",
+                               16: "596d43eb7641bc30742af10a680f2642"}}
+
+
+@pytest.mark.bits
+@pytest.mark.parametrize("bits", [8, 16])
+def test_fast_files_are_the_bytes_recorded_for_this_libdeflate(bits):
+    """The fast mode's bytes depend on libdeflate's version alone (ISA-L's did not: on an
+    H200 host it once wrote another stream for the same rows)."""
+    from importlib.metadata import version
+
+    if png_codecs._libdeflate() is None:
+        pytest.skip("deflate is not installed: fast is OpenCV's default")
+    recorded = FAST_FILE_DIGESTS.get(version("deflate"))
+    if recorded is None:
+        pytest.skip(f"no digest recorded for deflate {version('deflate')}: add one")
+    data = png_codecs.encode_png(codes(bits, (64, 96, 3), seed=11), "fast")
+    assert hashlib.sha256(data).hexdigest()[:32] == recorded[bits]
+
+
+def test_fastest_compresses_the_fast_rows_with_isal_or_is_fast_without_it(monkeypatch):
+    source = codes(8, (64, 96, 3), seed=11)
+    isal = png_codecs._isal()
+    if isal is None:
+        pytest.skip("isal is not installed")
+    rows = png_codecs.filtered_rows(source, "sub")
+    fastest = png_codecs.encode_png(source, "fastest")
+    assert fastest == png_codecs.png_file(source, isal.compress(rows, 1))
+    assert fastest != png_codecs.encode_png(source, "fast")  # another deflate, same rows
+    assert "may vary" in png_codecs.encoder_name("fastest")
+    monkeypatch.setattr(png_codecs, "_isal", lambda: None)
+    assert png_codecs.encode_png(source, "fastest") == png_codecs.encode_png(source, "fast")
+    assert png_codecs.encoder_name("fastest") == png_codecs.encoder_name("fast")
 
 
 @pytest.mark.parametrize("size", [0, 1, 65_534, 65_535, 65_536, 3 * 65_535 + 7])
@@ -160,7 +199,8 @@ def test_stored_files_are_the_unfiltered_rows_uncompressed():
 
 
 def test_an_unknown_png_mode_is_refused_naming_the_modes():
-    with pytest.raises(ValueError, match="PNG mode 'tiny': expected one of fast, small, stored"):
+    modes = "fast, fastest, small, stored"
+    with pytest.raises(ValueError, match=f"PNG mode 'tiny': expected one of {modes}"):
         encode_image(codes(8), 8, png="tiny")
     with pytest.raises(SceneError, match="output.png"):
         scene_from_dict({"output": {"png": "tiny"}})
