@@ -21,7 +21,14 @@ import numpy as np
 
 from gpu_blur.backends.flows import REGIONS_KEY
 from gpu_blur.discovery import SampleSpec, _text, input_label
-from gpu_blur.file_writing import encode_image, temporary_path, write_new, write_text, write_whole
+from gpu_blur.file_writing import (
+    EncodedImages,
+    encode_image,
+    temporary_path,
+    write_new,
+    write_text,
+    write_whole,
+)
 from gpu_blur.input_folders import MANIFEST, RUN
 from gpu_blur.locking import earlier_pids, forget_earlier, release_lock, take_lock
 from gpu_blur.outputs import dng_bytes
@@ -234,6 +241,9 @@ class SampleFiles:
     png: str
     extras: tuple[str, ...]
     pid: int
+    #: the sharp references' files, each image encoded once in a process
+    sharp_files: EncodedImages = dataclasses.field(default_factory=EncodedImages,
+                                                   compare=False, repr=False)
 
     def encode(self, spec: SampleSpec, result, record: dict,
                paths: dict[str, str]) -> tuple[dict, dict[str, bytes]]:
@@ -248,8 +258,10 @@ class SampleFiles:
         RAW mosaic (``raw``: a 16-bit DNG, and ``raw_info``, its
         :func:`gpu_blur.outputs.raw_metadata`) are written too, cropped like the pair.
         """
-        data = {key: encode_image(image, self.bits, str(self.out / paths[key]), self.png)
-                for key, image in (("blurred", result.blurred), ("sharp", result.sharp))}
+        data = {"blurred": encode_image(result.blurred, self.bits,
+                                        str(self.out / paths["blurred"]), self.png),
+                "sharp": self.sharp_files.encode(result.sharp, self.bits,
+                                                 str(self.out / paths["sharp"]), self.png)}
         arrays = {k: result.params[k] for k in SAVED_ARRAYS if k in result.params}
         line = {
             "index": spec.index,

@@ -68,3 +68,30 @@ def test_generate_set_raises_what_the_command_prints(tmp_path, capsys):
     assert main(["generate", "--output", str(tmp_path / "set"), "--seed", "-1"]) == 2
     assert capsys.readouterr().err.splitlines()[-1] == (
         "gpu-blur: error: --seed -1: must lie in [0, 2**64)")
+
+
+def test_windows_sharing_a_centre_frame_encode_their_sharp_file_once(tmp_path, monkeypatch):
+    import cv2
+    import numpy as np
+
+    from gpu_blur import file_writing
+    from gpu_blur.image_reading import read_image
+
+    frames = tmp_path / "in" / "seq" / "sharp"
+    frames.mkdir(parents=True)
+    rng = np.random.default_rng(4)
+    for i in range(12):  # 9-frame windows: 4 first frames, so 4 centre frames
+        cv2.imwrite(str(frames / f"{i:04d}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    sharp_encodes = []  # what each encode wrote
+    encode = file_writing.encode_image
+    monkeypatch.setattr(file_writing, "encode_image",
+                        lambda *a: sharp_encodes.append(a[2]) or encode(*a))
+    out = tmp_path / "out"
+    assert main(["generate", "--input", str(tmp_path / "in"), "--output", str(out), "--scene",
+                 "rsblur", "--backend", "numpy", "--samples-per-sequence", "16",
+                 "--io-threads", "2", "--quiet"]) == 0
+    sharp = sorted((out / "sharp").iterdir())
+    sharp_encodes = [what for what in sharp_encodes if "sharp" in what]  # not the blurred
+    assert len(sharp) == 16 and len({p.read_bytes() for p in sharp}) == len(sharp_encodes) == 4
+    for path in sharp:  # each the file its pixels encode to
+        assert path.read_bytes() == encode(read_image(path), 8)

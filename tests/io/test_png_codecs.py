@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
-from gpu_blur import png_codecs
+from gpu_blur import file_writing, png_codecs
 from gpu_blur.file_writing import encode_image, write_image
 from gpu_blur.image_reading import read_image
 from gpu_blur.run_record import set_keys
@@ -388,3 +388,33 @@ def test_beyond_isals_slots_decoding_goes_to_opencv(tmp_path, monkeypatch):
     finally:
         for _ in range(taken):
             png_codecs._ISAL_SLOTS.release()
+
+
+def test_encoded_images_encode_an_image_seen_before_once_with_the_same_bytes(monkeypatch):
+    calls = []
+    encode = file_writing.encode_image
+    monkeypatch.setattr(file_writing, "encode_image", lambda *a: calls.append(1) or encode(*a))
+    memo = file_writing.EncodedImages()
+    a, b = codes(8, (24, 32, 3), seed=1), codes(8, (24, 32, 3), seed=2)
+    first = memo.encode(a, 8)
+    assert memo.encode(a.copy(), 8) == first == encode_image(a, 8) and len(calls) == 1
+    assert memo.encode(a.astype(np.float32) / 255, 8) == first  # the same codes as floats
+    assert memo.encode(b, 8) == encode_image(b, 8) and len(calls) == 2
+    assert memo.encode(a, 8, png="stored") == encode_image(a, 8, png="stored")  # its own key
+    assert memo.encode(a, 16) == encode_image(a, 16)  # other codes, another key
+    assert memo.hits == 2 and len(calls) == 4
+
+
+def test_encoded_images_keep_at_most_their_limit_and_pickle_empty():
+    import pickle
+
+    images = [codes(8, (24, 32, 3), seed=s) for s in range(3)]
+    one = len(encode_image(images[0], 8))
+    memo = file_writing.EncodedImages(limit=2 * one + one // 2)  # room for two such files
+    for image in images:
+        memo.encode(image, 8)
+    memo.encode(images[2], 8)
+    memo.encode(images[0], 8)  # the oldest was dropped: encoded again
+    assert memo.hits == 1 and memo._held <= memo.limit and len(memo._files) == 2
+    copy = pickle.loads(pickle.dumps(memo))
+    assert (copy.limit, copy.hits, len(copy._files)) == (memo.limit, 0, 0)
