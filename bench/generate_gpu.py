@@ -41,8 +41,10 @@ long as the spread of the process's start, so that rate moves with it; ``written
 this checkout's codecs alone (``read_image``; ``encode_image(image, 8)``) through a pool of one
 thread per core, as many as the runs' I/O threads. It decodes each input frame as often as
 this tree does (overlapping: each frame of the sequence once, the frame cache serving the rest;
-distinct: 9 a sample) and encodes 2 images a sample: the "now" run's own outputs read back
-(blurred and sharp PNGs in turn, noisier than the inputs; up to 32, cycled). Its
+distinct: 9 a sample) and encodes as many images as the run did (each blurred output and
+each distinct sharp one: windows that share their centre frame share a sharp reference, which
+gpu_blur encodes once; ``bound_now``'s ``encodes_per_sample`` too): the "now" run's own outputs
+read back (blurred and sharp PNGs in turn, noisier than the inputs; up to 32, cycled). Its
 ``samples_per_s`` is the samples over the median wall seconds of the pool's job (decode-only
 and encode-only seconds beside). It is the ceiling these codecs reach through these threads on
 this host; not the run's: synthesis, host-device copies, the main thread's work and the writes
@@ -136,23 +138,36 @@ def gpu_blur_codec_seconds(paths: list[Path], png: str = "fast") -> dict:
     return {"decode": statistics.median(decode), "encode": statistics.median(encode)}
 
 
-def decode_encode_bound(per: dict, cores: int, decodes: float = FRAMES) -> float:
+def decode_encode_bound(per: dict, cores: int, decodes: float = FRAMES,
+                        encodes: float = 2) -> float:
     """Samples per second the host can decode and encode, every core busy.
 
     A sample decodes ``decodes`` frames (9; fewer where a frame cache serves overlapping
-    windows) and encodes 2 images (``per``: :func:`single_core_seconds`).
+    windows) and encodes ``encodes`` images (2; fewer where windows share a sharp
+    reference, encoded once: :func:`encodes_made`) (``per``: :func:`single_core_seconds`).
     """
-    return cores / (decodes * per["decode"] + 2 * per["encode"])
+    return cores / (decodes * per["decode"] + encodes * per["encode"])
+
+
+def encodes_made(out: Path) -> int:
+    """Images a run encoded for the set ``out``: each blurred one, each distinct sharp one.
+
+    gpu_blur encodes a sharp reference its run wrote before once
+    (``gpu_blur.file_writing.EncodedImages``); a tree before it encoded every one, so this
+    counts what the newer code does.
+    """
+    blurred = sum(1 for _ in (out / "blur").glob("*.png"))
+    return blurred + len({path.read_bytes() for path in (out / "sharp").glob("*.png")})
 
 
 def measured_codec_bound(paths: list[Path], decodes: int, out: Path, samples: int,
                          threads: int, repeats: int, png: str = "fast") -> dict:
     """Samples per second this checkout's codecs alone reach through ``threads`` threads.
 
-    ``decodes`` reads of ``paths`` (in turn) with ``read_image`` and 2 ``encode_image(.., 8,
-    png=png)`` a sample of the output set ``out`` read back, mixed as the samples run; the
-    pool's wall seconds, the median of ``repeats`` (each job also decode-only and
-    encode-only).
+    ``decodes`` reads of ``paths`` (in turn) with ``read_image`` and ``encode_image(.., 8,
+    png=png)`` of images of the output set ``out`` read back, as many as the run encoded
+    (:func:`encodes_made`), mixed as the samples run; the pool's wall seconds, the median of
+    ``repeats`` (each job also decode-only and encode-only).
     """
     from gpu_blur.file_writing import encode_image
     from gpu_blur.image_reading import read_image
@@ -162,7 +177,7 @@ def measured_codec_bound(paths: list[Path], decodes: int, out: Path, samples: in
     images = [read_image(path) for path in outputs[:ENCODED]]
     decode = [partial(read_image, paths[i % len(paths)]) for i in range(decodes)]
     encode = [partial(encode_image, images[i % len(images)], 8, png=png)
-              for i in range(2 * samples)]
+              for i in range(encodes_made(out))]
     order = sorted([(i / len(decode), 0, i) for i in range(len(decode))]
                    + [(i / len(encode), 1, i) for i in range(len(encode))])
     both = [(decode, encode)[kind][i] for _, kind, i in order]
@@ -241,14 +256,16 @@ def compare(args, cores: int, save=None) -> dict:
                     "bound_before": {"single_core_seconds": old_per, "decodes_per_sample":
                                      FRAMES, "samples_per_s":
                                      decode_encode_bound(old_per, cores)},
-                    "bound_now": {"single_core_seconds": new_per,
-                                  "decodes_per_sample": new_decodes, "samples_per_s":
-                                  decode_encode_bound(new_per, cores, new_decodes)},
                     "runs": {}, "pixel_digests": {}}
             trees = ([("before", args.against)] if args.against else []) + [("now", None)]
             outs = {name: (Path(tmp) / f"out_{name}", tree) for name, tree in trees}
             case["runs"] = generate_each(outs, root, args.backend, args.samples, cores,
                                          repeats=args.repeats, scene=scene_file(tmp, args.png))
+            new_encodes = encodes_made(outs["now"][0]) / args.samples
+            case["bound_now"] = {"single_core_seconds": new_per,
+                                 "decodes_per_sample": new_decodes,
+                                 "encodes_per_sample": new_encodes, "samples_per_s":
+                                 decode_encode_bound(new_per, cores, new_decodes, new_encodes)}
             case["pixel_digests"] = {name: pixel_digest(out) for name, (out, _) in outs.items()}
             case["same_pixels"] = len(set(case["pixel_digests"].values())) == 1
             case["bound_now_measured"] = measured_codec_bound(

@@ -239,7 +239,7 @@ def main(argv=None) -> int:
                       f"workers' start included: {row.get('in_run_samples_per_s')}; first to "
                       f"last written {row['written_samples_per_s']:.1f})", flush=True)
             # the codecs alone through one thread per core, each frame decoded once (a frame
-            # cache's run) and each sample's two images encoded: the host's own ceiling
+            # cache's run) and each image encoded as the run did: the host's own ceiling
             result["disk_bound_measured"] = generate_gpu.measured_codec_bound(
                 paths, len(paths), Path(tmp) / f"out{counts[-1]}", args.samples, cores,
                 repeats=3, png=args.png)
