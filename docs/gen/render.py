@@ -474,18 +474,37 @@ def bench_device_frames(name: str = "generate_device_frames_h200x2_bf299bf") -> 
              r["copies_s"], r["reading_s"], r["decode_ms_a_file"]] for r in data["runs"]]
     runs = _table(["tree", "run", "round", "samples/s in the run", "wall s", "copies s",
                    "waiting for inputs s", "decode ms a file"], rows, 2)
+    same = "every set the same bytes" if data["same_bytes_everywhere"] else "sets differ"
+    return (runs + "\n\n" + _devices_table(data["devices"]) + "\n\n"
+            + provenance(path, f"{data['machine']}; {same}", _named(data)))
+
+
+def _devices_table(devices: dict) -> str:
+    """bench/multi_gpu.py's disk rows by tree, each against its measured codec bound."""
     rows = []
-    for tree, devices in data["devices"].items():
-        bound = devices["disk_bound_measured"]["samples_per_s"]
+    for tree, found in devices.items():
+        bound = found["disk_bound_measured"]["samples_per_s"]
         rows += [[tree, r["gpus"], r["samples_per_s"], r.get("written_samples_per_s"),
                   r["in_run_samples_per_s"], bound, 100 * r["samples_per_s"] / bound]
-                 for r in devices["disk"]]
-    gpus = _table(["tree", "`--devices` GPUs", "samples/s without the start",
+                 for r in found["disk"]]
+    return _table(["tree", "`--devices` GPUs", "samples/s without the start",
                    "first to last written", "in the run", "measured codec bound",
                    "% of the bound"], rows, 1)
-    same = "every set the same bytes" if data["same_bytes_everywhere"] else "sets differ"
-    return (runs + "\n\n" + gpus + "\n\n"
-            + provenance(path, f"{data['machine']}; {same}", _named(data)))
+
+
+def bench_sharp_once(name: str = "generate_sharp_once_h200x2") -> str:
+    """Sharp references encoded once, in turn against the tree before; fast against fastest."""
+    data, path = load(name)
+    rows = [[r["tree"], r["png"], r["run"], r["round"], r["in_run_samples_per_s"],
+             r["io_busy_percent"]] for r in data["runs"]]
+    runs = _table(["tree", "output.png", "run", "round", "samples/s in the run",
+                   "I/O threads busy %"], rows, 3)
+    stress = data["stress"]
+    seen = (f"{data['same_bytes']}; {stress['tree']}'s {stress['png']}: "
+            f"{stress['files_differing']} of {stress['files_compared']:,} files in "
+            f"{stress['runs_compared']} runs other bytes than the first run's")
+    return (runs + "\n\n" + _devices_table(data["devices"]) + "\n\n"
+            + provenance(path, f"{data['machine']}; {seen}", _named(data)))
 
 
 def bench_png_bytes(name: str = "png_fast_libdeflate_h200x2") -> str:
@@ -934,6 +953,7 @@ BENCH = {
     "devices-host": bench_devices_host,
     "device-frames": bench_device_frames,
     "png-bytes": bench_png_bytes,
+    "sharp-once": bench_sharp_once,
     "devices-handoff": bench_devices_handoff,
     "float-inputs": bench_float_inputs,
     "multi-gpu": bench_multi_gpu,
