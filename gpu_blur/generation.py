@@ -715,9 +715,8 @@ class _Run:
             if (bound.startswith("bound by: encode/write") and output.bits in (8, 16)
                     and output.png != "stored"):
                 if output.png == "fast":
-                    lines.append('  output.png = "fastest" compresses with ISA-L, faster than '
-                                 "libdeflate, but a file's bytes may differ from run to run "
-                                 "(its pixels never)")
+                    lines.append('  output.png = "fastest" compresses with ISA-L, faster, but '
+                                 "a file's bytes may differ from run to run (its pixels never)")
                 lines.append(f'  output.png = "stored" (now "{output.png}") writes these PNGs '
                              "uncompressed: several times less CPU a file, up to 1.7 times the "
                              "bytes; faster only where memory and disk keep up, so measure "

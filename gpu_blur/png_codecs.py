@@ -6,14 +6,15 @@ docs/performance.md, "PNG codecs"):
 * writing (:func:`encode_png`), ``output.png`` in the scene (:data:`PNG_MODES`):
 
   - ``fast`` (the default): the rows filtered with Sub (each byte less the byte one pixel to
-    its left, the filter OpenCV's default also uses) in numpy, compressed by libdeflate at
-    level 1 (``deflate``), the file put together here (IHDR, IDAT, IEND). Without
-    ``deflate``: OpenCV's default (libpng, level 1, run-length matches, Sub). Its bytes
-    depend on libdeflate's version alone.
-  - ``fastest``: the same rows compressed by ISA-L's deflate at level 1 (``isal``), 1.8 times
-    as fast on the host of two H200s, but its bytes are not always the same: there one file of
-    29,696 came out as another stream of the same rows (the same pixels). ``fast`` without
-    ``isal``. (bench/results/png_fast_libdeflate_h200x2.json)
+    its left, the filter OpenCV's default also uses) in numpy, then deflate with Huffman
+    coding alone (no matches: on noisy rows they gain little), by zlib-ng (``zlib-ng``) or,
+    without it, Python's zlib: both write the same bytes (zlib's ``Z_HUFFMAN_ONLY`` stream),
+    so the file depends on the pixels alone. The file is put together here (IHDR, IDAT,
+    IEND).
+  - ``fastest``: the same rows compressed by ISA-L's deflate at level 1 (``isal``), faster
+    still, but its bytes are not always the same: on the host of two H200s one file of 29,696
+    came out as another stream of the same rows (the same pixels;
+    bench/results/png_fast_libdeflate_h200x2.json). ``fast`` without ``isal``.
   - ``small``: the smallest of a few files: OpenCV's libpng with its own filter choice per
     row at level 1 with run-length matches (on noisy images smaller than any level with the
     default strategy, whose longer matches rarely pay), for 16 bits also at level 6 (which
@@ -48,18 +49,18 @@ import zlib
 import numpy as np
 
 __all__ = ["DEFAULT_PNG_MODE", "PNG_MODES", "PNG_SIGNATURE", "chunk", "decode_png",
-           "decoder_name", "encode_png", "encoder_name", "filtered_rows", "png_file",
-           "stored_zlib"]
+           "decoder_name", "encode_png", "encoder_name", "filtered_rows", "huffman_zlib",
+           "png_file", "stored_zlib"]
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 #: ``output.png``: the mode and how it writes.
 PNG_MODES = {
-    "fast": "numpy's Sub filter and libdeflate at level 1 (deflate; without it OpenCV's "
-            "default): the same bytes wherever the same libdeflate writes them",
+    "fast": "numpy's Sub filter and deflate's Huffman coding alone (zlib-ng, or Python's "
+            "zlib: the same bytes): a file's bytes depend on its pixels alone",
     "fastest": "numpy's Sub filter and ISA-L's deflate at level 1 (isal; without it fast): "
-               "its deflate about 1.8 times as fast as fast's, but a file's bytes may differ "
-               "from run to run (its pixels never)",
+               "faster than fast, but a file's bytes may differ from run to run (its pixels "
+               "never)",
     "small": "the smallest of OpenCV's libpng (a filter chosen per row, level 1 with "
              "run-length matches; 16-bit also level 6) and the fast file",
     "stored": "rows unfiltered in stored (uncompressed) deflate blocks: the largest files, "
@@ -178,6 +179,26 @@ def _libdeflate():
     return deflate
 
 
+def _zlib_ng():
+    try:
+        from zlib_ng import zlib_ng
+    except ImportError:
+        return None
+    return zlib_ng
+
+
+def huffman_zlib(data) -> bytes:
+    """``data`` as a zlib stream of Huffman-coded deflate blocks (``Z_HUFFMAN_ONLY``).
+
+    zlib-ng's where the ``zlib-ng`` package is installed, else Python's zlib: the same bytes
+    (tests/io/test_png_codecs.py), without the GIL.
+    """
+    lib = _zlib_ng() or zlib
+    compressor = lib.compressobj(1, lib.DEFLATED, lib.MAX_WBITS, lib.DEF_MEM_LEVEL,
+                                 lib.Z_HUFFMAN_ONLY)
+    return compressor.compress(data) + compressor.flush()
+
+
 def encode_png(codes: np.ndarray, mode: str = DEFAULT_PNG_MODE) -> bytes:
     """``codes`` as a PNG file: H x W x 3 (RGB) or 4 (RGBA), or H x W grey; uint8 or uint16.
 
@@ -197,18 +218,14 @@ def encode_png(codes: np.ndarray, mode: str = DEFAULT_PNG_MODE) -> bytes:
     isal = _isal() if mode == "fastest" else None
     if isal is not None:  # its bytes may vary (PNG_MODES)
         return png_file(codes, isal.compress(filtered_rows(codes, "sub"), 1))
-    libdeflate = _libdeflate()
-    if mode in ("fast", "fastest") and libdeflate is not None:
-        return png_file(codes, libdeflate.zlib_compress(filtered_rows(codes, "sub"), 1))
+    if mode in ("fast", "fastest"):
+        return png_file(codes, huffman_zlib(filtered_rows(codes, "sub")))
     import cv2
 
-    if mode != "small":
-        settings = [[]]  # OpenCV's own default: level 1, Z_RLE, Sub
-    else:
-        settings = [[cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY,
-                     cv2.IMWRITE_PNG_STRATEGY_RLE]]
-        if codes.dtype == np.uint16:
-            settings.append([cv2.IMWRITE_PNG_COMPRESSION, 6])
+    settings = [[cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY,
+                 cv2.IMWRITE_PNG_STRATEGY_RLE]]
+    if codes.dtype == np.uint16:
+        settings.append([cv2.IMWRITE_PNG_COMPRESSION, 6])
     bgr = codes
     if codes.ndim == 3 and codes.shape[2] >= 3:
         bgr = cv2.cvtColor(codes, cv2.COLOR_RGB2BGR if codes.shape[2] == 3
@@ -221,16 +238,12 @@ def encode_png(codes: np.ndarray, mode: str = DEFAULT_PNG_MODE) -> bytes:
             ok = False
         if ok:
             made.append(data.tobytes())
-    if mode == "small" and libdeflate is not None:
-        made.append(encode_png(codes, "fast"))  # also grey + alpha, which OpenCV cannot write
-    if not made:
-        raise ValueError(f"OpenCV could not encode a {' x '.join(map(str, codes.shape))} "
-                         f"{codes.dtype} image as PNG")
+    made.append(encode_png(codes, "fast"))  # also grey + alpha, which OpenCV cannot write
     return min(made, key=len)
 
 
 def encoder_name(mode: str) -> str:
-    """Which library writes ``mode`` here, e.g. ``deflate 0.9.0 (libdeflate, level 1, ...)``."""
+    """Which library writes ``mode`` here, e.g. ``zlib-ng 1.1.0 (deflate, Huffman only, ...)``."""
     if mode == "stored":
         return "gpu_blur (stored deflate blocks, rows unfiltered)"
     from importlib.metadata import version
@@ -238,11 +251,14 @@ def encoder_name(mode: str) -> str:
     if mode == "fastest" and _isal() is not None:
         return (f"isal {version('isal')} (ISA-L deflate, level 1, numpy's Sub filter; bytes may "
                 "vary)")
-    if mode in ("fast", "fastest") and _libdeflate() is not None:
-        return f"deflate {version('deflate')} (libdeflate, level 1, numpy's Sub filter)"
-    import cv2
+    fast = (f"zlib-ng {version('zlib-ng')}" if _zlib_ng() is not None
+            else f"Python's zlib {zlib.ZLIB_RUNTIME_VERSION}")
+    fast += " (deflate, Huffman only, numpy's Sub filter)"
+    if mode == "small":
+        import cv2
 
-    return f"OpenCV {cv2.__version__} (libpng)"
+        return f"OpenCV {cv2.__version__} (libpng) or {fast}, the smaller"
+    return fast
 
 
 def decoder_name() -> str:

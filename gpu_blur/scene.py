@@ -184,7 +184,7 @@ FIELDS: dict[str, dict[str, Field]] = {
                            "the Gaussian normals; Poisson counts stay exact (accuracy knob)",
                            kind=bool),
         "png": Field("fast", "how PNG outputs are compressed, the same pixels either way: "
-                     "'fast' (numpy's Sub filter, libdeflate at level 1), 'fastest' (ISA-L's "
+                     "'fast' (numpy's Sub filter, Huffman-coded deflate), 'fastest' (ISA-L's "
                      "deflate instead: faster, but a file's bytes may differ between runs, "
                      "never its pixels), 'small' (the "
                      "smallest of OpenCV's libpng files and the fast one: slower, a few % "

@@ -7,6 +7,7 @@ driver's (seed, backend, device) or the sample's own.
 """
 
 import dataclasses
+import gc
 import multiprocessing
 import os
 import pickle
@@ -612,6 +613,7 @@ def test_where_dev_shm_is_full_results_go_through_anonymous_shared_memory_and_le
     job = Job(scene_from_dict(RAW_SCENE), 5, "numpy", bits=8, with_mask=False)
     specs = find_samples(folder, "trajectory", 1, 1).take()
     made = [for_driver(job, result) for _, result, _ in run_serial(job, specs)]
+    gc.collect()  # descriptors earlier tests left to the collector go now, not mid-count
     descriptors = len(os.listdir("/proc/self/fd"))
     got, in_use = handed_over(made)
     assert in_use == 2  # the two blocks, anonymous files passed to the worker's side

@@ -1,10 +1,11 @@
 """PNG codecs (issue 39): every write mode and every decoder give back the source's codes.
 
-Writing: ``output.png`` = fast (numpy's Sub filter + libdeflate, or OpenCV's default without
-deflate) or small (the smallest of OpenCV's libpng files and the fast one). Reading: libdeflate's
-or ISA-L's inflate and numpy for files of None/Sub/Up rows, OpenCV for the rest and for
-anything they refuse. Each test runs with each inflater and, with deflate and isal patched
-away, without them, so it passes either way.
+Writing: ``output.png`` = fast (numpy's Sub filter + Huffman-only deflate, zlib-ng's or
+Python's zlib's, the same bytes), fastest (ISA-L) or small (the smallest of OpenCV's libpng
+files and the fast one). Reading: libdeflate's or ISA-L's inflate and numpy for files of
+None/Sub/Up rows, OpenCV for the rest and for anything they refuse. Each test runs with each
+inflater and, with deflate, isal and zlib-ng patched away, without them, so it passes either
+way.
 """
 
 import hashlib
@@ -43,12 +44,12 @@ def inflater(request, monkeypatch):
 def libraries(request, monkeypatch):
     """Decoding by libdeflate's or ISA-L's inflate, or with both missing (OpenCV only).
 
-    "absent" also treats deflate and isal as missing for writing (OpenCV's encoder); the
-    others write with deflate as installed.
+    "absent" also treats zlib-ng and isal as missing for writing (Python's zlib); the others
+    write with them as installed.
     """
     if request.param != "absent":
         return use_inflater(request.param, monkeypatch)
-    monkeypatch.setattr(png_codecs, "_libdeflate", lambda: None)
+    monkeypatch.setattr(png_codecs, "_zlib_ng", lambda: None)
     monkeypatch.setattr(png_codecs, "_isal", lambda: None)
     monkeypatch.setattr(png_codecs, "_inflater", lambda: None)
     return request.param
@@ -133,8 +134,6 @@ def test_fast_is_the_default_and_small_is_the_smaller_on_a_smooth_16_bit_image()
 
 @pytest.mark.parametrize("bits", [8, 16])
 def test_small_is_never_larger_than_fast(bits):
-    if png_codecs._libdeflate() is None:
-        pytest.skip("deflate is not installed: fast is OpenCV's default, small another setting")
     noise = codes(bits, (64, 96, 3), seed=5)  # all noise: libpng's level 6 finds little
     noise[:] = np.random.default_rng(5).integers(0, 2**bits, noise.shape)
     for source in (noise, codes(bits, (64, 96, 3))):
@@ -144,26 +143,42 @@ def test_small_is_never_larger_than_fast(bits):
     assert png_codecs.encode_png(grey_alpha, "small") == png_codecs.encode_png(grey_alpha)
 
 
-#: sha256 (first 32 hex digits) of the fast file of codes(bits, (64, 96, 3), seed=11), by the
-#: deflate package's version (the libdeflate it carries): the same on every CPU.
-FAST_FILE_DIGESTS = {"0.9.0": {8: "7c07ecccd0776aba9b3a84bb64468607",
-                               16: "596d43eb7641bc30742af10a680f2642"}}
+#: sha256 (first 32 hex digits) of the fast file of codes(bits, (64, 96, 3), seed=11): zlib's
+#: Huffman-only stream, whoever writes it.
+FAST_FILE_DIGESTS = {8: "70a10847fbe98dad2dc7c72ca28168b4", 16: "85a182e31dad7ce552caa97beeeea386"}
 
 
 @pytest.mark.bits
 @pytest.mark.parametrize("bits", [8, 16])
-def test_fast_files_are_the_bytes_recorded_for_this_libdeflate(bits):
-    """The fast mode's bytes depend on libdeflate's version alone (ISA-L's did not: on an
-    H200 host it once wrote another stream for the same rows)."""
-    from importlib.metadata import version
+def test_fast_files_are_the_recorded_bytes_with_zlib_ng_or_pythons_zlib(bits, monkeypatch):
+    """The fast mode's bytes depend on the pixels alone: zlib-ng and Python's zlib write the
+    same Huffman-only stream (ISA-L's deflate did not always: on an H200 host it once wrote
+    another stream of the same rows)."""
+    source = codes(bits, (64, 96, 3), seed=11)
+    made = {"zlib-ng": png_codecs.encode_png(source, "fast")}
+    monkeypatch.setattr(png_codecs, "_zlib_ng", lambda: None)
+    made["zlib"] = png_codecs.encode_png(source, "fast")
+    assert {k: hashlib.sha256(v).hexdigest()[:32] for k, v in made.items()} == {
+        "zlib-ng": FAST_FILE_DIGESTS[bits], "zlib": FAST_FILE_DIGESTS[bits]}
 
-    if png_codecs._libdeflate() is None:
-        pytest.skip("deflate is not installed: fast is OpenCV's default")
-    recorded = FAST_FILE_DIGESTS.get(version("deflate"))
-    if recorded is None:
-        pytest.skip(f"no digest recorded for deflate {version('deflate')}: add one")
-    data = png_codecs.encode_png(codes(bits, (64, 96, 3), seed=11), "fast")
-    assert hashlib.sha256(data).hexdigest()[:32] == recorded[bits]
+
+@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_zlib_ng_and_pythons_zlib_write_one_huffman_stream(bits, seed):
+    """Noisy rows long enough for several deflate blocks: the same stream either way."""
+    pytest.importorskip("zlib_ng")
+    noise = np.random.default_rng(seed).integers(0, 2**bits, (300, 400, 3)).astype(
+        np.uint8 if bits == 8 else np.uint16)
+    rows = png_codecs.filtered_rows(noise, "sub")
+    from zlib_ng import zlib_ng
+
+    streams = []
+    for lib in (zlib_ng, zlib):
+        compressor = lib.compressobj(1, lib.DEFLATED, lib.MAX_WBITS, lib.DEF_MEM_LEVEL,
+                                     lib.Z_HUFFMAN_ONLY)
+        streams.append(compressor.compress(rows) + compressor.flush())
+    assert streams[0] == streams[1] == png_codecs.huffman_zlib(rows)
+    assert zlib.decompress(streams[0]) == rows.tobytes()
 
 
 def test_fastest_compresses_the_fast_rows_with_isal_or_is_fast_without_it(monkeypatch):
