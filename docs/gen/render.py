@@ -528,6 +528,15 @@ def bench_png_bytes(name: str = "png_fast_libdeflate_h200x2") -> str:
                          _named(data)))
 
 
+def bench_png_huffman(name: str = "png_fast_huffman_intel-xeon") -> str:
+    """Deflates of Sub-filtered rows on one core: ms, MB, and which write zlib's own bytes."""
+    data, path = load(name)
+    rows = [[r["image"], r["encoder"], r["ms"], r["mb"], r.get("same_as_zlib")]
+            for r in data["rows"]]
+    table = _table(["rows of", "deflate", "ms", "MB", "same as zlib"], rows, 2)
+    return table + "\n\n" + provenance(path, data["machine"], _named(data))
+
+
 def bench_devices_handoff() -> str:
     """``--devices`` results to the driver: through the pipe against shared memory."""
     data, path = load("devices_handoff_h200x2")
@@ -953,6 +962,7 @@ BENCH = {
     "devices-host": bench_devices_host,
     "device-frames": bench_device_frames,
     "png-bytes": bench_png_bytes,
+    "png-huffman": bench_png_huffman,
     "sharp-once": bench_sharp_once,
     "devices-handoff": bench_devices_handoff,
     "float-inputs": bench_float_inputs,
