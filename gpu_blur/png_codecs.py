@@ -151,7 +151,7 @@ def stored_zlib(data) -> bytes:
     return b"".join(parts)
 
 
-def png_file(codes: np.ndarray, idat: bytes | bytearray) -> bytes:
+def png_file(codes: np.ndarray, idat: bytes) -> bytes:
     """A PNG file of ``codes``' header and ``idat``, the zlib stream of its filtered rows."""
     height, width = codes.shape[:2]
     channels = codes.shape[2] if codes.ndim == 3 else 1
