@@ -6,7 +6,7 @@ Gaussian noise of std 0.01 (seed 0) before quantisation, as a synthesised output
 ``coffee``, the built-in photo itself (600 x 400). The 16-bit images are the same float
 values quantised to 65535 codes.
 
-Encoders: gpu_blur's own (``output.png`` = fast and small, gpu_blur.png_codecs); OpenCV's
+Encoders: gpu_blur's own (every ``output.png`` mode, gpu_blur.png_codecs); OpenCV's
 libpng at several compression levels, strategies and filters; libspng (``pyspng-seunglab``'s
 encode, imagecodecs' spng_encode); imagecodecs' libpng; fpng (``fpng``, ``fpng-py``: 8-bit
 RGB only); Pillow (8-bit only); and gpu_blur.png_codecs' numpy filter with a zlib stream from
