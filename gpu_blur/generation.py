@@ -461,6 +461,7 @@ class _Run:
         from gpu_blur.discovery import BUILT_IN_INPUT, check_layout, find_samples
         from gpu_blur.distributed import pick_executor
         from gpu_blur.gpu_jpeg import for_backend
+        from gpu_blur.png_codecs import encoder_name
         from gpu_blur.run_record import library_versions
         from gpu_blur.set_formats import format_record, writer
 
@@ -491,10 +492,13 @@ class _Run:
                      average_gopro_large_sharp=o.average_gopro_large_sharp,
                      frames_as_photos=o.frames_as_photos)
         specs = found.take(o.limit)
-        # how samples run, never what they give: recorded, not checked by resume
+        # how samples run and are stored, never what they give: recorded, not checked by
+        # resume (which keeps the first run's record); the PNG encoder says whose bytes the
+        # files are (output.png = "fastest"'s may vary, fast's never)
         how = {"tile": list(self.schedule.tile) if self.schedule.tile else None,
                "max_device_memory": self.schedule.max_device_memory,
-               "verify": self.schedule.verify}
+               "verify": self.schedule.verify,
+               "png_encoder": encoder_name(scene.output.png) if scene.output.bits else None}
         scene_file = (str(o.scene) if o.scene is not None and not isinstance(o.scene, dict)
                       else None)
         run = {"seed": o.seed, "backend": o.backend, "device": self.backend.device,

@@ -95,3 +95,26 @@ def test_windows_sharing_a_centre_frame_encode_their_sharp_file_once(tmp_path, m
     assert len(sharp) == 16 and len({p.read_bytes() for p in sharp}) == len(sharp_encodes) == 4
     for path in sharp:  # each the file its pixels encode to
         assert path.read_bytes() == encode(read_image(path), 8)
+
+
+def test_run_json_names_the_png_encoder_which_a_resume_does_not_check(tmp_path):
+    import cv2
+    import numpy as np
+
+    from gpu_blur.png_codecs import encoder_name
+
+    frames = tmp_path / "in" / "seq" / "sharp"
+    frames.mkdir(parents=True)
+    rng = np.random.default_rng(5)
+    for i in range(9):
+        cv2.imwrite(str(frames / f"{i:04d}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    out = tmp_path / "out"
+    command = ["generate", "--input", str(tmp_path / "in"), "--output", str(out), "--scene",
+               "rsblur", "--backend", "numpy", "--samples-per-sequence", "2", "--quiet"]
+    assert main([*command, "--limit", "1"]) == 0
+    run = json.loads((out / "run.json").read_text())
+    assert run["png_encoder"] == encoder_name("fast")
+    run["png_encoder"] = "another encoder"  # as a set whose first run had another library
+    (out / "run.json").write_text(json.dumps(run))
+    assert main([*command, "--resume"]) == 0
+    assert len((out / "manifest.jsonl").read_text().splitlines()) == 2
