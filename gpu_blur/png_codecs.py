@@ -246,12 +246,10 @@ def encoder_name(mode: str) -> str:
     """Which library writes ``mode`` here, e.g. ``zlib-ng 1.1.0 (deflate, Huffman only, ...)``."""
     if mode == "stored":
         return "gpu_blur (stored deflate blocks, rows unfiltered)"
-    from importlib.metadata import version
-
     if mode == "fastest" and _isal() is not None:
-        return (f"isal {version('isal')} (ISA-L deflate, level 1, numpy's Sub filter; bytes may "
-                "vary)")
-    fast = (f"zlib-ng {version('zlib-ng')}" if _zlib_ng() is not None
+        return (f"isal {_package_version('isal')} (ISA-L deflate, level 1, numpy's Sub filter; "
+                "bytes may vary)")
+    fast = (f"zlib-ng {_package_version('zlib_ng')}" if _zlib_ng() is not None
             else f"Python's zlib {zlib.ZLIB_RUNTIME_VERSION}")
     fast += " (deflate, Huffman only, numpy's Sub filter)"
     if mode == "small":
@@ -259,6 +257,13 @@ def encoder_name(mode: str) -> str:
 
         return f"OpenCV {cv2.__version__} (libpng) or {fast}, the smaller"
     return fast
+
+
+def _package_version(name: str) -> str:
+    """An installed package's own ``__version__`` (a copied folder has no metadata to ask)."""
+    import importlib
+
+    return str(getattr(importlib.import_module(name), "__version__", "unknown version"))
 
 
 def decoder_name() -> str:
