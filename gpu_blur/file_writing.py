@@ -94,6 +94,12 @@ def write_image(path: str | Path, image: np.ndarray, bits: int,
     write_whole(path, encode_image(image, bits, str(path), png))
 
 
+def _codes(image: np.ndarray, bits: int) -> np.ndarray:
+    """``image`` as the codes of its ``bits``-bit PNG: as given where it holds them already."""
+    image = np.asarray(image)
+    return image if image.dtype == code_dtype(bits) else to_integers(image, bits)
+
+
 def encode_image(image: np.ndarray, bits: int, what: str = "image",
                  png: str = DEFAULT_PNG_MODE) -> bytes:
     """The bytes :func:`write_image` writes for ``image``: its PNG (8/16 bits) or TIFF (0).
@@ -102,12 +108,7 @@ def encode_image(image: np.ndarray, bits: int, what: str = "image",
         OSError: ``what``: could not encode the image.
         ValueError: ``png`` is not one of :data:`gpu_blur.png_codecs.PNG_MODES`.
     """
-    if bits == 0:
-        data = np.asarray(image, dtype=np.float32)
-    elif np.asarray(image).dtype == code_dtype(bits):
-        data = np.asarray(image)
-    else:
-        data = to_integers(image, bits)
+    data = np.asarray(image, dtype=np.float32) if bits == 0 else _codes(image, bits)
     if bits:
         if png not in PNG_MODES:
             raise ValueError(f"PNG mode {png!r}: expected one of {', '.join(PNG_MODES)}")
@@ -150,10 +151,7 @@ class EncodedImages:
         """:func:`encode_image`'s bytes for ``image``, encoded only if not seen before."""
         if bits == 0:  # float TIFF: never the sharp reference of 8- or 16-bit sets
             return encode_image(image, bits, what, png)
-        codes = np.asarray(image)
-        if codes.dtype != code_dtype(bits):
-            codes = to_integers(codes, bits)
-        codes = np.ascontiguousarray(codes)
+        codes = np.ascontiguousarray(_codes(image, bits))
         key = (hashlib.sha256(memoryview(codes).cast("B")).digest(), codes.shape, bits, png)
         with self._lock:
             data = self._files.get(key)

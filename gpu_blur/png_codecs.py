@@ -171,14 +171,6 @@ def _isal():
     return isal_zlib
 
 
-def _libdeflate():
-    try:
-        import deflate
-    except ImportError:
-        return None
-    return deflate
-
-
 def _zlib_ng():
     try:
         from zlib_ng import zlib_ng
@@ -268,13 +260,11 @@ def _package_version(name: str) -> str:
 
 def decoder_name() -> str:
     """Which library decodes the PNG files :func:`decode_png` takes here."""
-    from importlib.metadata import version
-
     inflater = _inflater()
     if inflater is not None:
         name = inflater[0]
         library = "libdeflate" if name == "deflate" else "ISA-L"
-        return f"{name} {version(name)} ({library} inflate, numpy's unfiltering)"
+        return f"{name} {_package_version(name)} ({library} inflate, numpy's unfiltering)"
     import cv2
 
     return f"OpenCV {cv2.__version__} (libpng)"
@@ -291,8 +281,9 @@ def _inflater():
 
 
 def _libdeflate_inflater():
-    deflate = _libdeflate()
-    if deflate is None:
+    try:
+        import deflate
+    except ImportError:
         return None
 
     def inflate(stream: bytes, size: int) -> bytes | None:
