@@ -70,18 +70,23 @@ def test_generate_set_raises_what_the_command_prints(tmp_path, capsys):
         "gpu-blur: error: --seed -1: must lie in [0, 2**64)")
 
 
-def test_windows_sharing_a_centre_frame_encode_their_sharp_file_once(tmp_path, monkeypatch):
+def write_sequence(folder, frames: int, seed: int) -> None:
+    """A sequence of ``frames`` 24 x 32 noise PNGs as ``folder/seq/sharp/0000.png ...``."""
     import cv2
     import numpy as np
 
+    sharp = folder / "seq" / "sharp"
+    sharp.mkdir(parents=True)
+    rng = np.random.default_rng(seed)
+    for i in range(frames):
+        cv2.imwrite(str(sharp / f"{i:04d}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+
+
+def test_windows_sharing_a_centre_frame_encode_their_sharp_file_once(tmp_path, monkeypatch):
     from gpu_blur import file_writing
     from gpu_blur.image_reading import read_image
 
-    frames = tmp_path / "in" / "seq" / "sharp"
-    frames.mkdir(parents=True)
-    rng = np.random.default_rng(4)
-    for i in range(12):  # 9-frame windows: 4 first frames, so 4 centre frames
-        cv2.imwrite(str(frames / f"{i:04d}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    write_sequence(tmp_path / "in", 12, seed=4)  # 9-frame windows: 4 first, so 4 centre frames
     sharp_encodes = []  # what each encode wrote
     encode = file_writing.encode_image
     monkeypatch.setattr(file_writing, "encode_image",
@@ -98,16 +103,9 @@ def test_windows_sharing_a_centre_frame_encode_their_sharp_file_once(tmp_path, m
 
 
 def test_run_json_names_the_png_encoder_which_a_resume_does_not_check(tmp_path):
-    import cv2
-    import numpy as np
-
     from gpu_blur.png_codecs import encoder_name
 
-    frames = tmp_path / "in" / "seq" / "sharp"
-    frames.mkdir(parents=True)
-    rng = np.random.default_rng(5)
-    for i in range(9):
-        cv2.imwrite(str(frames / f"{i:04d}.png"), rng.integers(0, 256, (24, 32, 3), np.uint8))
+    write_sequence(tmp_path / "in", 9, seed=5)
     out = tmp_path / "out"
     command = ["generate", "--input", str(tmp_path / "in"), "--output", str(out), "--scene",
                "rsblur", "--backend", "numpy", "--samples-per-sequence", "2", "--quiet"]
