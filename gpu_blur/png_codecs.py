@@ -151,16 +151,24 @@ def stored_zlib(data) -> bytes:
     return b"".join(parts)
 
 
-def png_file(codes: np.ndarray, idat: bytes) -> bytes:
-    """A PNG file of ``codes``' header and ``idat``, the zlib stream of its filtered rows."""
+def png_file(codes: np.ndarray, idat) -> bytes:
+    """A PNG file of ``codes``' header and ``idat``, the zlib stream of its filtered rows.
+
+    ``idat``: the stream as bytes, or as a sequence of consecutive parts (joined here, so the
+    stream is copied once: each copy holds the GIL, which the making thread waits for).
+    """
+    parts = [idat] if isinstance(idat, (bytes, bytearray, memoryview)) else list(idat)
     height, width = codes.shape[:2]
     channels = codes.shape[2] if codes.ndim == 3 else 1
     header = struct.pack(">IIBBBBB", width, height, 8 * codes.itemsize,
                          _COLOUR_TYPES[channels], 0, 0, 0)
-    crc = _crc32()  # the data is copied once, by join (each copy holds the GIL)
-    return b"".join((PNG_SIGNATURE, chunk(b"IHDR", header), struct.pack(">I", len(idat)),
-                     b"IDAT", idat, struct.pack(">I", crc(idat, crc(b"IDAT"))),
-                     chunk(b"IEND", b"")))
+    crc = _crc32()
+    checksum = crc(b"IDAT")
+    for part in parts:
+        checksum = crc(part, checksum)
+    return b"".join((PNG_SIGNATURE, chunk(b"IHDR", header),
+                     struct.pack(">I", sum(len(part) for part in parts)), b"IDAT", *parts,
+                     struct.pack(">I", checksum), chunk(b"IEND", b"")))
 
 
 def _isal():
@@ -185,10 +193,15 @@ def huffman_zlib(data) -> bytes:
     zlib-ng's where the ``zlib-ng`` package is installed, else Python's zlib: the same bytes
     (tests/io/test_png_codecs.py), without the GIL.
     """
+    return b"".join(_huffman_parts(data))
+
+
+def _huffman_parts(data) -> tuple[bytes, bytes]:
+    """:func:`huffman_zlib`'s stream in two consecutive parts (what compress and flush give)."""
     lib = _zlib_ng() or zlib
     compressor = lib.compressobj(1, lib.DEFLATED, lib.MAX_WBITS, lib.DEF_MEM_LEVEL,
                                  lib.Z_HUFFMAN_ONLY)
-    return compressor.compress(data) + compressor.flush()
+    return compressor.compress(data), compressor.flush()
 
 
 def encode_png(codes: np.ndarray, mode: str = DEFAULT_PNG_MODE) -> bytes:
@@ -211,7 +224,7 @@ def encode_png(codes: np.ndarray, mode: str = DEFAULT_PNG_MODE) -> bytes:
     if isal is not None:  # its bytes may vary (PNG_MODES)
         return png_file(codes, isal.compress(filtered_rows(codes, "sub"), 1))
     if mode in ("fast", "fastest"):
-        return png_file(codes, huffman_zlib(filtered_rows(codes, "sub")))
+        return png_file(codes, _huffman_parts(filtered_rows(codes, "sub")))
     import cv2
 
     settings = [[cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY,

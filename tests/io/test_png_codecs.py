@@ -178,6 +178,18 @@ def test_zlib_ng_and_pythons_zlib_write_one_huffman_stream(bits, seed, monkeypat
     assert zlib.decompress(streams[0]) == rows.tobytes()
 
 
+def test_a_stream_given_in_parts_makes_the_file_of_the_whole_stream():
+    source = codes(8, (48, 64, 3), seed=5)
+    stream = png_codecs.huffman_zlib(png_codecs.filtered_rows(source, "sub"))
+    whole = png_codecs.png_file(source, stream)
+    for cuts in ([], [0], [1, 7], [len(stream) // 2, len(stream)]):
+        bounds = [0, *cuts, len(stream)]
+        parts = [stream[a:b] for a, b in zip(bounds, bounds[1:], strict=False)]
+        assert png_codecs.png_file(source, parts) == whole
+    assert png_codecs.encode_png(source, "fast") == whole
+    assert np.array_equal(png_codecs.decode_png(whole), source)
+
+
 def test_fastest_compresses_the_fast_rows_with_isal_or_is_fast_without_it(monkeypatch):
     source = codes(8, (64, 96, 3), seed=11)
     isal = png_codecs._isal()
