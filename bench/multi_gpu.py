@@ -11,7 +11,9 @@ checked batches left out).
 
 Disk: ``gpu-blur generate --devices`` with one worker per GPU over PNG frames on disk
 (bench/generate_gpu.py's sequence, rate without the process start and from the first file
-written to the last), its summary saying what bounds it and what handing the samples to the
+written to the last), and one process without ``--devices`` (``disk_one_process``), the rows
+taking turns ``--repeats`` times (each row the run of the median rate, every run's rates
+beside it), its summary saying what bounds it and what handing the samples to the
 driver cost, and the host's decode-plus-encode bound: from one core's codec times with 9
 decodes a sample (``disk_bound_samples_per_s``), and measured (``disk_bound_measured``: this
 checkout's codecs alone through one thread per core, each frame decoded once as a frame cache
@@ -158,11 +160,13 @@ def copy_bound(gpus: int, reps: int = 16) -> dict:
     return {"gpus": gpus, "gb_s_each_way": gpus * reps * COPY_BYTES / seconds / 1e9}
 
 
-def from_disk(backend: str, gpus: int, root: Path, out: Path, samples: int, cores: int,
+def from_disk(backend: str, gpus: int | None, root: Path, out: Path, samples: int, cores: int,
               scene: str = "rsblur") -> dict:
-    devices = ",".join(device_spec(backend, g) for g in range(gpus))
-    run = generate_gpu.generate(root, out, backend, samples, cores, ("--devices", devices),
-                                scene=scene)
+    """A disk run: ``generate --devices`` with a worker per GPU, or one process (``gpus``
+    None, no ``--devices``)."""
+    extra = () if gpus is None else (
+        "--devices", ",".join(device_spec(backend, g) for g in range(gpus)))
+    run = generate_gpu.generate(root, out, backend, samples, cores, extra, scene=scene)
     return {"gpus": gpus, **run, "digest": generate_gpu.set_digest(out)}
 
 
@@ -187,6 +191,8 @@ def main(argv=None) -> int:
                    help="memory: batches per run (default 64)")
     p.add_argument("--batch", type=int, default=16, help="memory: samples per batch (default 16)")
     p.add_argument("--samples", type=int, default=64, help="disk: samples per run (default 64)")
+    p.add_argument("--repeats", type=int, default=1, help="disk: runs of each row, one process's "
+                   "first, taking turns; rates from the medians (default 1)")
     p.add_argument("--memory", default="pageable,pinned",
                    help="memory: the frames and outputs in pageable numpy arrays, in each "
                    "GPU's pinned memory (Synthesizer.pinned), or both (default both)")
@@ -231,13 +237,26 @@ def main(argv=None) -> int:
             result["disk_bound_samples_per_s"] = generate_gpu.decode_encode_bound(per, cores)
             result["single_core_seconds"] = per
             scene = generate_gpu.scene_file(tmp, args.png)
-            for n in counts:
-                row = from_disk(args.backend, n, root, Path(tmp) / f"out{n}", args.samples,
-                                cores, scene)
-                result["disk"].append(row)
-                print(f"disk, {n} GPU(s): {row['samples_per_s']:.1f} samples/s (in the run, "
-                      f"workers' start included: {row.get('in_run_samples_per_s')}; first to "
-                      f"last written {row['written_samples_per_s']:.1f})", flush=True)
+            rows = {n: [] for n in [None, *counts]}  # None: one process, no --devices
+            for _ in range(args.repeats):
+                for n, made in rows.items():
+                    made.append(from_disk(args.backend, n, root, Path(tmp) / f"out{n}",
+                                          args.samples, cores, scene))
+            for n, made in rows.items():
+                row = sorted(made, key=lambda r: r["samples_per_s"])[(len(made) - 1) // 2]
+                row = {**row, "samples_per_s_each": [r["samples_per_s"] for r in made],
+                       "in_run_each": [r["in_run_samples_per_s"] for r in made],
+                       "written_each": [r["written_samples_per_s"] for r in made]}
+                if n is None:
+                    result["disk_one_process"] = row
+                else:
+                    result["disk"].append(row)
+                print(f"disk, {'one process' if n is None else f'{n} GPU(s)'}: "
+                      f"{row['samples_per_s']:.1f} samples/s (in the run, workers' start "
+                      f"included: {row.get('in_run_samples_per_s')}; first to last written "
+                      f"{row['written_samples_per_s']:.1f}; each run: "
+                      + ", ".join(f"{v:.1f}" for v in row["samples_per_s_each"]) + ")",
+                      flush=True)
             # the codecs alone through one thread per core, each frame decoded once (a frame
             # cache's run) and each image encoded as the run did: the host's own ceiling
             result["disk_bound_measured"] = generate_gpu.measured_codec_bound(
@@ -255,7 +274,8 @@ def main(argv=None) -> int:
                 f"{g} GPUs {s:.2f}x" for g, s in result[f"{source}_speedup"].items()))
     for source in ("memory", "disk"):  # pinned or not, every GPU count: one set of bytes
         if result[source]:
-            same = len({r["digest"] for r in result[source]}) == 1
+            rows = result[source] + ([result["disk_one_process"]] if source == "disk" else [])
+            same = len({r["digest"] for r in rows}) == 1
             result[f"{source}_same_bytes"] = same
             print(f"{source}: " + ("every run the same bytes" if same else "SETS DIFFER"))
     if result["disk"]:

@@ -670,6 +670,13 @@ def bench_multi_gpu(name: str) -> str:
         if ds:
             rows.append([f"PNG files, `gpu-blur generate --devices`, {backend}"]
                         + [ds.get(g) for g in gpus])
+        one = run.get("disk_one_process")
+        if one:  # one process drives one GPU
+            rows.append([f"PNG files, `gpu-blur generate`, one process, {backend}"]
+                        + [one["samples_per_s"] if g == 1 else None for g in gpus])
+        if one and run.get("disk_bound_measured"):  # the host's, whatever the GPUs
+            rows.append(["PNG files, the codecs alone through one thread per core (measured "
+                         "bound)"] + [run["disk_bound_measured"]["samples_per_s"]] * len(gpus))
     bound = data.get("copy_bound")
     if bound:
         rb = {b["gpus"]: b["gb_s_each_way"] for b in bound}
