@@ -192,7 +192,7 @@ def main(argv=None) -> int:
     p.add_argument("--batch", type=int, default=16, help="memory: samples per batch (default 16)")
     p.add_argument("--samples", type=int, default=64, help="disk: samples per run (default 64)")
     p.add_argument("--repeats", type=int, default=1, help="disk: runs of each row, one process's "
-                   "first, taking turns; rates from the medians (default 1)")
+                   "first, taking turns; each row the run of the median rate (default 1)")
     p.add_argument("--memory", default="pageable,pinned",
                    help="memory: the frames and outputs in pageable numpy arrays, in each "
                    "GPU's pinned memory (Synthesizer.pinned), or both (default both)")

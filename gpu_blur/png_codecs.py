@@ -154,8 +154,9 @@ def stored_zlib(data) -> bytes:
 def png_file(codes: np.ndarray, idat) -> bytes:
     """A PNG file of ``codes``' header and ``idat``, the zlib stream of its filtered rows.
 
-    ``idat``: the stream as bytes, or as a sequence of consecutive parts (joined here, so the
-    stream is copied once: each copy holds the GIL, which the making thread waits for).
+    ``idat``: the stream as bytes, or as a sequence of consecutive parts, joined here into the
+    file: the stream is copied once, by a join, which releases the GIL for data this large
+    (adding bytes objects holds it while copying, and the making thread waits for the GIL).
     """
     parts = [idat] if isinstance(idat, (bytes, bytearray, memoryview)) else list(idat)
     height, width = codes.shape[:2]
