@@ -20,7 +20,9 @@ is recorded under what its bits depend on (:func:`record_key`), in
 ``tests/synthesis/test_golden_outputs.py`` runs the check for every backend present whose key was
 recorded. The record holds this project's development machine (an Intel Xeon with AVX-512:
 numpy, PoCL 3.1, Intel's CPU runtime, Warp's CPU device) and its GPU machine, recorded when the
-draws moved to fixedmath (issue 35): NVIDIA OpenCL and Warp CUDA on an H200 (driver 580.159.04).
+draws moved to fixedmath (issue 35): NVIDIA OpenCL and Warp CUDA on an H200 (driver 580.159.04);
+and an AMD EPYC with AVX2 only (2026-11-28), whose digests equal the Xeon's under the same target:
+Warp's CPU device and PoCL alike for AVX2 and AVX-512, Intel's runtime like its core-avx2 build.
 """
 
 from __future__ import annotations
