@@ -22,7 +22,9 @@ recorded. The record holds this project's development machine (an Intel Xeon wit
 numpy, PoCL 3.1, Intel's CPU runtime, Warp's CPU device) and its GPU machine, recorded when the
 draws moved to fixedmath (issue 35): NVIDIA OpenCL and Warp CUDA on an H200 (driver 580.159.04);
 and an AMD EPYC with AVX2 only (2026-11-28), whose digests equal the Xeon's under the same target:
-Warp's CPU device and PoCL alike for AVX2 and AVX-512, Intel's runtime like its core-avx2 build.
+Warp's CPU device and PoCL alike for AVX2 and AVX-512, Intel's runtime like its core-avx2 build;
+with its SSE4.2 keys (.ci/run's second pass there), where the interpolated case's flows and
+Intel's float32 builds for corei7 give other digests.
 """
 
 from __future__ import annotations
