@@ -382,6 +382,36 @@ def test_generate_writes_the_same_pixels_in_either_mode(tmp_path, bits):
         assert mode == "fast" or any(fast[name] != files[name] for name in fast)
 
 
+def in_idat_chunks(data, sizes):
+    """``data`` (a file of one IDAT chunk) with its stream in chunks of these sizes, the
+    rest in a last one."""
+    kind, start, length = next(c for c in chunks(data) if c[0] == b"IDAT")
+    stream, cuts, parts = data[start + 8:start + 8 + length], [0], []
+    for size in sizes:
+        cuts.append(min(cuts[-1] + size, length))
+    cuts.append(length)
+    for a, b in zip(cuts, cuts[1:], strict=False):
+        body = stream[a:b]
+        parts.append(struct.pack(">I", len(body)) + b"IDAT" + body
+                     + struct.pack(">I", zlib.crc32(b"IDAT" + body)))
+    return data[:start] + b"".join(parts) + data[start + 12 + length:]
+
+
+@pytest.mark.parametrize("layout", ["one", "even", "even, last empty", "uneven", "first empty"])
+def test_an_idat_stream_in_any_chunks_decodes_to_its_source(layout, inflater):
+    """Chunks of one size (as libpng and OpenCV write them) or of any others."""
+    source = codes(8, (40, 60, 3), seed=3)
+    data = png_codecs.encode_png(source, "fast")
+    length = next(c for c in chunks(data) if c[0] == b"IDAT")[2]
+    sizes = {"one": [], "even": [97] * (length // 97), "even, last empty": [length // 4] * 4,
+             "uneven": [50, 97, 13, 200], "first empty": [0, 64, 64]}[layout]
+    split = in_idat_chunks(data, sizes)
+    parts = png_codecs._idat(split)[4]
+    assert len(parts) == len(sizes) + 1 and len(split) == len(data) + 12 * len(sizes)
+    assert b"".join(parts) == png_codecs._idat(data)[4][0]
+    assert np.array_equal(png_codecs.decode_png(split), source)
+
+
 def test_only_a_stored_idat_crc_damaged_decodes_to_the_intact_pixels(inflater):
     """png_codecs._idat checks the zlib stream's Adler-32, not each IDAT chunk's CRC."""
     source = codes(8)
