@@ -12,7 +12,8 @@ with a core for each thread). Per operation: its rate, the stalled milliseconds 
 per operation, and the longest stall. Operations: the PNG encode of a noisy 1920 x 1200 8-bit
 image in each ``output.png`` mode, the decode of an OpenCV-written frame, and as references a
 join and an addition of two bytes objects of 4 MB (a join that large releases the GIL; an
-addition holds it while copying).
+addition holds it while copying). glibc's ``MALLOC_*`` variables, if set, are recorded
+(``malloc_settings``): freeing and mapping memory of several MB happens with the GIL held.
 
     PYTHONPATH=$PWD python3 bench/gil_holds.py --json gil_holds.json
 """
@@ -105,7 +106,9 @@ def main(argv=None) -> int:
     result = {"what": __doc__.split("\n\n")[0], "cpu": cpu_name(), "cores": os.cpu_count(),
               "load_average": load_average(), "python": sys.version.split()[0],
               "commit": source_commit(), "stall_us": STALL_US, "seconds": args.seconds,
-              "switch_interval_ms": 1e3 * sys.getswitchinterval(), "operations": {}}
+              "switch_interval_ms": 1e3 * sys.getswitchinterval(),
+              "malloc_settings": {k: v for k, v in os.environ.items() if k.startswith("MALLOC_")},
+              "operations": {}}
     print(f"{'operation':40s} {'ops/s':>8s} {'stalled ms/s':>13s} {'ms/op':>8s} "
           f"{'longest ms':>11s}")
     with tempfile.TemporaryDirectory() as tmp:
