@@ -266,8 +266,7 @@ def chunks(data):
 
 def with_chunk_before_idat(data, kind, body):
     idat = next(start for k, start, _ in chunks(data) if k == b"IDAT")
-    new = struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
-    return data[:idat] + new + data[idat:]
+    return data[:idat] + png_codecs.chunk(kind, body) + data[idat:]
 
 
 def test_a_damaged_idat_is_refused_naming_the_file(libraries, tmp_path):
@@ -386,14 +385,12 @@ def in_idat_chunks(data, sizes):
     """``data`` (a file of one IDAT chunk) with its stream in chunks of these sizes, the
     rest in a last one."""
     kind, start, length = next(c for c in chunks(data) if c[0] == b"IDAT")
-    stream, cuts, parts = data[start + 8:start + 8 + length], [0], []
+    stream, cuts = data[start + 8:start + 8 + length], [0]
     for size in sizes:
         cuts.append(min(cuts[-1] + size, length))
     cuts.append(length)
-    for a, b in zip(cuts, cuts[1:], strict=False):
-        body = stream[a:b]
-        parts.append(struct.pack(">I", len(body)) + b"IDAT" + body
-                     + struct.pack(">I", zlib.crc32(b"IDAT" + body)))
+    parts = [png_codecs.chunk(b"IDAT", stream[a:b])
+             for a, b in zip(cuts, cuts[1:], strict=False)]
     return data[:start] + b"".join(parts) + data[start + 12 + length:]
 
 
