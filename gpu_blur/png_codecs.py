@@ -378,6 +378,12 @@ def _unfilter(kinds: np.ndarray, body: np.ndarray, step: int) -> np.ndarray | No
     Vectorised where every row has the same filter (Sub: a running sum along the row,
     modulo 256, per byte of a pixel; Up: along the columns), else one row at a time. None
     for Average and Paeth rows, whose predictions depend on the bytes just decoded.
+
+    Sub's running sum by doubling shifts instead (log2 of the row's pixels whole-row
+    additions, in blocks of 256 rows) decoded a 1920 x 1200 frame in 24 ms against 37 on one
+    core of the AMD EPYC build machine, but on the H200's 16-core Xeon host it lost: 33.6
+    files a second on one thread against cumsum's 36.5, 202 against 339 on 16 (all rows at
+    once: 276), the passes' memory traffic shared by the threads. So cumsum stays.
     """
     height = body.shape[0]
     if np.all(kinds == 1):
