@@ -17,6 +17,14 @@ first run on a host builds or loads the kernels and meets cold caches: at 74843a
 host it ran at less than half the later runs' rate): its own rate (its ``wrote`` line), its
 I/O threads' decoding line, and its peak resident memory.
 
+``--parts`` adds, in a process of each setting per round, where one frame's decode spends
+its time on one thread (``parts``, milliseconds, the median of ``--part-runs`` calls each):
+``read_image`` whole, ``decode_png`` on the file's bytes, and its steps alone on the same
+bytes: the walk over the chunks, the join of the IDAT data, the inflate, the unfiltering
+(Sub rows: numpy's running sum). The steps reuse one frame's buffers call after call; the
+whole decode makes new ones each time, so the difference between the whole and its steps is
+mostly the new memory's cost, which the settings change.
+
 At 74843aa ``gpu-blur generate`` set ``keep`` itself (through ``mallopt``); it gained too
 little in the run for the memory it cost and was taken out (docs/performance.md, "Freed
 memory kept"). The variables set the same from the process's start.
@@ -63,6 +71,34 @@ with ThreadPoolExecutor(threads) as pool:
     list(pool.map(lambda p: read_image(p).shape, paths))
     print(time.perf_counter() - start, len(paths), peak_kb(), sep="\\t")
 """
+#: One frame's decode and its steps on one thread (``--parts``): their median ms, as JSON.
+_PARTS = """
+import json, statistics, sys, time
+from pathlib import Path
+import numpy as np
+from gpu_blur import png_codecs
+from gpu_blur.image_reading import read_image
+path, runs = Path(sys.argv[1]), int(sys.argv[2])
+data = path.read_bytes()
+width, height, depth, channels, idat = png_codecs._idat(data)
+step = channels * depth // 8
+stride = 1 + width * step
+joined = b"".join(idat)
+name, inflate = png_codecs._inflater()
+rows = np.frombuffer(inflate(joined, height * stride), np.uint8).reshape(height, stride)
+steps = {"read_image": lambda: read_image(path), "decode_png": lambda: png_codecs.decode_png(data),
+         "chunks": lambda: png_codecs._idat(data), "join": lambda: b"".join(idat),
+         "inflate": lambda: inflate(joined, height * stride),
+         "unfilter": lambda: png_codecs._unfilter(rows[:, 0], rows[:, 1:], step)}
+times = {key: [] for key in steps}
+for _ in range(runs + 1):  # the first round uncounted
+    for key, call in steps.items():
+        start = time.perf_counter()
+        call()
+        times[key].append(1e3 * (time.perf_counter() - start))
+print(json.dumps({"inflater": name, "idat_chunks": len(idat),
+                  "ms": {key: statistics.median(t[1:]) for key, t in times.items()}}))
+"""
 #: The process's peak resident memory (Linux: KiB), for both children.
 _PEAK = """
 import resource
@@ -99,6 +135,16 @@ def decode_run(root: Path, threads: int, setting: str) -> dict:
             "peak_memory_mib": int(peak) / 1024}
 
 
+def parts_run(frame: Path, runs: int, setting: str) -> dict:
+    """One process with ``setting`` timing a frame's decode and its steps (:data:`_PARTS`)."""
+    done = subprocess.run([sys.executable, "-c", _PARTS, str(frame), str(runs)],
+                          env=_environment(setting), capture_output=True, text=True,
+                          check=False)
+    if done.returncode:
+        raise RuntimeError(done.stderr[-2000:])
+    return json.loads(done.stdout)
+
+
 def generate_run(root: Path, out: Path, backend: str, samples: int, threads: int,
                  setting: str) -> dict:
     """``gpu-blur generate`` over ``samples`` windows with ``setting``: its rate and lines."""
@@ -130,6 +176,10 @@ def main(argv=None) -> int:
     p.add_argument("--generate", type=int, metavar="N", default=0,
                    help="also gpu-blur generate over N distinct windows with each setting")
     p.add_argument("--backend", default="warp", help="--generate's backend (default warp)")
+    p.add_argument("--parts", action="store_true",
+                   help="also time one frame's decode and its steps on one thread")
+    p.add_argument("--part-runs", type=int, default=20,
+                   help="--parts: calls of each step, the median kept (default 20)")
     p.add_argument("--json", type=Path, help="write the results here")
     args = p.parse_args(argv)
     frames = max(args.frames, 9 * args.generate)
@@ -140,8 +190,14 @@ def main(argv=None) -> int:
                      "keep")
     decodes: dict[str, list[dict]] = {s: [] for s in SETTINGS}
     runs: dict[str, list[dict]] = {s: [] for s in SETTINGS}
+    parts: dict[str, list[dict]] = {s: [] for s in SETTINGS}
+    frame = min(root.rglob("*.png"))
     for round_ in range(args.rounds):
         for setting in SETTINGS:
+            if args.parts:
+                parts[setting].append(found := parts_run(frame, args.part_runs, setting))
+                print(f"round {round_ + 1}, {setting}: one frame on one thread, ms: "
+                      + ", ".join(f"{k} {v:.1f}" for k, v in found["ms"].items()), flush=True)
             decodes[setting].append(run := decode_run(root, args.threads, setting))
             print(f"round {round_ + 1}, {setting}: {frames} frames through {args.threads} "
                   f"threads in {run['seconds']:.2f} s, {run['ms_a_frame_a_thread']:.1f} ms "
@@ -164,11 +220,19 @@ def main(argv=None) -> int:
                    "median_ms_a_frame_a_thread": _medians(decodes, "ms_a_frame_a_thread"),
                    "median_frames_per_s": _medians(decodes, "frames_per_s")},
     }
+    if args.parts:
+        result["parts"] = {"runs": parts, "part_runs": args.part_runs, "frame": frame.name,
+                           "median_ms": {setting: {key: statistics.median(
+                               run["ms"][key] for run in each) for key in each[0]["ms"]}
+                               for setting, each in parts.items()}}
+        result["what"] += f" --parts --part-runs {args.part_runs}"
     if args.generate:
         result["generate"] = {"samples": args.generate, "backend": args.backend, "runs": runs,
                               "median_in_run_samples_per_s":
                                   _medians(runs, "in_run_samples_per_s")}
     print(json.dumps({k: v for k, v in result["decode"].items() if k != "runs"}))
+    if args.parts:
+        print(json.dumps(result["parts"]["median_ms"]))
     if args.generate:
         print(json.dumps(result["generate"]["median_in_run_samples_per_s"]))
     if args.json:

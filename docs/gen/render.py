@@ -648,7 +648,18 @@ def bench_decode_threads(name: str = "decode_threads_h200") -> str:
     host = data["machine"]
     device = (f"{host.get('host', host.get('cpu'))}; {data['frames']} frames of "
               f"{data['image'][0]} x {data['image'][1]} through {data['threads']} threads")
-    return _table(heads, rows) + "\n\n" + provenance(path, device, _named(data))
+    table = _table(heads, rows)
+    if "parts" in data:  # one frame's decode and its steps on one thread
+        parts = data["parts"]["median_ms"]
+        steps = {"read_image": "read_image (file to pixels)",
+                 "decode_png": "decode_png (bytes to pixels)", "chunks": "walk the chunks",
+                 "join": "join the IDAT data", "inflate": "inflate",
+                 "unfilter": "unfilter (Sub: numpy's running sum)"}
+        table += "\n\n" + _table(
+            ["one frame on one thread, ms (median of each round's median)", *parts],
+            [[label, *(parts[setting][key] for setting in parts)]
+             for key, label in steps.items() if key in parts["glibc"]])
+    return table + "\n\n" + provenance(path, device, _named(data))
 
 
 def bench_multi_gpu(name: str) -> str:
