@@ -383,7 +383,8 @@ def _unfilter(kinds: np.ndarray, body: np.ndarray, step: int) -> np.ndarray | No
     additions, in blocks of 256 rows) decoded a 1920 x 1200 frame in 24 ms against 37 on one
     core of the AMD EPYC build machine, but on the H200's 16-core Xeon host it lost: 33.6
     files a second on one thread against cumsum's 36.5, 202 against 339 on 16 (all rows at
-    once: 276), the passes' memory traffic shared by the threads. So cumsum stays.
+    once: 276; the passes' memory traffic, shared by the threads, the likely cause). So
+    cumsum stays.
     """
     height = body.shape[0]
     if np.all(kinds == 1):
