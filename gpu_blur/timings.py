@@ -269,20 +269,30 @@ class PoolTimes:
         self.__dict__.update(state, _lock=threading.Lock())
 
     def ceiling(self, stage: str) -> str:
-        """The samples a second ``stage`` alone would allow on these threads, in words.
+        """The samples a second these threads allow, in words, ``stage``'s time named first.
 
-        From the thread time a sample took (decoding its files, or encoding and writing its
-        outputs): ``threads`` such threads make at most ``threads / that`` samples a second,
-        if the work scales with them (codecs that hold the GIL, or memory bandwidth, may not).
+        Where the same threads decode a sample's files and encode and write its outputs (one
+        process; ``--devices`` workers that write their samples' files), from the thread time
+        a sample took at both: ``threads`` such threads make at most ``threads / (decode +
+        write)`` samples a second, if the work scales with them (codecs that hold the GIL,
+        or memory bandwidth, may not). Where the driver's threads write what workers decoded,
+        from ``stage``'s time alone. ``stage``: ``decode`` or ``write``.
         """
-        samples = self.samples if stage == "decode" else self.calls["write"]
-        if not samples or not self.busy[stage]:
+        words = {"decode": ("decoding a sample's inputs", "decoding its inputs"),
+                 "write": ("encoding and writing a sample", "encoding and writing it")}
+        per = {s: self.busy[s] / n for s, n in (("decode", self.samples),
+                                                  ("write", self.calls["write"]))
+               if n and self.busy[s]}
+        if self.handoff["samples"] and not self.handoff["written"]:  # other threads each
+            per = {s: seconds for s, seconds in per.items() if s == stage}
+        if stage not in per:
             return f"the threads {'decoded' if stage == 'decode' else 'wrote'} nothing"
-        per = self.busy[stage] / samples
-        what = ("decoding a sample's inputs" if stage == "decode"
-                else "encoding and writing a sample")
-        return (f"{what} took a thread {1e3 * per:.1f} ms, so {self.threads} threads make at "
-                f"most {self.threads / per:.1f} samples/s: more cores, more")
+        line = f"{words[stage][0]} took a thread {1e3 * per[stage]:.1f} ms"
+        for other, seconds in per.items():
+            if other != stage:
+                line += f" and {words[other][1]} {1e3 * seconds:.1f} ms"
+        return (f"{line}, so {self.threads} threads make at most "
+                f"{self.threads / sum(per.values()):.1f} samples/s: more cores, more")
 
     def busy_share(self, wall: float) -> float:
         """Percent of the threads' time over ``wall`` seconds they spent working."""
