@@ -84,9 +84,10 @@ width, height, depth, channels, idat = png_codecs._idat(data)
 step = channels * depth // 8
 stride = 1 + width * step
 joined = b"".join(idat)
-if png_codecs._inflater() is None:
+inflater = png_codecs._inflater()
+if inflater is None:
     sys.exit("--parts: gpu_blur's decoder needs the deflate (or isal) package")
-name, inflate = png_codecs._inflater()
+name, inflate = inflater
 rows = np.frombuffer(inflate(joined, height * stride), np.uint8).reshape(height, stride)
 steps = {"read_image": lambda: read_image(path),
          "decode_png": lambda: png_codecs.decode_png(data),
