@@ -1,0 +1,135 @@
+"""``output.png = "fast"`` streams made on the device, byte for byte what the host writes.
+
+A finished batch's 8-bit codes are on the device already: :class:`DeviceDeflate` Sub-filters
+and deflates them there (gpu_blur.warp_kernels.deflate, zlib's ``Z_HUFFMAN_ONLY`` blocks
+reproduced) and brings back each image's zlib stream, so an I/O thread only checksums the
+chunk and writes the file (:func:`gpu_blur.png_codecs.png_file`), instead of spending a
+core's 45-120 ms deflating it. The stream is :func:`gpu_blur.png_codecs.huffman_zlib`'s of
+the same rows, bit for bit (tests/io/test_png_device.py), so the files are the same whichever
+side wrote them.
+
+Warp devices only (CUDA, and Warp's CPU device in tests); 8-bit images of 1 to 4 channels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gpu_blur.warp_kernels import deflate as k
+
+__all__ = ["DeviceDeflate", "ZLIB_HEADER"]
+
+#: The two bytes leading every stream of huffman_zlib: deflate, a 32 KiB window, level
+#: flags 0 (RFC 1950, 2.2; zlib writes 0 for level 1 and for Z_HUFFMAN_ONLY).
+ZLIB_HEADER = b"\x78\x01"
+#: The code-length symbols' order in a dynamic block's header (RFC 1951, 3.2.7).
+_ORDER = (16, 17, 18, 0, 8, 7, 9, 6, 10, 5, 11, 4, 12, 3, 13, 2, 14, 1, 15)
+
+
+def blocks_of(literals: int) -> int:
+    """The deflate blocks zlib writes for ``literals`` bytes.
+
+    One per 16,383, and a last one with the rest, which is empty when they divide evenly
+    (``deflate_huff`` ends the stream with a block).
+    """
+    return literals // k.BLOCK + 1
+
+
+class DeviceDeflate:
+    """zlib streams of images' Sub-filtered rows, made on one Warp device.
+
+    Args:
+        device: the Warp device (``"cuda:0"``, ``"cpu"``) the codes are on.
+    """
+
+    def __init__(self, device):
+        import warp as wp
+
+        self.wp, self.device = wp, wp.get_device(device)
+        self._scratch: tuple | None = None
+        self._order = wp.array(np.array(_ORDER, np.int32), dtype=wp.int32, device=self.device)
+        self._fixed = wp.array(k.static_codes(), dtype=wp.int32, device=self.device)
+
+    def _arrays(self, images: int, blocks: int, words: int) -> tuple:
+        """Scratch for ``images`` images of ``blocks`` blocks and ``words`` output words.
+
+        Kept for the next call of the same size.
+        """
+        key = (images, blocks, words)
+        if self._scratch is None or self._scratch[0] != key:
+            wp, n = self.wp, images * blocks
+
+            def new(shape, dtype):
+                return wp.empty(shape, dtype=dtype, device=self.device)
+
+            self._scratch = (key, {
+                "counts": new((n, 256), wp.int32),
+                "sums": new((n, k.SEGMENTS, 2), wp.int64),
+                "trees": [new((n * k.TREES, k.HEAP), wp.int32) for _ in range(5)],
+                "bit_count": new((n * k.TREES, 16), wp.int32),
+                "code": new((n * k.TREES, k.HEAP), wp.int32),
+                "sizes": new((n, 2), wp.int64),
+                "header": new((n, k.HEADER_WORDS), wp.uint32),
+                "info": new((n, k.BLOCK_COLUMNS), wp.int64),
+                "offsets": new((n, k.SEGMENTS), wp.int32),
+                "out": new((images, words), wp.uint32),
+                "streams": new((images, 2), wp.int64),
+            })
+        return self._scratch[1]
+
+    def deflate(self, codes, images: int, height: int, width: int, channels: int
+                ) -> tuple[object, object]:
+        """Queue the streams of ``images`` images in ``codes`` on the device's stream.
+
+        ``codes``: a flat ``wp.array`` of uint8, the images one after another, each
+        ``height x width x channels``, row-major.
+
+        Returns:
+            (words, streams), device arrays: ``images x W`` uint32, image i's deflate data
+            (its first ``streams[i, 0]`` bytes, without zlib's header and Adler-32), and
+            ``images x 2`` int64: the bytes, the Adler-32 of its filtered rows.
+        """
+        wp = self.wp
+        stride = 1 + width * channels
+        literals = height * stride
+        pixels = height * width * channels
+        blocks = blocks_of(literals)
+        # a block is never larger stored than its literals and 5 bytes
+        words = (literals + 5 * blocks + 8) // 4 + 1
+        s = self._arrays(images, blocks, words)
+        freq, dad, lengths, depth, heap = s["trees"]
+        s["counts"].zero_()
+        s["out"].zero_()
+        shape = (images, blocks, k.SEGMENTS)
+        common = [codes, pixels, stride, channels, literals, blocks]
+        wp.launch(k.count_kernel, dim=shape, inputs=[*common, s["counts"], s["sums"]],
+                  device=self.device)
+        wp.launch(k.trees_kernel, dim=(images, blocks),
+                  inputs=[s["counts"], literals, blocks, self._order, freq, dad, lengths, depth,
+                          heap, s["bit_count"], s["code"], s["sizes"], s["header"],
+                          self._fixed, s["info"]], device=self.device)
+        wp.launch(k.sizes_kernel, dim=shape,
+                  inputs=[*common, s["info"], s["code"], lengths, self._fixed, s["offsets"]],
+                  device=self.device)
+        wp.launch(k.offsets_kernel, dim=images * blocks,
+                  inputs=[s["offsets"], s["sums"], s["info"]], device=self.device)
+        wp.launch(k.layout_kernel, dim=images, inputs=[literals, blocks, s["info"], s["streams"]],
+                  device=self.device)
+        wp.launch(k.write_kernel, dim=(images, blocks, k.SEGMENTS + 1),
+                  inputs=[*common, s["info"], s["code"], lengths, self._fixed, s["offsets"],
+                          s["header"], s["out"]], device=self.device)
+        return s["out"], s["streams"]
+
+    def streams(self, codes, images: int, height: int, width: int, channels: int
+                ) -> list[bytes]:
+        """Each image's zlib stream, as :func:`gpu_blur.png_codecs.huffman_zlib` writes it."""
+        words, streams = self.deflate(codes, images, height, width, channels)
+        sizes = streams.numpy()
+        data = words.numpy()
+        return [stream_bytes(data[i], sizes[i]) for i in range(images)]
+
+
+def stream_bytes(words: np.ndarray, stream: np.ndarray) -> bytes:
+    """One image's zlib stream from its row of :meth:`DeviceDeflate.deflate`'s results."""
+    size, adler = int(stream[0]), int(stream[1])
+    return b"".join((ZLIB_HEADER, words.view(np.uint8)[:size].data, adler.to_bytes(4, "big")))
