@@ -1,0 +1,108 @@
+"""``output.png = "fast"`` streams deflated on the device against the host's encoder.
+
+Images: noisy 1920 x 1200 RGB 8-bit codes like a synthesized output's (the built-in photo
+resized, plus Gaussian noise of ``--noise`` codes), ``--batch`` different ones. Per batch size:
+
+* ``device_ms``: gpu_blur.png_device.DeviceDeflate on the codes already on the device, the
+  five kernels and the download of the streams and their sizes, the device synchronized
+  (median of ``--runs`` after a warm-up), per image; ``kernels_ms``: the kernels alone;
+* ``host_ms``: gpu_blur.png_codecs.huffman_zlib of numpy's Sub-filtered rows on one thread
+  (what an I/O thread spends per image without it), per image;
+* ``same_bytes``: every image's device stream equal to the host's.
+
+    PYTHONPATH=$PWD python3 bench/png_device.py --device cuda:0 \
+        --json bench/results/png_device_<gpu>.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from gpu_blur.analysis.bench.host import cpu_name, source_commit
+from gpu_blur.discovery import default_photo
+from gpu_blur.png_codecs import filtered_rows, huffman_zlib
+
+H, W = 1200, 1920
+
+
+def noisy_images(count: int, noise: float) -> np.ndarray:
+    """``count`` x H x W x 3 uint8: the built-in photo resized, with Gaussian noise."""
+    photo = cv2.resize(cv2.imread(str(default_photo())), (W, H), interpolation=cv2.INTER_CUBIC)
+    rng = np.random.default_rng(0)
+    return np.stack([np.clip(photo + rng.normal(0, noise, photo.shape), 0, 255).astype(np.uint8)
+                     for _ in range(count)])
+
+
+def median_ms(work, runs: int) -> float:
+    work()  # warm-up: kernel builds, scratch
+    times = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        work()
+        times.append(time.perf_counter() - start)
+    return 1e3 * statistics.median(times)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--device", default="cuda:0", help="Warp device (default cuda:0)")
+    p.add_argument("--batches", default="1,4,16", help="images a call (default 1,4,16)")
+    p.add_argument("--noise", type=float, default=3.0, help="noise in codes (default 3)")
+    p.add_argument("--runs", type=int, default=5, help="timed runs (default 5)")
+    p.add_argument("--json", help="write the results here")
+    args = p.parse_args(argv)
+
+    import warp as wp
+
+    wp.config.quiet = True
+    wp.init()
+    from gpu_blur.png_device import DeviceDeflate
+
+    batches = [int(b) for b in args.batches.split(",")]
+    images = noisy_images(max(batches), args.noise)
+    host = [huffman_zlib(filtered_rows(image)) for image in images]
+    host_ms = median_ms(lambda: huffman_zlib(filtered_rows(images[0])), args.runs)
+    encoder = DeviceDeflate(args.device)
+    device = wp.get_device(args.device)
+    rows = []
+    for batch in batches:
+        codes = wp.array(images[:batch].reshape(-1), dtype=wp.uint8, device=device)
+        made = encoder.streams(codes, batch, H, W, 3)
+        same = all(a == b for a, b in zip(made, host[:batch], strict=True))
+
+        def kernels():
+            encoder.deflate(codes, batch, H, W, 3)  # noqa: B023
+            wp.synchronize_device(device)
+
+        rows.append({
+            "batch": batch,
+            "device_ms": median_ms(lambda: encoder.streams(codes, batch, H, W, 3),  # noqa: B023
+                                   args.runs) / batch,
+            "kernels_ms": median_ms(kernels, args.runs) / batch,
+            "same_bytes": same,
+        })
+        print(rows[-1], flush=True)
+    result = {
+        "what": "output.png fast streams: gpu_blur.png_device on the device against "
+                "huffman_zlib on one host thread, 1920 x 1200 RGB noisy photos",
+        "device": wp.get_device(args.device).name, "cpu": cpu_name(),
+        "platform": platform.platform(), "commit": source_commit(), "noise": args.noise,
+        "stream_mb": statistics.mean(len(s) for s in host) / 1e6,
+        "host_ms": host_ms, "rows": rows,
+    }
+    print(json.dumps(result, indent=1))
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
+    return 0 if all(r["same_bytes"] for r in rows) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
