@@ -49,6 +49,11 @@ read back (blurred and sharp PNGs in turn, noisier than the inputs; up to 32, cy
 and encode-only seconds beside). It is the ceiling these codecs reach through these threads on
 this host; not the run's: synthesis, host-device copies, the main thread's work and the writes
 to disk are left out. ``ratio_to_measured_bound_now``: now's rate over it.
+
+``--device-png``: the "now" tree deflates ``output.png = "fast"``'s files on the GPU
+(gpu_blur.png_device, Warp on CUDA), so its I/O threads only put each file together from a
+stream (checksum, join); its bounds count that instead of an encode (the streams made
+beforehand, the same bytes).
 """
 
 from __future__ import annotations
@@ -114,13 +119,33 @@ def single_core_seconds(paths: list[Path]) -> dict:
     return {"decode": statistics.median(decode), "encode": statistics.median(encode)}
 
 
-def gpu_blur_codec_seconds(paths: list[Path], png: str = "fast") -> dict:
+def encoder(png: str, device_png: bool):
+    """``encode(image)``: an output's file as this checkout's I/O threads make it.
+
+    With ``device_png`` the stream was deflated on the GPU (gpu_blur.png_device): the threads
+    only put the file together, so the stream is made here beforehand (the same bytes).
+    """
+    from gpu_blur.file_writing import encode_image
+    from gpu_blur.png_codecs import filtered_rows, huffman_zlib
+
+    if not device_png:
+        return partial(encode_image, bits=8, png=png)
+    streams = {}
+
+    def encode(image):
+        stream = streams.setdefault(id(image), (huffman_zlib(filtered_rows(image)),))
+        return encode_image(image, 8, png=png, stream=stream)
+
+    return encode
+
+
+def gpu_blur_codec_seconds(paths: list[Path], png: str = "fast",
+                           device_png: bool = False) -> dict:
     """:func:`single_core_seconds` for this checkout's own read and write paths.
 
     ``read_image`` (ISA-L and numpy for the Sub-filtered files OpenCV writes by default) and
-    ``encode_image`` with ``output.png = png``; one thread, OpenCV on one core.
+    :func:`encoder`'s with ``output.png = png``; one thread, OpenCV on one core.
     """
-    from gpu_blur.file_writing import encode_image
     from gpu_blur.image_reading import read_image
 
     cv2.setNumThreads(1)
@@ -130,10 +155,12 @@ def gpu_blur_codec_seconds(paths: list[Path], png: str = "fast") -> dict:
         read_image(path)
         decode.append(time.perf_counter() - start)
     image = read_image(paths[0])[4:-4, 4:-4]
+    encode_one = encoder(png, device_png)
+    encode_one(image)  # a device stream made beforehand
     encode = []
     for _ in range(5):
         start = time.perf_counter()
-        encode_image(image, 8, png=png)
+        encode_one(image)
         encode.append(time.perf_counter() - start)
     return {"decode": statistics.median(decode), "encode": statistics.median(encode)}
 
@@ -161,23 +188,25 @@ def encodes_made(out: Path) -> int:
 
 
 def measured_codec_bound(paths: list[Path], decodes: int, out: Path, samples: int,
-                         threads: int, repeats: int, png: str = "fast") -> dict:
+                         threads: int, repeats: int, png: str = "fast",
+                         device_png: bool = False) -> dict:
     """Samples per second this checkout's codecs alone reach through ``threads`` threads.
 
-    ``decodes`` reads of ``paths`` (in turn) with ``read_image`` and ``encode_image(.., 8,
-    png=png)`` of images of the output set ``out`` read back, as many as the run encoded
+    ``decodes`` reads of ``paths`` (in turn) with ``read_image`` and :func:`encoder`'s
+    encodes of images of the output set ``out`` read back, as many as the run encoded
     (:func:`encodes_made`), mixed as the samples run; the pool's wall seconds, the median of
     ``repeats`` (each job also decode-only and encode-only).
     """
-    from gpu_blur.file_writing import encode_image
     from gpu_blur.image_reading import read_image
 
     # the blurred and sharp images of each sample in turn
     outputs = sorted(out.rglob("*.png"), key=lambda path: (path.name, path.parent.name))
     images = [read_image(path) for path in outputs[:ENCODED]]
     decode = [partial(read_image, paths[i % len(paths)]) for i in range(decodes)]
-    encode = [partial(encode_image, images[i % len(images)], 8, png=png)
-              for i in range(encodes_made(out))]
+    encode_one = encoder(png, device_png)
+    for image in images:
+        encode_one(image)  # device streams made beforehand
+    encode = [partial(encode_one, images[i % len(images)]) for i in range(encodes_made(out))]
     order = sorted([(i / len(decode), 0, i) for i in range(len(decode))]
                    + [(i / len(encode), 1, i) for i in range(len(encode))])
     both = [(decode, encode)[kind][i] for _, kind, i in order]
@@ -240,7 +269,7 @@ def compare(args, cores: int, save=None) -> dict:
     cases = {}
     result = {"backend": args.backend, "cores": cores, "image": [W, H], "frames": FRAMES,
               "repeats": args.repeats, "against": args.against and Path(args.against).name,
-              "png": args.png, "cases": cases}
+              "png": args.png, "device_png": args.device_png, "cases": cases}
     for windows in args.windows.split(","):
         if windows not in ("overlapping", "distinct"):
             raise SystemExit(f"--windows {windows}: overlapping or distinct")
@@ -251,7 +280,7 @@ def compare(args, cores: int, save=None) -> dict:
             # the new tree reads each frame once where a cache holds it; the old reads 9
             new_decodes = min(FRAMES, frames / args.samples)
             old_per = single_core_seconds(paths)
-            new_per = gpu_blur_codec_seconds(paths, args.png)
+            new_per = gpu_blur_codec_seconds(paths, args.png, args.device_png)
             case = {"frames_in_sequence": frames, "samples": args.samples,
                     "bound_before": {"single_core_seconds": old_per, "decodes_per_sample":
                                      FRAMES, "samples_per_s":
@@ -270,7 +299,7 @@ def compare(args, cores: int, save=None) -> dict:
             case["same_pixels"] = len(set(case["pixel_digests"].values())) == 1
             case["bound_now_measured"] = measured_codec_bound(
                 paths, round(new_decodes * args.samples), outs["now"][0], args.samples, cores,
-                args.repeats, args.png)
+                args.repeats, args.png, args.device_png)
             now = case["runs"]["now"]["samples_per_s"]
             case["ratio_to_bound_now"] = now / case["bound_now"]["samples_per_s"]
             case["ratio_to_measured_bound_now"] = (
@@ -472,6 +501,10 @@ def main(argv=None) -> int:
     p.add_argument("--png", default="fast", help="the outputs' output.png (fast, small, "
                    "stored): the rsblur scene with it (default fast, the scene's own; a tree "
                    "older than output.png takes fast only)")
+    p.add_argument("--device-png", action="store_true",
+                   help="this checkout deflates output.png fast's files on the GPU (Warp on "
+                        "CUDA): its bounds count the I/O threads' part, putting each file "
+                        "together from its stream")
     p.add_argument("--json", help="write the results here")
     args = p.parse_args(argv)
     cores = len(os.sched_getaffinity(0))

@@ -258,10 +258,15 @@ class SampleFiles:
         RAW mosaic (``raw``: a 16-bit DNG, and ``raw_info``, its
         :func:`gpu_blur.outputs.raw_metadata`) are written too, cropped like the pair.
         """
+        streams = result.png or {}  # deflated on the device (gpu_blur.png_device)
         data = {"blurred": encode_image(result.blurred, self.bits,
-                                        str(self.out / paths["blurred"]), self.png),
-                "sharp": self.sharp_files.encode(result.sharp, self.bits,
-                                                 str(self.out / paths["sharp"]), self.png)}
+                                        str(self.out / paths["blurred"]), self.png,
+                                        streams.get("blurred")),
+                "sharp": (encode_image(result.sharp, self.bits, str(self.out / paths["sharp"]),
+                                       self.png, streams["sharp"]) if "sharp" in streams
+                          else self.sharp_files.encode(result.sharp, self.bits,
+                                                       str(self.out / paths["sharp"]),
+                                                       self.png))}
         arrays = {k: result.params[k] for k in SAVED_ARRAYS if k in result.params}
         line = {
             "index": spec.index,

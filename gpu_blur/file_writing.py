@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from gpu_blur.image_arrays import swap_red_blue
-from gpu_blur.png_codecs import DEFAULT_PNG_MODE, PNG_MODES, encode_png
+from gpu_blur.png_codecs import DEFAULT_PNG_MODE, PNG_MODES, encode_png, png_file
 from gpu_blur.reference.output import code_dtype, to_integers
 
 __all__ = ["ENCODED_BYTES", "EncodedImages", "encode_image", "temporary_path", "write_image",
@@ -101,8 +101,12 @@ def _codes(image: np.ndarray, bits: int) -> np.ndarray:
 
 
 def encode_image(image: np.ndarray, bits: int, what: str = "image",
-                 png: str = DEFAULT_PNG_MODE) -> bytes:
+                 png: str = DEFAULT_PNG_MODE, stream=None) -> bytes:
     """The bytes :func:`write_image` writes for ``image``: its PNG (8/16 bits) or TIFF (0).
+
+    ``stream``: the zlib stream of the image's Sub-filtered 8-bit rows in parts, deflated on
+    the device (:mod:`gpu_blur.png_device`, for ``png = "fast"``: the bytes
+    :func:`~gpu_blur.png_codecs.encode_png` writes), put in the file as it is.
 
     Raises:
         OSError: ``what``: could not encode the image.
@@ -113,6 +117,8 @@ def encode_image(image: np.ndarray, bits: int, what: str = "image",
         if png not in PNG_MODES:
             raise ValueError(f"PNG mode {png!r}: expected one of {', '.join(PNG_MODES)}")
         try:
+            if stream is not None and png == "fast" and data.dtype == np.uint8:
+                return png_file(data, stream)
             return encode_png(data, png)
         except ValueError:
             raise OSError(f"{what}: could not encode the image") from None

@@ -271,7 +271,7 @@ def make_batch(job: Job, synthesizer: Synthesizer, specs: list[SampleSpec],
                                 for dtype in synthesizer.result_dtypes(codes=bool(job.bits))])
         made = synthesizer(batch, indices=[spec.index for spec in specs], codes=bool(job.bits),
                            sequences=([w.sequence_index for w in windows] if all(windows)
-                                      else None), out=out)
+                                      else None), out=out, png=bool(job.bits))
     except (ValueError, OSError, cv2.error, MemoryError):
         return None
     share = {category: seconds / len(specs) for category, seconds in made.timings.items()}
@@ -280,7 +280,8 @@ def make_batch(job: Job, synthesizer: Synthesizer, specs: list[SampleSpec],
                              made.plans[b], dict(share), crop=job.scene.output.crop,
                              device=synthesizer.runner.model,
                              _raw=None if made.raw is None else made.raw[b],
-                             raw_info=None if made.raw_info is None else made.raw_info[b]),
+                             raw_info=None if made.raw_info is None else made.raw_info[b],
+                             png=None if made.png is None else made.png[b]),
              None) for b, spec in enumerate(specs)]
 
 

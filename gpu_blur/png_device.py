@@ -17,7 +17,7 @@ import numpy as np
 
 from gpu_blur.warp_kernels import deflate as k
 
-__all__ = ["DeviceDeflate", "ZLIB_HEADER"]
+__all__ = ["DeviceDeflate", "DevicePngs", "ZLIB_HEADER", "blocks_of", "stream_parts"]
 
 #: The two bytes leading every stream of huffman_zlib: deflate, a 32 KiB window, level
 #: flags 0 (RFC 1950, 2.2; zlib writes 0 for level 1 and for Z_HUFFMAN_ONLY).
@@ -129,7 +129,76 @@ class DeviceDeflate:
         return [stream_bytes(data[i], sizes[i]) for i in range(images)]
 
 
-def stream_bytes(words: np.ndarray, stream: np.ndarray) -> bytes:
-    """One image's zlib stream from its row of :meth:`DeviceDeflate.deflate`'s results."""
+def stream_parts(words: np.ndarray, stream: np.ndarray) -> tuple:
+    """One image's zlib stream, in three parts, from its rows of :meth:`DeviceDeflate.deflate`.
+
+    ``words``: its row of the data (a view: the stream's middle part stays over it).
+    """
     size, adler = int(stream[0]), int(stream[1])
-    return b"".join((ZLIB_HEADER, words.view(np.uint8)[:size].data, adler.to_bytes(4, "big")))
+    return ZLIB_HEADER, words.view(np.uint8)[:size].data, adler.to_bytes(4, "big")
+
+
+def stream_bytes(words: np.ndarray, stream: np.ndarray) -> bytes:
+    """One image's zlib stream from its rows of :meth:`DeviceDeflate.deflate`'s results."""
+    return b"".join(stream_parts(words, stream))
+
+
+class DevicePngs:
+    """A batch's PNG streams deflated on the device as its codes leave it.
+
+    For a Synthesizer on a Warp CUDA device whose set is written as 8-bit PNG files with
+    ``output.png = "fast"``: :meth:`queue` (as each image stack's codes are exported) queues
+    the deflate and the copies of its streams into page-locked blocks ``lend`` gives, and
+    :meth:`take`, once the batch was waited for, gives each sample's streams. Where ``lend``
+    gives nothing (past its limit) those images get none, and the host encodes them.
+
+    Args:
+        backend: the Warp backend (its ``wp_device``).
+        lend: ``lend([(shape, dtype), ...])``: page-locked arrays, or None
+            (:meth:`gpu_blur.staging.LentResults.take`).
+    """
+
+    def __init__(self, backend, lend):
+        self.backend, self._lend = backend, lend
+        self._deflate = DeviceDeflate(backend.wp_device)
+        self._queued: list[tuple[str, int, tuple | None]] = []
+
+    @staticmethod
+    def for_backend(backend, scene) -> bool:
+        """Whether a batch of ``scene`` on ``backend`` gets its PNGs deflated on the device."""
+        wp_device = getattr(backend, "wp_device", None)
+        if wp_device is None or scene.output.bits != 8 or scene.output.png != "fast":
+            return False
+        import warp as wp
+
+        return wp.get_device(wp_device).is_cuda
+
+    def queue(self, name: str, codes, count: int) -> None:
+        """Deflate ``count`` images of ``codes`` (an OnDevice, ``count x h x w x c`` uint8)."""
+        import warp as wp
+
+        height, width = codes.shape[-3:-1]
+        words, streams = self._deflate.deflate(codes.data, count, height, width,
+                                               codes.shape[-1])
+        into = self._lend([(words.shape, np.uint32), (streams.shape, np.int64)])
+        if into is not None:  # queued on the device's stream, after the kernels
+            for host, device in zip(into, (words, streams), strict=True):
+                view = wp.array(ptr=host.ctypes.data, dtype=device.dtype, shape=device.shape,
+                                device="cpu")
+                wp.copy(view, device)
+        self._queued.append((name, count, into))
+
+    def take(self) -> list[dict[str, tuple]]:
+        """Each sample's streams, ``{name: parts}`` (:func:`stream_parts`), in batch order.
+
+        For the images :meth:`queue` queued since the last call, once the device made them.
+        """
+        samples: dict[str, list] = {}
+        for name, count, into in self._queued:
+            made = samples.setdefault(name, [])
+            made += ([None] * count if into is None
+                     else [stream_parts(into[0][i], into[1][i]) for i in range(count)])
+        self._queued = []
+        count = max((len(v) for v in samples.values()), default=0)
+        return [{name: made[b] for name, made in samples.items() if made[b] is not None}
+                for b in range(count)]

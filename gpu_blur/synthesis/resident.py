@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,6 +33,9 @@ from gpu_blur.synthesis.inputs import (
 from gpu_blur.synthesis.results import inner
 from gpu_blur.tiling import Region
 from gpu_blur.timings import timer
+
+if TYPE_CHECKING:
+    from gpu_blur.png_device import DevicePngs
 
 __all__ = ["ResidentPath", "STREAMED_BYTES", "STREAMED_SAMPLES"]
 
@@ -191,11 +195,12 @@ class ResidentPath:
         return Inputs(stack, mask, sharp, item.names, item.label)
 
     def batch(self, items: list[Inputs], indices, batch, lib: str, given, bits: int = 0,
-              sequences=None):
+              sequences=None, pngs: DevicePngs | None = None):
         """A batch put on the device: its passes batched, its outputs exported once each.
 
         ``bits`` 8 or 16: blurred and sharp leave as their codes, made on the device.
         ``sequences``: each sample's sequence index (per-sequence draws), or None.
+        ``pngs``: exported codes are also deflated there (:meth:`DevicePngs.queue`).
 
         A batch of 8/16-bit codes in this backend's pinned memory (``Synthesizer.pinned``), of
         at least :data:`STREAMED_BYTES` a sample, goes in parts of :data:`STREAMED_SAMPLES`,
@@ -245,7 +250,7 @@ class ResidentPath:
                     out = self.io.outputs(count, done.out, batch, lib,
                                           self.io.result_dtypes(bits), given)
                 self._export(done, out if step == count else
-                             [o[start:start + len(part)] for o in out], bits)
+                             [o[start:start + len(part)] for o in out], bits, pngs)
             if not handed:
                 with timer("kernels"):
                     runner.wait()
@@ -265,14 +270,19 @@ class ResidentPath:
                 done.plans[b] = self.draws.plan(False, *done.size, None)
                 done.params[b] = {k: v for k, v in done.params[b].items() if k != "alpha"}
 
-    def _export(self, done: _Resident, out: list, bits: int = 0) -> None:
+    def _export(self, done: _Resident, out: list, bits: int = 0,
+                pngs: DevicePngs | None = None) -> None:
         """A resident batch's results into ``out`` (blurred, sharp[, mask]), one per sample.
 
-        ``bits`` 8 or 16: blurred and sharp as their codes, made on the device.
+        ``bits`` 8 or 16: blurred and sharp as their codes, made on the device; ``pngs``:
+        those codes deflated there too.
         """
         shape = (done.out.h, done.out.w, 3)
-        self._export_slots(out[0], done.blurred, shape, bits)
-        self._export_slots(out[1], done.sharp, shape, bits)
+        for name, into, slots in (("blurred", out[0], done.blurred),
+                                  ("sharp", out[1], done.sharp)):
+            coded = self._export_slots(into, slots, shape, bits)
+            if pngs is not None:
+                pngs.queue(name, coded, slots.count)
         if self.with_mask:
             self._export_masks(done, out[2])
 
@@ -297,14 +307,16 @@ class ResidentPath:
             self._export_masks(done, out[2])
         return out
 
-    def _export_slots(self, into, slots: Slots, shape, bits: int = 0) -> None:
+    def _export_slots(self, into, slots: Slots, shape, bits: int = 0) -> OnDevice:
         """Every sample's slot of a batch buffer into ``into`` (B x ``shape``), in one copy.
 
-        ``bits`` 8 or 16: their codes, made on the device.
+        ``bits`` 8 or 16: their codes, made on the device. Returns what was copied (valid
+        until the next export asks for the kept codes buffer).
         """
+        coded = self._coded(self.runner.stacked(slots, shape), bits, kept=True)
         # a B x h x w x 3 stack's "region": every sample, every row
-        self.runner.export(self._coded(self.runner.stacked(slots, shape), bits, kept=True),
-                           Region.whole(slots.count, shape[0]), into)
+        self.runner.export(coded, Region.whole(slots.count, shape[0]), into)
+        return coded
 
     def _coded(self, values: OnDevice, bits: int, kept: bool = False) -> OnDevice:
         """Device values as their ``bits``-bit codes on the device (0: as they are).

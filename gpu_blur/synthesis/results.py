@@ -41,6 +41,9 @@ class Synthesis:
         device: the model of device that made it, in words (the backend's ``model``:
             ``warp NVIDIA H200, float32``, without the device's number on this host, so a
             set's manifest is the same whichever GPU made each sample).
+        png: the blurred and sharp images' PNG streams deflated on the device, as
+            :attr:`Batch.png` holds a sample's (``{"blurred": parts, "sharp": parts}``), or
+            None: the files' encoder uses them instead of deflating the codes again.
 
     A worker process of ``gpu-blur generate`` sends blurred and sharp as the set's integer
     codes instead (:func:`gpu_blur.generate.for_driver`).
@@ -58,6 +61,7 @@ class Synthesis:
     device: str = ""
     _raw: object = dataclasses.field(default=None, repr=False)
     raw_info: dict | None = None
+    png: dict | None = dataclasses.field(default=None, repr=False)
 
     @property
     def mask(self) -> np.ndarray | None:
@@ -74,7 +78,8 @@ class Synthesis:
         return self._raw
 
     def __getstate__(self):  # a device array does not cross processes: fetch it first
-        return {**self.__dict__, "_mask": self.mask, "_raw": self.raw}
+        png = self.png and {k: (b"".join(parts),) for k, parts in self.png.items()}
+        return {**self.__dict__, "_mask": self.mask, "_raw": self.raw, "png": png}
 
 
 @dataclasses.dataclass
@@ -96,6 +101,10 @@ class Batch:
         params: each sample's drawn values (:data:`gpu_blur.params.DRAW_INDEX`).
         plans: each sample's plan (auto saturation decides per sample).
         timings: seconds the batch spent per :mod:`gpu_blur.timings` category.
+        png: with ``png=True`` where it applies, each sample's PNG streams deflated on the
+            device, ``{"blurred": parts, "sharp": parts}`` (an image the device made none for,
+            absent); each stream the zlib stream of its image's Sub-filtered rows in
+            consecutive parts (:func:`gpu_blur.png_device.stream_parts`); else None.
     """
 
     blurred: object
@@ -106,6 +115,7 @@ class Batch:
     timings: dict
     raw: np.ndarray | None = None
     raw_info: list | None = None
+    png: list | None = None
 
 
 def inner(shape, crop: int) -> Region:

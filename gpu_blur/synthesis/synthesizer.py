@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -39,6 +40,9 @@ from gpu_blur.synthesis.inputs import (
 from gpu_blur.synthesis.resident import ResidentPath
 from gpu_blur.synthesis.results import Batch, Synthesis, inner
 from gpu_blur.timings import current, since, timer
+
+if TYPE_CHECKING:
+    from gpu_blur.png_device import DevicePngs
 
 __all__ = ["Synthesizer", "synthesize"]
 
@@ -179,6 +183,7 @@ class Synthesizer:
                                    with_raw)
         self._resident_path = (ResidentPath(*paths, self._draws, self._io, with_mask, with_raw)
                                if self.resident else None)
+        self._device_pngs: DevicePngs | None = None
 
     def pinned(self, shape, dtype=np.float32) -> np.ndarray:
         """An uninitialized numpy array in page-locked host memory, for batches and ``out=``.
@@ -264,7 +269,8 @@ class Synthesizer:
 
     def __call__(self, batch, *, mask=None, sharp=None, first_index: int = 0,
                  indices: Sequence[int] | None = None, out: Sequence | None = None,
-                 codes: bool = False, sequences: Sequence[int] | None = None) -> Batch:
+                 codes: bool = False, sequences: Sequence[int] | None = None,
+                 png: bool = False) -> Batch:
         """Synthesize a batch; sample b has sample index ``first_index + b``.
 
         Args:
@@ -291,6 +297,10 @@ class Synthesizer:
             sequences: each sample's frame sequence index (B ints, as ``indices``), which
                 keys its camera settings under ``blur.draws = "per-sequence"``
                 (:func:`synthesize`'s ``sequence_index``); required there, not used otherwise.
+            png: with ``codes``, for a scene of 8-bit ``output.png = "fast"`` PNGs on a Warp
+                CUDA device whose results come to the host: each blurred and sharp image's PNG
+                stream is also deflated on the device (:class:`gpu_blur.png_device.DevicePngs`,
+                zlib's bytes), in :attr:`Batch.png`; elsewhere that stays None.
 
         Returns:
             A :class:`Batch`; sample b equals ``synthesize`` with ``sample_index =
@@ -322,9 +332,10 @@ class Synthesizer:
         device_codes = codes and self.resident and self.scene.output.jpeg_quality is None
         bits = self.scene.output.bits if device_codes else 0
         out_given, given = out, (None if codes and not device_codes else out)
+        pngs = self._pngs() if png and device_codes else None
         if self.resident:
             out, params, plans, raws = self._resident_path.batch(items, indices, batch, lib,
-                                                                 given, bits, sequences)
+                                                                 given, bits, sequences, pngs)
         else:
             items, _ = self._prepared(items)
             out, params, plans, raws = self._host_path.batch(items, indices, batch, lib, given,
@@ -342,7 +353,21 @@ class Synthesizer:
             raw = np.stack([crop_border(to_host(r, np.float32), crop) for r in raws])
         return Batch(out[0], out[1], out[2] if self.with_mask else None, params, plans,
                      since(before, time.perf_counter() - start), raw,
-                     [self._raw_info(p) for p in params] if self.with_raw else None)
+                     [self._raw_info(p) for p in params] if self.with_raw else None,
+                     pngs.take() or None if pngs is not None else None)
+
+    def _pngs(self) -> DevicePngs | None:
+        """The :class:`~gpu_blur.png_device.DevicePngs` of these batches, made on first use.
+
+        None where its scene and device do not take them (``DevicePngs.for_backend``).
+        """
+        if self._device_pngs is None and getattr(self.runner, "wp_device", None) is not None:
+            from gpu_blur.png_device import DevicePngs  # imports Warp: a Warp backend's
+            from gpu_blur.staging import LentResults
+
+            if DevicePngs.for_backend(self.runner, self.scene):
+                self._device_pngs = DevicePngs(self.runner, LentResults(self.runner).take)
+        return self._device_pngs
 
     def _prepared(self, items: list[Inputs]) -> tuple[list[Inputs], Callable[[], None]]:
         """Inputs checked, with the clip test, and the function that ends their checks.

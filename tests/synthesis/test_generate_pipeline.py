@@ -467,6 +467,33 @@ def test_overlapping_windows_made_from_frames_kept_on_the_device_give_the_bytes_
 
 
 @pytest.mark.skipif(not WARP_CPU, reason="Warp's CPU device is not among the suite's backends")
+def test_pngs_deflated_on_the_device_give_the_bytes_the_host_writes(tmp_path, bad_sequences,
+                                                                   monkeypatch):
+    """On a Warp GPU a batch's 8-bit PNGs are deflated on the device and the I/O threads only
+    put the files together; forced here on Warp's CPU device: the same set as one thread's,
+    whose files the host encoded, bad samples too."""
+    import gpu_blur.file_writing
+    from gpu_blur.backends import get_backend
+    from gpu_blur.png_device import DevicePngs
+
+    folder, scene = bad_sequences
+    add_long_sequence(folder, seed=5)
+    run = ("--backend", "warp:cpu", "--samples-per-sequence", "8")
+    assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
+    backend = get_backend("warp:cpu", "float32")
+    monkeypatch.setattr(DevicePngs, "for_backend", staticmethod(lambda backend, scene: True))
+    monkeypatch.setattr(gpu_blur.generate, "pinned_staging",
+                        lambda job: gpu_blur.staging.PinnedStaging(backend, 2, 3))
+    from_streams = []
+    png_file = gpu_blur.file_writing.png_file
+    monkeypatch.setattr(gpu_blur.file_writing, "png_file",
+                        lambda codes, idat: from_streams.append(1) or png_file(codes, idat))
+    assert main(args(folder, scene, tmp_path / "device", *run, "--io-threads", "3")) == 1
+    assert_same_set(tmp_path / "device", tmp_path / "one")
+    assert len(from_streams) >= 2 * 12  # blurred and sharp of the batched samples
+
+
+@pytest.mark.skipif(not WARP_CPU, reason="Warp's CPU device is not among the suite's backends")
 def test_device_frames_upload_each_frame_once_and_keep_at_most_their_limit():
     from gpu_blur.backends import get_backend
     from gpu_blur.staging import DeviceFrames

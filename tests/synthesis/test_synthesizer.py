@@ -935,3 +935,40 @@ def test_frame_stacks_lying_back_to_back_average_in_one_launch_with_the_same_bit
         for got, one in zip((linear, mask), want, strict=True):
             assert np.array_equal(runner.slot_image(got, b, (H, W, 3)).numpy(np.float32),
                                   one.numpy(np.float32))
+
+
+@pytest.mark.parametrize("streamed", [False, True])
+@pytest.mark.parametrize("lent", [True, False])
+def test_png_streams_deflated_on_the_device_are_zlibs_of_the_batchs_codes(
+        streamed, lent, monkeypatch):
+    # a Warp GPU deflates each exported image's PNG rows (output.png fast); forced on
+    # Warp's CPU device here. Past the page-locked limit an image gets no stream: the host
+    # encodes it
+    pytest.importorskip("warp")
+    import gpu_blur.staging
+    from gpu_blur.png_codecs import filtered_rows, huffman_zlib
+    from gpu_blur.png_device import DevicePngs
+
+    monkeypatch.setattr(DevicePngs, "for_backend", staticmethod(lambda backend, scene: True))
+    synth, frames = six_stacks("warp:cpu/float32", streamed, monkeypatch, 31, {"seed": 4},
+                               bits=8)
+    if not lent:
+        monkeypatch.setattr(gpu_blur.staging.LentResults, "take", lambda self, arrays: None)
+    batch = frames
+    if streamed:  # codes in the backend's pinned memory go in parts
+        batch = synth.pinned(frames.shape, np.uint8)
+        batch[...] = frames
+    counts = []
+    queue = DevicePngs.queue
+    monkeypatch.setattr(DevicePngs, "queue", lambda self, name, codes, count: counts.append(
+        count) or queue(self, name, codes, count))
+    got = synth(batch, codes=True, png=True)
+    assert len(got.png) == 6 and sum(counts) == 12 and (len(counts) > 2) == streamed
+    for b in range(6):
+        if not lent:
+            assert got.png[b] == {}
+            continue
+        for key in ("blurred", "sharp"):
+            made = b"".join(got.png[b][key])
+            assert made == huffman_zlib(filtered_rows(getattr(got, key)[b])), (b, key)
+    assert synth(frames, codes=True).png is None  # not asked for
