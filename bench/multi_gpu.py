@@ -199,13 +199,17 @@ def main(argv=None) -> int:
     p.add_argument("--skip", default="", help="leave out 'memory' or 'disk'")
     p.add_argument("--png", default="fast", help="disk: the outputs' output.png (fast, small, "
                    "stored), in the rsblur scene and the measured bound (default fast)")
+    p.add_argument("--device-png", action="store_true",
+                   help="disk: the checkout deflates output.png fast's files on the GPU "
+                        "(bench/generate_gpu.py --device-png): the measured bound counts that")
     p.add_argument("--json", help="write the results here")
     args = p.parse_args(argv)
     counts = [int(v) for v in args.gpus.split(",")]
     cores = len(os.sched_getaffinity(0))
     result = {"what": __doc__.split("\n\n")[0], "backend": args.backend, "cores": cores,
               "cpu": platform.processor() or platform.machine(), "image": [W, H],
-              "frames": FRAMES, "png": args.png, "memory": [], "disk": [],
+              "frames": FRAMES, "png": args.png, "device_png": args.device_png,
+              "memory": [], "disk": [],
               "shared_memory_bytes": shared_memory_bytes()}
     if result["shared_memory_bytes"] is not None:
         print(f"/dev/shm: {result['shared_memory_bytes'] / 1e9:.2f} GB", flush=True)
@@ -261,7 +265,7 @@ def main(argv=None) -> int:
             # cache's run) and each image encoded as the run did: the host's own ceiling
             result["disk_bound_measured"] = generate_gpu.measured_codec_bound(
                 paths, len(paths), Path(tmp) / f"out{counts[-1]}", args.samples, cores,
-                repeats=3, png=args.png)
+                repeats=3, png=args.png, device_png=args.device_png)
     sources = {"disk": result["disk"]}
     for kind in kinds:
         sources["memory" if kind == "pageable" else "memory_pinned"] = [
