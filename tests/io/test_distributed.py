@@ -819,3 +819,30 @@ def test_each_device_worker_decodes_overlapping_windows_once_through_its_frame_c
                 if p.is_file()}
 
     assert written(tmp_path / "devices") == written(tmp_path / "serial")
+
+
+def test_a_workers_device_png_streams_cross_to_the_driver_and_write_the_same_files(
+        tmp_path, photos):
+    # streams deflated on a worker's GPU lie over its page-locked blocks: they cross as bytes
+    from gpu_blur.dataset import SampleFiles
+    from gpu_blur.png_codecs import filtered_rows, huffman_zlib
+
+    folder, scene_path = photos
+    spec = find_samples(folder, "trajectory", 1, 2).take()[0]
+    job = Job(load_scene(scene_path), 3, "numpy", bits=8, with_mask=False)
+    _, made, _ = next(run_serial(job, [spec]))
+    made = for_driver(job, made)
+    streams = {}
+    for name in ("blurred", "sharp"):
+        stream = memoryview(huffman_zlib(filtered_rows(getattr(made, name))))
+        streams[name] = (stream[:2], stream[2:-4], stream[-4:])  # as the device's parts
+    with_streams = dataclasses.replace(made, png=streams)
+    sent = pickle.loads(pickle.dumps(with_streams))
+    assert all(len(parts) == 1 and isinstance(parts[0], bytes) for parts in sent.png.values())
+    files = SampleFiles(tmp_path, 8, "fast", (), 1)
+    paths = {"blurred": "b.png", "sharp": "s.png", "arrays": "p.npz"}
+    _, from_streams = files.encode(spec, sent, {}, paths)
+    _, encoded = files.encode(spec, made, {}, paths)
+    assert from_streams == encoded
+    other = dataclasses.replace(made, png={"blurred": (b"x",)})  # the stream is what is written
+    assert files.encode(spec, other, {}, paths)[1]["blurred"] != encoded["blurred"]
