@@ -10,6 +10,11 @@ resized, plus Gaussian noise of ``--noise`` codes), ``--batch`` different ones. 
   (what an I/O thread spends per image without it), per image;
 * ``same_bytes``: every image's device stream equal to the host's.
 
+``--generate N``: also ``gpu-blur generate --scene rsblur`` over N overlapping windows of a
+36-frame sequence (bench/generate_gpu.py's) on ``--device``, then every PNG file of the set
+read back and encoded again on the host (``encode_png(..., "fast")``): ``set``'s
+``same_bytes`` says whether every file the device deflated is the host's file, byte for byte.
+
     PYTHONPATH=$PWD python3 bench/png_device.py --device cuda:0 \
         --json bench/results/png_device_<gpu>.json
 """
@@ -57,6 +62,8 @@ def main(argv=None) -> int:
     p.add_argument("--batches", default="1,4,16", help="images a call (default 1,4,16)")
     p.add_argument("--noise", type=float, default=3.0, help="noise in codes (default 3)")
     p.add_argument("--runs", type=int, default=5, help="timed runs (default 5)")
+    p.add_argument("--generate", type=int, default=0, metavar="N",
+                   help="also check a generated set of N samples file by file (default 0)")
     p.add_argument("--json", help="write the results here")
     args = p.parse_args(argv)
 
@@ -98,10 +105,42 @@ def main(argv=None) -> int:
         "stream_mb": statistics.mean(len(s) for s in host) / 1e6,
         "host_ms": host_ms, "rows": rows,
     }
+    if args.generate:
+        result["set"] = generated_set(args.device, args.generate)
+        print(result["set"], flush=True)
     print(json.dumps(result, indent=1))
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
-    return 0 if all(r["same_bytes"] for r in rows) else 1
+    return 0 if all(r["same_bytes"] for r in rows) and result.get("set", {}).get(
+        "same_bytes", True) else 1
+
+
+def generated_set(device: str, samples: int) -> dict:
+    """A ``gpu-blur generate`` set's PNG files against the host's encoder, file by file."""
+    import subprocess
+    import sys
+    import tempfile
+
+    from generate_gpu import write_sequence
+
+    from gpu_blur.image_reading import read_image
+    from gpu_blur.png_codecs import encode_png
+
+    with tempfile.TemporaryDirectory() as tmp:
+        root, out = Path(tmp) / "in", Path(tmp) / "out"
+        write_sequence(root, 36)
+        done = subprocess.run([sys.executable, "-m", "gpu_blur.cli", "generate", "--input",
+                               str(root), "--output", str(out), "--scene", "rsblur",
+                               "--backend", f"warp:{device}", "--samples-per-sequence",
+                               str(samples), "--quiet"], capture_output=True, text=True,
+                              check=False)
+        if done.returncode:
+            raise SystemExit(done.stderr[-2000:])
+        files = sorted(out.glob("*/*.png"))
+        differ = [f.relative_to(out).as_posix() for f in files
+                  if f.read_bytes() != encode_png(read_image(f), "fast")]
+    return {"samples": samples, "files": len(files), "differ": differ[:10],
+            "same_bytes": not differ}
 
 
 if __name__ == "__main__":

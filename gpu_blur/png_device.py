@@ -13,17 +13,30 @@ Warp devices only (CUDA, and Warp's CPU device in tests); 8-bit images of 1 to 4
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 from gpu_blur.warp_kernels import deflate as k
 
-__all__ = ["DeviceDeflate", "DevicePngs", "ZLIB_HEADER", "blocks_of", "stream_parts"]
+__all__ = ["DeviceDeflate", "DevicePngs", "PendingStream", "ZLIB_HEADER", "blocks_of",
+           "stream_parts", "words_for"]
 
 #: The two bytes leading every stream of huffman_zlib: deflate, a 32 KiB window, level
 #: flags 0 (RFC 1950, 2.2; zlib writes 0 for level 1 and for Z_HUFFMAN_ONLY).
 ZLIB_HEADER = b"\x78\x01"
 #: The code-length symbols' order in a dynamic block's header (RFC 1951, 3.2.7).
 _ORDER = (16, 17, 18, 0, 8, 7, 9, 6, 10, 5, 11, 4, 12, 3, 13, 2, 14, 1, 15)
+
+
+def words_for(height: int, width: int, channels: int) -> int:
+    """The 32-bit words an image's deflate data may take, at most.
+
+    A block is never larger stored than its literals and 5 bytes (zlib stores a block that
+    its codes would make larger).
+    """
+    literals = height * (1 + width * channels)
+    return (literals + 5 * blocks_of(literals) + 8) // 4 + 1
 
 
 def blocks_of(literals: int) -> int:
@@ -94,9 +107,7 @@ class DeviceDeflate:
         literals = height * stride
         pixels = height * width * channels
         blocks = blocks_of(literals)
-        # a block is never larger stored than its literals and 5 bytes
-        words = (literals + 5 * blocks + 8) // 4 + 1
-        s = self._arrays(images, blocks, words)
+        s = self._arrays(images, blocks, words_for(height, width, channels))
         freq, dad, lengths, depth, heap = s["trees"]
         s["counts"].zero_()
         s["out"].zero_()
@@ -147,10 +158,13 @@ class DevicePngs:
     """A batch's PNG streams deflated on the device as its codes leave it.
 
     For a Synthesizer on a Warp CUDA device whose set is written as 8-bit PNG files with
-    ``output.png = "fast"``: :meth:`queue` (as each image stack's codes are exported) queues
-    the deflate and the copies of its streams into page-locked blocks ``lend`` gives, and
-    :meth:`take`, once the batch was waited for, gives each sample's streams. Where ``lend``
-    gives nothing (past its limit) those images get none, and the host encodes them.
+    ``output.png = "fast"``: :meth:`queue` (as each image stack's codes are exported) copies
+    the codes aside and queues their deflate, and the copies of the streams into page-locked
+    blocks ``lend`` gives, on a CUDA stream of its own, so the next batch's passes run beside
+    it and the batch is not waited for on its account; :meth:`take` gives each sample's
+    streams, which wait for their deflate when first read (:class:`PendingStream`). Where
+    ``lend`` gives nothing (past its limit) those images get none, and the host encodes them.
+    On Warp's CPU device (tests) everything runs in queue order.
 
     Args:
         backend: the Warp backend (its ``wp_device``).
@@ -159,9 +173,15 @@ class DevicePngs:
     """
 
     def __init__(self, backend, lend):
-        self.backend, self._lend = backend, lend
-        self._deflate = DeviceDeflate(backend.wp_device)
-        self._queued: list[tuple[str, int, tuple | None]] = []
+        import warp as wp
+
+        self.device = wp.get_device(backend.wp_device)
+        self._lend = lend
+        self._deflate = DeviceDeflate(self.device)
+        self._stream = wp.Stream(self.device) if self.device.is_cuda else None
+        #: name -> (the codes copied aside, the event after their last deflate's copies)
+        self._aside: dict[str, tuple] = {}
+        self._queued: list[tuple[str, int, tuple | None, object]] = []
 
     @staticmethod
     def for_backend(backend, scene) -> bool:
@@ -174,31 +194,91 @@ class DevicePngs:
         return wp.get_device(wp_device).is_cuda
 
     def queue(self, name: str, codes, count: int) -> None:
-        """Deflate ``count`` images of ``codes`` (an OnDevice, ``count x h x w x c`` uint8)."""
+        """Deflate ``count`` images of ``codes`` (an OnDevice, ``count x h x w x c`` uint8).
+
+        ``codes`` is read on the device's current stream, in queue order: it may be written
+        again by what is queued after this call.
+        """
         import warp as wp
 
-        height, width = codes.shape[-3:-1]
-        words, streams = self._deflate.deflate(codes.data, count, height, width,
-                                               codes.shape[-1])
-        into = self._lend([(words.shape, np.uint32), (streams.shape, np.int64)])
-        if into is not None:  # queued on the device's stream, after the kernels
+        height, width, channels = codes.shape[-3:]
+        into = self._lend([((count, words_for(height, width, channels)), np.uint32),
+                           ((count, 2), np.int64)])
+        if into is None:
+            self._queued.append((name, count, None, None))
+            return
+        source, done = codes.data, None
+        if self._stream is not None:
+            source = self._aside_copy(name, codes.data, count * height * width * channels)
+        with wp.ScopedStream(self._stream) if self._stream is not None else _nothing():
+            words, streams = self._deflate.deflate(source, count, height, width, channels)
             for host, device in zip(into, (words, streams), strict=True):
                 view = wp.array(ptr=host.ctypes.data, dtype=device.dtype, shape=device.shape,
                                 device="cpu")
                 wp.copy(view, device)
-        self._queued.append((name, count, into))
+            if self._stream is not None:
+                done = self._stream.record_event()
+                self._aside[name] = (self._aside[name][0], done)
+        self._queued.append((name, count, into, done))
 
-    def take(self) -> list[dict[str, tuple]]:
-        """Each sample's streams, ``{name: parts}`` (:func:`stream_parts`), in batch order.
+    def _aside_copy(self, name: str, codes, size: int):
+        """``size`` codes copied aside, on the current stream, into ``name``'s device buffer.
 
-        For the images :meth:`queue` queued since the last call, once the device made them.
+        The deflate stream waits for the copy; the copy for the buffer's last deflate.
+        """
+        import warp as wp
+
+        compute = wp.get_stream(self.device)
+        held, last = self._aside.get(name, (None, None))
+        if last is not None:
+            if held.size < size:  # dropped below: nothing may read it any more
+                wp.synchronize_event(last)
+            else:
+                compute.wait_event(last)  # its last deflate has read it
+        if held is None or held.size < size:
+            held = wp.empty(size, dtype=wp.uint8, device=self.device)
+        wp.copy(held, codes, count=size)
+        self._stream.wait_event(compute.record_event())
+        self._aside[name] = (held, last)
+        return held
+
+    def take(self) -> list[dict[str, PendingStream]]:
+        """Each sample's streams, ``{name: stream}``, in batch order.
+
+        For the images :meth:`queue` queued since the last call; an image without a stream
+        (nothing lent for it) is absent from its sample's dictionary.
         """
         samples: dict[str, list] = {}
-        for name, count, into in self._queued:
+        for name, count, into, done in self._queued:
             made = samples.setdefault(name, [])
             made += ([None] * count if into is None
-                     else [stream_parts(into[0][i], into[1][i]) for i in range(count)])
+                     else [PendingStream(into[0][i], into[1][i], done) for i in range(count)])
         self._queued = []
         count = max((len(v) for v in samples.values()), default=0)
         return [{name: made[b] for name, made in samples.items() if made[b] is not None}
                 for b in range(count)]
+
+
+class PendingStream:
+    """An image's zlib stream from the device, in parts, once its deflate is done.
+
+    Iterating waits for the Warp event ``done`` (None: done already; the wait releases the
+    GIL), then gives :func:`stream_parts` of the image's rows of the page-locked results.
+    """
+
+    __slots__ = ("words", "sizes", "done")
+
+    def __init__(self, words: np.ndarray, sizes: np.ndarray, done=None):
+        self.words, self.sizes, self.done = words, sizes, done
+
+    def __iter__(self):
+        if self.done is not None:
+            import warp as wp
+
+            wp.synchronize_event(self.done)
+        return iter(stream_parts(self.words, self.sizes))
+
+
+@contextlib.contextmanager
+def _nothing():
+    yield
