@@ -549,6 +549,11 @@ def bench_png_device(name: str = "png_device_h200") -> str:
     table = _table(["deflate", "ms an image, streams fetched into pageable memory",
                     "ms an image, kernels alone", "zlib's bytes"], rows)
     machine = f"{data['device']} with its host's {data['cpu']}; noisy 1920 x 1200 RGB photos"
+    made = data.get("set")
+    if made:  # --generate: a set's files against the host's encoder
+        machine += (f"; a `gpu-blur generate` set of {made['samples']} samples: "
+                    + (f"all {made['files']} PNG files the host encoder's bytes"
+                       if made["same_bytes"] else f"files differ: {', '.join(made['differ'])}"))
     return table + "\n\n" + provenance(path, machine, _named_commit(data.get("commit")))
 
 
