@@ -162,7 +162,8 @@ class DevicePngs:
     the codes aside and queues their deflate, and the copies of the streams into page-locked
     blocks ``lend`` gives, on a CUDA stream of its own, so the next batch's passes run beside
     it and the batch is not waited for on its account; :meth:`take` gives each sample's
-    streams, which wait for their deflate when first read (:class:`PendingStream`). Where
+    streams, which wait for their deflate when first read (:class:`PendingStream`);
+    :meth:`start` begins each batch, so a failed batch's streams go to no later one. Where
     ``lend`` gives nothing (past its limit) those images get none, and the host encodes them.
     On Warp's CPU device (tests) everything runs in queue order.
 
@@ -192,6 +193,10 @@ class DevicePngs:
         import warp as wp
 
         return wp.get_device(wp_device).is_cuda
+
+    def start(self) -> None:
+        """A new batch: what an earlier one queued and never took (it failed) is dropped."""
+        self._queued = []
 
     def queue(self, name: str, codes, count: int) -> None:
         """Deflate ``count`` images of ``codes`` (an OnDevice, ``count x h x w x c`` uint8).

@@ -42,7 +42,7 @@ class Synthesis:
             ``warp NVIDIA H200, float32``, without the device's number on this host, so a
             set's manifest is the same whichever GPU made each sample).
         png: the blurred and sharp images' PNG streams deflated on the device, as
-            :attr:`Batch.png` holds a sample's (``{"blurred": parts, "sharp": parts}``), or
+            :attr:`Batch.png` holds a sample's (``{"blurred": stream, "sharp": stream}``), or
             None: the files' encoder uses them instead of deflating the codes again.
 
     A worker process of ``gpu-blur generate`` sends blurred and sharp as the set's integer
@@ -102,9 +102,10 @@ class Batch:
         plans: each sample's plan (auto saturation decides per sample).
         timings: seconds the batch spent per :mod:`gpu_blur.timings` category.
         png: with ``png=True`` where it applies, each sample's PNG streams deflated on the
-            device, ``{"blurred": parts, "sharp": parts}`` (an image the device made none for,
-            absent); each stream the zlib stream of its image's Sub-filtered rows in
-            consecutive parts (:func:`gpu_blur.png_device.stream_parts`); else None.
+            device, ``{"blurred": stream, "sharp": stream}`` (an image the device made none
+            for, absent); a stream iterates over the consecutive parts of the zlib stream of
+            its image's Sub-filtered rows, once the device made them
+            (:class:`gpu_blur.png_device.PendingStream`); else None.
     """
 
     blurred: object

@@ -333,6 +333,8 @@ class Synthesizer:
         bits = self.scene.output.bits if device_codes else 0
         out_given, given = out, (None if codes and not device_codes else out)
         pngs = self._pngs() if png and device_codes else None
+        if pngs is not None:
+            pngs.start()
         if self.resident:
             out, params, plans, raws = self._resident_path.batch(items, indices, batch, lib,
                                                                  given, bits, sequences, pngs)

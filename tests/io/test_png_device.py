@@ -100,3 +100,28 @@ def test_images_of_each_channel_count_in_one_call_each_get_zlibs_stream(encoder,
     streams, _ = made(encoder, images if channels > 1 else images[..., 0])
     for image, stream in zip(images, streams, strict=True):
         assert stream == expected(image if channels > 1 else image[..., 0])
+
+
+def test_a_failed_batchs_queued_streams_go_to_no_later_batch():
+    from types import SimpleNamespace
+
+    from gpu_blur.backends import OnDevice
+    from gpu_blur.png_device import DevicePngs
+
+    def lend(arrays):
+        return [np.zeros(shape, dtype) for shape, dtype in arrays]
+
+    pngs = DevicePngs(SimpleNamespace(wp_device="cpu"), lend)
+    rng = np.random.default_rng(6)
+    first, second = (rng.integers(0, 256, (2, 8, 10, 3), dtype=np.uint8) for _ in range(2))
+
+    def on_device(images):
+        return OnDevice(wp.array(images.reshape(-1), dtype=wp.uint8, device="cpu"),
+                        images.shape, None, np.uint8)
+
+    pngs.start()
+    pngs.queue("blurred", on_device(first), 2)  # then the batch fails: never taken
+    pngs.start()
+    pngs.queue("blurred", on_device(second), 2)
+    taken = pngs.take()
+    assert [b"".join(sample["blurred"]) for sample in taken] == [expected(i) for i in second]
