@@ -4,7 +4,7 @@ Images: noisy 1920 x 1200 RGB 8-bit codes like a synthesized output's (the built
 resized, plus Gaussian noise of ``--noise`` codes), ``--batch`` different ones. Per batch size:
 
 * ``device_ms``: gpu_blur.png_device.DeviceDeflate on the codes already on the device, the
-  five kernels and the download of the streams and their sizes, the device synchronized
+  six kernels and the download of the streams and their sizes, the device synchronized
   (median of ``--runs`` after a warm-up), per image; ``kernels_ms``: the kernels alone;
 * ``host_ms``: gpu_blur.png_codecs.huffman_zlib of numpy's Sub-filtered rows on one thread
   (what an I/O thread spends per image without it), per image;

@@ -1,9 +1,9 @@
 """PNG rows Sub-filtered and deflated with Huffman codes alone, on the device: zlib's bytes.
 
 The stream :func:`gpu_blur.png_codecs.huffman_zlib` writes for ``output.png = "fast"``, made
-where the codes already are. zlib (1.2.12 to 1.3.1, and zlib-ng, which writes the same bytes
-for this strategy) decides everything per block, and a block is a fixed run of the input, so
-the blocks are independent until their bits are laid end to end:
+where the codes already are. zlib (and zlib-ng, which writes the same bytes for this strategy)
+decides everything per block, and a block is a fixed run of the input, so the blocks are
+independent until their bits are laid end to end:
 
 * ``deflate_huff`` (deflate.c) tallies one literal per input byte and ends a block every
   ``lit_bufsize - 1`` = 16,383 literals (``memLevel`` 8: ``lit_bufsize = 1 << (8 + 6)``); the
@@ -15,9 +15,9 @@ the blocks are independent until their bits are laid end to end:
 
 Reproduced here, in the order zlib does each step (its heap and tie-breaks, its repair of codes
 longer than 15 bits, its run-length coding of the code lengths), so the bytes are zlib's:
-tests/io/test_png_device.py checks them against zlib's on images that reach each branch. Five
-kernels over a batch of images, each image's blocks ``(image, block)`` and their segments of
-:data:`SEGMENT` literals:
+tests/io/test_png_device.py checks them against the installed zlib's (zlib-ng's or Python's) on
+images that reach each branch. Six kernels in five steps over a batch of images, each image's
+blocks ``(image, block)`` and their segments of :data:`SEGMENT` literals:
 
 1. :func:`count_kernel`: each block's byte counts, and each segment's two Adler-32 sums;
 2. :func:`trees_kernel`: a thread a block builds its trees, chooses its kind and writes its
@@ -320,47 +320,6 @@ def _next_length(lengths: wp.array2d(dtype=wp.int32), row: int, n: int, max_code
 
 
 @wp.func
-def _scan_tree(lengths: wp.array2d(dtype=wp.int32), row: int, max_code: int,
-               freq: wp.array2d(dtype=wp.int32), bl_row: int):
-    """As zlib's ``scan_tree``: counts of the code-length symbols that will send this tree."""
-    prev = wp.int32(-1)
-    next_len = lengths[row, 0]
-    run = wp.int32(0)
-    max_count = wp.int32(7)
-    min_count = wp.int32(4)
-    if next_len == 0:
-        max_count = 138
-        min_count = 3
-    for n in range(max_code + 1):
-        cur = next_len
-        next_len = _next_length(lengths, row, n + 1, max_code)
-        run += 1
-        if run < max_count and cur == next_len:
-            continue
-        if run < min_count:
-            freq[bl_row, cur] = freq[bl_row, cur] + run
-        elif cur != 0:
-            if cur != prev:
-                freq[bl_row, cur] = freq[bl_row, cur] + 1
-            freq[bl_row, 16] = freq[bl_row, 16] + 1
-        elif run <= 10:
-            freq[bl_row, 17] = freq[bl_row, 17] + 1
-        else:
-            freq[bl_row, 18] = freq[bl_row, 18] + 1
-        run = 0
-        prev = cur
-        if next_len == 0:
-            max_count = 138
-            min_count = 3
-        elif cur == next_len:
-            max_count = 6
-            min_count = 3
-        else:
-            max_count = 7
-            min_count = 4
-
-
-@wp.func
 def _put(words: wp.array2d(dtype=wp.uint32), g: int, at: int, value: int, bits: int) -> int:
     """``bits`` bits of ``value`` into a block's header words at bit ``at``; the next bit."""
     word = at >> 5
@@ -373,10 +332,16 @@ def _put(words: wp.array2d(dtype=wp.uint32), g: int, at: int, value: int, bits: 
 
 
 @wp.func
-def _send_tree(lengths: wp.array2d(dtype=wp.int32), row: int, max_code: int,
-               code: wp.array2d(dtype=wp.int32), bl_row: int,
-               words: wp.array2d(dtype=wp.uint32), g: int, at: int) -> int:
-    """As zlib's ``send_tree``: this tree's code lengths in the code-length codes; the next bit."""
+def _tree_lengths(lengths: wp.array2d(dtype=wp.int32), row: int, max_code: int,
+                  freq: wp.array2d(dtype=wp.int32), code: wp.array2d(dtype=wp.int32),
+                  bl_row: int, send: bool, words: wp.array2d(dtype=wp.uint32), g: int,
+                  at: int) -> int:
+    """A tree's code lengths as runs of code-length symbols (RFC 1951, 3.2.7); the next bit.
+
+    As zlib's ``scan_tree`` without ``send`` (counts the symbols into ``freq[bl_row]``) and
+    its ``send_tree`` with it (writes them in the code-length codes of ``bl_row`` into the
+    block's header words from bit ``at``); both walk the lengths alike.
+    """
     prev = wp.int32(-1)
     next_len = lengths[row, 0]
     run = wp.int32(0)
@@ -392,21 +357,36 @@ def _send_tree(lengths: wp.array2d(dtype=wp.int32), row: int, max_code: int,
         run += 1
         if run < max_count and cur == next_len:
             continue
-        if run < min_count:
-            for _ in range(run):
-                pos = _put(words, g, pos, code[bl_row, cur], lengths[bl_row, cur])
-        elif cur != 0:
+        if run < min_count:  # each length as itself
+            if send:
+                for _ in range(run):
+                    pos = _put(words, g, pos, code[bl_row, cur], lengths[bl_row, cur])
+            else:
+                freq[bl_row, cur] = freq[bl_row, cur] + run
+        elif cur != 0:  # 16: the last length again, 3-6 times
             if cur != prev:
-                pos = _put(words, g, pos, code[bl_row, cur], lengths[bl_row, cur])
-                run -= 1
-            pos = _put(words, g, pos, code[bl_row, 16], lengths[bl_row, 16])
-            pos = _put(words, g, pos, run - 3, 2)
-        elif run <= 10:
-            pos = _put(words, g, pos, code[bl_row, 17], lengths[bl_row, 17])
-            pos = _put(words, g, pos, run - 3, 3)
-        else:
-            pos = _put(words, g, pos, code[bl_row, 18], lengths[bl_row, 18])
-            pos = _put(words, g, pos, run - 11, 7)
+                if send:
+                    pos = _put(words, g, pos, code[bl_row, cur], lengths[bl_row, cur])
+                    run -= 1
+                else:
+                    freq[bl_row, cur] = freq[bl_row, cur] + 1
+            if send:
+                pos = _put(words, g, pos, code[bl_row, 16], lengths[bl_row, 16])
+                pos = _put(words, g, pos, run - 3, 2)
+            else:
+                freq[bl_row, 16] = freq[bl_row, 16] + 1
+        elif run <= 10:  # 17: 3-10 zeros
+            if send:
+                pos = _put(words, g, pos, code[bl_row, 17], lengths[bl_row, 17])
+                pos = _put(words, g, pos, run - 3, 3)
+            else:
+                freq[bl_row, 17] = freq[bl_row, 17] + 1
+        else:  # 18: 11-138 zeros
+            if send:
+                pos = _put(words, g, pos, code[bl_row, 18], lengths[bl_row, 18])
+                pos = _put(words, g, pos, run - 11, 7)
+            else:
+                freq[bl_row, 18] = freq[bl_row, 18] + 1
         run = 0
         prev = cur
         if next_len == 0:
@@ -457,8 +437,8 @@ def trees_kernel(counts: wp.array2d(dtype=wp.int32), total: int, blocks: int,
                           15, g)
     max_dist = _build_tree(freq, dad, lengths, depth, heap, bit_count, code, sizes, dist, 1, 30,
                            15, g)
-    _scan_tree(lengths, lit, max_lit, freq, bl)
-    _scan_tree(lengths, dist, max_dist, freq, bl)
+    _tree_lengths(lengths, lit, max_lit, freq, code, bl, False, header, g, 0)
+    _tree_lengths(lengths, dist, max_dist, freq, code, bl, False, header, g, 0)
     _build_tree(freq, dad, lengths, depth, heap, bit_count, code, sizes, bl, 2, 19, 7, g)
     max_blindex = wp.int32(18)
     while max_blindex >= 3:
@@ -494,8 +474,8 @@ def trees_kernel(counts: wp.array2d(dtype=wp.int32), total: int, blocks: int,
     pos = _put(header, g, pos, max_blindex + 1 - 4, 4)
     for rank in range(max_blindex + 1):
         pos = _put(header, g, pos, lengths[bl, order[rank]], 3)
-    pos = _send_tree(lengths, lit, max_lit, code, bl, header, g, pos)
-    pos = _send_tree(lengths, dist, max_dist, code, bl, header, g, pos)
+    pos = _tree_lengths(lengths, lit, max_lit, freq, code, bl, True, header, g, pos)
+    pos = _tree_lengths(lengths, dist, max_dist, freq, code, bl, True, header, g, pos)
     for n in range(256):
         data += counts[g, n] * lengths[lit, n]
     info[g, _KIND] = wp.int64(_DYNAMIC)
