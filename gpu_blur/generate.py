@@ -526,6 +526,7 @@ def run_pipelined(job: Job, specs: Iterable[SampleSpec], pool: Executor, times: 
             if made is None:
                 made = [make_sample(job, spec, given)
                         for spec, given in zip(specs_made, inputs, strict=True)]
+            times.deflated += sum(len(result.png or {}) for _, result, _ in made if result)
             if slot is not None:
                 staging.release(slot, failed=any(error is not None for *_, error in made))
             yield from made

@@ -212,6 +212,8 @@ class PoolTimes:
             sample sent) and waiting for any (``waiting``), the ``samples`` taken, and how
             many of them came whole through a pipe (``piped``: no shared memory to be had) or
             as a manifest line, their files written by the worker (``written``).
+        deflated: PNG files whose streams the GPU deflated (gpu_blur.png_device), which the
+            threads only put together and wrote.
     """
 
     def __init__(self, threads: int):
@@ -223,6 +225,7 @@ class PoolTimes:
         self.waited_for_writes = 0.0
         self.handoff = {"packing": 0.0, "receiving": 0.0, "waiting": 0.0, "samples": 0,
                         "piped": 0, "written": 0}
+        self.deflated = 0
         self._lock = threading.Lock()
 
     def run(self, stage: str, work: Callable[..., Any], *args, counted: bool = True) -> Any:
@@ -249,6 +252,7 @@ class PoolTimes:
             self.samples += other.samples
             self.waited_for_inputs += other.waited_for_inputs
             self.waited_for_writes += other.waited_for_writes
+            self.deflated += other.deflated
             self._add_handoff(other.handoff)
 
     def add_handoff(self, **figures) -> None:
@@ -327,6 +331,7 @@ class PoolTimes:
         """One line: the threads, what they did, and how busy they were."""
         files = self.calls["decode"]
         each = f" ({files} files, {1e3 * self.busy['decode'] / files:.1f} ms each)" if files else ""
+        gpu = f" ({self.deflated} PNG files deflated on the GPU)" if self.deflated else ""
         return (f"I/O threads ({self.threads}): decoding {self.busy['decode']:.2f} s{each}, "
-                f"encoding and writing {self.busy['write']:.2f} s; busy "
+                f"encoding and writing {self.busy['write']:.2f} s{gpu}; busy "
                 f"{self.busy_share(wall):.0f} % of the run")

@@ -468,7 +468,7 @@ def test_overlapping_windows_made_from_frames_kept_on_the_device_give_the_bytes_
 
 @pytest.mark.skipif(not WARP_CPU, reason="Warp's CPU device is not among the suite's backends")
 def test_pngs_deflated_on_the_device_give_the_bytes_the_host_writes(tmp_path, bad_sequences,
-                                                                   monkeypatch):
+                                                                   monkeypatch, capsys):
     """On a Warp GPU a batch's 8-bit PNGs are deflated on the device and the I/O threads only
     put the files together; forced here on Warp's CPU device: the same set as one thread's,
     whose files the host encoded, bad samples too."""
@@ -488,9 +488,12 @@ def test_pngs_deflated_on_the_device_give_the_bytes_the_host_writes(tmp_path, ba
     png_file = gpu_blur.file_writing.png_file
     monkeypatch.setattr(gpu_blur.file_writing, "png_file",
                         lambda codes, idat: from_streams.append(1) or png_file(codes, idat))
+    capsys.readouterr()
     assert main(args(folder, scene, tmp_path / "device", *run, "--io-threads", "3")) == 1
     assert_same_set(tmp_path / "device", tmp_path / "one")
     assert len(from_streams) >= 2 * 12  # blurred and sharp of the batched samples
+    said = re.search(r"\((\d+) PNG files deflated on the GPU\)", capsys.readouterr().out)
+    assert said and int(said[1]) == len(from_streams)
 
 
 @pytest.mark.skipif(not WARP_CPU, reason="Warp's CPU device is not among the suite's backends")
