@@ -10,6 +10,9 @@ resized, plus Gaussian noise of ``--noise`` codes), ``--batch`` different ones. 
   (what an I/O thread spends per image without it), per image;
 * ``same_bytes``: every image's device stream equal to the host's.
 
+``--kernels``: also each kernel's time in a batch of the largest size (``kernel_ms``, per
+image; the device synchronized around every launch, so their sum exceeds ``kernels_ms``).
+
 ``--generate N``: also ``gpu-blur generate --scene rsblur`` over N overlapping windows of a
 36-frame sequence (bench/generate_gpu.py's) on ``--device``, then every PNG file of the set
 read back and encoded again on the host (``encode_png(..., "fast")``): ``set``'s
@@ -62,6 +65,7 @@ def main(argv=None) -> int:
     p.add_argument("--batches", default="1,4,16", help="images a call (default 1,4,16)")
     p.add_argument("--noise", type=float, default=3.0, help="noise in codes (default 3)")
     p.add_argument("--runs", type=int, default=5, help="timed runs (default 5)")
+    p.add_argument("--kernels", action="store_true", help="also time each kernel")
     p.add_argument("--generate", type=int, default=0, metavar="N",
                    help="also check a generated set of N samples file by file (default 0)")
     p.add_argument("--json", help="write the results here")
@@ -105,6 +109,9 @@ def main(argv=None) -> int:
         "stream_mb": statistics.mean(len(s) for s in host) / 1e6,
         "host_ms": host_ms, "rows": rows,
     }
+    if args.kernels:
+        result["kernel_ms"] = kernel_times(encoder, images, device, args.runs)
+        print(result["kernel_ms"], flush=True)
     if args.generate:
         result["set"] = generated_set(args.device, args.generate)
         print(result["set"], flush=True)
@@ -113,6 +120,39 @@ def main(argv=None) -> int:
         Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
     return 0 if all(r["same_bytes"] for r in rows) and result.get("set", {}).get(
         "same_bytes", True) else 1
+
+
+class _TimedWarp:
+    """Warp with each ``launch`` synchronized and timed by kernel name (``times``, seconds)."""
+
+    def __init__(self, wp, device):
+        self._wp, self._device, self.times = wp, device, {}
+
+    def __getattr__(self, name):
+        return getattr(self._wp, name)
+
+    def launch(self, kernel, *args, **kwargs):
+        self._wp.synchronize_device(self._device)
+        start = time.perf_counter()
+        self._wp.launch(kernel, *args, **kwargs)
+        self._wp.synchronize_device(self._device)
+        self.times.setdefault(kernel.key, []).append(time.perf_counter() - start)
+
+
+def kernel_times(encoder, images: np.ndarray, device, runs: int) -> dict:
+    """Median ms per image of each deflate kernel, a batch of all ``images``."""
+    import warp as wp
+
+    codes = wp.array(images.reshape(-1), dtype=wp.uint8, device=device)
+    timed = _TimedWarp(wp, device)
+    encoder.wp = timed
+    try:
+        for _ in range(runs + 1):
+            encoder.deflate(codes, len(images), H, W, 3)
+    finally:
+        encoder.wp = wp
+    return {name: 1e3 * statistics.median(times[1:]) / len(images)
+            for name, times in timed.times.items()}
 
 
 def generated_set(device: str, samples: int) -> dict:
