@@ -467,18 +467,20 @@ def test_overlapping_windows_made_from_frames_kept_on_the_device_give_the_bytes_
 
 
 @pytest.mark.skipif(not WARP_CPU, reason="Warp's CPU device is not among the suite's backends")
+@pytest.mark.parametrize("extra", [(), ("--save", "mask", "--format", "webdataset")])
 def test_pngs_deflated_on_the_device_give_the_bytes_the_host_writes(tmp_path, bad_sequences,
-                                                                   monkeypatch, capsys):
+                                                                   monkeypatch, capsys, extra):
     """On a Warp GPU a batch's 8-bit PNGs are deflated on the device and the I/O threads only
     put the files together; forced here on Warp's CPU device: the same set as one thread's,
-    whose files the host encoded, bad samples too."""
+    whose files the host encoded, bad samples too; with masks (16-bit: the host's) and in
+    WebDataset shards as well."""
     import gpu_blur.file_writing
     from gpu_blur.backends import get_backend
     from gpu_blur.png_device import DevicePngs
 
     folder, scene = bad_sequences
     add_long_sequence(folder, seed=5)
-    run = ("--backend", "warp:cpu", "--samples-per-sequence", "8")
+    run = ("--backend", "warp:cpu", "--samples-per-sequence", "8", *extra)
     assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
     backend = get_backend("warp:cpu", "float32")
     monkeypatch.setattr(DevicePngs, "for_backend", staticmethod(lambda backend, scene: True))
