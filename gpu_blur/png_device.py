@@ -4,9 +4,10 @@ A finished batch's 8-bit codes are on the device already: :class:`DeviceDeflate`
 and deflates them there (gpu_blur.warp_kernels.deflate, zlib's ``Z_HUFFMAN_ONLY`` blocks
 reproduced) and brings back each image's zlib stream, so an I/O thread only checksums the
 chunk and writes the file (:func:`gpu_blur.png_codecs.png_file`), instead of spending a
-core's 45-120 ms deflating it. The stream is :func:`gpu_blur.png_codecs.huffman_zlib`'s of
-the same rows, bit for bit (tests/io/test_png_device.py), so the files are the same whichever
-side wrote them.
+core's 45 ms deflating a 1920 x 1200 image (an H200 host's Xeon; bench/png_device.py: the
+kernels take 0.4 ms an image in batches of 16). The stream is
+:func:`gpu_blur.png_codecs.huffman_zlib`'s of the same rows, bit for bit
+(tests/io/test_png_device.py), so the files are the same whichever side wrote them.
 
 Warp devices only (CUDA, and Warp's CPU device in tests); 8-bit images of 1 to 4 channels.
 """
@@ -63,19 +64,22 @@ class DeviceDeflate:
         self._order = wp.array(np.array(_ORDER, np.int32), dtype=wp.int32, device=self.device)
         self._fixed = wp.array(k.static_codes(), dtype=wp.int32, device=self.device)
 
-    def _arrays(self, images: int, blocks: int, words: int) -> tuple:
+    def _arrays(self, images: int, blocks: int, words: int) -> dict:
         """Scratch for ``images`` images of ``blocks`` blocks and ``words`` output words.
 
-        Kept for the next call of the same size.
+        Kept for later calls of the same image size and at most as many images (a batch's
+        last, smaller part among them).
         """
-        key = (images, blocks, words)
-        if self._scratch is None or self._scratch[0] != key:
+        key = (blocks, words)
+        if (self._scratch is None or self._scratch[0] != key
+                or self._scratch[1] < images):
+            self._scratch = None  # freed before the new one is made
             wp, n = self.wp, images * blocks
 
             def new(shape, dtype):
                 return wp.empty(shape, dtype=dtype, device=self.device)
 
-            self._scratch = (key, {
+            self._scratch = (key, images, {
                 "counts": new((n, 256), wp.int32),
                 "sums": new((n, k.SEGMENTS, 2), wp.int64),
                 "trees": [new((n * k.TREES, k.HEAP), wp.int32) for _ in range(5)],
@@ -88,7 +92,7 @@ class DeviceDeflate:
                 "out": new((images, words), wp.uint32),
                 "streams": new((images, 2), wp.int64),
             })
-        return self._scratch[1]
+        return self._scratch[2]
 
     def deflate(self, codes, images: int, height: int, width: int, channels: int
                 ) -> tuple[object, object]:
@@ -109,8 +113,9 @@ class DeviceDeflate:
         blocks = blocks_of(literals)
         s = self._arrays(images, blocks, words_for(height, width, channels))
         freq, dad, lengths, depth, heap = s["trees"]
+        out, streams = s["out"][:images], s["streams"][:images]
         s["counts"].zero_()
-        s["out"].zero_()
+        out.zero_()
         shape = (images, blocks, k.SEGMENTS)
         common = [codes, pixels, stride, channels, literals, blocks]
         wp.launch(k.count_kernel, dim=shape, inputs=[*common, s["counts"], s["sums"]],
@@ -124,12 +129,12 @@ class DeviceDeflate:
                   device=self.device)
         wp.launch(k.offsets_kernel, dim=images * blocks,
                   inputs=[s["offsets"], s["sums"], s["info"]], device=self.device)
-        wp.launch(k.layout_kernel, dim=images, inputs=[literals, blocks, s["info"], s["streams"]],
+        wp.launch(k.layout_kernel, dim=images, inputs=[literals, blocks, s["info"], streams],
                   device=self.device)
         wp.launch(k.write_kernel, dim=(images, blocks, k.SEGMENTS + 1),
                   inputs=[*common, s["info"], s["code"], lengths, self._fixed, s["offsets"],
-                          s["header"], s["out"]], device=self.device)
-        return s["out"], s["streams"]
+                          s["header"], out], device=self.device)
+        return out, streams
 
     def streams(self, codes, images: int, height: int, width: int, channels: int
                 ) -> list[bytes]:

@@ -31,7 +31,8 @@ def made(encoder, images: np.ndarray) -> tuple[list[bytes], set[str]]:
     channels = images.shape[3] if images.ndim == 4 else 1
     codes = wp.array(np.ascontiguousarray(images).reshape(-1), dtype=wp.uint8, device="cpu")
     streams = encoder.streams(codes, n, h, w, channels)
-    info = encoder._scratch[1]["info"].numpy()
+    blocks = n * blocks_of(h * (1 + w * channels))  # the rows of this call's blocks
+    info = encoder._scratch[2]["info"].numpy()[:blocks]
     return streams, {KINDS[int(kind)] for kind in info[:, 0]}
 
 
@@ -78,7 +79,7 @@ def test_codes_longer_than_15_bits_are_repaired_as_zlib_repairs_them(encoder):
     np.random.default_rng(3).shuffle(differences)
     image = grey_row(differences)
     streams, kinds = made(encoder, image[None])
-    lengths = encoder._scratch[1]["trees"][2].numpy()[0, :257]  # the literal tree's
+    lengths = encoder._scratch[2]["trees"][2].numpy()[0, :257]  # the literal tree's
     assert kinds == {"dynamic"} and lengths.max() == 15
     assert streams[0] == expected(image)
 
@@ -97,9 +98,12 @@ def test_images_of_each_channel_count_in_one_call_each_get_zlibs_stream(encoder,
     rng = np.random.default_rng(channels)
     images = np.clip(rng.normal(100, 8, (3, 70, 130, channels)), 0, 255).astype(np.uint8)
     images[1] = 0  # a flat image: one byte value only
-    streams, _ = made(encoder, images if channels > 1 else images[..., 0])
+    images = images if channels > 1 else images[..., 0]
+    streams, _ = made(encoder, images)
     for image, stream in zip(images, streams, strict=True):
-        assert stream == expected(image if channels > 1 else image[..., 0])
+        assert stream == expected(image)
+    fewer, _ = made(encoder, images[2:])  # in the scratch of three
+    assert fewer == streams[2:]
 
 
 def test_a_failed_batchs_queued_streams_go_to_no_later_batch():
