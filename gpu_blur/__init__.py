@@ -20,7 +20,8 @@ One sample, module by module:
                     (blurred_inputs.py, input_folders.py)
     dataset.py      outputs: blurred and sharp images, parameters, the manifest
                     (generation.py: generate_set, a whole set; generate.py and
-                    distributed.py make its samples)
+                    distributed.py make its samples; png_codecs.py writes and reads PNG
+                    files on the host, png_device.py deflates them on a Warp GPU)
 
 Apart from synthesis: :mod:`gpu_blur.analysis` (calibration, alignment, metrics, the
 benchmark), which measures and never synthesizes. Test hooks: :mod:`gpu_blur.testhooks`;
