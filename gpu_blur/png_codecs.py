@@ -12,8 +12,9 @@ docs/performance.md, "PNG codecs"):
     so the file depends on the pixels alone. The file is put together here (IHDR, IDAT,
     IEND).
   - ``fastest``: the same rows compressed by ISA-L's deflate at level 1 (``isal``), faster
-    still, but its bytes are not always the same: on the host of two H200s one file of 29,696
-    came out as another stream of the same rows (the same pixels;
+    still on the host (a Warp GPU deflates ``fast``'s files itself, faster again:
+    :mod:`gpu_blur.png_device`), but its bytes are not always the same: on the host of two
+    H200s one file of 29,696 came out as another stream of the same rows (the same pixels;
     bench/results/png_fast_libdeflate_h200x2.json). ``fast`` without ``isal``.
   - ``small``: the smallest of a few files: OpenCV's libpng with its own filter choice per
     row at level 1 with run-length matches (on noisy images smaller than any level with the
@@ -59,7 +60,8 @@ PNG_MODES = {
     "fast": "numpy's Sub filter and deflate's Huffman coding alone (zlib-ng, or Python's "
             "zlib: the same bytes): a file's bytes depend on its pixels alone",
     "fastest": "numpy's Sub filter and ISA-L's deflate at level 1 (isal; without it fast): "
-               "faster than fast, but a file's bytes may differ from run to run (its pixels "
+               "faster than fast on the host (where a Warp GPU deflates fast's files, fast "
+               "is the faster), but a file's bytes may differ from run to run (its pixels "
                "never)",
     "small": "the smallest of OpenCV's libpng (a filter chosen per row, level 1 with "
              "run-length matches; 16-bit also level 6) and the fast file",
