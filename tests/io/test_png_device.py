@@ -129,3 +129,18 @@ def test_a_failed_batchs_queued_streams_go_to_no_later_batch():
     pngs.queue("blurred", on_device(second), 2)
     taken = pngs.take()
     assert [b"".join(sample["blurred"]) for sample in taken] == [expected(i) for i in second]
+
+
+def test_random_images_of_many_sizes_and_noise_levels_deflate_to_zlibs_bytes(encoder):
+    rng = np.random.default_rng(7)
+    for _ in range(24):
+        h, w, channels = int(rng.integers(1, 90)), int(rng.integers(1, 400)), int(
+            rng.integers(1, 5))
+        spread = float(rng.choice([0.3, 2, 10, 60, 200]))
+        images = np.clip(rng.normal(rng.integers(0, 256), spread, (2, h, w, channels)), 0,
+                         255).astype(np.uint8)
+        images[:, :, ::3] = rng.integers(0, 256)  # runs of one value in every third column
+        images = images if channels > 1 else images[..., 0]
+        streams, _ = made(encoder, images)
+        for image, stream in zip(images, streams, strict=True):
+            assert stream == expected(image), (h, w, channels, spread)
