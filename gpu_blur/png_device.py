@@ -18,6 +18,7 @@ import contextlib
 
 import numpy as np
 
+from gpu_blur import notices
 from gpu_blur.warp_kernels import deflate as k
 
 __all__ = ["DeviceDeflate", "DevicePngs", "PendingStream", "ZLIB_HEADER", "blocks_of",
@@ -169,7 +170,9 @@ class DevicePngs:
     it and the batch is not waited for on its account; :meth:`take` gives each sample's
     streams, which wait for their deflate when first read (:class:`PendingStream`);
     :meth:`start` begins each batch, so a failed batch's streams go to no later one. Where
-    ``lend`` gives nothing (past its limit) those images get none, and the host encodes them.
+    ``lend`` gives nothing (past its limit) those images get none, and the host encodes them;
+    where the deflate itself fails (a kernel build), a notice says so and the host encodes
+    every file from then on.
     On Warp's CPU device (tests) everything runs in queue order.
 
     Args:
@@ -188,6 +191,8 @@ class DevicePngs:
         #: name -> (the codes copied aside, the event after their last deflate's copies)
         self._aside: dict[str, tuple] = {}
         self._queued: list[tuple[str, int, tuple | None, object]] = []
+        #: why the device's deflate failed (then the host encodes every file), or None
+        self.failed: str | None = None
 
     @staticmethod
     def for_backend(backend, scene) -> bool:
@@ -209,19 +214,29 @@ class DevicePngs:
         ``codes`` is read on the device's current stream, in queue order: it may be written
         again by what is queued after this call.
         """
+        height, width, channels = codes.shape[-3:]
+        into = None if self.failed else self._lend(
+            [((count, words_for(height, width, channels)), np.uint32), ((count, 2), np.int64)])
+        done = None
+        if into is not None:
+            try:
+                done = self._deflated(name, codes.data, count, (height, width, channels), into)
+            except Exception as error:  # a kernel that does not build or launch here
+                into, self.failed = None, f"{type(error).__name__}: {error}"
+                if notices.verbosity() >= notices.NORMAL:
+                    notices.say(f"PNG deflate on {self.device}: {self.failed}; the host "
+                                "encodes the files from here on (the same bytes)")
+        self._queued.append((name, count, into, done))
+
+    def _deflated(self, name: str, codes, count: int, shape: tuple, into: list):
+        """:meth:`queue`'s deflate and copies into ``into``; the event after them, or None."""
         import warp as wp
 
-        height, width, channels = codes.shape[-3:]
-        into = self._lend([((count, words_for(height, width, channels)), np.uint32),
-                           ((count, 2), np.int64)])
-        if into is None:
-            self._queued.append((name, count, None, None))
-            return
-        source, done = codes.data, None
+        source, done = codes, None
         if self._stream is not None:
-            source = self._aside_copy(name, codes.data, count * height * width * channels)
+            source = self._aside_copy(name, codes, count * int(np.prod(shape)))
         with wp.ScopedStream(self._stream) if self._stream is not None else _nothing():
-            words, streams = self._deflate.deflate(source, count, height, width, channels)
+            words, streams = self._deflate.deflate(source, count, *shape)
             for host, device in zip(into, (words, streams), strict=True):
                 view = wp.array(ptr=host.ctypes.data, dtype=device.dtype, shape=device.shape,
                                 device="cpu")
@@ -229,7 +244,7 @@ class DevicePngs:
             if self._stream is not None:
                 done = self._stream.record_event()
                 self._aside[name] = (self._aside[name][0], done)
-        self._queued.append((name, count, into, done))
+        return done
 
     def _aside_copy(self, name: str, codes, size: int):
         """``size`` codes copied aside, on the current stream, into ``name``'s device buffer.

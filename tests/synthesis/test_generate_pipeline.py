@@ -21,6 +21,7 @@ import gpu_blur.backends
 import gpu_blur.dataset
 import gpu_blur.file_writing
 import gpu_blur.generate
+import gpu_blur.notices
 import gpu_blur.staging
 import gpu_blur.synthesis.inputs
 import gpu_blur.testhooks
@@ -496,6 +497,42 @@ def test_pngs_deflated_on_the_device_give_the_bytes_the_host_writes(tmp_path, ba
     assert len(from_streams) >= 2 * 12  # blurred and sharp of the batched samples
     said = re.search(r"\((\d+) PNG files deflated on the GPU\)", capsys.readouterr().out)
     assert said and int(said[1]) == len(from_streams)
+
+
+@pytest.mark.skipif(not WARP_CPU, reason="Warp's CPU device is not among the suite's backends")
+def test_a_device_deflate_that_fails_leaves_the_files_to_the_host_and_says_so(
+        tmp_path, bad_sequences, monkeypatch, capsys):
+    from gpu_blur.backends import get_backend
+    from gpu_blur.png_device import DeviceDeflate, DevicePngs
+
+    folder, scene = bad_sequences
+    add_long_sequence(folder, seed=6)
+    run = ("--backend", "warp:cpu", "--samples-per-sequence", "8")
+    assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
+    backend = get_backend("warp:cpu", "float32")
+    monkeypatch.setattr(DevicePngs, "for_backend", staticmethod(lambda backend, scene: True))
+    monkeypatch.setattr(gpu_blur.generate, "pinned_staging",
+                        lambda job: gpu_blur.staging.PinnedStaging(backend, 2, 3))
+    calls = []
+
+    def failing(self, *args):  # the second batch's kernels do not build, say
+        calls.append(1)
+        if len(calls) > 2:
+            raise RuntimeError("Warp CUDA error: no kernel image for this device")
+        return deflate(self, *args)
+
+    deflate = DeviceDeflate.deflate
+    monkeypatch.setattr(DeviceDeflate, "deflate", failing)
+    monkeypatch.setattr(gpu_blur.notices, "verbosity", lambda: gpu_blur.notices.NORMAL)
+    capsys.readouterr()
+    assert main(args(folder, scene, tmp_path / "device", *run, "--io-threads", "3")) == 1
+    assert_same_set(tmp_path / "device", tmp_path / "one")
+    out = capsys.readouterr()
+    assert out.err.count("no kernel image for this device") == 1  # one notice
+    assert "the host encodes the files from here on" in out.err
+    assert len(calls) == 3  # no deflate tried after the failure
+    said = re.search(r"\((\d+) PNG files deflated on the GPU\)", out.out)
+    assert said and int(said[1]) == 2 * 3  # the first batch's
 
 
 @pytest.mark.skipif(not WARP_CPU, reason="Warp's CPU device is not among the suite's backends")
