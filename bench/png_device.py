@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from gpu_blur.analysis.bench.host import cpu_name, source_commit
+from gpu_blur.analysis.bench.measure import median_time
 from gpu_blur.discovery import default_photo
 from gpu_blur.png_codecs import filtered_rows, huffman_zlib
 
@@ -50,13 +51,8 @@ def noisy_images(count: int, noise: float) -> np.ndarray:
 
 
 def median_ms(work, runs: int) -> float:
-    work()  # warm-up: kernel builds, scratch
-    times = []
-    for _ in range(runs):
-        start = time.perf_counter()
-        work()
-        times.append(time.perf_counter() - start)
-    return 1e3 * statistics.median(times)
+    """Median ms of ``runs`` calls of ``work`` after a warm-up call (kernel builds, scratch)."""
+    return 1e3 * statistics.median(median_time(work, runs)[0])
 
 
 def main(argv=None) -> int:

@@ -235,7 +235,9 @@ class DevicePngs:
         source, done = codes, None
         if self._stream is not None:
             source = self._aside_copy(name, codes, count * int(np.prod(shape)))
-        with wp.ScopedStream(self._stream) if self._stream is not None else _nothing():
+        on_stream = (contextlib.nullcontext() if self._stream is None
+                     else wp.ScopedStream(self._stream))
+        with on_stream:
             words, streams = self._deflate.deflate(source, count, *shape)
             for host, device in zip(into, (words, streams), strict=True):
                 view = wp.array(ptr=host.ctypes.data, dtype=device.dtype, shape=device.shape,
@@ -302,8 +304,3 @@ class PendingStream:
 
             wp.synchronize_event(self.done)
         return iter(stream_parts(self.words, self.sizes))
-
-
-@contextlib.contextmanager
-def _nothing():
-    yield

@@ -467,6 +467,25 @@ def test_overlapping_windows_made_from_frames_kept_on_the_device_give_the_bytes_
     assert kept and kept[0].uploads <= frames
 
 
+def one_thread_then_device_pngs(tmp_path, bad_sequences, monkeypatch, seed: int,
+                                extra: tuple = ()) -> tuple:
+    """``(folder, scene, run)``: the reference set ``one`` made by one thread on Warp's CPU
+    device, then the next runs forced to batch their samples (slots of 3) and deflate their
+    PNGs on the device, as on a Warp GPU."""
+    from gpu_blur.backends import get_backend
+    from gpu_blur.png_device import DevicePngs
+
+    folder, scene = bad_sequences
+    add_long_sequence(folder, seed=seed)
+    run = ("--backend", "warp:cpu", "--samples-per-sequence", "8", *extra)
+    assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
+    backend = get_backend("warp:cpu", "float32")
+    monkeypatch.setattr(DevicePngs, "for_backend", staticmethod(lambda backend, scene: True))
+    monkeypatch.setattr(gpu_blur.generate, "pinned_staging",
+                        lambda job: gpu_blur.staging.PinnedStaging(backend, 2, 3))
+    return folder, scene, run
+
+
 @pytest.mark.skipif(not WARP_CPU, reason="Warp's CPU device is not among the suite's backends")
 @pytest.mark.parametrize("extra", [(), ("--save", "mask", "--format", "webdataset")])
 def test_pngs_deflated_on_the_device_give_the_bytes_the_host_writes(tmp_path, bad_sequences,
@@ -476,17 +495,9 @@ def test_pngs_deflated_on_the_device_give_the_bytes_the_host_writes(tmp_path, ba
     whose files the host encoded, bad samples too; with masks (16-bit: the host's) and in
     WebDataset shards as well."""
     import gpu_blur.file_writing
-    from gpu_blur.backends import get_backend
-    from gpu_blur.png_device import DevicePngs
 
-    folder, scene = bad_sequences
-    add_long_sequence(folder, seed=5)
-    run = ("--backend", "warp:cpu", "--samples-per-sequence", "8", *extra)
-    assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
-    backend = get_backend("warp:cpu", "float32")
-    monkeypatch.setattr(DevicePngs, "for_backend", staticmethod(lambda backend, scene: True))
-    monkeypatch.setattr(gpu_blur.generate, "pinned_staging",
-                        lambda job: gpu_blur.staging.PinnedStaging(backend, 2, 3))
+    folder, scene, run = one_thread_then_device_pngs(tmp_path, bad_sequences, monkeypatch, 5,
+                                                     extra)
     from_streams = []
     png_file = gpu_blur.file_writing.png_file
     monkeypatch.setattr(gpu_blur.file_writing, "png_file",
@@ -502,17 +513,9 @@ def test_pngs_deflated_on_the_device_give_the_bytes_the_host_writes(tmp_path, ba
 @pytest.mark.skipif(not WARP_CPU, reason="Warp's CPU device is not among the suite's backends")
 def test_a_device_deflate_that_fails_leaves_the_files_to_the_host_and_says_so(
         tmp_path, bad_sequences, monkeypatch, capsys):
-    from gpu_blur.backends import get_backend
-    from gpu_blur.png_device import DeviceDeflate, DevicePngs
+    from gpu_blur.png_device import DeviceDeflate
 
-    folder, scene = bad_sequences
-    add_long_sequence(folder, seed=6)
-    run = ("--backend", "warp:cpu", "--samples-per-sequence", "8")
-    assert main(args(folder, scene, tmp_path / "one", *run, "--io-threads", "1")) == 1
-    backend = get_backend("warp:cpu", "float32")
-    monkeypatch.setattr(DevicePngs, "for_backend", staticmethod(lambda backend, scene: True))
-    monkeypatch.setattr(gpu_blur.generate, "pinned_staging",
-                        lambda job: gpu_blur.staging.PinnedStaging(backend, 2, 3))
+    folder, scene, run = one_thread_then_device_pngs(tmp_path, bad_sequences, monkeypatch, 6)
     calls = []
 
     def failing(self, *args):  # the second batch's kernels do not build, say
